@@ -1,0 +1,191 @@
+"""Every constant of d2slam, in one typed config.
+
+One frozen dataclass per stage; ``Config`` composes them. Paper constants carry their equation number
+(see ``../shared/DESIGN.md`` section 1 for our reading of each). Change a value with
+``dataclasses.replace`` or ``Config.from_dict``; ``Config.hash()`` identifies a configuration in results.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+
+# --------------------------------------------------------------------------------------------------
+# Dynamics: the paper's modules (DESIGN.md section 1)
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DynamicsConfig:
+    # Normalised depth s(z) = clip((z - z_near) / (z_far - z_near), 0, 1): the Kinect range.
+    z_near: float = 0.5
+    z_far: float = 4.5
+    # eq 2: beta(z) = beta_min + (beta_max - beta_min) s(z), proportional to depth.
+    beta_min: float = 0.05
+    beta_max: float = 0.25
+    # eq 2 / fig 2: uncertainty zone where neither state reaches this probability (|d| < ln(p/(1-p)) / beta).
+    uncertainty_prob: float = 0.75
+    # eq 5: alpha(z) = alpha_max - (alpha_max - alpha_min) s(z) pixels, inversely proportional to depth.
+    alpha_min: float = 0.5
+    alpha_max: float = 0.9
+    # eq 6: sigma of the epipolar-error model, P_g = 1 - exp(-de^2 / (2 sigma^2)) (our reading).
+    sigma: float = 1.0
+    # eq 7: weight of the geometric term, in the mask's uncertainty zone / in the reliable area.
+    omega_uncertain: float = 0.5
+    omega_reliable: float = 0.1
+    # eq 7: probability when a keypoint has no observation (not matched, outside every mask area).
+    p_no_observation: float = 0.5
+    # eq 8: symmetric state-transition probability of the Bayesian filter and prior of new keypoints.
+    transition: float = 0.1
+    prior: float = 0.5
+    dynamic_threshold: float = 0.5
+    # eq 9: delta(z) = delta_a - delta_b z pixels, clipped to [delta_min, delta_max]; rho metres.
+    delta_a: float = 48.0
+    delta_b: float = 4.0
+    delta_min: float = 11.0
+    delta_max: float = 48.0
+    rho: float = 0.7
+    # eq 9 (our reading): interaction zone = within zone_factor * delta(z_n) px of mask n, |z - z_n| < zone_depth.
+    zone_factor: float = 2.0
+    zone_depth: float = 1.0
+    # eq 10: gamma(z) = gamma_max - (gamma_max - gamma_min) s(z) pixels.
+    gamma_min: float = 10.0
+    gamma_max: float = 28.0
+    # eq 4-5: fundamental matrix by RANSAC (OpenCV), seeded for determinism.
+    f_ransac_threshold_px: float = 1.0
+    f_ransac_confidence: float = 0.999
+    f_ransac_max_iters: int = 500
+    f_min_matches: int = 8
+    f_min_static_matches: int = 30
+    # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
+    fixed_alpha: float = 0.7
+    # Keypoint depth: median of valid pixels in a (2 r + 1)^2 patch.
+    depth_patch_radius: int = 1
+
+
+# --------------------------------------------------------------------------------------------------
+# SLAM engine (DESIGN.md section 2; ORB-SLAM3 RGB-D settings)
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class OrbConfig:
+    n_features: int = 1000
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    fast_threshold: int = 20
+    fast_min_threshold: int = 7
+    edge_threshold: int = 19
+    patch_size: int = 31
+    # Spatial bucketing: the image is cut in cells of about this size (pixels).
+    cell_size: int = 35
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    # Virtual stereo: u_R = u - bf / z; points closer than th_depth * b are "close" (stereo edges).
+    bf: float = 40.0
+    th_depth: float = 40.0
+    depth_factor: float = 5000.0
+    min_depth: float = 0.1
+    max_depth: float = 8.0
+    # Chi-square thresholds at 95 % (ORB-SLAM): 2 dof mono, 3 dof stereo.
+    chi2_mono: float = 5.991
+    chi2_stereo: float = 7.815
+    # Motion-only BA: rounds of optimisation with outlier classification, iterations per round.
+    pose_opt_rounds: int = 4
+    pose_opt_iterations: int = 10
+    # Matching.
+    tracking_min_matches: int = 20
+    local_map_min_inliers: int = 30
+    relocalisation_min_inliers: int = 50
+    desc_th_high: int = 100
+    desc_th_low: int = 50
+    nn_ratio: float = 0.9
+    search_radius_last_frame: float = 15.0
+    search_radius_local_map: float = 3.0
+    # Keyframe decision (ORB-SLAM3 RGB-D): tracked-point ratio, close points, max/min frames.
+    kf_tracked_ratio: float = 0.9
+    kf_min_frames: int = 0
+    kf_max_frames: int = 30
+    kf_close_tracked: int = 100
+    kf_close_untracked: int = 70
+    # Local mapping.
+    local_ba_iterations: int = 10
+    local_ba_window: int = 10
+    covisibility_min_shared: int = 15
+    mappoint_found_ratio: float = 0.25
+    keyframe_redundancy: float = 0.9
+    # Map points with a dynamic belief above this are culled (hook output, eq 8).
+    mappoint_belief_threshold: float = 0.5
+    ransac_seed: int = 0
+
+
+# --------------------------------------------------------------------------------------------------
+# Segmentation (YOLOv8n-seg person masks through onnxruntime)
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SegmentationConfig:
+    score_threshold: float = 0.25
+    nms_iou: float = 0.7
+    mask_threshold: float = 0.5
+    dilation_px: int = 0
+    intra_op_threads: int = 2
+    max_persons: int = 20
+
+
+# --------------------------------------------------------------------------------------------------
+# Synthetic benchmark (DESIGN.md section 3)
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SynthConfig:
+    width: int = 640
+    height: int = 480
+    fps: float = 30.0
+    gt_rate: float = 100.0
+    # Kinect-like depth noise sigma(z) = a + b (z - c)^2 metres, quantised to 1 / depth_factor.
+    depth_noise_a: float = 0.0012
+    depth_noise_b: float = 0.0019
+    depth_noise_c: float = 0.4
+    depth_factor: float = 5000.0
+    depth_max: float = 4.5
+    # RGB timestamps vs depth timestamps: depth lags by a uniform offset in this range (seconds).
+    depth_time_offset: tuple[float, float] = (0.002, 0.012)
+
+
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Config:
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
+    orb: OrbConfig = field(default_factory=OrbConfig)
+    engine: EngineConfig = field(default_factory=EngineConfig)
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    synth: SynthConfig = field(default_factory=SynthConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "Config":
+        """Build a config from a (possibly partial) nested dict; unknown keys are an error."""
+        kwargs = {}
+        for f in dataclasses.fields(cls):
+            if f.name in data:
+                section_cls = type(getattr(cls(), f.name))
+                section = data[f.name]
+                known = {g.name for g in dataclasses.fields(section_cls)}
+                unknown = set(section) - known
+                if unknown:
+                    raise ValueError(f"unknown {f.name} config keys: {sorted(unknown)}")
+                kwargs[f.name] = section_cls(**section)
+        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown config sections: {sorted(unknown)}")
+        return cls(**kwargs)
+
+    def hash(self) -> str:
+        blob = json.dumps(self.to_dict(), sort_keys=True, default=list).encode()
+        return hashlib.sha256(blob).hexdigest()[:12]
+
+
+DEFAULT = Config()
