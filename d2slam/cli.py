@@ -12,6 +12,7 @@ from d2slam.errors import D2SlamError
 # Subcommand modules, in the order ``d2slam --help`` lists them.
 COMMANDS = [
     "bench",
+    "segment",
 ]
 
 
