@@ -221,49 +221,59 @@ class OnnxSegmenter:
         return persons
 
     def decode(self, out0: np.ndarray, out1: np.ndarray, frame_hw: tuple[int, int]) -> list[PersonInstance]:
-        """Raw model outputs -> persons at frame resolution (vectorised; see the module docstring)."""
-        cfg = self.config
-        H, W = frame_hw
-        h_in, w_in = self.input_hw
-        protos = out1[0]  # (nm, ph, pw)
-        nm = protos.shape[0]
-        pred = out0[0]  # (4 + nc + nm, N)
-        nc = pred.shape[0] - 4 - nm
-        if nc < 1:
-            raise D2SlamError(f"unexpected model output shapes {out0.shape} / {out1.shape}", path=self.model_path)
-        cls = pred[4:4 + nc]
-        person = cls[0]
-        keep = (person > cfg.score_threshold) & (cls.argmax(axis=0) == 0)
-        if not keep.any():
-            return []
-        idx = np.flatnonzero(keep)
-        scores = person[idx].astype(np.float32)
-        cx, cy, bw, bh = pred[0:4, idx]
-        sx, sy = W / w_in, H / h_in
-        boxes = np.stack([(cx - bw / 2) * sx, (cy - bh / 2) * sy, (cx + bw / 2) * sx, (cy + bh / 2) * sy], axis=1)
-        boxes = np.clip(boxes, 0.0, [W, H, W, H]).astype(np.float32)
-        xywh = np.column_stack([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]])
-        kept = np.asarray(cv2.dnn.NMSBoxes(xywh.tolist(), scores.tolist(), float(cfg.score_threshold),
-                                           float(cfg.nms_iou)), dtype=np.int64).reshape(-1)
-        kept = kept[np.argsort(-scores[kept], kind="stable")][: cfg.max_persons]
-        if kept.size == 0:
-            return []
-        boxes, scores = boxes[kept], scores[kept]
-        coeffs = pred[4 + nc:, idx[kept]].T  # (k, nm)
-        k = len(kept)
-        prob = _sigmoid(coeffs @ protos.reshape(nm, -1)).reshape(k, *protos.shape[1:])
-        # All instances at once: channels-last, one bilinear resize to the frame.
-        up = cv2.resize(np.ascontiguousarray(prob.transpose(1, 2, 0)), (W, H), interpolation=cv2.INTER_LINEAR)
-        up = up.reshape(H, W, k)
-        ys = np.arange(H, dtype=np.float32) + 0.5
-        xs = np.arange(W, dtype=np.float32) + 0.5
-        in_y = (ys[None, :] >= boxes[:, 1:2]) & (ys[None, :] <= boxes[:, 3:4])  # (k, H)
-        in_x = (xs[None, :] >= boxes[:, 0:1]) & (xs[None, :] <= boxes[:, 2:3])  # (k, W)
-        masks = (up.transpose(2, 0, 1) > cfg.mask_threshold) & in_y[:, :, None] & in_x[:, None, :]
-        if cfg.dilation_px > 0:
-            r = int(cfg.dilation_px)
-            kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-            dil = cv2.dilate(np.ascontiguousarray(masks.transpose(1, 2, 0)).astype(np.uint8), kernel)
-            masks = dil.reshape(H, W, k).transpose(2, 0, 1).astype(bool)
-        return [PersonInstance(mask=m, score=float(s), box=tuple(float(v) for v in b))
-                for m, s, b in zip(masks, scores, boxes)]
+        """Raw model outputs -> persons at frame resolution (``decode_persons``)."""
+        return decode_persons(out0, out1, frame_hw, self.input_hw, self.config, self.model_path)
+
+
+def decode_persons(out0: np.ndarray, out1: np.ndarray, frame_hw: tuple[int, int], input_hw: tuple[int, int],
+                   config: SegmentationConfig, model_path: str | Path | None = None) -> list[PersonInstance]:
+    """YOLOv8-seg outputs -> persons at frame resolution, vectorised (steps 3-4 of the module docstring).
+
+    ``out0`` [1, 4 + nc + nm, N], ``out1`` [1, nm, ph, pw]; ``frame_hw`` the frame size, ``input_hw`` the model
+    input size (boxes are scaled per axis by frame / input). Returns instances by decreasing score.
+    """
+    cfg = config
+    H, W = frame_hw
+    h_in, w_in = input_hw
+    protos = out1[0]  # (nm, ph, pw)
+    nm = protos.shape[0]
+    pred = out0[0]  # (4 + nc + nm, N)
+    nc = pred.shape[0] - 4 - nm
+    if nc < 1:
+        raise D2SlamError(f"unexpected model output shapes {out0.shape} / {out1.shape}", path=model_path)
+    cls = pred[4:4 + nc]
+    person = cls[0]
+    keep = (person > cfg.score_threshold) & (cls.argmax(axis=0) == 0)
+    if not keep.any():
+        return []
+    idx = np.flatnonzero(keep)
+    scores = person[idx].astype(np.float32)
+    cx, cy, bw, bh = pred[0:4, idx]
+    sx, sy = W / w_in, H / h_in
+    boxes = np.stack([(cx - bw / 2) * sx, (cy - bh / 2) * sy, (cx + bw / 2) * sx, (cy + bh / 2) * sy], axis=1)
+    boxes = np.clip(boxes, 0.0, [W, H, W, H]).astype(np.float32)
+    xywh = np.column_stack([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]])
+    kept = np.asarray(cv2.dnn.NMSBoxes(xywh.tolist(), scores.tolist(), float(cfg.score_threshold),
+                                       float(cfg.nms_iou)), dtype=np.int64).reshape(-1)
+    kept = kept[np.argsort(-scores[kept], kind="stable")][: cfg.max_persons]
+    if kept.size == 0:
+        return []
+    boxes, scores = boxes[kept], scores[kept]
+    coeffs = pred[4 + nc:, idx[kept]].T  # (k, nm)
+    k = len(kept)
+    prob = _sigmoid(coeffs @ protos.reshape(nm, -1)).reshape(k, *protos.shape[1:])
+    # All instances at once: channels-last, one bilinear resize to the frame.
+    up = cv2.resize(np.ascontiguousarray(prob.transpose(1, 2, 0)), (W, H), interpolation=cv2.INTER_LINEAR)
+    up = up.reshape(H, W, k)
+    ys = np.arange(H, dtype=np.float32) + 0.5
+    xs = np.arange(W, dtype=np.float32) + 0.5
+    in_y = (ys[None, :] >= boxes[:, 1:2]) & (ys[None, :] <= boxes[:, 3:4])  # (k, H)
+    in_x = (xs[None, :] >= boxes[:, 0:1]) & (xs[None, :] <= boxes[:, 2:3])  # (k, W)
+    masks = np.ascontiguousarray((up.transpose(2, 0, 1) > cfg.mask_threshold) & in_y[:, :, None] & in_x[:, None, :])
+    if cfg.dilation_px > 0:
+        r = int(cfg.dilation_px)
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        dil = cv2.dilate(np.ascontiguousarray(masks.transpose(1, 2, 0)).astype(np.uint8), kernel)
+        masks = np.ascontiguousarray(dil.reshape(H, W, k).transpose(2, 0, 1).astype(bool))
+    return [PersonInstance(mask=m, score=float(s), box=tuple(float(v) for v in b))
+            for m, s, b in zip(masks, scores, boxes)]

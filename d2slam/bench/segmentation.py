@@ -1,0 +1,66 @@
+"""``d2slam bench segmentation``: frames per second of the ONNX person segmenter, per model, with the time split
+into preprocess (resize, scale, NCHW), inference (onnxruntime) and postprocess (decode, NMS, masks at frame size),
+on the five real TUM frames of the shared folder repeated. Targets: >= 20 fps at 256x320, >= 15 fps at 384x512."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+DESCRIPTION = ("segmenter speed per model (fps; ms split preprocess / inference / postprocess) on the five real "
+               "TUM frames repeated")
+TARGET_FPS = {"yolov8n-seg_deq_256x320.onnx": 20.0, "yolov8n-seg_deq_384x512.onnx": 15.0}
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--repeats", type=int, default=20, help="passes over the five frames (default 20)")
+    parser.add_argument("--warmup", type=int, default=3, help="untimed frames first (default 3)")
+    parser.add_argument("--model", action="append", metavar="PATH",
+                        help="model file (repeatable; default: the three shared models)")
+    parser.add_argument("--threads", type=int, help="onnxruntime intra-op threads (default: the config's)")
+
+
+def run(args) -> int:
+    import dataclasses
+
+    from d2slam.config import DEFAULT
+    from d2slam.errors import D2SlamError
+    from d2slam.paths import shared_dir
+    from d2slam.segmentation.onnx import KNOWN_MODELS, OnnxSegmenter, read_rgb
+
+    image_dir = shared_dir() / "images" / "tum_fr3"
+    images = sorted(image_dir.glob("*.png"))
+    if not images:
+        raise D2SlamError("no frames to benchmark on", path=image_dir)
+    frames = [read_rgb(p) for p in images]
+    models = [Path(m) for m in args.model] if args.model else [
+        shared_dir() / "models" / name for name in sorted(KNOWN_MODELS.values(), reverse=True)]
+    cfg = DEFAULT.segmentation
+    if args.threads:
+        cfg = dataclasses.replace(cfg, intra_op_threads=args.threads)
+    n = len(frames) * max(1, args.repeats)
+    print(f"{len(frames)} frames of {frames[0].shape[1]}x{frames[0].shape[0]} x {max(1, args.repeats)} = {n} "
+          f"timed frames per model, intra_op_threads={cfg.intra_op_threads}")
+    print(f"{'model':32s} {'input':>8s} {'fps':>6s} {'total ms':>9s} {'pre':>6s} {'infer':>6s} {'post':>6s}  "
+          f"{'persons':>7s}  target")
+    for path in models:
+        seg = OnnxSegmenter(path, cfg)
+        for i in range(args.warmup):
+            seg.segment(frames[i % len(frames)])
+        split = np.zeros((n, 3))
+        persons = 0
+        t0 = time.perf_counter()
+        for i in range(n):
+            persons += len(seg.segment(frames[i % len(frames)]))
+            split[i] = seg.timings
+        total = time.perf_counter() - t0
+        fps = n / total
+        ms = split.mean(axis=0) * 1000
+        target = TARGET_FPS.get(path.name)
+        verdict = "-" if target is None else f">= {target:.0f} fps: {'met' if fps >= target else 'NOT met'}"
+        h, w = seg.input_hw
+        print(f"{path.name:32s} {f'{h}x{w}':>8s} {fps:6.1f} {1000 * total / n:9.1f} {ms[0]:6.1f} {ms[1]:6.1f} "
+              f"{ms[2]:6.1f}  {persons / max(1, args.repeats):7.0f}  {verdict}")
+    return 0
