@@ -13,6 +13,7 @@ from d2slam.errors import D2SlamError
 COMMANDS = [
     "bench",
     "segment",
+    "vocab",
 ]
 
 

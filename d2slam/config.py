@@ -154,6 +154,32 @@ class SynthConfig:
 
 
 # --------------------------------------------------------------------------------------------------
+# Baselines: the real ORB-SLAM3 (pyorbslam3) and the DBoW2 vocabulary the project builds for it
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BaselineConfig:
+    # DBoW2 tree: branching k, depth L (the official ORBvoc.txt: 10, 6), ORB-SLAM3's FeatureVector level
+    # (levelsup = 4 levels above the leaves), k-majority iterations per level, training seed.
+    vocab_k: int = 10
+    vocab_levels: int = 6
+    vocab_levelsup: int = 4
+    vocab_max_iter: int = 10
+    vocab_seed: int = 0
+    # Synthetic training sequences (seeds 900-999 are reserved for the vocabulary): seeds, scenarios, frames per
+    # sequence, every n-th frame used.
+    vocab_train_seeds: tuple[int, ...] = (900, 901)
+    vocab_train_scenarios: tuple[str, ...] = ("walking_xyz", "walking_halfsphere", "walking_rpy", "sitting_static")
+    vocab_train_frames: int = 60
+    vocab_train_stride: int = 6
+    # ORB-SLAM3 run: camera fps written in the settings, repeats of the study (threads are not deterministic),
+    # subprocess time limits (vocabulary load + per frame).
+    orbslam3_fps: float = 30.0
+    orbslam3_repeats: int = 5
+    orbslam3_load_timeout_s: float = 180.0
+    orbslam3_frame_timeout_s: float = 2.0
+
+
+# --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Config:
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
@@ -161,6 +187,7 @@ class Config:
     engine: EngineConfig = field(default_factory=EngineConfig)
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
+    baseline: BaselineConfig = field(default_factory=BaselineConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -1,0 +1,552 @@
+"""A DBoW2 vocabulary for ORB-SLAM3, built by the project (the official ``ORBvoc.txt`` is not reachable here).
+
+Training is DBoW2's hierarchical k-majority on ORB descriptors: a tree of branching factor ``k`` and depth ``L``;
+each node's descriptors are split into ``k`` clusters (k-means++ seeding, Hamming distance, bitwise-majority
+centres, as DBoW2's ``FORB::meanValue``); the leaves are the words, weighted by ``idf = ln(N / n_word)`` (N training
+images, ``n_word`` images having a descriptor that falls in the word, DBoW2 ``setNodeWeights`` with TF-IDF).
+
+The tree is built one level at a time for *all* nodes of the level together (segment sums over sorted cluster
+keys), so there is no Python loop over descriptors or over nodes: the loops run over the L levels, the k seeding
+steps and the k-majority iterations only.
+
+Text format read by ORB-SLAM3's ``TemplatedVocabulary::loadFromTextFile``::
+
+    k L scoring weighting                     # ORB-SLAM: "10 6 0 0" (L1-norm scoring, TF-IDF)
+    parentId isLeaf b0 b1 ... b31 weight      # one line per non-root node, breadth-first; node id = line number
+    ...                                       # no trailing newline (the loader would add an empty node)
+
+ORB-SLAM3 stores each feature's node ``levelsup = 4`` levels above the leaves (``FeatureVector``); a leaf shallower
+than ``L - levelsup`` would leave that node id unset in DBoW2's ``transform``, so such clusters are extended by a
+single-child chain down to that depth (DBoW2 itself can produce them; we never do).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from d2slam.config import DEFAULT, BaselineConfig, OrbConfig
+from d2slam.errors import D2SlamError
+
+DESCRIPTOR_BYTES = 32
+FORMAT = "d2slam-dbow2-vocab/1"
+_BIG = np.uint16(60000)
+
+
+# --------------------------------------------------------------------------------------------------
+# Hamming distances (numpy popcount on 64-bit words)
+# --------------------------------------------------------------------------------------------------
+def _as_words(desc: np.ndarray) -> np.ndarray:
+    """(..., 32) uint8 -> (..., 4) uint64 view (contiguous copy if needed)."""
+    desc = np.ascontiguousarray(desc, dtype=np.uint8)
+    return desc.view(np.uint64)
+
+
+def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamming distance between broadcastable arrays of 32-byte ORB descriptors (..., 32) -> (...) uint16."""
+    x = np.bitwise_xor(_as_words(a), _as_words(b))
+    return np.bitwise_count(x).sum(axis=-1, dtype=np.uint16)
+
+
+def _majority(desc: np.ndarray, keys: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bitwise majority of the descriptors sharing each key (DBoW2 ``FORB::meanValue``: a bit is set when at least
+    ceil(n / 2) members have it). Returns (n_keys, 32) uint8 centres and (n_keys,) member counts (0 = empty)."""
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    counts = np.bincount(sorted_keys, minlength=n_keys)
+    present = np.flatnonzero(counts)
+    starts = np.searchsorted(sorted_keys, present)
+    bits = np.unpackbits(desc[order], axis=1).astype(np.uint32)
+    sums = np.add.reduceat(bits, starts, axis=0)  # (n_present, 256)
+    need = counts[present] // 2 + counts[present] % 2
+    centres = np.zeros((n_keys, DESCRIPTOR_BYTES), np.uint8)
+    centres[present] = np.packbits((sums >= need[:, None]).astype(np.uint8), axis=1)
+    return centres, counts
+
+
+def _segment_sample(weights: np.ndarray, starts: np.ndarray, sizes: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """For each contiguous segment, draw one index with probability proportional to ``weights`` (uniform draw
+    ``u`` in [0, 1) per segment); a segment whose weights are all zero gets its first index."""
+    cs = np.cumsum(weights)
+    before = np.where(starts > 0, cs[np.maximum(starts - 1, 0)], 0.0)
+    total = cs[starts + sizes - 1] - before
+    target = before + u * total
+    idx = np.searchsorted(cs, target, side="right")
+    idx = np.clip(idx, starts, starts + sizes - 1)
+    return np.where(total > 0, idx, starts)
+
+
+def _kmajority(desc: np.ndarray, starts: np.ndarray, sizes: np.ndarray, k: int, rng: np.random.Generator,
+               max_iter: int) -> np.ndarray:
+    """k-majority clustering of every contiguous segment of ``desc`` at once (k-means++ seeding, Hamming, majority
+    centres). Returns per-descriptor labels in [0, k)."""
+    n, g = len(desc), len(starts)
+    seg = np.repeat(np.arange(g), sizes)
+    centres = np.zeros((g, k, DESCRIPTOR_BYTES), np.uint8)
+    # k-means++ seeding: first centre uniform, then proportional to D(x)^2 to the nearest chosen centre.
+    first = starts + np.minimum((rng.random(g) * sizes).astype(np.int64), sizes - 1)
+    centres[:, 0] = desc[first]
+    mind = hamming(desc, centres[seg, 0]).astype(np.float64)
+    for j in range(1, k):
+        pick = _segment_sample(mind**2, starts, sizes, rng.random(g))
+        centres[:, j] = desc[pick]
+        mind = np.minimum(mind, hamming(desc, centres[seg, j]))
+    labels = np.full(n, -1, np.int64)
+    for _ in range(max_iter):
+        dist = hamming(desc[:, None, :], centres[seg])  # (n, k)
+        new = np.argmin(dist, axis=1)
+        if np.array_equal(new, labels):
+            break
+        labels = new
+        upd, counts = _majority(desc, seg * k + labels, g * k)
+        keep = counts.reshape(g, k) > 0  # an emptied cluster keeps its previous centre
+        centres = np.where(keep[..., None], upd.reshape(g, k, DESCRIPTOR_BYTES), centres)
+    return labels
+
+
+# --------------------------------------------------------------------------------------------------
+# The tree
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class Vocabulary:
+    """A DBoW2 vocabulary tree. Node 0 is the root; nodes are in breadth-first order."""
+
+    k: int
+    L: int
+    parent: np.ndarray  # (n_nodes,) int64, -1 for the root
+    descriptors: np.ndarray  # (n_nodes, 32) uint8 (root: zeros)
+    is_leaf: np.ndarray  # (n_nodes,) bool
+    weight: np.ndarray  # (n_nodes,) float64, idf on leaves, 0 elsewhere
+    scoring: int = 0  # L1 norm
+    weighting: int = 0  # TF-IDF
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.parent)
+
+    @property
+    def n_words(self) -> int:
+        return int(self.is_leaf.sum())
+
+    def depth(self) -> np.ndarray:
+        d = np.zeros(self.n_nodes, np.int64)
+        for i in range(1, self.L + 1):  # parents precede children (BFS): L passes settle every depth
+            d[1:] = d[self.parent[1:]] + 1
+        return d
+
+    def children_table(self) -> np.ndarray:
+        """(n_nodes, k) child ids in file order, -1 padded."""
+        table = np.full((self.n_nodes, self.k), -1, np.int64)
+        child = np.arange(1, self.n_nodes)
+        par = self.parent[1:]
+        # rank of each child among its siblings (children of a node are contiguous in BFS order)
+        first = np.searchsorted(par, par, side="left")
+        table[par, child - 1 - first] = child
+        return table
+
+    def transform(self, desc: np.ndarray) -> np.ndarray:
+        """Leaf node id of each descriptor by DBoW2's descent (nearest child at each level, first on ties)."""
+        table = self.children_table()
+        cur = np.zeros(len(desc), np.int64)
+        for _ in range(self.L + 1):
+            active = ~self.is_leaf[cur]
+            if not active.any():
+                break
+            ch = table[cur[active]]
+            d = hamming(desc[active][:, None, :], self.descriptors[np.maximum(ch, 0)])
+            d = np.where(ch >= 0, d, _BIG)
+            cur[active] = ch[np.arange(len(ch)), np.argmin(d, axis=1)]
+        return cur
+
+    # -- text file --------------------------------------------------------------------------------
+    def to_text(self) -> bytes:
+        header = f"{self.k} {self.L} {self.scoring} {self.weighting}"
+        rows = np.column_stack([self.parent[1:], self.is_leaf[1:].astype(np.int64),
+                                self.descriptors[1:].astype(np.int64)])
+        buf = io.StringIO()
+        buf.write(header + "\n")
+        fmt = " ".join(["%d"] * rows.shape[1])
+        body = io.StringIO()
+        np.savetxt(body, rows, fmt=fmt)
+        lines = body.getvalue().split("\n")[:-1]
+        weights = [f"{w:.6g}" for w in self.weight[1:].tolist()]
+        buf.write("\n".join(f"{a} {b}" for a, b in zip(lines, weights)))  # no trailing newline
+        return buf.getvalue().encode()
+
+    def save(self, path: str | Path) -> str:
+        """Write the text file (atomically) and return its sha256."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data = self.to_text()
+        tmp = path.with_name(path.name + ".part")
+        tmp.write_bytes(data)
+        tmp.replace(path)
+        return hashlib.sha256(data).hexdigest()
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Vocabulary":
+        """Read a DBoW2 text vocabulary with the checks ORB-SLAM3's loader skips (it crashes or exits instead)."""
+        path = Path(path)
+        if not path.is_file():
+            raise D2SlamError("vocabulary file not found", path=path)
+        try:
+            text = path.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise D2SlamError(f"cannot read vocabulary as text ({exc})", path=path) from None
+        nl = text.find("\n")
+        header, body = (text, "") if nl < 0 else (text[:nl], text[nl + 1:])
+        try:
+            k, L, scoring, weighting = (int(v) for v in header.split())
+        except ValueError:
+            raise D2SlamError("vocabulary header must be 'k L scoring weighting' (e.g. '10 6 0 0')",
+                              path=path, line=1) from None
+        if not (2 <= k <= 20 and 1 <= L <= 10 and 0 <= scoring <= 5 and 0 <= weighting <= 3):
+            raise D2SlamError(f"vocabulary header out of ORB-SLAM3's range: {header!r}", path=path, line=1)
+        n_lines = body.count("\n") + 1 if body else 0
+        if text.endswith("\n"):
+            raise D2SlamError("vocabulary ends with a newline (ORB-SLAM3 would read an extra empty node)",
+                              path=path, line=n_lines + 1)
+        if n_lines == 0:
+            raise D2SlamError("vocabulary has no nodes", path=path, line=1)
+        n_fields = 3 + DESCRIPTOR_BYTES
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a bad token ends the parse early: caught by the count below
+            values = np.fromstring(body, dtype=np.float64, sep=" ")
+        if values.size != n_lines * n_fields or not np.isfinite(values).all():
+            for i, row in enumerate(body.split("\n")):
+                toks = row.split()
+                try:
+                    ok = len(toks) == n_fields and all(np.isfinite(float(t)) for t in toks)
+                except ValueError:
+                    ok = False
+                if not ok:
+                    raise D2SlamError(f"vocabulary node line must be {n_fields} numbers "
+                                      "(parentId isLeaf b0..b31 weight)", path=path, line=i + 2)
+            raise D2SlamError("vocabulary node lines are malformed", path=path, line=2)  # pragma: no cover
+        rows = values.reshape(n_lines, n_fields)
+        bytes_ = rows[:, 2:-1]
+        bad_byte = np.flatnonzero(((bytes_ < 0) | (bytes_ > 255) | (bytes_ != np.round(bytes_))).any(axis=1))
+        if len(bad_byte):
+            raise D2SlamError("descriptor values must be integers 0-255", path=path, line=int(bad_byte[0]) + 2)
+        parent = np.concatenate([[-1], rows[:, 0].astype(np.int64)])
+        ids = np.arange(1, len(parent))
+        bad = np.flatnonzero((parent[1:] < 0) | (parent[1:] >= ids))
+        if len(bad):
+            raise D2SlamError(f"node {bad[0] + 1} has parent {parent[bad[0] + 1]} not defined before it",
+                              path=path, line=int(bad[0]) + 2)
+        desc = np.concatenate([np.zeros((1, DESCRIPTOR_BYTES)), rows[:, 2:-1]]).astype(np.uint8)
+        is_leaf = np.concatenate([[False], rows[:, 1] > 0])
+        weight = np.concatenate([[0.0], rows[:, -1]])
+        has_child = np.zeros(len(parent), bool)
+        has_child[parent[1:]] = True
+        inconsistent = np.flatnonzero(is_leaf == has_child)
+        if len(inconsistent):
+            i = int(inconsistent[0])
+            raise D2SlamError(f"node {i} is {'a leaf with children' if is_leaf[i] else 'an inner node without children'}",
+                              path=path, line=i + 1 if i else 1)
+        return cls(k=k, L=L, parent=parent, descriptors=desc, is_leaf=is_leaf, weight=weight, scoring=scoring,
+                   weighting=weighting)
+
+
+def build_tree(desc: np.ndarray, image_ids: np.ndarray, k: int = 10, L: int = 6, levelsup: int = 4,
+               seed: int = 0, max_iter: int = 10) -> Vocabulary:
+    """Hierarchical k-majority (DBoW2 ``create``) over ORB descriptors ``desc`` (n, 32) uint8 taken from the
+    training images ``image_ids`` (n,), then idf leaf weights ``ln(N / n_word)``."""
+    desc = np.ascontiguousarray(desc, dtype=np.uint8)
+    if desc.ndim != 2 or desc.shape[1] != DESCRIPTOR_BYTES or len(desc) < k:
+        raise D2SlamError(f"need at least k={k} ORB descriptors of 32 bytes to train a vocabulary, got {desc.shape}")
+    rng = np.random.default_rng(seed)
+    min_leaf_depth = max(1, L - levelsup)
+    parent = [np.array([-1])]
+    descs = [np.zeros((1, DESCRIPTOR_BYTES), np.uint8)]
+    node_of = np.zeros(len(desc), np.int64)  # current node of each descriptor (-1: it reached a leaf)
+    n_nodes = 1
+    for depth in range(L):
+        alive = np.flatnonzero(node_of >= 0)
+        nodes, sizes = np.unique(node_of[alive], return_counts=True)
+        split = (sizes > 1) | (depth < min_leaf_depth)
+        node_of[alive[~split[np.searchsorted(nodes, node_of[alive])]]] = -1  # these nodes are leaves
+        nodes, sizes = nodes[split], sizes[split]
+        if not len(nodes):
+            break
+        # descriptors of the splitting nodes, contiguous per node
+        members = np.flatnonzero(node_of >= 0)
+        members = members[np.argsort(node_of[members], kind="stable")]
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        seg = np.repeat(np.arange(len(nodes)), sizes)
+        labels = np.empty(len(members), np.int64)
+        in_small = (sizes <= k)[seg]  # DBoW2: at most k descriptors -> one cluster each
+        labels[in_small] = (np.arange(len(members)) - starts[seg])[in_small]
+        big_sizes = sizes[sizes > k]
+        if len(big_sizes):
+            big_starts = np.concatenate([[0], np.cumsum(big_sizes)[:-1]])
+            labels[~in_small] = _kmajority(desc[members[~in_small]], big_starts, big_sizes, k, rng, max_iter)
+        key = seg * k + labels
+        centres, counts = _majority(desc[members], key, len(nodes) * k)
+        present = np.flatnonzero(counts)  # sorted by parent node, then label: breadth-first order
+        remap = np.full(len(nodes) * k, -1, np.int64)
+        remap[present] = n_nodes + np.arange(len(present))
+        parent.append(nodes[present // k])
+        descs.append(centres[present])
+        node_of[members] = remap[key]
+        n_nodes += len(present)
+    parent = np.concatenate(parent)
+    descriptors = np.concatenate(descs)
+    has_child = np.zeros(n_nodes, bool)
+    has_child[parent[1:]] = True
+    vocab = Vocabulary(k=k, L=L, parent=parent, descriptors=descriptors, is_leaf=~has_child,
+                       weight=np.zeros(n_nodes))
+    vocab.is_leaf[0] = False
+    # idf: N training images, n_word = images with at least one descriptor falling in the word (DBoW2 descent)
+    leaf = vocab.transform(desc)
+    n_images = int(len(np.unique(image_ids)))
+    pairs = np.unique(np.stack([leaf, np.asarray(image_ids, np.int64)], axis=1), axis=0)
+    n_word = np.bincount(pairs[:, 0], minlength=n_nodes)
+    # a word no training descriptor reaches by descent (possible with k-majority) counts as seen once (rarest)
+    idf = np.log(n_images / np.maximum(n_word, 1))
+    vocab.weight = np.where(vocab.is_leaf, idf, 0.0)
+    return vocab
+
+
+# --------------------------------------------------------------------------------------------------
+# Training data: ORB descriptors of real frames and of synthetic sequences (seeds 900-999)
+# --------------------------------------------------------------------------------------------------
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm")
+
+
+def orb_extractor(orb: OrbConfig = DEFAULT.orb):
+    """OpenCV ORB with ORB-SLAM3's settings (features, scale factor, levels, FAST threshold, patch)."""
+    import cv2
+
+    return cv2.ORB_create(nfeatures=orb.n_features, scaleFactor=orb.scale_factor, nlevels=orb.n_levels,
+                          edgeThreshold=orb.edge_threshold, patchSize=orb.patch_size,
+                          fastThreshold=orb.fast_threshold)
+
+
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _read_gray(path: Path) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise D2SlamError("cannot read image (missing, corrupt or not an image)", path=path)
+    return img
+
+
+def images_of_dir(directory: str | Path) -> list[Path]:
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise D2SlamError("image folder not found", path=directory)
+    files = sorted(p for p in directory.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise D2SlamError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in folder", path=directory)
+    return files
+
+
+def images_of_sequence(root: str | Path, stride: int = 1) -> list[Path]:
+    """RGB files of a TUM-layout sequence (every ``stride``-th associated frame)."""
+    from d2slam.data import open_sequence
+
+    seq = open_sequence(root)
+    idx = np.arange(0, len(seq), max(1, stride))
+    paths = [seq.rgb_files[i] if hasattr(seq, "rgb_files") else seq[i].rgb_path for i in idx]
+    return [Path(p) for p in paths]
+
+
+def extract_descriptors(images: list[Path], orb: OrbConfig = DEFAULT.orb, progress: bool = True):
+    """ORB descriptors of every image: ((n, 32) uint8, (n,) image index)."""
+    from tqdm import tqdm
+
+    extractor = orb_extractor(orb)
+    descs, ids = [], []
+    for i, path in enumerate(tqdm(images, desc="ORB descriptors", unit="img", disable=None if progress else True)):
+        _, d = extractor.detectAndCompute(_read_gray(path), None)
+        if d is not None and len(d):
+            descs.append(d)
+            ids.append(np.full(len(d), i, np.int64))
+    if not descs:
+        raise D2SlamError("no ORB features in any training image")
+    return np.concatenate(descs), np.concatenate(ids)
+
+
+def training_sequences(cfg: BaselineConfig = DEFAULT.baseline, frames: int | None = None,
+                       seeds: tuple[int, ...] | None = None, scenarios: tuple[str, ...] | None = None) -> list[Path]:
+    """Synthetic training sequences (seeds 900-999, never used by the benchmarks), generated once into the cache
+    with ``d2slam synth``."""
+    from d2slam.cli import COMMANDS, main
+
+    if "synth" not in COMMANDS:
+        raise D2SlamError("the synthetic generator (d2slam synth) is not available; pass --images-dir/--sequences")
+    frames = frames or cfg.vocab_train_frames
+    seeds = tuple(seeds or cfg.vocab_train_seeds)
+    bad = [s for s in seeds if not 900 <= s <= 999]
+    if bad:
+        raise D2SlamError(f"vocabulary training seeds must be in 900-999 (benchmarks use the others), got {bad}")
+    out = []
+    for scenario in scenarios or cfg.vocab_train_scenarios:
+        for seed in seeds:
+            root = cache_training_root() / f"{scenario}_s{seed}_n{frames}"
+            if not (root / "rgb.txt").is_file():
+                code = main(["synth", scenario, "--out", str(root), "--frames", str(frames), "--seed", str(seed)])
+                if code:
+                    raise D2SlamError(f"d2slam synth {scenario} --seed {seed} failed (exit {code})", path=root)
+            out.append(root)
+    return out
+
+
+def cache_training_root() -> Path:
+    from d2slam.paths import cache_dir
+
+    return cache_dir("vocab", "train")
+
+
+def default_vocab_path() -> Path:
+    from d2slam.paths import cache_dir
+
+    return cache_dir("vocab") / "d2slam_orbvoc.txt"
+
+
+def manifest_path(vocab_path: str | Path) -> Path:
+    vocab_path = Path(vocab_path)
+    return vocab_path.with_name(vocab_path.name + ".json")
+
+
+def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path] = (),
+                     sequences: list[str | Path] = (), synthetic: bool = True, real: bool = True,
+                     cfg: BaselineConfig = DEFAULT.baseline, orb: OrbConfig = DEFAULT.orb, force: bool = False,
+                     progress: bool = True) -> dict:
+    """Build (or reuse from the cache) a DBoW2 text vocabulary; returns its manifest.
+
+    Sources: the real TUM fr3 frames of the shared folder (``real``), every image of ``images_dirs``, every
+    ``vocab_train_stride``-th frame of ``sequences`` and of the synthetic training sequences (``synthetic``,
+    seeds 900-999). The manifest (``VOCAB.txt.json``) records sources with their sha256, seeds, parameters, sizes,
+    the vocabulary's sha256 and the build time; an identical request reuses the cached file."""
+    from d2slam import __version__
+    from d2slam.paths import shared_dir
+
+    out = Path(out) if out else default_vocab_path()
+    groups: list[tuple[str, Path, list[Path]]] = []
+    if real:
+        real_dir = shared_dir() / "images" / "tum_fr3"
+        groups.append(("real", real_dir, images_of_dir(real_dir)))
+    for d in images_dirs:
+        groups.append(("images", Path(d), images_of_dir(d)))
+    for s in sequences:
+        groups.append(("sequence", Path(s), images_of_sequence(s, cfg.vocab_train_stride)))
+    seeds: list[int] = []
+    if synthetic:
+        for s in training_sequences(cfg):
+            groups.append(("synthetic", s, images_of_sequence(s, cfg.vocab_train_stride)))
+        seeds = list(cfg.vocab_train_seeds)
+    if not groups:
+        raise D2SlamError("no training images: give --images-dir or --sequences, or allow the default sources")
+    sources = []
+    for kind, root, files in groups:
+        h = hashlib.sha256()
+        for f in files:
+            h.update(f"{f.name} {_sha256_file(f)}\n".encode())
+        sources.append({"kind": kind, "path": str(root), "images": len(files), "sha256": h.hexdigest()})
+    params = {"k": cfg.vocab_k, "L": cfg.vocab_levels, "levelsup": cfg.vocab_levelsup, "scoring": 0,
+              "weighting": 0, "seed": cfg.vocab_seed, "max_iter": cfg.vocab_max_iter,
+              "orb": {"n_features": orb.n_features, "scale_factor": orb.scale_factor, "n_levels": orb.n_levels,
+                      "fast_threshold": orb.fast_threshold, "edge_threshold": orb.edge_threshold,
+                      "patch_size": orb.patch_size},
+              "train_stride": cfg.vocab_train_stride, "synthetic_seeds": seeds}
+    key = hashlib.sha256(json.dumps({"params": params, "sources": [s["sha256"] for s in sources]},
+                                    sort_keys=True).encode()).hexdigest()
+    mpath = manifest_path(out)
+    if not force and out.is_file() and mpath.is_file():
+        try:
+            old = json.loads(mpath.read_text())
+        except (OSError, json.JSONDecodeError):
+            old = {}
+        if old.get("key") == key and old.get("sha256") == _sha256_file(out):
+            old["cached"] = True
+            return old
+    t0 = time.perf_counter()
+    images = [f for _, _, files in groups for f in files]
+    desc, image_ids = extract_descriptors(images, orb, progress=progress)
+    t1 = time.perf_counter()
+    vocab = build_tree(desc, image_ids, k=cfg.vocab_k, L=cfg.vocab_levels, levelsup=cfg.vocab_levelsup,
+                       seed=cfg.vocab_seed, max_iter=cfg.vocab_max_iter)
+    t2 = time.perf_counter()
+    sha = vocab.save(out)
+    t3 = time.perf_counter()
+    depth = vocab.depth()
+    manifest = {
+        "format": FORMAT, "key": key, "path": str(out), "sha256": sha, "bytes": out.stat().st_size,
+        "kind": "built", "params": params, "sources": sources, "n_images": len(images),
+        "n_descriptors": int(len(desc)), "n_nodes": int(vocab.n_nodes), "n_words": int(vocab.n_words),
+        "leaf_depths": {str(d): int(c) for d, c in enumerate(np.bincount(depth[vocab.is_leaf])) if c},
+        "stopped_words": int((vocab.weight[vocab.is_leaf] <= 0).sum()),
+        "seconds": {"descriptors": round(t1 - t0, 3), "tree": round(t2 - t1, 3), "write": round(t3 - t2, 3),
+                    "total": round(t3 - t0, 3)},
+        "d2slam_version": __version__, "cached": False,
+    }
+    tmp = mpath.with_name(mpath.name + ".part")
+    tmp.write_text(json.dumps(manifest, indent=2))
+    tmp.replace(mpath)
+    return manifest
+
+
+# --------------------------------------------------------------------------------------------------
+# Which vocabulary a run uses
+# --------------------------------------------------------------------------------------------------
+def resolve_vocabulary(path: str | Path | None = None, build: bool = True, progress: bool = True) -> dict:
+    """The vocabulary a run uses: ``path`` if given, else ``$PYORBSLAM3_VOCAB`` (e.g. the official ORBvoc.txt),
+    else the project-built one in the cache (built on first use when ``build``). Never downloads.
+
+    Returns ``{"path", "sha256", "kind": "built" | "official" | "external", "source"}`` after checking the file's
+    structure (ORB-SLAM3's own loader accepts garbage and crashes later)."""
+    import os
+
+    if path is not None:
+        chosen, source = Path(path), "argument"
+    elif os.environ.get("PYORBSLAM3_VOCAB"):
+        chosen, source = Path(os.environ["PYORBSLAM3_VOCAB"]), "PYORBSLAM3_VOCAB"
+        if not chosen.is_file():
+            raise D2SlamError("PYORBSLAM3_VOCAB points at no file (unset it to use the project-built vocabulary)",
+                              path=chosen)
+    else:
+        chosen, source = default_vocab_path(), "cache"
+        if not chosen.is_file():
+            if not build:
+                raise D2SlamError("no ORB vocabulary: run `d2slam vocab build` (or set PYORBSLAM3_VOCAB)",
+                                  path=chosen)
+            build_vocabulary(chosen, progress=progress)
+    chosen = chosen.expanduser().resolve()
+    check_vocabulary_file(chosen)
+    sha = _sha256_file(chosen)
+    kind = "external"
+    mpath = manifest_path(chosen)
+    if mpath.is_file():
+        try:
+            if json.loads(mpath.read_text()).get("sha256") == sha:
+                kind = "built"
+        except (OSError, json.JSONDecodeError):
+            pass
+    if kind == "external" and (source == "PYORBSLAM3_VOCAB" or chosen.name == "ORBvoc.txt"):
+        kind = "official"
+    return {"path": str(chosen), "sha256": sha, "kind": kind, "source": source}
+
+
+def check_vocabulary_file(path: str | Path) -> None:
+    """Structural check of a DBoW2 text vocabulary (header range, 35 fields per node line, parents defined
+    before their children, leaf flags consistent with the tree, no trailing newline); raises D2SlamError naming
+    the file and line."""
+    Vocabulary.load(path)

@@ -1,0 +1,58 @@
+"""``d2slam vocab build``: the DBoW2 vocabulary ORB-SLAM3 needs, built by the project (no download)."""
+
+from __future__ import annotations
+
+import json
+
+
+def register(sub) -> None:
+    parser = sub.add_parser("vocab", help="build / check the ORB vocabulary for the real ORB-SLAM3 baseline",
+                            description="DBoW2 text vocabulary for ORB-SLAM3 (pyorbslam3). The official ORBvoc.txt "
+                            "is not reachable here; users who have it may set PYORBSLAM3_VOCAB instead.")
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    b = actions.add_parser("build", help="train a vocabulary (hierarchical k-majority on ORB descriptors)",
+                           description="Train a DBoW2 vocabulary (k=10, L=6, L1 scoring, TF-IDF) on ORB descriptors "
+                           "of the real TUM fr3 frames of the shared folder, of the synthetic training sequences "
+                           "(seeds 900-999, generated once into the cache) and of any --images-dir / --sequences. "
+                           "Deterministic; cached with a manifest (VOCAB.txt.json).")
+    b.add_argument("--images-dir", action="append", default=[], metavar="DIR", help="a folder of training images")
+    b.add_argument("--sequences", action="append", default=[], metavar="DIR", nargs="+",
+                   help="TUM-layout sequences (every n-th frame is used)")
+    b.add_argument("--no-synthetic", action="store_true", help="do not use the synthetic training sequences")
+    b.add_argument("--no-real", action="store_true", help="do not use the real fr3 frames of the shared folder")
+    b.add_argument("--out", default=None, metavar="VOCAB.txt", help="output (default: the d2slam cache)")
+    b.add_argument("--force", action="store_true", help="rebuild even if an identical build is cached")
+    b.set_defaults(func=_build)
+    c = actions.add_parser("check", help="check a vocabulary file's structure and print its figures")
+    c.add_argument("path", nargs="?", default=None, help="default: the vocabulary a run would use")
+    c.set_defaults(func=_check)
+
+
+def _build(args) -> int:
+    from d2slam.baselines.vocab import build_vocabulary
+
+    sequences = [s for group in args.sequences for s in group]
+    m = build_vocabulary(args.out, images_dirs=args.images_dir, sequences=sequences,
+                         synthetic=not args.no_synthetic, real=not args.no_real, force=args.force)
+    state = "cached (identical build)" if m.get("cached") else f"built in {m['seconds']['total']:.1f} s"
+    print(f"vocabulary: {m['path']}  {state}")
+    print(f"  {m['n_images']} images, {m['n_descriptors']} descriptors -> {m['n_nodes']} nodes, "
+          f"{m['n_words']} words, {m['bytes'] / 1e6:.1f} MB, sha256 {m['sha256'][:16]}...")
+    if not m.get("cached"):
+        print("  seconds: " + json.dumps(m["seconds"]))
+    print(f"  manifest: {m['path']}.json")
+    return 0
+
+
+def _check(args) -> int:
+    from d2slam.baselines.vocab import Vocabulary, resolve_vocabulary
+
+    info = resolve_vocabulary(args.path, build=False)
+    v = Vocabulary.load(info["path"])
+    import numpy as np
+
+    counts = np.bincount(v.depth()[v.is_leaf])
+    depths = {d: int(c) for d, c in enumerate(counts) if c}
+    print(f"{info['path']}: ok ({info['kind']}, from {info['source']}), k={v.k} L={v.L}, {v.n_nodes - 1} nodes, "
+          f"{v.n_words} words, words per depth {depths}, sha256 {info['sha256']}")
+    return 0
