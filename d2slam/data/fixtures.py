@@ -52,8 +52,9 @@ def write_tum_folder(root: str | Path, n_frames: int = 5, width: int = 64, heigh
     root = Path(root)
     (root / "rgb").mkdir(parents=True, exist_ok=True)
     (root / "depth").mkdir(parents=True, exist_ok=True)
-    rgb_ts = t0 + 0.05 + np.arange(n_frames) / fps
-    depth_ts = rgb_ts + depth_lag
+    as_written = np.vectorize(lambda t: float(f"{t:.6f}"), otypes=[np.float64])  # the values in the files
+    rgb_ts = as_written(t0 + 0.05 + np.arange(n_frames) / fps) if n_frames else np.zeros(0)
+    depth_ts = as_written(rgb_ts + depth_lag) if n_frames else np.zeros(0)
     rgb_lines = ["# color images", "# file: 'fixture'", "# timestamp filename"]
     depth_lines = ["# depth maps", "# file: 'fixture'", "# timestamp filename"]
     for i, (tr, td) in enumerate(zip(rgb_ts, depth_ts)):
