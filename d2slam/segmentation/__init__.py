@@ -48,17 +48,28 @@ def get_segmenter(kind: str, sequence=None, config: Config | SegmentationConfig 
     raise D2SlamError(f"unknown segmenter kind {kind!r}; choose one of {', '.join(KINDS)}")
 
 
-_CACHED: dict[tuple, CachedSegmenter] = {}
+_SESSIONS: dict[tuple, object] = {}  # ONNX segmenters by (config, model): one session per process
+_CACHED: dict[tuple, CachedSegmenter] = {}  # the few most recent (sequence, kind, config, model)
+_MAX_CACHED = 8
 
 
 def masks_for(sequence, index: int, kind: str = "onnx", config: Config | SegmentationConfig | None = None,
               model: str | Path | None = None) -> list[PersonInstance]:
-    """Persons of frame ``index`` of ``sequence`` through the mask cache (filled on demand). The segmenter (and
-    its ONNX session) is built once per (sequence, kind, config, model) and reused."""
+    """Persons of frame ``index`` of ``sequence``: the pipeline's entry point. ``onnx`` goes through the mask
+    cache (filled on demand; the ONNX session is built once per process and config/model); ``sim``/``gt`` read
+    the sequence's label images."""
     cfg = segmentation_config(config)
-    key = (id(sequence), kind, cfg, None if model is None else str(model))
+    model_key = None if model is None else str(model)
+    key = (id(sequence), kind, cfg, model_key)
     cached = _CACHED.get(key)
     if cached is None or cached.sequence is not sequence:
-        cached = CachedSegmenter(get_segmenter(kind, sequence, cfg, model), sequence)
-        _CACHED[key] = cached
+        if kind == "onnx":
+            seg = _SESSIONS.get((cfg, model_key))
+            if seg is None:
+                seg = _SESSIONS[(cfg, model_key)] = get_segmenter("onnx", config=cfg, model=model)
+        else:
+            seg = get_segmenter(kind, sequence, cfg)
+        if len(_CACHED) >= _MAX_CACHED:
+            _CACHED.pop(next(iter(_CACHED)))
+        cached = _CACHED[key] = CachedSegmenter(seg, sequence)
     return cached.instances(index)

@@ -1,0 +1,299 @@
+"""The mask cache (hit, miss, invalidation, corrupt files), the sim/gt label segmenters and the factory."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from d2slam.cli import main
+from d2slam.config import Config, SegmentationConfig
+from d2slam.data.base import Frame
+from d2slam.errors import D2SlamError
+from d2slam.paths import shared_dir
+from d2slam.segmentation import CachedSegmenter, get_segmenter, masks_for
+from d2slam.segmentation.base import PersonInstance
+from d2slam.segmentation.cache import RgbListSequence, load_instances, segmenter_key, sequence_key
+from d2slam.segmentation.sim import LabelSegmenter, instances_from_labels
+
+H, W = 24, 32
+
+
+@pytest.fixture(autouse=True)
+def _cache_in_tmp(tmp_path, monkeypatch):
+    monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path / "cache"))
+
+
+def _write_sequence(root: Path, n: int = 4, seed: int = 0) -> Path:
+    """A tiny TUM-like folder (rgb/ + rgb.txt) with random images, plus mask_sim/, mask_gt/, scene.json."""
+    rng = np.random.default_rng(seed)
+    for sub in ("rgb", "mask_sim", "mask_gt"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    lines = ["# timestamp filename"]
+    for i in range(n):
+        stem = f"{1305031102.175304 + i / 30:.6f}"
+        cv2.imwrite(str(root / "rgb" / f"{stem}.png"), rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
+        sim = np.zeros((H, W), np.uint8)
+        sim[2:10, 3:9] = 1
+        if i % 2 == 0:
+            sim[12:20, 20:30] = 2
+        gt = np.zeros((H, W), np.uint8)
+        gt[2:11, 3:10] = 5  # person id 5
+        gt[15:22, 18:31] = 7  # person id 7
+        gt[0:2, 25:32] = 9  # a moved object: not a person
+        cv2.imwrite(str(root / "mask_sim" / f"{stem}.png"), sim)
+        cv2.imwrite(str(root / "mask_gt" / f"{stem}.png"), gt)
+        lines.append(f"{stem} rgb/{stem}.png")
+    (root / "rgb.txt").write_text("\n".join(lines) + "\n")
+    (root / "scene.json").write_text(json.dumps({"format": "d2slam-synth/1", "person_ids": [5, 7],
+                                                 "moved_object_ids": [9]}))
+    return root
+
+
+@dataclass
+class CountingSegmenter:
+    """A stand-in for the model: one box-shaped person whose position depends on the frame; counts calls."""
+
+    model_sha256: str = "a" * 64
+    threshold: float = 0.5
+    name: str = "onnx"
+    calls: int = 0
+
+    def identity(self):
+        return {"kind": self.name, "model_sha256": self.model_sha256, "config": {"score": self.threshold}}
+
+    def __call__(self, frame):
+        self.calls += 1
+        mask = np.zeros(frame.rgb.shape[:2], bool)
+        x = frame.index % 5
+        mask[3:15, x:x + 9] = True
+        return [PersonInstance(mask=mask, score=0.75 + 0.01 * frame.index, box=(x, 3.0, x + 9.0, 15.0))]
+
+
+@pytest.fixture
+def seq(tmp_path):
+    return RgbListSequence(_write_sequence(tmp_path / "seq"))
+
+
+def test_miss_then_hit_without_reading_images(seq):
+    seg = CountingSegmenter()
+    cached = CachedSegmenter(seg, seq)
+    first = [cached.instances(i) for i in range(len(seq))]
+    assert seg.calls == 4 and cached.misses == 4 and cached.hits == 0
+    assert len(list(cached.dir.glob("*.npz"))) == 4 and (cached.dir / "meta.json").is_file()
+    again = CachedSegmenter(seg, seq)  # a new run, same key
+    for p in seq.rgb_paths:  # hits must not touch the images
+        p.unlink()
+    second = [again.instances(i) for i in range(len(seq))]
+    assert seg.calls == 4 and again.hits == 4 and again.misses == 0
+    for a, b in zip(first, second):
+        assert np.array_equal(a[0].mask, b[0].mask) and a[0].box == b[0].box
+        assert a[0].score == pytest.approx(b[0].score)
+
+
+def test_call_with_frame_uses_the_cache(seq):
+    seg = CountingSegmenter()
+    cached = CachedSegmenter(seg, seq)
+    frame = seq[1]
+    cached(frame)
+    cached(frame)
+    assert seg.calls == 1 and cached.hits == 1
+
+
+def test_model_or_config_change_invalidates(seq):
+    base = CountingSegmenter()
+    CachedSegmenter(base, seq).fill(progress=False)
+    other_model = CountingSegmenter(model_sha256="b" * 64)
+    c2 = CachedSegmenter(other_model, seq)
+    assert c2.fill(progress=False) == (0, 4) and other_model.calls == 4
+    other_cfg = CountingSegmenter(threshold=0.3)
+    c3 = CachedSegmenter(other_cfg, seq)
+    assert c3.fill(progress=False) == (0, 4)
+    assert len({CachedSegmenter(s, seq).dir for s in (base, other_model, other_cfg)}) == 3
+    same = CountingSegmenter()
+    assert CachedSegmenter(same, seq).fill(progress=False) == (4, 0) and same.calls == 0
+
+
+def test_sequence_identity(tmp_path, seq):
+    key = sequence_key(seq)
+    assert key.startswith("seq-") and key == sequence_key(RgbListSequence(seq.root))
+    other = RgbListSequence(_write_sequence(tmp_path / "seq2", n=3))
+    assert sequence_key(other) != key
+    txt = seq.root / "rgb.txt"  # an edited rgb.txt is another sequence
+    txt.write_text(txt.read_text() + "# edited\n")
+    assert sequence_key(RgbListSequence(seq.root)) != key
+
+
+def test_real_segmenter_key_has_model_hash_and_mask_config():
+    models = shared_dir() / "models"
+    a = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx")
+    b = get_segmenter("onnx", model=models / "yolov8n-seg_deq_256x320.onnx")
+    c = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx", config=SegmentationConfig(nms_iou=0.5))
+    d = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx",
+                      config=SegmentationConfig(intra_op_threads=1))
+    assert a.identity()["model_sha256"] == a.sha256
+    assert len({segmenter_key(s) for s in (a, b, c)}) == 3
+    assert segmenter_key(d) == segmenter_key(a)  # thread count does not change masks
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncate", "empty", "wrong_arrays"])
+def test_corrupt_cache_file_is_recomputed_with_a_warning(seq, damage):
+    seg = CountingSegmenter()
+    cached = CachedSegmenter(seg, seq)
+    good = cached.instances(2)
+    path = cached.path_for(seq.timestamps[2])
+    if damage == "garbage":
+        path.write_bytes(b"not an npz at all")
+    elif damage == "truncate":
+        path.write_bytes(path.read_bytes()[:40])
+    elif damage == "empty":
+        path.write_bytes(b"")
+    else:
+        np.savez_compressed(path, bits=np.zeros(3, np.uint8), shape=np.array([1, H, W]), scores=np.ones(1),
+                            boxes=np.zeros((1, 4)), timestamp=np.float64(seq.timestamps[2]))
+    fresh = CachedSegmenter(seg, seq)
+    with pytest.warns(UserWarning, match=f"{path.name}.*corrupt mask cache file"):
+        got = fresh.instances(2)
+    assert seg.calls == 2 and fresh.recovered == 1 and fresh.misses == 1
+    assert np.array_equal(got[0].mask, good[0].mask)
+    load_instances(path, seq.timestamps[2])  # rewritten and valid
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert CachedSegmenter(seg, seq).instances(2)[0].box == good[0].box
+
+
+def test_file_under_the_wrong_timestamp_is_rejected(seq):
+    cached = CachedSegmenter(CountingSegmenter(), seq)
+    cached.instances(0)
+    shutil.copyfile(cached.path_for(seq.timestamps[0]), cached.path_for(seq.timestamps[1]))
+    with pytest.warns(UserWarning, match="timestamp"):
+        cached.instances(1)
+    assert cached.recovered == 1
+
+
+def test_empty_frames_roundtrip(seq):
+    class Nobody(CountingSegmenter):
+        def __call__(self, frame):
+            self.calls += 1
+            return []
+
+    seg = Nobody()
+    c = CachedSegmenter(seg, seq)
+    assert c.instances(0) == [] and CachedSegmenter(seg, seq).instances(0) == [] and seg.calls == 1
+
+
+def test_sim_and_gt_label_segmenters(seq):
+    sim = get_segmenter("sim", seq)
+    frame0, frame1 = seq[0], seq[1]
+    p0 = sim(frame0)
+    assert len(p0) == 2 and len(sim(frame1)) == 1
+    assert p0[0].box == (3.0, 2.0, 9.0, 10.0) and p0[0].area == 48 and p0[0].score == 1.0
+    assert p0[1].box == (20.0, 12.0, 30.0, 20.0)
+    gt = get_segmenter("gt", seq)
+    g = gt(frame0)
+    assert len(g) == 2  # ids 5 and 7 are persons, 9 is an object
+    assert [x.area for x in g] == [63, 91]
+    # Through the pipeline's entry point (no cache needed for label images).
+    assert [x.area for x in masks_for(seq, 0, "sim")] == [48, 80]
+    assert len(masks_for(seq, 3, "gt", Config())) == 2
+    assert not any((Path(seq.root).parent / "cache").rglob("*.npz"))
+
+
+def test_label_instances_helper():
+    labels = np.zeros((5, 6), np.uint8)
+    labels[1:3, 1:4] = 3
+    labels[4, 5] = 1
+    inst = instances_from_labels(labels)
+    assert [p.box for p in inst] == [(5.0, 4.0, 6.0, 5.0), (1.0, 1.0, 4.0, 3.0)]
+    assert instances_from_labels(labels, ids=[2]) == []
+    assert instances_from_labels(np.zeros((5, 6), np.uint8)) == []
+
+
+def test_label_segmenter_bad_input(seq, tmp_path):
+    with pytest.raises(D2SlamError, match="mask_sim"):
+        get_segmenter("sim", RgbListSequence(_write_real_only(tmp_path / "real")))
+    with pytest.raises(D2SlamError, match="needs a synthetic sequence"):
+        get_segmenter("gt", None)
+    stem = seq.rgb_paths[1].stem
+    (seq.root / "mask_sim" / f"{stem}.png").unlink()
+    with pytest.raises(D2SlamError, match=f"{stem}.png.*not found"):
+        get_segmenter("sim", seq)(seq[1])
+    (seq.root / "mask_sim" / f"{stem}.png").write_bytes(b"junk")
+    with pytest.raises(D2SlamError, match="corrupt"):
+        get_segmenter("sim", seq)(seq[1])
+    cv2.imwrite(str(seq.root / "mask_sim" / f"{stem}.png"), np.zeros((5, 5), np.uint8))
+    with pytest.raises(D2SlamError, match="differs"):
+        get_segmenter("sim", seq)(seq[1])
+    (seq.root / "scene.json").write_text("{}")
+    with pytest.raises(D2SlamError, match="person_ids"):
+        get_segmenter("gt", seq)
+    with pytest.raises(D2SlamError, match="unknown segmenter kind"):
+        get_segmenter("yolact", seq)
+
+
+def _write_real_only(root: Path) -> Path:
+    _write_sequence(root, n=2)
+    shutil.rmtree(root / "mask_sim")
+    return root
+
+
+def test_reader_methods_are_used_when_present(seq):
+    class WithReader:
+        root, timestamps, name = seq.root, seq.timestamps, "x"
+
+        def person_masks_sim(self, i):
+            m = np.zeros((2, H, W), bool)
+            m[0, 1:3, 1:3] = True
+            return m
+
+    seg = LabelSegmenter(WithReader(), "sim")
+    got = seg.instances(0)
+    assert len(got) == 1 and got[0].area == 4  # the empty second mask is dropped
+
+
+def test_rgb_list_bad_input(tmp_path):
+    root = tmp_path / "bad"
+    root.mkdir()
+    with pytest.raises(D2SlamError, match="rgb.txt not found"):
+        RgbListSequence(root)
+    (root / "rgb.txt").write_text("# c\n1.0 rgb/a.png\nabc rgb/b.png\n")
+    with pytest.raises(D2SlamError, match=r"rgb.txt:3:"):
+        RgbListSequence(root)
+    (root / "rgb.txt").write_text("2.0 rgb/a.png\n1.0 rgb/b.png\n")
+    with pytest.raises(D2SlamError, match=r"rgb.txt:2: timestamps are not strictly increasing"):
+        RgbListSequence(root)
+    (root / "rgb.txt").write_text("# nothing\n")
+    with pytest.raises(D2SlamError, match="no images"):
+        RgbListSequence(root)
+
+
+def test_segment_command_fills_the_cache_once(tmp_path, capsys):
+    """`d2slam segment SEQUENCE_DIR` with the real model on two real frames; the second run segments nothing."""
+    root = tmp_path / "real_seq"
+    (root / "rgb").mkdir(parents=True)
+    frames = sorted((shared_dir() / "images" / "tum_fr3").glob("*.png"))[:2]
+    lines = []
+    for i, src in enumerate(frames):
+        shutil.copyfile(src, root / "rgb" / f"{100 + i}.000000.png")
+        lines.append(f"{100 + i}.000000 rgb/{100 + i}.000000.png")
+    (root / "rgb.txt").write_text("\n".join(lines) + "\n")
+    assert main(["segment", str(root), "--json"]) == 0
+    first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (first["frames"], first["segmented"], first["cached_before"]) == (2, 2, 0)
+    assert main(["segment", str(root), "--json"]) == 0
+    second = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (second["segmented"], second["cached_before"]) == (0, 2)
+    seq = RgbListSequence(root)
+    for p in seq.rgb_paths:  # from now on only the cache can answer
+        p.unlink()
+    assert [len(masks_for(seq, i, "onnx")) for i in range(2)] == [2, 1]
+    direct = get_segmenter("onnx")(cv2.cvtColor(cv2.imread(str(frames[0])), cv2.COLOR_BGR2RGB))
+    cached = masks_for(seq, 0, "onnx")
+    assert all(np.array_equal(a.mask, b.mask) for a, b in zip(direct, cached))
+    assert main(["segment", str(root), str(frames[0])]) == 2  # a folder and images mixed
