@@ -14,6 +14,7 @@ COMMANDS = [
     "bench",
     "segment",
     "vocab",
+    "download",
 ]
 
 
