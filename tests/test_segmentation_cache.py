@@ -266,7 +266,7 @@ def test_rgb_list_bad_input(tmp_path):
     with pytest.raises(D2SlamError, match=r"rgb.txt:3:"):
         RgbListSequence(root)
     (root / "rgb.txt").write_text("2.0 rgb/a.png\n1.0 rgb/b.png\n")
-    with pytest.raises(D2SlamError, match=r"rgb.txt:2: timestamps are not strictly increasing"):
+    with pytest.raises(D2SlamError, match=r"rgb.txt:2: .*strictly increasing"):
         RgbListSequence(root)
     (root / "rgb.txt").write_text("# nothing\n")
     with pytest.raises(D2SlamError, match="no images"):
@@ -297,3 +297,47 @@ def test_segment_command_fills_the_cache_once(tmp_path, capsys):
     cached = masks_for(seq, 0, "onnx")
     assert all(np.array_equal(a.mask, b.mask) for a, b in zip(direct, cached))
     assert main(["segment", str(root), str(frames[0])]) == 2  # a folder and images mixed
+
+
+def _synthetic_fixture(root: Path) -> Path:
+    """A TUM fixture folder (d2slam.data.fixtures) turned into a synthetic one: masks + scene.json."""
+    from d2slam.data.fixtures import write_tum_folder
+
+    write_tum_folder(root, n_frames=3, width=W, height=H)
+    stems = [Path(line.split()[1]).stem for line in (root / "rgb.txt").read_text().splitlines()
+             if line.strip() and not line.startswith("#")]
+    for sub in ("mask_sim", "mask_gt"):
+        (root / sub).mkdir()
+    for stem in stems:
+        gt = np.zeros((H, W), np.uint8)
+        gt[2:11, 3:10] = 5
+        gt[0:2, 25:32] = 9
+        sim = (gt == 5).astype(np.uint8)
+        cv2.imwrite(str(root / "mask_gt" / f"{stem}.png"), gt)
+        cv2.imwrite(str(root / "mask_sim" / f"{stem}.png"), sim)
+    scene = {"format": "d2slam-synth/1", "camera": {"fx": 30.0, "fy": 30.0, "cx": W / 2, "cy": H / 2, "width": W,
+                                                    "height": H, "depth_factor": 5000.0},
+             "objects": [{"id": 5, "kind": "person", "name": "p", "moved": True, "moving_intervals": []},
+                         {"id": 9, "kind": "object", "name": "box", "moved": True, "moving_intervals": []}],
+             "person_ids": [5], "moved_object_ids": [9]}
+    (root / "scene.json").write_text(json.dumps(scene))
+    return root
+
+
+def test_with_the_project_readers(tmp_path):
+    """sim/gt through SyntheticSequence.person_masks_*; a cache filled via `d2slam segment`'s reader is hit by
+    the TUM/synthetic readers (same key: folder, rgb.txt, timestamps)."""
+    from d2slam.data.synthetic import SyntheticSequence
+    from d2slam.data.tum import TumSequence
+
+    root = _synthetic_fixture(tmp_path / "synth")
+    syn = SyntheticSequence(root)
+    sim, gt = LabelSegmenter(syn, "sim"), LabelSegmenter(syn, "gt")
+    assert [p.area for p in sim.instances(1)] == [63] and [p.area for p in gt.instances(1)] == [63]
+    assert [p.box for p in gt.instances(0)] == [p.box for p in gt(syn[0])] == [(3.0, 2.0, 10.0, 11.0)]
+    seg = CountingSegmenter()
+    assert CachedSegmenter(seg, RgbListSequence(root)).fill(progress=False) == (0, 3)
+    for reader in (TumSequence(root, camera="fr3"), syn):
+        c = CachedSegmenter(seg, reader)
+        assert [len(c.instances(i)) for i in range(len(reader))] == [1, 1, 1] and c.hits == 3
+    assert seg.calls == 3

@@ -169,8 +169,8 @@ class CachedSegmenter:
 
 
 class RgbListSequence:
-    """Every RGB image listed in a TUM ``rgb.txt`` (no depth, no association): what ``d2slam segment
-    SEQUENCE_DIR`` fills the cache for. The cache key depends only on the folder, ``rgb.txt`` and the timestamps,
+    """Every RGB image listed in a TUM ``rgb.txt`` (parsed by ``d2slam.data.tum.read_file_list``; no depth, no
+    association): what ``d2slam segment SEQUENCE_DIR`` fills the cache for. The cache key depends only on the folder, ``rgb.txt`` and the timestamps,
     so masks cached through this reader are hits for the full TUM/synthetic readers too. Frames carry an empty
     (0, 0) depth."""
 
@@ -180,23 +180,12 @@ class RgbListSequence:
         path = self.root / "rgb.txt"
         if not path.is_file():
             raise D2SlamError("not a TUM sequence folder: rgb.txt not found", path=path)
-        stamps, files = [], []
-        for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            parts = line.split()
-            try:
-                if len(parts) < 2:
-                    raise ValueError
-                stamps.append(float(parts[0]))
-            except ValueError:
-                raise D2SlamError(f"expected 'timestamp filename', got {line[:80]!r}", path=path, line=lineno) from None
-            files.append(self.root / parts[1])
-            if len(stamps) > 1 and stamps[-1] <= stamps[-2]:
-                raise D2SlamError("timestamps are not strictly increasing", path=path, line=lineno)
-        if not stamps:
+        from d2slam.data.tum import read_file_list
+
+        stamps, names, _ = read_file_list(path)  # D2SlamError naming the line on bad rows / order
+        if not len(stamps):
             raise D2SlamError("rgb.txt lists no images", path=path)
+        files = [p if p.is_absolute() else self.root / p for p in map(Path, names)]
         self.timestamps = np.asarray(stamps, dtype=np.float64)
         self.rgb_paths = files
 

@@ -4,9 +4,10 @@
 * ``gt``: ``mask_gt/<stem>.png``, the ground-truth object ids, of which the ``person_ids`` of ``scene.json`` are
   persons (one instance per person id present in the frame).
 
-``<stem>`` is the RGB file's stem (its timestamp); format in CONTRIBUTING.md. When the sequence object offers
-``person_masks_sim(i)`` / ``person_masks_gt(i)`` (``d2slam.data.synthetic.SyntheticSequence``) those are used for
-``instances(i)``; ``__call__(frame)`` reads the label image of ``frame.rgb_path``'s stem under the sequence root.
+``<stem>`` is the RGB file's stem (its timestamp); format in CONTRIBUTING.md. ``instances(i)`` (what
+``masks_for`` and ``CachedSegmenter`` call) uses the reader's ``person_masks_sim(i)`` / ``person_masks_gt(i)``
+((n, H, W) bool, ``d2slam.data.synthetic.SyntheticSequence``) when the sequence has them; ``__call__(frame)`` reads
+the label image named by ``frame.rgb_path``'s stem under the sequence root (same files, same instances).
 """
 
 from __future__ import annotations
