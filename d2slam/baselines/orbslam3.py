@@ -210,7 +210,7 @@ def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: P
                 limit_stall = cfg.orbslam3_load_timeout_s if count == 0 else stall
                 if now - t0 > timeout or now - last_change > limit_stall:
                     outcome["timed_out"] = (f"no progress for {now - last_change:.0f} s" if now - t0 <= timeout
-                                            else f"over the {timeout:.0f} s limit")
+                                            else f"over the {timeout:g} s limit")
                     _kill(proc)
                     break
         finally:
@@ -361,6 +361,8 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     if repeats < 1:
         raise D2SlamError(f"repeats must be >= 1, got {repeats}")
     out_traj.parent.mkdir(parents=True, exist_ok=True)
+    for stale in [out_traj, out_traj.with_name(out_traj.stem + ".online.txt")]:
+        stale.unlink(missing_ok=True)  # a failed run must not leave an older trajectory behind
     seq = open_sequence(sequence_dir, camera=camera) if camera else open_sequence(sequence_dir)
     n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
     base = {"method": METHOD, "sequence": str(sequence_dir), "frames_expected": n_frames, "repeats": repeats,

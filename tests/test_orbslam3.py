@@ -1,0 +1,171 @@
+"""The real ORB-SLAM3 baseline (pyorbslam3): the project-built vocabulary loads and tracks, settings, run JSON,
+repeats, and every failure recorded as a status while the caller survives."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from d2slam.baselines import orbslam3 as O
+from d2slam.baselines import vocab as V
+from d2slam.config import DEFAULT
+from d2slam.data import open_sequence, read_tum_trajectory
+from d2slam.errors import D2SlamError
+from d2slam.paths import shared_dir
+
+pytest.importorskip("pyorbslam3")
+
+T0 = 1305031102.0
+SHIFT_PX = 1.0  # image shift per frame
+DEPTH_M = 2.0  # a fronto-parallel plane: shifting the image by s px = moving the camera by -s z / fx
+
+
+def write_shift_sequence(root: Path, n: int = 12) -> Path:
+    """A TUM fr3-named folder: a real fr3 frame shifted right by SHIFT_PX per frame over a plane at DEPTH_M, i.e.
+    a camera translating along -x at SHIFT_PX * DEPTH_M / fx per frame; ground truth to match."""
+    root.mkdir(parents=True)
+    (root / "rgb").mkdir()
+    (root / "depth").mkdir()
+    img = cv2.imread(str(shared_dir() / "images" / "tum_fr3" / "fr3_walking_frame_0193.png"))
+    depth = np.full(img.shape[:2], int(DEPTH_M * 5000), np.uint16)
+    rl, dl = [], []
+    for i in range(n):
+        t = T0 + i / 30
+        shifted = cv2.warpAffine(img, np.float32([[1, 0, i * SHIFT_PX], [0, 1, 0]]), (640, 480),
+                                 borderMode=cv2.BORDER_REFLECT)
+        cv2.imwrite(str(root / f"rgb/{t:.6f}.png"), shifted)
+        cv2.imwrite(str(root / f"depth/{t + 0.004:.6f}.png"), depth)
+        rl.append(f"{t:.6f} rgb/{t:.6f}.png")
+        dl.append(f"{t + 0.004:.6f} depth/{t + 0.004:.6f}.png")
+    (root / "rgb.txt").write_text("\n".join(rl) + "\n")
+    (root / "depth.txt").write_text("\n".join(dl) + "\n")
+    gt = [f"{t:.4f} {-(t - T0) * 30 * SHIFT_PX * DEPTH_M / 535.4:.6f} 0 0 0 0 0 1"
+          for t in np.arange(T0 - 0.1, T0 + n / 30 + 0.1, 0.01)]
+    (root / "groundtruth.txt").write_text("\n".join(gt) + "\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def built_vocab(tmp_path_factory):
+    out = tmp_path_factory.mktemp("vocab") / "voc.txt"
+    m = V.build_vocabulary(out, synthetic=False, real=True, progress=False)
+    return Path(m["path"])
+
+
+@pytest.fixture(scope="module")
+def seq_dir(tmp_path_factory):
+    return write_shift_sequence(tmp_path_factory.mktemp("seq") / "rgbd_dataset_freiburg3_shift")
+
+
+def test_settings_yaml_fr3_values_and_check(tmp_path, seq_dir):
+    cam = open_sequence(seq_dir).camera
+    text = O.settings_yaml(cam)
+    for line in ['File.version: "1.0"', "Camera1.fx: 535.400000", "Camera1.fy: 539.200000",
+                 "Camera1.cx: 320.100000", "Camera1.cy: 247.600000", "Stereo.b: 0.074710", "Stereo.ThDepth: 40.0",
+                 "RGBD.DepthMapFactor: 5000.0", "ORBextractor.nFeatures: 1000", "ORBextractor.scaleFactor: 1.2",
+                 "ORBextractor.nLevels: 8", "ORBextractor.iniThFAST: 20", "ORBextractor.minThFAST: 7"]:
+        assert line in text
+    p = tmp_path / "s.yaml"
+    p.write_text(text)
+    O.check_settings(p)
+    p.write_text(text.replace("Stereo.b: 0.074710\n", ""))
+    with pytest.raises(D2SlamError, match="Stereo.b"):
+        O.check_settings(p)
+    p.write_text("Camera1.fx: 1\n")
+    with pytest.raises(D2SlamError, match="%YAML"):
+        O.check_settings(p)
+
+
+def test_map_segments_from_states():
+    # NOT_INIT, OK, OK, RECENTLY_LOST, OK (reloc, same map), LOST, NO_IMAGES_YET, OK (new map)
+    seg = O._map_segments(np.array([1, 2, 2, 3, 2, 4, 0, 2]))
+    assert seg.tolist() == [-1, 0, 0, 0, 0, 0, 0, 1]
+
+
+def test_built_vocabulary_loads_in_orbslam3_and_tracks(tmp_path, seq_dir, built_vocab):
+    out = tmp_path / "traj.txt"
+    run = O.run_orbslam3(seq_dir, out, tmp_path / "run.json", vocab=built_vocab, progress=False)
+    assert run["status"] == "ok", run["message"]
+    assert run["frames"] == 12 and run["tracked"] == 12 and run["lost"] == 0 and run["resets"] == 0
+    assert run["vocabulary"]["kind"] == "built" and run["vocabulary"]["path"] == str(built_vocab.resolve())
+    assert run["ms_per_frame"] > 0 and run["fps"] > 0 and run["method"] == "orbslam3"
+    saved = json.loads((tmp_path / "run.json").read_text())
+    assert saved["status"] == "ok" and saved["vocabulary"]["sha256"] == V._sha256_file(built_vocab)
+    traj = read_tum_trajectory(out)
+    assert len(traj) == 12 and run["trajectory_source"] == "SaveTrajectoryTUM"
+    # T_world_camera: the camera moves along -x by SHIFT_PX * DEPTH_M / fx per frame from the identity
+    step = SHIFT_PX * DEPTH_M / 535.4
+    expected = -np.arange(12) * step
+    assert np.allclose(traj.poses[:, 0, 3], expected, atol=0.25 * step * 12 / 4)
+    assert np.abs(traj.poses[:, 1:3, 3]).max() < 0.01
+    assert np.allclose(traj.poses[:, :3, :3], np.eye(3), atol=0.01)
+
+
+def test_repeats_report_median_and_spread(tmp_path, seq_dir, built_vocab):
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", repeats=2, vocab=built_vocab, max_frames=6, progress=False,
+                         evaluate=False)
+    assert len(run["runs"]) == 2 and run["statuses"] == ["ok", "ok"]
+    assert run["tracked"] == 6 and run["tracked_spread"]["values"] == [6, 6]
+    lo, hi = run["ms_per_frame_spread"]["min"], run["ms_per_frame_spread"]["max"]
+    assert lo <= run["ms_per_frame"] <= hi
+    assert (tmp_path / "t.txt").is_file() and (tmp_path / "t.rep1.txt").is_file()
+
+
+def test_corrupt_vocabulary_is_a_failed_run_not_a_crash(tmp_path, seq_dir):
+    bad = tmp_path / "ORBvoc.txt"
+    bad.write_text("10 6 0 0\n0 1 1 2 3")  # ORB-SLAM3's own loader would accept this and crash later
+    (tmp_path / "t.txt").write_text("stale\n")
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", tmp_path / "r.json", vocab=bad, progress=False)
+    assert run["status"] == "failed" and "vocabulary" in run["message"] and str(bad) in run["message"]
+    assert json.loads((tmp_path / "r.json").read_text())["status"] == "failed"
+    assert not (tmp_path / "t.txt").exists()
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=tmp_path / "missing.txt", progress=False)
+    assert run["status"] == "failed" and "not found" in run["message"]
+
+
+def test_settings_orbslam3_rejects_is_a_failed_run(tmp_path, seq_dir, built_vocab):
+    # passes our check, but ORB-SLAM3 calls exit(-1): the child dies, the caller records it
+    cam = open_sequence(seq_dir).camera
+    p = tmp_path / "kb.yaml"
+    p.write_text(O.settings_yaml(cam).replace('"PinHole"', '"KannalaBrandt8"'))
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False)
+    assert run["status"] == "failed" and "aborting" in run["message"]
+    assert Path(run["log"]).is_file()
+    p.write_text(O.settings_yaml(cam).replace("ORBextractor.nFeatures: 1000\n", ""))
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False)
+    assert run["status"] == "failed" and "nFeatures" in run["message"]
+
+
+def test_timeout_kills_the_child(tmp_path, seq_dir, built_vocab):
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, timeout=0.2, progress=False)
+    assert run["status"] == "timeout" and "limit" in run["message"]
+    assert run["frames"] < 12
+
+
+def test_corrupt_frame_mid_sequence_is_recorded(tmp_path, seq_dir, built_vocab):
+    import shutil
+
+    broken = tmp_path / "rgbd_dataset_freiburg3_broken"
+    shutil.copytree(seq_dir, broken)
+    seq = open_sequence(broken)
+    seq.rgb_files[5].write_bytes(b"not a png")
+    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False)
+    assert run["status"] == "failed" and seq.rgb_files[5].name in run["message"]
+    assert run["frames"] == 5 and run["tracked"] == 5  # what ran before it is kept
+    assert len(read_tum_trajectory(tmp_path / "t.txt")) == 5
+
+
+def test_bad_arguments_raise(tmp_path, seq_dir):
+    with pytest.raises(D2SlamError, match="repeats"):
+        O.run_orbslam3(seq_dir, tmp_path / "t.txt", repeats=0)
+    with pytest.raises(D2SlamError, match="not found"):
+        O.run_orbslam3(tmp_path / "nope", tmp_path / "t.txt")
+
+
+def test_config_section_defaults():
+    assert DEFAULT.baseline.vocab_k == 10 and DEFAULT.baseline.vocab_levels == 6
+    assert all(900 <= s <= 999 for s in DEFAULT.baseline.vocab_train_seeds)
