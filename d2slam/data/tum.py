@@ -87,6 +87,22 @@ def _parse_float(token: str, what: str, path: Path, lineno: int) -> float:
     return value
 
 
+def _numeric_table(rows: list[tuple[int, list[str]]], names: tuple[str, ...], path: Path) -> np.ndarray:
+    """The first ``len(names)`` fields of every row as a finite float64 (N, len(names)) array. Fast path: one
+    numpy conversion; on failure, the first bad token is located and reported with its line."""
+    k = len(names)
+    try:
+        arr = np.array([fields[:k] for _, fields in rows], dtype=np.float64).reshape(-1, k)
+    except ValueError:
+        arr = None
+    if arr is not None and np.isfinite(arr).all():
+        return arr
+    for lineno, fields in rows:
+        for tok, name in zip(fields, names):
+            _parse_float(tok, name, path, lineno)
+    raise AssertionError("unreachable: a bad value was not located")  # pragma: no cover
+
+
 def _check_increasing(timestamps: np.ndarray, lines: np.ndarray, path: Path) -> None:
     if len(timestamps) < 2:
         return
@@ -102,16 +118,14 @@ def _check_increasing(timestamps: np.ndarray, lines: np.ndarray, path: Path) -> 
 def read_file_list(path: str | Path) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Read ``rgb.txt`` / ``depth.txt``: (timestamps (N,) float64 strictly increasing, filenames, line numbers)."""
     path = Path(path)
-    timestamps, names, lines = [], [], []
-    for lineno, fields in _read_rows(path):
+    rows = _read_rows(path)
+    for lineno, fields in rows:
         if len(fields) != 2:
             raise D2SlamError(f"expected 2 columns 'timestamp filename', found {len(fields)}", path=path,
                               line=lineno)
-        timestamps.append(_parse_float(fields[0], "timestamp", path, lineno))
-        names.append(fields[1])
-        lines.append(lineno)
-    ts = np.asarray(timestamps, dtype=np.float64)
-    ln = np.asarray(lines, dtype=np.int64)
+    names = [fields[1] for _, fields in rows]
+    ln = np.asarray([lineno for lineno, _ in rows], dtype=np.int64)
+    ts = _numeric_table(rows, ("timestamp",), path).reshape(-1)
     _check_increasing(ts, ln, path)
     return ts, names, ln
 
@@ -138,16 +152,13 @@ def read_tum_trajectory(path: str | Path) -> Trajectory:
     timestamps not strictly increasing, a quaternion that is not unit (norm off by more than 1e-2; smaller
     deviations are normalised away). An empty file gives an empty trajectory."""
     path = Path(path)
-    values, lines = [], []
-    for lineno, fields in _read_rows(path):
+    rows = _read_rows(path)
+    for lineno, fields in rows:
         if len(fields) != 8:
             raise D2SlamError(f"expected 8 columns 'timestamp tx ty tz qx qy qz qw', found {len(fields)}",
                               path=path, line=lineno)
-        names = ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
-        values.append([_parse_float(tok, name, path, lineno) for tok, name in zip(fields, names)])
-        lines.append(lineno)
-    arr = np.asarray(values, dtype=np.float64).reshape(-1, 8)
-    ln = np.asarray(lines, dtype=np.int64)
+    arr = _numeric_table(rows, ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw"), path)
+    ln = np.asarray([lineno for lineno, _ in rows], dtype=np.int64)
     _check_increasing(arr[:, 0], ln, path)
     poses = _poses_from_tum(arr[:, 1:], ln, path)
     return Trajectory(timestamps=arr[:, 0].copy(), poses=poses, meta={"path": str(path), "lines": ln})
