@@ -1,0 +1,647 @@
+"""The ORB-SLAM3-style RGB-D engine: tracking (constant velocity, reference keyframe, relocalisation, local map)
+and local mapping (keyframes, points from depth, local BA, culling), run synchronously for determinism.
+
+``Engine.process(gray, depth, index, timestamp, masks)`` reads as the algorithm; each step is a method named after
+its ORB-SLAM counterpart. The engine knows nothing of dynamics except the keypoint-filter hook (``hook.py``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from d2slam.config import DEFAULT, Config
+from d2slam.data.base import Camera
+from d2slam.errors import D2SlamError
+from d2slam.slam.frame import Frame, OrbExtractor, close_depth
+from d2slam.slam.hook import FilterInput, KeypointFilter
+from d2slam.slam.map import KeyFrame, Map
+from d2slam.slam.matching import (KeypointIndex, knn_ratio_match, rotation_consistent, search_candidates,
+                                  unique_by_target, window_cross_match)
+from d2slam.slam.optimizer import local_bundle_adjustment, pose_optimization
+
+OK, LOST, NOT_INITIALIZED = "ok", "lost", "not_initialized"
+
+
+@dataclass
+class TrackResult:
+    index: int
+    timestamp: float
+    state: str  # "ok" | "lost" | "not_initialized" (the last two are lost frames: no pose)
+    how: str  # "init" | "motion" | "reference" | "relocalisation" | ""
+    n_keypoints: int
+    n_inliers: int
+    keyframe: bool
+    timings: dict = field(default_factory=dict)  # seconds: extract, filter, track, local_ba
+
+    @property
+    def tracked(self) -> bool:
+        return self.state == OK
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    R, t = T[:3, :3], T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ t
+    return out
+
+
+class Engine:
+    def __init__(self, camera: Camera, config: Config = DEFAULT, keypoint_filter: KeypointFilter | None = None):
+        cv2.setNumThreads(int(config.engine.cv_threads))
+        self.camera = camera
+        self.config = config
+        self.cfg = config.engine
+        self.orb = config.orb
+        self.filter = keypoint_filter
+        self.K = camera.K
+        self.bf = float(camera.bf)
+        self.b = self.bf / camera.fx
+        self.th_depth_m = close_depth(camera, self.cfg)
+        self.extractor = OrbExtractor(config.orb, config.engine, camera)
+        self.scales = self.extractor.scales
+        self.log_scale = np.log(config.orb.scale_factor)
+        self.reset()
+
+    def reset(self) -> None:
+        self.map = Map()
+        self.state = NOT_INITIALIZED
+        self.last: Frame | None = None  # last processed frame (tracked or not)
+        self.last_tracked: Frame | None = None
+        self.velocity: np.ndarray | None = None
+        self.ref_kf: KeyFrame | None = None
+        self.last_kf_frame = -(10 ** 9)
+        self.last_reloc_frame = -(10 ** 9)
+        self.frame_refs: dict[int, tuple[int, np.ndarray]] = {}  # frame index -> (ref keyframe id, T_c_ref)
+        self.timestamps: dict[int, float] = {}
+        if self.filter is not None:
+            self.filter.reset()
+
+    # ================================================================== per frame
+    def process(self, gray: np.ndarray, depth: np.ndarray, index: int, timestamp: float,
+                masks: np.ndarray | None = None) -> TrackResult:
+        if gray.ndim == 3:
+            gray = cv2.cvtColor(gray, cv2.COLOR_RGB2GRAY)
+        if depth.shape != gray.shape:
+            raise D2SlamError(f"frame {index}: depth {depth.shape} and image {gray.shape} differ in size")
+        t0 = time.perf_counter()
+        frame = self.extractor(gray, depth, index, timestamp)
+        t1 = time.perf_counter()
+        if self.filter is not None:
+            self.run_filter(frame, gray, depth, masks)
+        t2 = time.perf_counter()
+        how = ""
+        if self.state == NOT_INITIALIZED:
+            ok = self.initialize(frame)
+            how = "init" if ok else ""
+        else:
+            ok, how = self.track(frame)
+        keyframe = False
+        t3 = time.perf_counter()
+        t_ba = 0.0
+        if ok:
+            self.update_point_beliefs(frame)
+            if how != "init" and self.need_new_keyframe(frame):
+                t3 = time.perf_counter()
+                kf = self.create_keyframe(frame)
+                self.local_mapping(kf)
+                keyframe = True
+                t_ba = time.perf_counter() - t3
+                t3 = time.perf_counter()
+            keyframe = keyframe or how == "init"
+            self.state = OK
+            if self.last_tracked is not None and self.last_tracked.index == frame.index - 1:
+                self.velocity = frame.Tcw @ _inv(self.last_tracked.Tcw)
+            else:
+                self.velocity = None
+            ref = self.ref_kf
+            self.frame_refs[index] = (ref.id, frame.Tcw @ _inv(ref.Tcw))
+            self.timestamps[index] = timestamp
+            frame.ref_kf = ref.id
+            frame.mp[frame.outlier] = -1
+            frame.outlier[:] = False
+            self.last_tracked = frame
+        else:
+            if self.state == OK:
+                self.state = LOST
+            self.velocity = None
+            frame.Tcw = None
+        self.last = frame
+        t4 = time.perf_counter()
+        state = OK if ok else (NOT_INITIALIZED if self.state == NOT_INITIALIZED else LOST)
+        n_in = int(((frame.mp >= 0) & ~frame.outlier).sum()) if ok else 0
+        return TrackResult(index, timestamp, state, how, frame.n, n_in, keyframe,
+                           {"extract": t1 - t0, "filter": t2 - t1, "track": (t3 - t2) + (t4 - t3),
+                            "local_ba": t_ba})
+
+    # ================================================================== keypoint filter hook
+    def run_filter(self, frame: Frame, gray: np.ndarray, depth: np.ndarray, masks) -> None:
+        prev = self.last
+        n = frame.n
+        if prev is None or prev.n == 0 or n == 0:
+            matches = np.zeros((0, 2), dtype=np.int64)
+            prev_kps, prev_depth = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+            prev_belief = np.zeros(0)
+        else:
+            matches = window_cross_match(frame.kps, frame.desc, prev.kps, prev.desc, self.cfg.filter_match_window,
+                                         self.cfg.desc_th_high)
+            prev_kps, prev_depth = prev.kps.astype(np.float32), prev.depth.astype(np.float32)
+            prev_belief = prev.belief if prev.belief is not None else np.full(prev.n, 0.5)
+        mp_belief = np.full(n, np.nan)
+        if len(matches) and prev is not None:
+            pm = prev.mp[matches[:, 1]]
+            has = pm >= 0
+            alive = np.zeros(len(pm), dtype=bool)
+            alive[has] = self.map.points.alive[pm[has]]
+            mp_belief[matches[alive, 0]] = self.map.points.belief[pm[alive]]
+        inp = FilterInput(frame_index=frame.index, timestamp=frame.timestamp, gray=gray, depth=depth, K=self.K,
+                          kps=frame.kps.astype(np.float32), kp_depth=frame.depth.astype(np.float32),
+                          prev_kps=prev_kps, prev_kp_depth=prev_depth, prev_belief=np.asarray(prev_belief),
+                          matches=matches, mappoint_belief=mp_belief, masks=masks)
+        belief = np.asarray(self.filter(inp), dtype=np.float64)
+        if belief.shape != (n,) or not np.all(np.isfinite(belief)) or belief.min(initial=0) < 0 or \
+                belief.max(initial=0) > 1:
+            raise D2SlamError(f"frame {frame.index}: the keypoint filter returned beliefs of shape {belief.shape} "
+                              f"(expected ({n},) finite values in [0, 1])")
+        frame.belief = belief
+        self.last_filter_input = inp
+
+    def update_point_beliefs(self, frame: Frame) -> None:
+        """Map points take the belief of the keypoint that observes them; above the threshold they are culled."""
+        if frame.belief is None:
+            return
+        sel = np.flatnonzero(frame.mp >= 0)
+        pts = frame.mp[sel]
+        self.map.points.belief[pts] = frame.belief[sel]
+        bad = frame.belief[sel] > self.cfg.mappoint_belief_threshold
+        if bad.any():
+            self.map.cull_points(np.unique(pts[bad]))
+            frame.mp[sel[bad]] = -1
+
+    # ================================================================== initialisation
+    def initialize(self, frame: Frame) -> bool:
+        """ORB-SLAM StereoInitialization: first keyframe at the origin, a map point per keypoint with depth."""
+        usable = (frame.depth > 0) & ~frame.dynamic
+        if usable.sum() < self.cfg.init_min_keypoints:
+            return False
+        frame.Tcw = np.eye(4)
+        kf = self._make_keyframe(frame)
+        self.map.add_keyframe(kf)
+        idx = np.flatnonzero(usable)
+        self._create_points(kf, idx)
+        self.ref_kf = kf
+        self.last_kf_frame = frame.index
+        frame.mp[:] = kf.mp
+        return True
+
+    # ================================================================== tracking
+    def track(self, frame: Frame) -> tuple[bool, str]:
+        if self.state == OK:
+            ok, how = False, ""
+            if self.velocity is not None and frame.index - self.last_reloc_frame > 1:
+                ok, how = self.track_with_motion_model(frame), "motion"
+            if not ok:
+                frame.mp[:] = -1
+                ok, how = self.track_reference_keyframe(frame), "reference"
+        else:
+            ok, how = self.relocalise(frame), "relocalisation"
+            if ok:
+                self.last_reloc_frame = frame.index
+        if ok:
+            ok = self.track_local_map(frame)
+        return ok, how
+
+    def _optimize_pose(self, frame: Frame) -> int:
+        sel = np.flatnonzero((frame.mp >= 0) & ~frame.dynamic)
+        X = self.map.points.pos[frame.mp[sel]]
+        T, inl = pose_optimization(frame.Tcw, X, frame.kps[sel], frame.ur[sel], frame.inv_sigma2[sel], self.K,
+                                   self.bf, self.cfg)
+        frame.Tcw = T
+        frame.outlier[:] = False
+        frame.outlier[sel[~inl]] = True
+        frame.outlier[(frame.mp >= 0) & frame.dynamic] = True  # matched but excluded: not counted as inliers
+        return int(inl.sum())
+
+    def _discard_outliers(self, frame: Frame) -> None:
+        frame.mp[frame.outlier & ~frame.dynamic] = -1
+        frame.outlier[:] = False
+
+    def _project(self, Tcw: np.ndarray, X: np.ndarray):
+        Xc = X @ Tcw[:3, :3].T + Tcw[:3, 3]
+        z = Xc[:, 2]
+        zs = np.where(z > 1e-9, z, 1e-9)
+        u = self.K[0, 0] * Xc[:, 0] / zs + self.K[0, 2]
+        v = self.K[1, 1] * Xc[:, 1] / zs + self.K[1, 2]
+        return u, v, z
+
+    def _in_image(self, u, v):
+        return (u >= 0) & (u < self.camera.width) & (v >= 0) & (v < self.camera.height)
+
+    def _assign(self, frame: Frame, kp: np.ndarray, pid: np.ndarray, dist: np.ndarray, ref_angle: np.ndarray):
+        """One-to-one assignment of points to keypoints, then ORB-SLAM's rotation-consistency check."""
+        keep = unique_by_target(pid, kp, dist)
+        kp, pid, ref_angle = kp[keep], pid[keep], ref_angle[keep]
+        if self.cfg.check_orientation and len(kp):
+            ok = rotation_consistent(ref_angle, frame.angle[kp])
+            kp, pid = kp[ok], pid[ok]
+        frame.mp[kp] = pid
+        return len(kp)
+
+    def search_last_frame(self, frame: Frame, last: Frame, th: float) -> int:
+        """ORB-SLAM ``SearchByProjection(CurrentFrame, LastFrame)`` (vectorised)."""
+        sel = np.flatnonzero(last.mp >= 0)
+        sel = sel[self.map.points.alive[last.mp[sel]]]
+        if len(sel) == 0 or frame.n == 0:
+            return 0
+        pid = last.mp[sel]
+        u, v, z = self._project(frame.Tcw, self.map.points.pos[pid])
+        ok = (z > 0) & self._in_image(u, v)
+        sel, pid, u, v, z = sel[ok], pid[ok], u[ok], v[ok], z[ok]
+        Twc = _inv(frame.Tcw)
+        tlc = last.Tcw[:3, :3] @ Twc[:3, 3] + last.Tcw[:3, 3]
+        forward, backward = tlc[2] > self.b, -tlc[2] > self.b
+        oct_last = last.octave[sel]
+        radius = th * self.scales[oct_last]
+        nl = self.orb.n_levels
+        if forward:
+            lo, hi = oct_last, np.full_like(oct_last, nl - 1)
+        elif backward:
+            lo, hi = np.zeros_like(oct_last), oct_last
+        else:
+            lo, hi = oct_last - 1, oct_last + 1
+        return self._match_projected(frame, np.c_[u, v], u - self.bf / z, radius, pid, lo, hi,
+                                     self.map.points.desc[pid], last.angle[sel], ratio=None)
+
+    def _match_projected(self, frame: Frame, uv, ur_proj, radius, pid, lo, hi, desc, ref_angle, ratio):
+        k = self.cfg.candidates_per_point
+        index = self._kp_index(frame)
+        available = frame.mp < 0
+        cand, _ = index.candidates(uv, radius, k)
+        safe = np.minimum(cand, max(frame.n - 1, 0))
+        stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
+        best, d1, d2, l1, l2 = search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi,
+                                                 available, k, extra_ok=stereo_ok)
+        ok = (best >= 0) & (d1 <= self.cfg.desc_th_high)
+        if ratio is not None:
+            ok &= ~((l1 == l2) & (d1 > ratio * d2))
+        return self._assign(frame, best[ok], pid[ok], d1[ok], ref_angle[ok])
+
+    def _kp_index(self, frame: Frame) -> KeypointIndex:
+        if getattr(frame, "_index", None) is None:
+            frame._index = KeypointIndex(frame.kps)
+        return frame._index
+
+    def track_with_motion_model(self, frame: Frame) -> bool:
+        last = self.last_tracked
+        frame.Tcw = self.velocity @ last.Tcw
+        frame.mp[:] = -1
+        th = self.cfg.search_radius_last_frame
+        n = self.search_last_frame(frame, last, th)
+        if n < self.cfg.tracking_min_matches:
+            frame.mp[:] = -1
+            n = self.search_last_frame(frame, last, 2 * th)
+        if n < self.cfg.tracking_min_matches:
+            return False
+        n_in = self._optimize_pose(frame)
+        self._discard_outliers(frame)
+        return n_in >= self.cfg.tracking_min_inliers
+
+    def track_reference_keyframe(self, frame: Frame) -> bool:
+        """Descriptor matching against the reference keyframe's points (ORB-SLAM uses BoW; we use cv2 2-NN)."""
+        kf = self.ref_kf
+        if kf is None or self.last_tracked is None or frame.n == 0:
+            return False
+        n = self._match_keyframe(frame, kf, self.cfg.nn_ratio_reference)
+        if n < self.cfg.reference_min_matches:
+            return False
+        frame.Tcw = self.last_tracked.Tcw.copy()
+        n_in = self._optimize_pose(frame)
+        self._discard_outliers(frame)
+        return n_in >= self.cfg.tracking_min_inliers
+
+    def _match_keyframe(self, frame: Frame, kf: KeyFrame, ratio: float) -> int:
+        ksel = np.flatnonzero(kf.mp >= 0)
+        ksel = ksel[self.map.points.alive[kf.mp[ksel]]]
+        fsel = np.flatnonzero(~frame.dynamic & (frame.mp < 0))
+        if len(ksel) < 2 or len(fsel) == 0:
+            return 0
+        m = knn_ratio_match(frame.desc[fsel], kf.desc[ksel], ratio, self.cfg.desc_th_low)
+        if len(m) == 0:
+            return 0
+        kp, kk = fsel[m[:, 0]], ksel[m[:, 1]]
+        return self._assign(frame, kp, kf.mp[kk], m[:, 2].astype(np.float64), kf.angle[kk])
+
+    def relocalise(self, frame: Frame) -> bool:
+        """Descriptor matching against recent keyframes, seeded PnP RANSAC, pose optimisation, projection search."""
+        kfs = self.map.good_keyframes()
+        if not kfs or frame.n == 0:
+            return False
+        cands = sorted(kfs, key=lambda k: -k.id)[: self.cfg.relocalisation_candidates]
+        if self.ref_kf is not None and not self.ref_kf.bad and self.ref_kf not in cands:
+            cands = [self.ref_kf] + cands
+        for kf in cands:
+            frame.mp[:] = -1
+            n = self._match_keyframe(frame, kf, self.cfg.nn_ratio_relocalisation)
+            if n < self.cfg.reference_min_matches:
+                continue
+            sel = np.flatnonzero(frame.mp >= 0)
+            obj = self.map.points.pos[frame.mp[sel]].astype(np.float64)
+            img = frame.kps[sel].astype(np.float64)
+            cv2.setRNGSeed(int(self.cfg.ransac_seed) + int(frame.index))
+            try:
+                ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+                    obj, img, self.K, None, iterationsCount=self.cfg.pnp_iterations,
+                    reprojectionError=self.cfg.pnp_reprojection_px, confidence=self.cfg.pnp_confidence,
+                    flags=cv2.SOLVEPNP_EPNP)
+            except cv2.error:
+                continue
+            if not ok or inliers is None or len(inliers) < self.cfg.tracking_min_inliers:
+                continue
+            keep = np.zeros(len(sel), dtype=bool)
+            keep[inliers.ravel()] = True
+            frame.mp[sel[~keep]] = -1
+            T = np.eye(4)
+            T[:3, :3] = cv2.Rodrigues(rvec)[0]
+            T[:3, 3] = tvec.ravel()
+            frame.Tcw = T
+            n_good = self._optimize_pose(frame)
+            if n_good < self.cfg.tracking_min_inliers:
+                continue
+            self._discard_outliers(frame)
+            if n_good < self.cfg.relocalisation_min_inliers:
+                pts = kf.mp[kf.mp >= 0]
+                self.search_local_points(frame, np.unique(pts), self.cfg.search_radius_relocalisation)
+                n_good = self._optimize_pose(frame)
+                self._discard_outliers(frame)
+            if n_good >= self.cfg.relocalisation_min_inliers:
+                self.ref_kf = kf
+                return True
+        frame.mp[:] = -1
+        return False
+
+    # ------------------------------------------------------------------ local map
+    def local_keyframes(self, frame: Frame) -> list[int]:
+        """ORB-SLAM UpdateLocalKeyFrames: keyframes observing the frame's points (best first) + their neighbours."""
+        pts = frame.mp[(frame.mp >= 0) & ~frame.outlier]
+        pts = pts[self.map.points.alive[pts]]
+        counts = self.map.keyframe_counts(pts)
+        order = np.argsort(-counts, kind="stable")
+        first = [int(k) for k in order[: self.cfg.local_map_max_keyframes] if counts[k] > 0
+                 and not self.map.keyframes[k].bad]
+        if first:
+            self.ref_kf = self.map.keyframes[first[0]]
+        out = list(first)
+        seen = set(out)
+        for k in first[:3]:  # neighbours of the best keyframes (ORB-SLAM adds 10 covisibles of each)
+            cov = self.covisible(k, self.cfg.local_map_neighbours)
+            for c in cov:
+                if c not in seen:
+                    seen.add(c)
+                    out.append(c)
+        return out
+
+    def covisible(self, kf_id: int, n: int) -> list[int]:
+        w = self.map.covisibility(kf_id)
+        order = np.argsort(-w, kind="stable")[:n]
+        return [int(k) for k in order if w[k] >= self.cfg.covisibility_min_shared and not self.map.keyframes[k].bad]
+
+    def search_local_points(self, frame: Frame, pids: np.ndarray, th: float) -> int:
+        """ORB-SLAM SearchLocalPoints: frustum check (isInFrustum), scale prediction, search by projection."""
+        P = self.map.points
+        pids = pids[P.alive[pids]]
+        already = np.zeros(P.n, dtype=bool)
+        already[frame.mp[frame.mp >= 0]] = True
+        pids = pids[~already[pids]]
+        if len(pids) == 0 or frame.n == 0:
+            return 0
+        X = P.pos[pids]
+        u, v, z = self._project(frame.Tcw, X)
+        Ow = _inv(frame.Tcw)[:3, 3]
+        PO = X - Ow
+        dist = np.linalg.norm(PO, axis=1)
+        view_cos = np.einsum("ij,ij->i", PO, P.normal[pids]) / np.maximum(dist, 1e-12)
+        ok = (z > 0) & self._in_image(u, v) & (dist >= 0.8 * P.dmin[pids]) & (dist <= 1.2 * P.dmax[pids]) & \
+            (view_cos >= 0.5)
+        pids, u, v, z, dist, view_cos = pids[ok], u[ok], v[ok], z[ok], dist[ok], view_cos[ok]
+        P.visible[pids] += 1
+        if len(pids) == 0:
+            return 0
+        level = np.clip(np.ceil(np.log(P.dmax[pids] / dist) / self.log_scale), 0, self.orb.n_levels - 1).astype(
+            np.int64)
+        radius = th * np.where(view_cos > 0.998, 2.5, 4.0) * self.scales[level]
+        return self._match_projected_noangle(frame, np.c_[u, v], u - self.bf / z, radius, pids, level - 1, level,
+                                             P.desc[pids])
+
+    def _match_projected_noangle(self, frame, uv, ur_proj, radius, pid, lo, hi, desc):
+        """Local-map search: ratio test on the same level, no orientation check (as ORB-SLAM)."""
+        k = self.cfg.candidates_per_point
+        index = self._kp_index(frame)
+        available = frame.mp < 0
+        cand, _ = index.candidates(uv, radius, k)
+        safe = np.minimum(cand, max(frame.n - 1, 0))
+        stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
+        best, d1, d2, l1, l2 = search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi,
+                                                 available, k, extra_ok=stereo_ok)
+        ok = (best >= 0) & (d1 <= self.cfg.desc_th_high) & ~((l1 == l2) & (d1 > self.cfg.nn_ratio_local_map * d2))
+        kp, p, d = best[ok], pid[ok], d1[ok]
+        keep = unique_by_target(p, kp, d)
+        frame.mp[kp[keep]] = p[keep]
+        return int(keep.sum())
+
+    def track_local_map(self, frame: Frame) -> bool:
+        local = self.local_keyframes(frame)
+        if local:
+            pts = np.concatenate([self.map.keyframes[k].mp for k in local])
+            pts = np.unique(pts[pts >= 0])
+            th = self.cfg.search_radius_local_map
+            if frame.index - self.last_reloc_frame < 2:
+                th = 5.0
+            self.search_local_points(frame, pts, th)
+        n_in = self._optimize_pose(frame)
+        inl = (frame.mp >= 0) & ~frame.outlier
+        self.map.points.found[frame.mp[inl]] += 1
+        self.n_inliers = n_in
+        need = self.cfg.local_map_min_inliers
+        if frame.index - self.last_reloc_frame < self.cfg.kf_max_frames:
+            need = max(need, self.cfg.relocalisation_min_inliers) if self.last_reloc_frame >= 0 else need
+        return n_in >= need
+
+    # ================================================================== keyframes and local mapping
+    def need_new_keyframe(self, frame: Frame) -> bool:
+        """ORB-SLAM3 NeedNewKeyFrame for RGB-D (local mapping is synchronous, hence always idle)."""
+        kfs = self.map.good_keyframes()
+        n_kfs = len(kfs)
+        if frame.index - self.last_reloc_frame < self.cfg.kf_max_frames and n_kfs > self.cfg.kf_max_frames:
+            return False
+        min_obs = 3 if n_kfs > 2 else 2
+        ref = self.ref_kf
+        rp = ref.mp[ref.mp >= 0]
+        rp = rp[self.map.points.alive[rp]]
+        n_ref = int((self.map.points.nobs[rp] >= min_obs).sum())
+        close = (frame.depth > 0) & (frame.depth < self.th_depth_m) & ~frame.dynamic
+        tracked = (frame.mp >= 0) & ~frame.outlier
+        n_tracked_close = int((close & tracked).sum())
+        n_untracked_close = int((close & ~tracked).sum())
+        need_close = n_tracked_close < self.cfg.kf_close_tracked and n_untracked_close > self.cfg.kf_close_untracked
+        ratio = self.cfg.kf_tracked_ratio if n_kfs >= 2 else self.cfg.kf_tracked_ratio_first
+        inl = self.n_inliers
+        c1a = frame.index >= self.last_kf_frame + self.cfg.kf_max_frames
+        c1b = frame.index >= self.last_kf_frame + self.cfg.kf_min_frames
+        c1c = inl < n_ref * 0.25 or need_close
+        c2 = (inl < n_ref * ratio or need_close) and inl > self.cfg.kf_min_inliers
+        return bool((c1a or c1b or c1c) and c2)
+
+    def _make_keyframe(self, frame: Frame) -> KeyFrame:
+        return KeyFrame(id=len(self.map.keyframes), frame_index=frame.index, timestamp=frame.timestamp,
+                        Tcw=frame.Tcw.copy(), kps=frame.kps, octave=frame.octave, angle=frame.angle, desc=frame.desc,
+                        depth=frame.depth, ur=frame.ur, inv_sigma2=frame.inv_sigma2,
+                        mp=np.full(frame.n, -1, dtype=np.int64))
+
+    def _create_points(self, kf: KeyFrame, idx: np.ndarray) -> np.ndarray:
+        """Map points from depth for keypoints ``idx`` of ``kf`` (back-projection, normal, scale range)."""
+        if len(idx) == 0:
+            return idx
+        z = kf.depth[idx]
+        x = (kf.kps[idx, 0] - self.K[0, 2]) * z / self.K[0, 0]
+        y = (kf.kps[idx, 1] - self.K[1, 2]) * z / self.K[1, 1]
+        Twc = _inv(kf.Tcw)
+        Xw = np.c_[x, y, z] @ Twc[:3, :3].T + Twc[:3, 3]
+        PO = Xw - Twc[:3, 3]
+        dist = np.linalg.norm(PO, axis=1)
+        dmax = dist * self.scales[kf.octave[idx]]
+        dmin = dmax / self.scales[-1]
+        belief = np.zeros(len(idx)) if self.filter is None or self._belief_src is None else self._belief_src[idx]
+        ids = self.map.add_points(Xw, kf.desc[idx], PO / dist[:, None], dmin, dmax, belief, kf.id,
+                                  kf.angle[idx], kf.octave[idx])
+        self.map.add_observations(kf, idx, ids)
+        return ids
+
+    _belief_src = None
+
+    def create_keyframe(self, frame: Frame) -> KeyFrame:
+        """ORB-SLAM CreateNewKeyFrame (RGB-D): observations of the tracked points, new points from depth for the
+        closest untracked keypoints (all closer than th_depth, and at least ``kf_new_points_min``)."""
+        kf = self._make_keyframe(frame)
+        self.map.add_keyframe(kf)
+        tracked = (frame.mp >= 0) & ~frame.outlier & ~frame.dynamic
+        tidx = np.flatnonzero(tracked)
+        tidx = tidx[self.map.points.alive[frame.mp[tidx]]]
+        self.map.add_observations(kf, tidx, frame.mp[tidx])
+        cand = np.flatnonzero((frame.depth > 0) & ~frame.dynamic)
+        cand = cand[np.argsort(frame.depth[cand], kind="stable")]
+        has = kf.mp[cand] >= 0
+        count = np.cumsum(np.ones(len(cand), dtype=np.int64))
+        stop = (frame.depth[cand] > self.th_depth_m) & (count > self.cfg.kf_new_points_min)
+        if stop.any():
+            cand, has = cand[: np.argmax(stop)], has[: np.argmax(stop)]
+        new = cand[~has & (frame.mp[cand] < 0)]
+        self._belief_src = frame.belief
+        ids = self._create_points(kf, new)
+        self._belief_src = None
+        frame.mp[new] = ids
+        frame.outlier[new] = False
+        self.ref_kf = kf
+        self.last_kf_frame = frame.index
+        return kf
+
+    def local_mapping(self, kf: KeyFrame) -> None:
+        self.map_point_culling(kf)
+        self.local_bundle_adjustment(kf)
+        self.keyframe_culling(kf)
+
+    def map_point_culling(self, kf: KeyFrame) -> None:
+        """ORB-SLAM MapPointCulling over the recently created points."""
+        P = self.map.points
+        r = self.map.recent_points
+        r = r[P.alive[r]]
+        ratio = P.found[r] / np.maximum(P.visible[r], 1)
+        age = kf.id - P.first_kf[r]
+        bad = (ratio < self.cfg.mappoint_found_ratio) | ((age >= 2) & (P.nobs[r] <= self.cfg.mappoint_min_obs))
+        self.map.cull_points(r[bad])
+        self.map.recent_points = r[~bad & (age < 3)]
+
+    def local_bundle_adjustment(self, kf: KeyFrame) -> None:
+        """ORB-SLAM3 LocalBundleAdjustment: the new keyframe and its best covisibles are optimised with all the
+        points they see; other keyframes observing those points are fixed. Outlier observations are erased."""
+        M = self.map
+        local = [kf.id] + self.covisible(kf.id, self.cfg.local_ba_window)
+        P = M.points
+        pmask = np.zeros(P.n, dtype=bool)
+        for k in local:
+            m = M.keyframes[k].mp
+            pmask[m[m >= 0]] = True
+        pmask &= P.view("alive") & (P.view("belief") <= self.cfg.mappoint_belief_threshold)
+        rows = M.observation_rows(pmask)
+        if len(rows) == 0:
+            return
+        obs_kf = M.obs.kf[rows]
+        cams = np.unique(obs_kf)
+        cams = cams[[not M.keyframes[c].bad for c in cams]]
+        is_local = np.isin(cams, local)
+        fixed = ~is_local | (cams == 0)
+        if fixed.all():
+            return
+        keep = np.isin(obs_kf, cams)
+        rows, obs_kf = rows[keep], obs_kf[keep]
+        cam_of = np.full(len(M.keyframes), -1)
+        cam_of[cams] = np.arange(len(cams))
+        pts, pinv = np.unique(M.obs.pt[rows], return_inverse=True)
+        kp = M.obs.kp[rows]
+        uv = np.zeros((len(rows), 2))
+        ur = np.zeros(len(rows))
+        inv_s2 = np.zeros(len(rows))
+        for c in cams:
+            s = obs_kf == c
+            k = M.keyframes[c]
+            uv[s], ur[s], inv_s2[s] = k.kps[kp[s]], k.ur[kp[s]], k.inv_sigma2[kp[s]]
+        poses = np.stack([M.keyframes[c].Tcw for c in cams])
+        new_poses, new_X, outlier = local_bundle_adjustment(poses, fixed, P.pos[pts], cam_of[obs_kf], pinv, uv, ur,
+                                                            inv_s2, self.K, self.bf, self.cfg)
+        for i, c in enumerate(cams):
+            if not fixed[i]:
+                M.keyframes[c].Tcw = new_poses[i]
+        P.pos[pts] = new_X
+        M.erase_observations(rows[outlier])
+
+    def keyframe_culling(self, kf: KeyFrame) -> None:
+        """ORB-SLAM KeyFrameCulling: a covisible keyframe whose close points are 90 % seen by >= 3 other keyframes
+        at the same or a finer scale is redundant (the first keyframe is never culled)."""
+        M, P = self.map, self.map.points
+        for k in self.covisible(kf.id, 10 ** 6):
+            if k == 0 or k == kf.id:
+                continue
+            K_ = M.keyframes[k]
+            sel = np.flatnonzero((K_.mp >= 0) & (K_.depth > 0) & (K_.depth < self.th_depth_m))
+            sel = sel[P.alive[K_.mp[sel]]]
+            if len(sel) == 0:
+                continue
+            pts = K_.mp[sel]
+            cand = P.nobs[pts] > self.cfg.keyframe_redundant_obs
+            oct_here = np.full(P.n, -1)
+            oct_here[pts[cand]] = K_.octave[sel[cand]]
+            mask = oct_here >= 0
+            rows = M.observation_rows(mask)
+            rows = rows[M.obs.kf[rows] != k]
+            ok = M.obs.octave[rows] <= oct_here[M.obs.pt[rows]] + 1
+            cnt = np.bincount(M.obs.pt[rows][ok], minlength=P.n)
+            redundant = int((cnt[pts] >= self.cfg.keyframe_redundant_obs).sum())
+            if redundant > self.cfg.keyframe_redundancy * len(sel):
+                M.set_keyframe_bad(k)
+                if self.ref_kf is K_:
+                    self.ref_kf = kf
+
+    # ================================================================== results
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(frame indices, timestamps, poses T_world_camera) of the tracked frames, each frame's pose taken relative
+        to its reference keyframe's final (bundle-adjusted) pose, as ORB-SLAM's SaveTrajectoryTUM."""
+        idx = np.array(sorted(self.frame_refs), dtype=np.int64)
+        poses = np.zeros((len(idx), 4, 4))
+        for i, f in enumerate(idx):
+            kf_id, Tcr = self.frame_refs[int(f)]
+            poses[i] = _inv(Tcr @ self.map.keyframes[kf_id].Tcw)
+        ts = np.array([self.timestamps[int(f)] for f in idx])
+        return idx, ts, poses

@@ -1,0 +1,194 @@
+"""Frames: bucketed ORB features (ORB-SLAM settings), per-keypoint depth and the RGB-D "virtual stereo" coordinate.
+
+ORB-SLAM distributes features over the image with a per-level quadtree and re-runs FAST at 7 in cells where the
+20 threshold finds nothing. Our equivalent (vectorised): OpenCV's ORB detects ``oversample`` times more corners
+than needed at FAST 20 (plus FAST 7 when the image yields fewer than ``n_features`` corners at 20), the corners
+are binned in a grid per pyramid level (cells ``cell_size * scale^level`` pixels), and the features are taken
+round-robin over cells by decreasing Harris response (each cell's best, then each cell's second best, ...) until
+the level's ORB-SLAM quota ``n_l ∝ scale^-l`` is filled. Only the kept corners get a descriptor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from d2slam.config import EngineConfig, OrbConfig
+from d2slam.data.base import Camera
+
+
+@dataclass
+class Frame:
+    """One tracked frame (arrays indexed by keypoint). ``Tcw`` is world-to-camera (ORB-SLAM convention)."""
+
+    index: int
+    timestamp: float
+    kps: np.ndarray  # (N, 2) float64 undistorted pixel coordinates
+    kps_raw: np.ndarray  # (N, 2) float64 detected (distorted) coordinates
+    octave: np.ndarray  # (N,) int
+    angle: np.ndarray  # (N,) float32 degrees
+    desc: np.ndarray  # (N, 32) uint8
+    depth: np.ndarray  # (N,) float64 metres, 0 = invalid
+    ur: np.ndarray  # (N,) float64 virtual right coordinate u - bf/z for close points, -1 otherwise
+    inv_sigma2: np.ndarray  # (N,) 1 / scale^(2 octave)
+    mp: np.ndarray = field(default=None)  # (N,) int map point id, -1 none
+    outlier: np.ndarray = field(default=None)  # (N,) bool
+    belief: np.ndarray | None = None  # (N,) dynamic belief from the hook (None: no filter)
+    Tcw: np.ndarray | None = None
+    ref_kf: int = -1
+
+    def __post_init__(self):
+        n = len(self.kps)
+        if self.mp is None:
+            self.mp = np.full(n, -1, dtype=np.int64)
+        if self.outlier is None:
+            self.outlier = np.zeros(n, dtype=bool)
+
+    @property
+    def n(self) -> int:
+        return len(self.kps)
+
+    @property
+    def dynamic(self) -> np.ndarray:
+        if self.belief is None:
+            return np.zeros(self.n, dtype=bool)
+        return self.belief > 0.5
+
+
+def level_quotas(orb: OrbConfig) -> np.ndarray:
+    """ORB-SLAM's features per level: geometric with ratio 1/scale, summing to ``n_features``."""
+    f = 1.0 / orb.scale_factor
+    n0 = orb.n_features * (1 - f) / (1 - f ** orb.n_levels)
+    q = np.round(n0 * f ** np.arange(orb.n_levels)).astype(int)
+    q[-1] = max(orb.n_features - q[:-1].sum(), 0)
+    return q
+
+
+def bucket_select(pts: np.ndarray, level: np.ndarray, response: np.ndarray, orb: OrbConfig,
+                  width: int, height: int) -> np.ndarray:
+    """Indices of the kept corners: per level, round-robin over grid cells by decreasing response (vectorised)."""
+    if len(pts) == 0:
+        return np.zeros(0, dtype=np.int64)
+    quotas = level_quotas(orb)
+    cell = orb.cell_size * orb.scale_factor ** level.astype(np.float64)
+    ncols = np.ceil(width / cell).astype(np.int64)
+    cx = np.minimum((pts[:, 0] / cell).astype(np.int64), ncols - 1)
+    cy = (pts[:, 1] / cell).astype(np.int64)
+    cell_id = (level.astype(np.int64) << 32) | (cy * ncols + cx)
+    order = np.lexsort((-response, cell_id))
+    sorted_cells = cell_id[order]
+    start = np.r_[0, np.flatnonzero(np.diff(sorted_cells)) + 1]
+    group_len = np.diff(np.r_[start, len(order)])
+    rank = np.arange(len(order)) - np.repeat(start, group_len)
+    # Per level: take by (rank, -response) until the quota is filled.
+    lv = level[order]
+    key = np.lexsort((-response[order], rank, lv))
+    lv_sorted = lv[key]
+    lstart = np.searchsorted(lv_sorted, np.arange(orb.n_levels))
+    pos_in_level = np.arange(len(key)) - lstart[lv_sorted]
+    keep = pos_in_level < quotas[lv_sorted]
+    return np.sort(order[key[keep]])
+
+
+class OrbExtractor:
+    """Bucketed ORB with ORB-SLAM's settings; returns arrays (no per-keypoint Python objects kept)."""
+
+    def __init__(self, orb: OrbConfig, engine: EngineConfig, camera: Camera):
+        self.cfg = orb
+        self.engine = engine
+        self.camera = camera
+        n_detect = int(orb.n_features * orb.oversample)
+
+        def make(th):
+            return cv2.ORB_create(nfeatures=n_detect, scaleFactor=orb.scale_factor, nlevels=orb.n_levels,
+                                  edgeThreshold=orb.edge_threshold, firstLevel=0, WTA_K=2,
+                                  scoreType=cv2.ORB_HARRIS_SCORE, patchSize=orb.patch_size, fastThreshold=th)
+
+        self._orb_high = make(orb.fast_threshold)
+        self._orb_low = make(orb.fast_min_threshold)
+        self.scales = orb.scale_factor ** np.arange(orb.n_levels)
+        self.inv_level_sigma2 = 1.0 / self.scales ** 2
+        self.th_depth_m = close_depth(camera, engine)
+
+    def detect(self, gray: np.ndarray):
+        kps = self._orb_high.detect(gray, None)
+        if len(kps) < self.cfg.n_features:
+            kps = self._orb_low.detect(gray, None)
+        return kps
+
+    def __call__(self, gray: np.ndarray, depth: np.ndarray, index: int = 0, timestamp: float = 0.0) -> Frame:
+        h, w = gray.shape[:2]
+        kps = self.detect(gray)
+        if kps:
+            attrs = np.array([(k.pt[0], k.pt[1], k.response, k.octave) for k in kps], dtype=np.float64)
+            keep = bucket_select(attrs[:, :2], attrs[:, 3].astype(np.int64), attrs[:, 2], self.cfg, w, h)
+            kps = [kps[i] for i in keep]
+        desc = None
+        if kps:
+            kps, desc = self._orb_high.compute(gray, kps)
+        if not kps or desc is None:
+            return empty_frame(index, timestamp)
+        attrs = np.array([(k.pt[0], k.pt[1], k.octave, k.angle) for k in kps], dtype=np.float64)
+        raw = attrs[:, :2].copy()
+        octave = attrs[:, 2].astype(np.int64)
+        angle = attrs[:, 3].astype(np.float32)
+        pts = undistort(raw, self.camera)
+        z = keypoint_depth(depth, raw, self.cfg.depth_patch_radius, self.engine)
+        ur = virtual_right(pts[:, 0], z, self.camera.bf, self.th_depth_m)
+        return Frame(index=index, timestamp=timestamp, kps=pts, kps_raw=raw, octave=octave, angle=angle,
+                     desc=np.ascontiguousarray(desc), depth=z, ur=ur, inv_sigma2=self.inv_level_sigma2[octave])
+
+
+def empty_frame(index: int, timestamp: float) -> Frame:
+    z = np.zeros(0)
+    return Frame(index=index, timestamp=timestamp, kps=np.zeros((0, 2)), kps_raw=np.zeros((0, 2)),
+                 octave=np.zeros(0, dtype=np.int64), angle=np.zeros(0, dtype=np.float32),
+                 desc=np.zeros((0, 32), dtype=np.uint8), depth=z, ur=z.copy(), inv_sigma2=z.copy())
+
+
+def undistort(pts: np.ndarray, camera: Camera) -> np.ndarray:
+    """Undistorted pixel coordinates (identity when the camera has no distortion)."""
+    if not camera.has_distortion or len(pts) == 0:
+        return pts.copy()
+    out = cv2.undistortPoints(pts.reshape(-1, 1, 2).astype(np.float64), camera.K, np.asarray(camera.dist),
+                              P=camera.K)
+    return out.reshape(-1, 2)
+
+
+def keypoint_depth(depth: np.ndarray, pts: np.ndarray, radius: int, engine: EngineConfig) -> np.ndarray:
+    """Robust depth per keypoint: median of the valid pixels in a (2r+1)^2 patch (0 when none is valid or the
+    value lies outside [min_depth, max_depth]). Vectorised gather, no loop over keypoints."""
+    if len(pts) == 0:
+        return np.zeros(0)
+    h, w = depth.shape
+    u = np.rint(pts[:, 0]).astype(np.int64)
+    v = np.rint(pts[:, 1]).astype(np.int64)
+    off = np.arange(-radius, radius + 1)
+    uu = np.clip(u[:, None, None] + off[None, None, :], 0, w - 1)
+    vv = np.clip(v[:, None, None] + off[None, :, None], 0, h - 1)
+    patch = depth[vv, uu].reshape(len(pts), -1).astype(np.float64)
+    patch[~(patch > 0)] = np.nan
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            z = np.nanmedian(patch, axis=1)
+    z = np.where(np.isfinite(z) & (z >= engine.min_depth) & (z <= engine.max_depth), z, 0.0)
+    return z
+
+
+def close_depth(camera: Camera, engine: EngineConfig) -> float:
+    """ORB-SLAM's close-point depth ``th_depth * b`` with baseline ``b = bf / fx`` (40 * 40 / 535.4 ≈ 3 m)."""
+    return engine.th_depth * camera.bf / camera.fx
+
+
+def virtual_right(u: np.ndarray, z: np.ndarray, bf: float, th_depth_m: float) -> np.ndarray:
+    """``u_R = u - bf / z`` for close points (0 < z < th_depth_m): stereo edges; -1 marks far or invalid-depth
+    keypoints (monocular edges), as ORB-SLAM's ``mvuRight < 0``."""
+    close = (z > 0) & (z < th_depth_m)
+    ur = np.full(len(u), -1.0)
+    ur[close] = u[close] - bf / z[close]
+    return ur

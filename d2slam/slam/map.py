@@ -1,0 +1,172 @@
+"""The map: map points as growable column arrays, keyframes, and one global observation table
+(keyframe, point, keypoint, octave) from which covisibility, local-BA edges and culling are computed with numpy
+(no per-point Python containers)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class Columns:
+    """Growable struct-of-arrays (capacity doubling)."""
+
+    def __init__(self, spec: dict[str, tuple[tuple, type, float]]):
+        self._spec = spec
+        self.n = 0
+        self._cap = 0
+        for name, (shape, dtype, _fill) in spec.items():
+            setattr(self, name, np.zeros((0, *shape), dtype=dtype))
+
+    def append(self, count: int, **values) -> np.ndarray:
+        start = self.n
+        need = self.n + count
+        if need > self._cap:
+            cap = max(need, 2 * self._cap, 1024)
+            for name, (shape, dtype, fill) in self._spec.items():
+                old = getattr(self, name)
+                new = np.full((cap, *shape), fill, dtype=dtype)
+                new[: self.n] = old[: self.n]
+                setattr(self, name, new)
+            self._cap = cap
+        for name, (shape, dtype, fill) in self._spec.items():
+            arr = getattr(self, name)
+            arr[start:need] = values.get(name, fill)
+        self.n = need
+        return np.arange(start, need)
+
+    def view(self, name: str) -> np.ndarray:
+        return getattr(self, name)[: self.n]
+
+
+@dataclass
+class KeyFrame:
+    id: int
+    frame_index: int
+    timestamp: float
+    Tcw: np.ndarray
+    kps: np.ndarray
+    octave: np.ndarray
+    angle: np.ndarray
+    desc: np.ndarray
+    depth: np.ndarray
+    ur: np.ndarray
+    inv_sigma2: np.ndarray
+    mp: np.ndarray  # (N,) map point ids, -1 none
+    bad: bool = False
+
+    @property
+    def center(self) -> np.ndarray:
+        return -self.Tcw[:3, :3].T @ self.Tcw[:3, 3]
+
+
+class Map:
+    def __init__(self):
+        self.points = Columns({
+            "pos": ((3,), np.float64, 0.0),
+            "desc": ((32,), np.uint8, 0),
+            "normal": ((3,), np.float64, 0.0),
+            "dmin": ((), np.float64, 0.0),
+            "dmax": ((), np.float64, 0.0),
+            "belief": ((), np.float64, 0.0),
+            "visible": ((), np.int64, 1),
+            "found": ((), np.int64, 1),
+            "nobs": ((), np.int64, 0),  # ORB-SLAM counting: 2 per observation with depth (uR), 1 otherwise
+            "alive": ((), bool, True),
+            "first_kf": ((), np.int64, -1),
+            "angle": ((), np.float32, 0.0),
+            "octave": ((), np.int64, 0),
+        })
+        self.obs = Columns({
+            "kf": ((), np.int64, -1),
+            "pt": ((), np.int64, -1),
+            "kp": ((), np.int64, -1),
+            "octave": ((), np.int64, 0),
+            "weight": ((), np.int64, 1),
+            "valid": ((), bool, True),
+        })
+        self.keyframes: list[KeyFrame] = []
+        self.recent_points: np.ndarray = np.zeros(0, dtype=np.int64)
+
+    # ------------------------------------------------------------------ points
+    @property
+    def n_points(self) -> int:
+        return int(self.points.view("alive").sum())
+
+    def add_points(self, pos, desc, normal, dmin, dmax, belief, first_kf, angle, octave) -> np.ndarray:
+        ids = self.points.append(len(pos), pos=pos, desc=desc, normal=normal, dmin=dmin, dmax=dmax, belief=belief,
+                                 first_kf=first_kf, angle=angle, octave=octave)
+        self.recent_points = np.r_[self.recent_points, ids]
+        return ids
+
+    def add_observations(self, kf: KeyFrame, kp_idx: np.ndarray, pt_ids: np.ndarray) -> None:
+        if len(kp_idx) == 0:
+            return
+        w = np.where(kf.depth[kp_idx] > 0, 2, 1)  # ORB-SLAM counts an observation with depth twice
+        self.obs.append(len(kp_idx), kf=kf.id, pt=pt_ids, kp=kp_idx, octave=kf.octave[kp_idx], weight=w)
+        kf.mp[kp_idx] = pt_ids
+        np.add.at(self.points.nobs, pt_ids, w)
+
+    def erase_observations(self, rows: np.ndarray) -> None:
+        """Invalidate observation rows (and the keyframes' keypoint -> point links)."""
+        rows = rows[self.obs.valid[rows]]
+        if len(rows) == 0:
+            return
+        self.obs.valid[rows] = False
+        np.add.at(self.points.nobs, self.obs.pt[rows], -self.obs.weight[rows])
+        kfs = self.obs.kf[rows]
+        for kid in np.unique(kfs):
+            sel = rows[kfs == kid]
+            self.keyframes[kid].mp[self.obs.kp[sel]] = -1
+        # A point left without observations is dead.
+        pts = np.unique(self.obs.pt[rows])
+        self.points.alive[pts[self.points.nobs[pts] <= 0]] = False
+
+    def cull_points(self, ids: np.ndarray) -> None:
+        """Set points bad and erase all their observations."""
+        ids = np.asarray(ids, dtype=np.int64)
+        if len(ids) == 0:
+            return
+        self.points.alive[ids] = False
+        dead = np.zeros(self.points.n, dtype=bool)
+        dead[ids] = True
+        rows = np.flatnonzero(self.obs.view("valid") & dead[self.obs.view("pt")])
+        self.erase_observations(rows)
+
+    # ------------------------------------------------------------------ keyframes
+    def add_keyframe(self, kf: KeyFrame) -> None:
+        assert kf.id == len(self.keyframes)
+        self.keyframes.append(kf)
+
+    def good_keyframes(self) -> list[KeyFrame]:
+        return [k for k in self.keyframes if not k.bad]
+
+    def observation_rows(self, point_mask: np.ndarray) -> np.ndarray:
+        """Valid observation rows of the points selected by a (n_points,) bool mask."""
+        valid = self.obs.view("valid")
+        return np.flatnonzero(valid & point_mask[self.obs.view("pt")])
+
+    def covisibility(self, kf_id: int) -> np.ndarray:
+        """(n_keyframes,) number of points each keyframe shares with ``kf_id`` (0 for itself and bad ones)."""
+        kf = self.keyframes[kf_id]
+        mask = np.zeros(self.points.n, dtype=bool)
+        pts = kf.mp[kf.mp >= 0]
+        mask[pts[self.points.alive[pts]]] = True
+        rows = self.observation_rows(mask)
+        counts = np.bincount(self.obs.kf[rows], minlength=len(self.keyframes))
+        counts[kf_id] = 0
+        return counts
+
+    def keyframe_counts(self, pt_ids: np.ndarray) -> np.ndarray:
+        """(n_keyframes,) number of the given points each keyframe observes."""
+        mask = np.zeros(self.points.n, dtype=bool)
+        mask[pt_ids] = True
+        rows = self.observation_rows(mask)
+        return np.bincount(self.obs.kf[rows], minlength=len(self.keyframes))
+
+    def set_keyframe_bad(self, kf_id: int) -> None:
+        kf = self.keyframes[kf_id]
+        kf.bad = True
+        rows = np.flatnonzero(self.obs.view("valid") & (self.obs.view("kf") == kf_id))
+        self.erase_observations(rows)

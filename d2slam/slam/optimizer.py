@@ -1,0 +1,185 @@
+"""Graph optimisation with g2o (the ``g2opy`` wheel): ORB-SLAM's motion-only BA and local BA, with ORB-SLAM's own
+edge types (``EdgeSE3ProjectXYZOnlyPose`` mono, ``EdgeStereoSE3ProjectXYZ`` stereo (the binding of the pose-only
+stereo edge does not expose its intrinsics, so a fixed point vertex stands in for ``Xw``), ``EdgeSE3ProjectXYZ``),
+Huber kernels at sqrt(chi2 95 %), Levenberg-Marquardt from g2o. Why g2o and not gtsam: see
+``d2slam bench engine --compare-optimisers`` (same local-BA problem, both libraries).
+
+Residual checks between outlier rounds are computed in numpy on all edges at once (no per-edge Python calls).
+"""
+
+from __future__ import annotations
+
+import g2opy as g2o
+import numpy as np
+
+from d2slam.config import EngineConfig
+
+
+def _se3(Tcw: np.ndarray) -> "g2o.SE3Quat":
+    return g2o.SE3Quat(np.ascontiguousarray(Tcw[:3, :3]), np.ascontiguousarray(Tcw[:3, 3]))
+
+
+def _mat(se3) -> np.ndarray:
+    return np.asarray(se3.matrix(), dtype=np.float64)
+
+
+_KEEP_ALIVE: dict = {}  # terminate actions must outlive the call that registers them
+
+
+def _optimizer(dense: bool, gain_threshold: float = 0.0):
+    opt = g2o.SparseOptimizer()
+    linear = g2o.LinearSolverDenseSE3() if dense else g2o.LinearSolverEigenSE3()
+    opt.set_algorithm(g2o.OptimizationAlgorithmLevenberg(g2o.BlockSolverSE3(linear)))
+    if gain_threshold > 0:  # stop a round once the relative chi2 decrease falls below the threshold
+        term = g2o.SparseOptimizerTerminateAction()
+        term.set_gain_threshold(gain_threshold)
+        opt.add_post_iteration_action(term)
+        _KEEP_ALIVE[id(opt)] = term
+    return opt
+
+
+def reprojection_chi2(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
+                      K: np.ndarray, bf: float) -> tuple[np.ndarray, np.ndarray]:
+    """Chi2 of every observation (stereo where ``ur >= 0``) and whether the point is in front of the camera."""
+    Xc = X @ Tcw[:3, :3].T + Tcw[:3, 3]
+    z = Xc[:, 2]
+    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
+    u = K[0, 0] * Xc[:, 0] / zs + K[0, 2]
+    v = K[1, 1] * Xc[:, 1] / zs + K[1, 2]
+    e2 = (uv[:, 0] - u) ** 2 + (uv[:, 1] - v) ** 2
+    stereo = ur >= 0
+    e2 = e2 + np.where(stereo, (ur - (u - bf / zs)) ** 2, 0.0)
+    return e2 * inv_sigma2, z > 0
+
+
+def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
+                      K: np.ndarray, bf: float, cfg: EngineConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Motion-only BA (ORB-SLAM ``PoseOptimization``): returns the optimised ``Tcw`` and the inlier mask.
+
+    ``pose_opt_rounds`` rounds of ``pose_opt_iterations`` LM iterations; after each round every edge is classified
+    (chi2 against 5.991 mono / 7.815 stereo), outliers are switched off (level 1) and may come back; the robust
+    kernel is dropped for the last rounds, as in ORB-SLAM. Each round stops early when the relative chi2
+    decrease falls below ``pose_opt_gain_threshold`` (g2o's terminate action)."""
+    m = len(X)
+    inlier = np.ones(m, dtype=bool)
+    if m < 3:
+        return Tcw.copy(), np.zeros(m, dtype=bool)
+    opt = _optimizer(dense=True, gain_threshold=cfg.pose_opt_gain_threshold)
+    vpose = g2o.VertexSE3Expmap()
+    vpose.set_estimate(_se3(Tcw))
+    vpose.set_id(0)
+    opt.add_vertex(vpose)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    stereo = ur >= 0
+    d_mono, d_stereo = np.sqrt(cfg.chi2_mono), np.sqrt(cfg.chi2_stereo)
+    edges, kernels = [], []
+    eye2, eye3 = np.eye(2), np.eye(3)
+    for i in range(m):
+        if stereo[i]:
+            vp = g2o.VertexPointXYZ()
+            vp.set_id(i + 1)
+            vp.set_estimate(X[i])
+            vp.set_fixed(True)
+            opt.add_vertex(vp)
+            e = g2o.EdgeStereoSE3ProjectXYZ()
+            e.set_vertex(0, vp)
+            e.set_vertex(1, vpose)
+            e.set_measurement(np.array([uv[i, 0], uv[i, 1], ur[i]]))
+            e.set_information(eye3 * inv_sigma2[i])
+            e.bf = bf
+            k = g2o.RobustKernelHuber(d_stereo)
+        else:
+            e = g2o.EdgeSE3ProjectXYZOnlyPose()
+            e.set_vertex(0, vpose)
+            e.set_measurement(uv[i])
+            e.set_information(eye2 * inv_sigma2[i])
+            e.Xw = X[i]
+            k = g2o.RobustKernelHuber(d_mono)
+        e.fx, e.fy, e.cx, e.cy = fx, fy, cx, cy
+        e.set_robust_kernel(k)
+        opt.add_edge(e)
+        edges.append(e)
+        kernels.append(k)
+    th = np.where(stereo, cfg.chi2_stereo, cfg.chi2_mono)
+    level = np.zeros(m, dtype=np.int64)
+    T = Tcw.copy()
+    for it in range(cfg.pose_opt_rounds):
+        # ORB-SLAM restarts every round from the initial pose; we continue from the last estimate (fewer
+        # iterations to converge with the early-termination action, same fixed point).
+        opt.initialize_optimization(0)
+        opt.optimize(cfg.pose_opt_iterations)
+        T = _mat(vpose.estimate())
+        chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf)
+        inlier = (chi2 <= th) & front
+        new_level = (~inlier).astype(np.int64)
+        for i in np.flatnonzero(new_level != level):
+            edges[i].set_level(int(new_level[i]))
+        level = new_level
+        if it == 2:  # ORB-SLAM drops the robust kernel from here on (the binding has no null kernel: infinite delta)
+            for k in kernels:
+                k.set_delta(1e12)
+        if inlier.sum() < 10:
+            break
+    _KEEP_ALIVE.pop(id(opt), None)
+    return T, inlier
+
+
+def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray, obs_cam: np.ndarray,
+                            obs_pt: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
+                            K: np.ndarray, bf: float, cfg: EngineConfig, iterations: int | None = None):
+    """Local BA (ORB-SLAM3 ``LocalBundleAdjustment``): keyframe poses ``poses`` (C, 4, 4) ``Tcw`` (``fixed`` (C,)
+    bool held constant) and points ``X`` (P, 3) refined together over observations (obs_cam, obs_pt, uv, ur,
+    inv_sigma2), Huber kernels, Schur complement on the points. Returns (poses, X, outlier (O,) bool): outliers
+    are observations above the chi2 thresholds or behind the camera after optimisation (ORB-SLAM erases them)."""
+    opt = _optimizer(dense=False)
+    C, P = len(poses), len(X)
+    vposes = []
+    for c in range(C):
+        v = g2o.VertexSE3Expmap()
+        v.set_estimate(_se3(poses[c]))
+        v.set_id(c)
+        v.set_fixed(bool(fixed[c]))
+        opt.add_vertex(v)
+        vposes.append(v)
+    vpts = []
+    for p in range(P):
+        v = g2o.VertexPointXYZ()
+        v.set_estimate(X[p])
+        v.set_id(C + p)
+        v.set_marginalized(True)
+        opt.add_vertex(v)
+        vpts.append(v)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    d_mono, d_stereo = np.sqrt(cfg.chi2_mono), np.sqrt(cfg.chi2_stereo)
+    eye2, eye3 = np.eye(2), np.eye(3)
+    stereo = ur >= 0
+    meas3 = np.column_stack([uv, ur])
+    for o in range(len(obs_cam)):
+        if stereo[o]:
+            e = g2o.EdgeStereoSE3ProjectXYZ()
+            e.set_measurement(meas3[o])
+            e.set_information(eye3 * inv_sigma2[o])
+            e.bf = bf
+            e.set_robust_kernel(g2o.RobustKernelHuber(d_stereo))
+        else:
+            e = g2o.EdgeSE3ProjectXYZ()
+            e.set_measurement(uv[o])
+            e.set_information(eye2 * inv_sigma2[o])
+            e.set_robust_kernel(g2o.RobustKernelHuber(d_mono))
+        e.set_vertex(0, vpts[obs_pt[o]])
+        e.set_vertex(1, vposes[obs_cam[o]])
+        e.fx, e.fy, e.cx, e.cy = fx, fy, cx, cy
+        opt.add_edge(e)
+    opt.initialize_optimization(0)
+    opt.optimize(cfg.local_ba_iterations if iterations is None else iterations)
+    new_poses = np.stack([_mat(v.estimate()) for v in vposes]) if C else poses.copy()
+    new_X = np.stack([np.asarray(v.estimate(), dtype=np.float64) for v in vpts]) if P else X.copy()
+    outlier = np.zeros(len(obs_cam), dtype=bool)
+    for c in range(C):
+        sel = obs_cam == c
+        if not sel.any():
+            continue
+        chi2, front = reprojection_chi2(new_poses[c], new_X[obs_pt[sel]], uv[sel], ur[sel], inv_sigma2[sel], K, bf)
+        th = np.where(stereo[sel], cfg.chi2_stereo, cfg.chi2_mono)
+        outlier[sel] = (chi2 > th) | ~front
+    return new_poses, new_X, outlier
