@@ -77,7 +77,7 @@ class OrbConfig:
     fast_min_threshold: int = 7
     edge_threshold: int = 19
     patch_size: int = 31
-    # Spatial bucketing: the image is cut in cells of about this size (pixels).
+    # Spatial bucketing: the image is cut in cells of about this size (pixels) at level 0 (x scale^level above).
     cell_size: int = 35
 
 
@@ -87,6 +87,10 @@ class EngineConfig:
     bf: float = 40.0
     th_depth: float = 40.0
     depth_factor: float = 5000.0
+    # Corners detected per kept feature before bucketing (OpenCV ORB keeps the best by Harris response).
+    oversample: float = 2.0
+    # Keypoint depth: median of the valid depth pixels in a (2 r + 1)^2 patch around the keypoint.
+    depth_patch_radius: int = 1
     min_depth: float = 0.1
     max_depth: float = 8.0
     # Chi-square thresholds at 95 % (ORB-SLAM): 2 dof mono, 3 dof stereo.
@@ -95,38 +99,66 @@ class EngineConfig:
     # Motion-only BA: rounds of optimisation with outlier classification, iterations per round.
     pose_opt_rounds: int = 4
     pose_opt_iterations: int = 10
-    # Matching.
-    tracking_min_matches: int = 20
+    pose_opt_gain_threshold: float = 1e-4  # g2o terminate action: stop a round when chi2 improves less than this
+    # Matching (ORB-SLAM ORBmatcher): Hamming thresholds, nearest-neighbour ratios, search radii (pixels x scale).
+    tracking_min_matches: int = 20  # motion-model search: below this, search again with twice the radius
+    tracking_min_inliers: int = 10  # after motion-only BA (motion model / reference keyframe)
+    reference_min_matches: int = 15
     local_map_min_inliers: int = 30
     relocalisation_min_inliers: int = 50
     desc_th_high: int = 100
     desc_th_low: int = 50
     nn_ratio: float = 0.9
-    search_radius_last_frame: float = 15.0
-    search_radius_local_map: float = 3.0
-    # Keyframe decision (ORB-SLAM3 RGB-D): tracked-point ratio, close points, max/min frames.
-    kf_tracked_ratio: float = 0.9
+    nn_ratio_local_map: float = 0.8
+    nn_ratio_reference: float = 0.7
+    nn_ratio_relocalisation: float = 0.75
+    search_radius_last_frame: float = 15.0  # ORB-SLAM3 RGB-D (non-stereo sensor): th = 15
+    search_radius_local_map: float = 3.0  # ORB-SLAM3 RGB-D: th = 3
+    search_radius_relocalisation: float = 10.0
+    candidates_per_point: int = 16  # k nearest keypoints examined per projected point (k-d tree)
+    check_orientation: bool = True
+    # Initialisation (ORB-SLAM StereoInitialization): keypoints with valid depth needed for the first keyframe.
+    init_min_keypoints: int = 500
+    # Keyframe decision (ORB-SLAM3 RGB-D NeedNewKeyFrame): tracked-point ratio, close points, max/min frames.
+    kf_tracked_ratio: float = 0.75  # thRefRatio for RGB-D (0.4 while the map has a single keyframe)
+    kf_tracked_ratio_first: float = 0.4
     kf_min_frames: int = 0
     kf_max_frames: int = 30
     kf_close_tracked: int = 100
     kf_close_untracked: int = 70
     # Local mapping.
     local_ba_iterations: int = 10
-    local_ba_window: int = 10
+    local_ba_window: int = 10  # covisible keyframes optimised with the new one (best by shared points)
     covisibility_min_shared: int = 15
     mappoint_found_ratio: float = 0.25
     keyframe_redundancy: float = 0.9
     # Map points with a dynamic belief above this are culled (hook output, eq 8).
     mappoint_belief_threshold: float = 0.5
+    kf_min_inliers: int = 15
+    kf_new_points_min: int = 100  # CreateNewKeyFrame: close points added until at least this many (maxPoint)
     ransac_seed: int = 0
 
 
 # --------------------------------------------------------------------------------------------------
 # Segmentation (YOLOv8n-seg person masks through onnxruntime)
+    mappoint_min_obs: int = 3  # ORB-SLAM cnThObs (RGB-D): weighted observations (stereo counts 2)
 # --------------------------------------------------------------------------------------------------
+    keyframe_redundant_obs: int = 3
+    # Tracking the local map: keyframes sharing points with the frame (at most this many) + their covisibles.
+    local_map_max_keyframes: int = 80
+    local_map_neighbours: int = 10
+    # Relocalisation (no DBoW2): descriptor matching against the most recent keyframes, then PnP RANSAC.
+    relocalisation_candidates: int = 10
+    pnp_iterations: int = 300
+    pnp_reprojection_px: float = 4.0
+    pnp_confidence: float = 0.99
+    # Keypoint filter (hook): frame-to-frame mutual-nearest matches within this pixel displacement.
+    filter_match_window: float = 80.0
 @dataclass(frozen=True)
 class SegmentationConfig:
     score_threshold: float = 0.25
+    # OpenCV thread count, set explicitly (cv2.setNumThreads) for deterministic, reproducible timings.
+    cv_threads: int = 1
     nms_iou: float = 0.7
     mask_threshold: float = 0.5
     dilation_px: int = 0
