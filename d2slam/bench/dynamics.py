@@ -1,0 +1,94 @@
+"""Speed of D2SLAM's dynamics modules per frame (target: all modules together <= 3 ms for 1000 keypoints, about 800
+matches and two person masks at 640x480).
+
+Inputs are seeded synthetic two-view scenes (``d2slam.dynamics.toy``: a moving camera, person-sized masks moving
+sideways, Kinect-range depth with holes); the classifier is called once per frame, each call timed module by module
+(``FrameDiagnostics.timings_ms``, wall clock) and as a whole (wall clock and process CPU time of the call:
+the CPU time is the figure that stays meaningful when other processes load the machine). The robust keypoint depth
+(``depth.keypoint_depth``) runs on the engine's side (``FilterInput.kp_depth``) and is timed on its own line.
+"""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+DESCRIPTION = "time the dynamics modules per frame (1000 keypoints, ~800 matches, two masks, 640x480)"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--method", default="d2slam", help="classifier mode (default d2slam; 'all' = every mode)")
+    parser.add_argument("--keypoints", type=int, default=1000)
+    parser.add_argument("--matches", type=int, default=800)
+    parser.add_argument("--masks", type=int, default=2)
+    parser.add_argument("--scenes", type=int, default=20, help="distinct seeded scenes, cycled")
+    parser.add_argument("--frames", type=int, default=300, help="timed frames (after --warmup)")
+    parser.add_argument("--warmup", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1, help="OpenCV threads (cv2.setNumThreads)")
+
+
+def _stats(values: list[float]) -> tuple[float, float, float]:
+    a = np.asarray(values)
+    return float(a.mean()), float(np.median(a)), float(np.percentile(a, 95))
+
+
+def _run_mode(mode: str, scenes, args) -> dict[str, list[float]]:
+    from d2slam.config import DynamicsConfig
+    from d2slam.dynamics import get_filter
+
+    flt = get_filter(mode, DynamicsConfig())
+    out: dict[str, list[float]] = {}
+    for i in range(args.warmup + args.frames):
+        inp = scenes[i % len(scenes)]
+        c0, t0 = time.process_time(), time.perf_counter()
+        flt(inp)
+        wall, cpu = (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
+        if i < args.warmup:
+            continue
+        for k, v in flt.last.timings_ms.items():
+            out.setdefault(k, []).append(v)
+        out.setdefault("wall (call)", []).append(wall)
+        out.setdefault("cpu time (call)", []).append(cpu)
+    return out
+
+
+def run(args) -> int:
+    from d2slam.dynamics import MODES
+    from d2slam.dynamics.depth import keypoint_depth
+    from d2slam.dynamics.toy import two_view_scene
+
+    cv2.setNumThreads(args.threads)
+    scenes, truths = [], []
+    for s in range(args.scenes):
+        inp, truth = two_view_scene(args.seed + s, n_kps=args.keypoints, n_matches=args.matches,
+                                    n_persons=args.masks, frame_index=s + 1)
+        scenes.append(inp)
+        truths.append(truth)
+    n_person_px = np.mean([inp.masks.sum() / len(inp.masks) for inp in scenes]) if args.masks else 0
+    print(f"dynamics bench: {args.keypoints} keypoints, {args.matches} matches, {args.masks} masks "
+          f"(mean {n_person_px:.0f} px each), 640x480, {args.scenes} scenes, {args.frames} timed frames "
+          f"after {args.warmup} warm-up, cv2 threads {args.threads}")
+    kd = []
+    for i in range(args.frames):
+        inp = scenes[i % len(scenes)]
+        t0 = time.perf_counter()
+        keypoint_depth(inp.depth, inp.kps)
+        kd.append((time.perf_counter() - t0) * 1e3)
+    modes = MODES if args.method == "all" else [args.method]
+    for mode in modes:
+        res = _run_mode(mode, scenes, args)
+        print(f"\nmethod {mode}                 mean    median     p95   (ms per frame)")
+        for k, v in res.items():
+            mean, med, p95 = _stats(v)
+            print(f"  {k:<22s} {mean:7.3f} {med:9.3f} {p95:7.3f}")
+        mean, med, _ = _stats(res["total"])
+        cmean, cmed, _ = _stats(res["cpu time (call)"])
+        verdict = "meets" if med <= 3.0 else "MISSES"
+        print(f"  -> total (wall) median {med:.3f} ms, mean {mean:.3f} ms: {verdict} the 3 ms target; "
+              f"process CPU time median {cmed:.3f} ms, mean {cmean:.3f} ms")
+    mean, med, p95 = _stats(kd)
+    print(f"\nengine side: keypoint_depth (3x3 median) {mean:.3f} / {med:.3f} / {p95:.3f} ms (mean/median/p95)")
+    return 0

@@ -1,0 +1,107 @@
+"""Keypoint classification against synthetic ground truth: precision, recall and F1 of "dynamic".
+
+``keypoint_truth(kps, dynamic_mask)`` labels each keypoint from a per-pixel truth mask (the synthetic benchmark's
+``SyntheticSequence.dynamic_mask(i)``: a person, or a moved object while it moves). ``KeypointMetrics`` accumulates
+confusion counts over frames (and ``ModuleMetrics`` one per module of the classifier's diagnostics).
+
+Undefined ratios (no predicted or no true dynamic keypoint at all) are NaN, never a made-up 0 or 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from d2slam.errors import D2SlamError
+
+
+def keypoint_truth(kps: np.ndarray, dynamic_mask: np.ndarray) -> np.ndarray:
+    """(N,) bool: the truth mask at each keypoint's pixel (u, v), rounded to the nearest pixel (``np.rint``).
+
+    Keypoints outside the image (after rounding) or with non-finite coordinates are static (False): the truth has
+    nothing to say there, and the engine keeps only in-image keypoints anyway."""
+    m = np.asarray(dynamic_mask)
+    if m.ndim != 2:
+        raise D2SlamError(f"dynamic truth mask must be (H, W), got shape {m.shape}")
+    kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
+    h, w = m.shape
+    finite = np.all(np.isfinite(kps), axis=1)
+    pix = np.rint(np.where(finite[:, None], kps, -1.0)).astype(np.int64)
+    ok = finite & (pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
+    out = np.zeros(len(kps), dtype=bool)
+    out[ok] = m[pix[ok, 1], pix[ok, 0]] != 0
+    return out
+
+
+def _ratio(a: int, b: int) -> float:
+    return a / b if b > 0 else float("nan")
+
+
+@dataclass
+class KeypointMetrics:
+    """Confusion counts of "dynamic" accumulated over frames."""
+
+    tp: int = 0  # dynamic predicted dynamic
+    fp: int = 0  # static predicted dynamic
+    fn: int = 0  # dynamic predicted static
+    tn: int = 0  # static predicted static
+
+    def update(self, pred: np.ndarray, truth: np.ndarray) -> "KeypointMetrics":
+        pred = np.asarray(pred, dtype=bool).reshape(-1)
+        truth = np.asarray(truth, dtype=bool).reshape(-1)
+        if pred.shape != truth.shape:
+            raise D2SlamError(f"{len(pred)} predictions for {len(truth)} truth labels")
+        self.tp += int(np.count_nonzero(pred & truth))
+        self.fp += int(np.count_nonzero(pred & ~truth))
+        self.fn += int(np.count_nonzero(~pred & truth))
+        self.tn += int(np.count_nonzero(~pred & ~truth))
+        return self
+
+    def __add__(self, other: "KeypointMetrics") -> "KeypointMetrics":
+        return KeypointMetrics(self.tp + other.tp, self.fp + other.fp, self.fn + other.fn, self.tn + other.tn)
+
+    @property
+    def n(self) -> int:
+        return self.tp + self.fp + self.fn + self.tn
+
+    @property
+    def precision(self) -> float:
+        """Of the keypoints predicted dynamic, the fraction truly dynamic."""
+        return _ratio(self.tp, self.tp + self.fp)
+
+    @property
+    def recall(self) -> float:
+        """Of the truly dynamic keypoints, the fraction predicted dynamic."""
+        return _ratio(self.tp, self.tp + self.fn)
+
+    @property
+    def f1(self) -> float:
+        p, r = self.precision, self.recall
+        if np.isnan(p) or np.isnan(r):
+            return float("nan")
+        return 2 * p * r / (p + r) if p + r > 0 else 0.0
+
+    @property
+    def static_precision(self) -> float:
+        """Of the keypoints kept as static, the fraction truly static (what pose optimisation sees)."""
+        return _ratio(self.tn, self.tn + self.fn)
+
+    def as_dict(self) -> dict[str, float]:
+        return {"tp": self.tp, "fp": self.fp, "fn": self.fn, "tn": self.tn, "precision": self.precision,
+                "recall": self.recall, "f1": self.f1, "static_precision": self.static_precision}
+
+
+@dataclass
+class ModuleMetrics:
+    """One ``KeypointMetrics`` per module name, fed with ``FrameDiagnostics.predictions()`` dicts."""
+
+    modules: dict[str, KeypointMetrics] = field(default_factory=dict)
+
+    def update(self, predictions: dict[str, np.ndarray], truth: np.ndarray) -> "ModuleMetrics":
+        for name, pred in predictions.items():
+            self.modules.setdefault(name, KeypointMetrics()).update(pred, truth)
+        return self
+
+    def as_dict(self) -> dict[str, dict[str, float]]:
+        return {name: m.as_dict() for name, m in self.modules.items()}
