@@ -41,6 +41,9 @@ class DynamicsConfig:
     transition: float = 0.1
     prior: float = 0.5
     dynamic_threshold: float = 0.5
+    # eq 8 (ours): the likelihood P is clipped to [c, 1 - c] so that one observation of exactly 0 or 1 does not erase
+    # the prior (bel would be exactly P whatever bel(q) was).
+    likelihood_clip: float = 1e-3
     # eq 9: delta(z) = delta_a - delta_b z pixels, clipped to [delta_min, delta_max]; rho metres.
     delta_a: float = 48.0
     delta_b: float = 4.0
@@ -50,15 +53,20 @@ class DynamicsConfig:
     # eq 9 (our reading): interaction zone = within zone_factor * delta(z_n) px of mask n, |z - z_n| < zone_depth.
     zone_factor: float = 2.0
     zone_depth: float = 1.0
+    # eq 9 (ours): z_n = median of the valid depths of mask n sampled on a grid of this stride (1 = every pixel).
+    zone_median_stride: int = 4
     # eq 10: gamma(z) = gamma_max - (gamma_max - gamma_min) s(z) pixels.
     gamma_min: float = 10.0
     gamma_max: float = 28.0
+    # eq 10 (ours): belief given to a static keypoint the OIM turns dynamic (the paper only says "becomes dynamic").
+    oim_belief: float = 0.9
     # eq 4-5: fundamental matrix by RANSAC (OpenCV), seeded for determinism.
     f_ransac_threshold_px: float = 1.0
     f_ransac_confidence: float = 0.999
     f_ransac_max_iters: int = 500
     f_min_matches: int = 8
     f_min_static_matches: int = 30
+    f_ransac_seed: int = 0
     # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
     fixed_alpha: float = 0.7
     # Keypoint depth: median of valid pixels in a (2 r + 1)^2 patch.
