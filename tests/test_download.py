@@ -299,3 +299,26 @@ def test_manual_archive_and_cli(server, tum_tgz, tmp_path, capsys):
     assert main(["download", "fr9_nothing", "--to", str(tmp_path / "x")]) == 2
     assert "unknown TUM sequence" in capsys.readouterr().err
     assert main(["download", NAME]) == 2
+
+
+def test_corrupt_manual_archive_is_left_alone(tmp_path):
+    manual = tmp_path / ARCHIVE
+    manual.write_bytes(b"\x1f\x8b\x08" + b"\x00" * 50)  # gzip magic, then nonsense
+    with pytest.raises(D2SlamError, match="corrupt or truncated") as err:
+        dl.download_sequence(NAME, tmp_path / "m", archive=manual, log=quiet)
+    assert err.value.path == manual and manual.is_file()  # the user's file is not moved or deleted
+    assert list((tmp_path / "m").iterdir()) == [] and not dl.record_path().exists()
+
+
+def test_registry_checksum_is_enforced_when_present(server, tum_tgz, tmp_path, monkeypatch):
+    import dataclasses
+
+    real = dl.registry()
+    fake = {k: dataclasses.replace(v, sha256="0" * 64) for k, v in real.items()}
+    monkeypatch.setattr(dl, "registry", lambda: fake)
+    with pytest.raises(D2SlamError, match="differs from the registry"):
+        dl.download_sequence(NAME, tmp_path / "d", base_url=server.url, log=quiet)
+    fake = {k: dataclasses.replace(v, size=len(tum_tgz) + 1) for k, v in real.items()}
+    monkeypatch.setattr(dl, "registry", lambda: fake)
+    with pytest.raises(D2SlamError, match="size .* differs from the registry"):
+        dl.download_sequence(NAME, tmp_path / "e", base_url=server.url, log=quiet)
