@@ -322,3 +322,14 @@ def test_registry_checksum_is_enforced_when_present(server, tum_tgz, tmp_path, m
     monkeypatch.setattr(dl, "registry", lambda: fake)
     with pytest.raises(D2SlamError, match="size .* differs from the registry"):
         dl.download_sequence(NAME, tmp_path / "e", base_url=server.url, log=quiet)
+
+
+def test_silent_server_times_out_quickly(tmp_path):
+    with socket.socket() as s:  # accepts connections (kernel backlog) but never answers
+        s.bind(("127.0.0.1", 0))
+        s.listen(4)
+        url = f"http://127.0.0.1:{s.getsockname()[1]}"
+        t = time.perf_counter()
+        with pytest.raises(D2SlamError, match="cannot reach the TUM server .*timed out"):
+            dl.download_sequence(NAME, tmp_path / "data", base_url=url, timeout=0.3, log=quiet)
+        assert time.perf_counter() - t < 3
