@@ -89,3 +89,28 @@ def room_sequence(n: int = 30, seed: int = 0, fps: float = 30.0):
     frames = [room.render(T) for T in poses]
     ts = 1000.0 + np.arange(n) / fps
     return frames, poses, ts
+
+
+def write_room_sequence(root, n: int = 30, seed: int = 0, fps: float = 30.0) -> "Path":
+    """Write a :func:`room_sequence` as a TUM folder (rgb/, depth/ x5000, rgb.txt, depth.txt, groundtruth.txt)."""
+    from pathlib import Path
+
+    from d2slam.data.base import Trajectory
+    from d2slam.data.tum import write_tum_trajectory
+
+    root = Path(root)
+    (root / "rgb").mkdir(parents=True, exist_ok=True)
+    (root / "depth").mkdir(parents=True, exist_ok=True)
+    frames, poses, ts = room_sequence(n, seed, fps)
+    rgb_lines, depth_lines = ["# color images"], ["# depth maps"]
+    for (gray, depth), t in zip(frames, ts):
+        name = f"{t:.6f}.png"
+        cv2.imwrite(str(root / "rgb" / name), cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR))
+        d16 = np.clip(np.rint(depth * 5000.0), 0, 65535).astype(np.uint16)
+        cv2.imwrite(str(root / "depth" / name), d16)
+        rgb_lines.append(f"{t:.6f} rgb/{name}")
+        depth_lines.append(f"{t:.6f} depth/{name}")
+    (root / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    write_tum_trajectory(root / "groundtruth.txt", Trajectory(ts, poses))
+    return root

@@ -1,0 +1,53 @@
+"""Registry of run methods (``d2slam run --method NAME``): a name -> factory building the engine's keypoint filter.
+
+``none`` is the engine with the hook off (our in-engine stand-in for ORB-SLAM3). The dynamics methods (``d2slam``,
+``no-depth``, ``no-oim``, ``no-bayes``, ``semantic``, ``geometric``) and the real ``orbslam3`` baseline plug in here
+with :func:`register` (one line each, e.g. from ``d2slam/dynamics/classifier.py``)::
+
+    register("d2slam", lambda config: D2SlamFilter("d2slam", config), needs_masks=True)
+
+A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and ``reset()``, or None (hook off).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from d2slam.config import Config
+from d2slam.errors import D2SlamError
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    factory: Callable[[Config], object | None]
+    needs_masks: bool = False
+    help: str = ""
+
+
+_REGISTRY: dict[str, Method] = {}
+
+
+def register(name: str, factory: Callable[[Config], object | None], needs_masks: bool = False,
+             help: str = "") -> None:
+    _REGISTRY[name] = Method(name, factory, needs_masks, help)
+
+
+def methods() -> list[str]:
+    return list(_REGISTRY)
+
+
+def get_method(name: str) -> Method:
+    if name not in _REGISTRY:
+        raise D2SlamError(f"unknown method {name!r}; choose one of {', '.join(_REGISTRY)}")
+    return _REGISTRY[name]
+
+
+def get_filter(name: str, config: Config):
+    """The keypoint filter of method ``name`` (None for ``none``)."""
+    return get_method(name).factory(config)
+
+
+register("none", lambda config: None, needs_masks=False, help="engine with the keypoint filter off (ORB-SLAM3 "
+         "stand-in)")
