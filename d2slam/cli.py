@@ -15,6 +15,8 @@ COMMANDS = [
     "segment",
     "vocab",
     "download",
+    "run",
+    "eval",
 ]
 
 
