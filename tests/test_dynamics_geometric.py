@@ -1,0 +1,114 @@
+"""Geometric module (eq 4-6): epipolar error of a known F, P_g, RANSAC on a synthetic two-view scene."""
+
+import numpy as np
+import pytest
+
+from d2slam.config import DynamicsConfig
+from d2slam.dynamics.geometric import (epipolar_error, fundamental_matrix, geometric_module,
+                                       geometric_probability)
+from d2slam.errors import D2SlamError
+
+CFG = DynamicsConfig()
+# Pure translation along x with K = I: F = [t]_x, epipolar lines are horizontal (y = v of the previous point).
+F_X = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def test_epipolar_error_of_a_known_F():
+    q = np.array([[10.0, 20.0], [5.0, -3.0]])
+    p = np.array([[50.0, 23.0], [0.0, -3.0]])  # 3 px off the line y = 20; on the line y = -3
+    np.testing.assert_allclose(epipolar_error(F_X, p, q), [3.0, 0.0], atol=1e-12)
+    # A general F: compare with the point-line distance computed by hand.
+    F = np.array([[1e-6, -2e-5, 3e-3], [1e-5, 2e-6, -4e-3], [-2e-3, 5e-3, 1.0]])
+    qh, ph = np.array([100.0, 200.0, 1.0]), np.array([110.0, 190.0, 1.0])
+    line = F @ qh
+    expected = abs(ph @ line) / np.hypot(line[0], line[1])
+    assert epipolar_error(F, ph[None, :2], qh[None, :2])[0] == pytest.approx(expected)
+
+
+def test_epipolar_error_degenerate_line_is_nan():
+    F = np.diag([1.0, 1.0, 0.0])  # l = F q~ = (u, v, 0): zero at q = (0, 0)
+    err = epipolar_error(F, np.array([[1.0, 1.0]]), np.array([[0.0, 0.0]]))
+    assert np.isnan(err[0])
+
+
+def test_geometric_probability_eq6_and_threshold():
+    err = np.array([0.0, 0.5, 0.69, 0.71, 3.0, np.nan])
+    p, dyn = geometric_probability(err, 0.7, sigma=1.0)
+    np.testing.assert_allclose(p[:3], 1 - np.exp(-err[:3] ** 2 / 2))
+    np.testing.assert_array_equal(p[3:5], 1.0)
+    np.testing.assert_array_equal(dyn, [False, False, False, True, True, False])
+    assert np.isnan(p[5])
+    # depth-adaptive threshold per keypoint
+    _, dyn = geometric_probability(np.array([0.6, 0.6]), np.array([0.5, 0.9]))
+    np.testing.assert_array_equal(dyn, [True, False])
+
+
+def test_fewer_than_8_matches_gives_no_F():
+    rng = np.random.default_rng(0)
+    q = rng.uniform(0, 100, (7, 2))
+    F, inl = fundamental_matrix(q, q + 1.0, CFG)
+    assert F is None and inl.shape == (7,) and not inl.any()
+    kps = rng.uniform(0, 100, (10, 2))
+    res = geometric_module(kps, kps, np.column_stack([np.arange(7), np.arange(7)]), np.full(10, 0.5),
+                           np.full(10, 0.7), CFG)
+    assert res.F is None and not res.observed.any() and np.isnan(res.p_g).all() and not res.dynamic.any()
+
+
+def _two_view(rng, n_static=300, n_dyn=60):
+    """Camera moves sideways (horizontal epipolar lines); an object at 2 m moves up by 5 cm (about 13 px)."""
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    Xs = np.column_stack([rng.uniform(-2, 2, n_static), rng.uniform(-1.5, 1.5, n_static), rng.uniform(1.5, 5, n_static)])
+    Xd = np.column_stack([rng.uniform(-0.3, 0.3, n_dyn), rng.uniform(-0.5, 0.5, n_dyn), rng.uniform(1.9, 2.1, n_dyn)])
+    X = np.vstack([Xs, Xd])
+    t = np.array([0.04, 0.0, 0.01])
+
+    def proj(P):
+        y = P @ K.T
+        return y[:, :2] / y[:, 2:]
+
+    q = proj(X) + rng.normal(0, 0.2, (len(X), 2))
+    X_now = X - t
+    X_now[n_static:, 1] -= 0.05
+    p = proj(X_now) + rng.normal(0, 0.2, (len(X), 2))
+    truth = np.r_[np.zeros(n_static, bool), np.ones(n_dyn, bool)]
+    perm = rng.permutation(len(X))  # previous keypoints in another order
+    prev = np.empty_like(q)
+    prev[perm] = q
+    matches = np.column_stack([np.arange(len(X)), perm])
+    return p, prev, matches, truth, X_now[:, 2]
+
+
+def test_two_view_moving_object_high_P_g_static_low():
+    rng = np.random.default_rng(1)
+    p, prev, matches, truth, z = _two_view(rng)
+    res = geometric_module(p, prev, matches, np.full(len(prev), 0.5), np.full(len(p), 0.7), CFG)
+    assert res.F is not None and res.observed.all()
+    assert res.dynamic[truth].mean() >= 0.95
+    assert (res.p_g[truth] > 0.9).mean() >= 0.95
+    assert res.dynamic[~truth].mean() <= 0.10  # 0.2 px noise in both views, F from RANSAC
+    assert np.median(res.p_g[~truth]) < 0.1
+
+
+def test_static_believed_matches_first_and_determinism():
+    rng = np.random.default_rng(2)
+    p, prev, matches, truth, z = _two_view(rng)
+    belief = np.full(len(prev), 0.2)
+    belief[matches[truth, 1]] = 0.9  # the object is believed dynamic
+    a = np.full(len(p), 0.7)
+    r1 = geometric_module(p, prev, matches, belief, a, CFG)
+    r2 = geometric_module(p, prev, matches, belief, a, CFG)
+    assert r1.used_static and r1.n_used == (~truth).sum()
+    np.testing.assert_array_equal(r1.F, r2.F)
+    np.testing.assert_array_equal(r1.p_g, r2.p_g)
+    # Too few static-believed matches: all matches are used.
+    belief[:] = 0.9
+    r3 = geometric_module(p, prev, matches, belief, a, CFG)
+    assert not r3.used_static and r3.n_used == len(matches)
+
+
+def test_bad_match_indices_raise_clear_error():
+    kps = np.zeros((5, 2))
+    with pytest.raises(D2SlamError, match="out of range"):
+        geometric_module(kps, kps, np.array([[0, 7]]), np.full(5, 0.5), 0.7, CFG)
+    with pytest.raises(D2SlamError):
+        geometric_module(kps, kps, np.array([0, 1, 2]), np.full(5, 0.5), 0.7, CFG)

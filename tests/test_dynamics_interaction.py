@@ -1,0 +1,91 @@
+"""Object Interaction Module (eq 9-10): neighbours, weighted centroid, zone, mask depth."""
+
+import numpy as np
+import pytest
+
+from d2slam.config import DynamicsConfig
+from d2slam.dynamics.interaction import interaction_zone, mask_depths, object_interaction
+
+CFG = DynamicsConfig()
+
+
+def test_static_keypoint_surrounded_by_dynamic_flips_far_in_depth_does_not():
+    kps = np.array([
+        [100.0, 100.0],  # 0: static candidate at 2.0 m
+        [110.0, 100.0],  # 1: dynamic, dz 0.1 -> w = 6/7
+        [130.0, 100.0],  # 2: dynamic, dz 0.35 -> w = 0.5
+        [300.0, 300.0],  # 3: static candidate at 2.0 m
+        [305.0, 300.0],  # 4: dynamic but 1.5 m behind (dz > rho)
+        [295.0, 302.0],  # 5: dynamic, 1.5 m behind
+    ])
+    z = np.array([2.0, 2.1, 2.35, 2.0, 3.5, 3.5])
+    cand = np.array([True, False, False, True, False, False])
+    dyn = ~cand
+    flip, G = object_interaction(kps, z, cand, dyn, CFG)
+    w1, w2 = (0.7 - 0.1) / 0.7, (0.7 - 0.35) / 0.7
+    gx = (110 * w1 + 130 * w2) / (w1 + w2)  # 117.37; |p - G| = 17.37 < gamma(2) = 21.25
+    np.testing.assert_allclose(G[0], [gx, 100.0])
+    assert flip.tolist() == [True, False, False, False, False, False]
+    assert np.isnan(G[3]).all()
+    # Without the depth tests (no-depth ablation) the far one has neighbours and flips too.
+    flip_nd, _ = object_interaction(kps, z, cand, dyn, CFG, use_depth=False)
+    assert flip_nd[3]
+
+
+def test_centroid_far_from_keypoint_does_not_flip():
+    # Two dynamic neighbours on the same side, 35-40 px away (< delta(2) = 40): centroid 37.5 px > gamma 21.25.
+    kps = np.array([[100.0, 100.0], [135.0, 100.0], [139.0, 100.0]])
+    z = np.array([2.0, 2.0, 2.0])
+    flip, G = object_interaction(kps, z, np.array([True, False, False]), np.array([False, True, True]), CFG)
+    assert not flip[0] and G[0, 0] == pytest.approx(137.0)
+
+
+def test_neighbour_radius_is_strict_and_self_excluded():
+    # delta(2) = 40: a neighbour at exactly 40 px is not a neighbour.
+    kps = np.array([[100.0, 100.0], [140.0, 100.0]])
+    z = np.array([2.0, 2.0])
+    flip, G = object_interaction(kps, z, np.array([True, False]), np.array([False, True]), CFG)
+    assert not flip[0] and np.isnan(G[0]).all()
+    # A keypoint both candidate and geometric-dynamic is not its own neighbour.
+    flip, G = object_interaction(kps[:1], z[:1], np.array([True]), np.array([True]), CFG)
+    assert not flip[0]
+
+
+def test_invalid_depth_fails_depth_tests():
+    kps = np.array([[100.0, 100.0], [105.0, 100.0]])
+    for z in (np.array([0.0, 2.0]), np.array([2.0, np.nan])):
+        flip, _ = object_interaction(kps, z, np.array([True, False]), np.array([False, True]), CFG)
+        assert not flip.any()
+
+
+def test_interaction_zone_reach_and_depth():
+    # delta(z_n = 2) = 40 -> reach 80 px; depth within 1 m of z_n.
+    d = np.array([[5.0], [-79.0], [-81.0], [-10.0], [-10.0], [np.nan]])
+    z = np.array([2.0, 2.5, 2.0, 3.2, 0.0, 2.0])
+    got = interaction_zone(d, z, np.array([2.0]), CFG)
+    assert got.tolist() == [True, True, False, False, False, False]
+    # no-depth: reach 2 * 29.5 = 59 px, depth test dropped
+    got = interaction_zone(d, z, np.array([2.0]), CFG, use_depth=False)
+    assert got.tolist() == [True, False, False, True, True, False]
+    assert interaction_zone(np.zeros((3, 0)), np.ones(3), np.zeros(0), CFG).tolist() == [False] * 3
+    # A mask without valid depth has no zone.
+    assert not interaction_zone(np.array([[5.0]]), np.array([2.0]), np.array([np.nan]), CFG).any()
+
+
+def test_mask_depths_strided_median_close_to_full():
+    rng = np.random.default_rng(0)
+    depth = rng.normal(2.0, 0.3, (120, 160)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = 0.0
+    masks = np.zeros((3, 120, 160), bool)
+    masks[0, 10:100, 20:60] = True
+    masks[1, 50, 70] = True  # single pixel: the stride-4 grid misses it -> every pixel
+    full = DynamicsConfig(zone_median_stride=1)
+    z4, z1 = mask_depths(depth, masks), mask_depths(depth, masks, full)
+    valid = depth[masks[0]][depth[masks[0]] > 0]
+    assert z1[0] == pytest.approx(np.median(valid))
+    assert abs(z4[0] - z1[0]) < 0.05
+    assert z4[1] == pytest.approx(depth[50, 70]) or (depth[50, 70] == 0 and np.isnan(z4[1]))
+    assert np.isnan(z4[2])  # empty mask
+    depth[:] = 0
+    assert np.isnan(mask_depths(depth, masks[:1])).all()  # no valid depth
+    assert mask_depths(depth, None).shape == (0,)
