@@ -276,7 +276,8 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
         "fps": float(1000.0 / rec["ms"].mean()) if frames and rec["ms"].mean() > 0 else None,
         "load_s": done.get("load_s"),
         "wall_s": raw["wall_s"],
-        "io_ms_per_frame": 1000.0 * done["io_s"] / frames if frames and "io_s" in done else None,
+        "stage_ms": {"load": round(1000.0 * done["io_s"] / frames, 3) if frames and "io_s" in done else None,
+                     "track": round(float(rec["ms"].mean()), 3) if frames else None},
         "log": str(log),
     }
     # status
@@ -365,7 +366,8 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         stale.unlink(missing_ok=True)  # a failed run must not leave an older trajectory behind
     seq = open_sequence(sequence_dir, camera=camera) if camera else open_sequence(sequence_dir)
     n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
-    base = {"method": METHOD, "sequence": str(sequence_dir), "frames_expected": n_frames, "repeats": repeats,
+    base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
+            "repeats": repeats,
             "camera": seq.camera.name, "config_hash": config.hash()}
     work_root = Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_", dir=out_traj.parent))
     try:
@@ -400,29 +402,33 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
             else:
                 res["log"] = None
             if evaluate and res["trajectory"] and seq.groundtruth is not None:
-                res.update(_evaluate(seq, res["trajectory"]))
+                res.update(evaluate_trajectory(seq, res["trajectory"]))
             runs.append(res)
         return _finish(_summarise(base, runs, out_traj), metrics_json)
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
 
 
-def _evaluate(seq, traj_path: str) -> dict:
-    """ATE / RPE via d2slam.eval.trajectory when it is available (evo)."""
+def evaluate_trajectory(seq, traj_path: str) -> dict:
+    """``{"metrics": {ate_rmse_m, rpe_trans_m, rpe_rot_deg, ...}}`` with :mod:`d2slam.eval.trajectory` (evo), as in
+    the engine's run JSON; ``{"metrics_error": ...}`` when the trajectory cannot be evaluated."""
+    from d2slam.data import read_tum_trajectory
+    from d2slam.eval.trajectory import evaluate
+
     try:
-        from d2slam.eval import trajectory as ev
-    except ImportError:
-        return {}
-    try:
-        m = ev.evaluate_files(seq.root / "groundtruth.txt", traj_path) if hasattr(ev, "evaluate_files") else \
-            ev.evaluate(seq.groundtruth, traj_path)
+        return {"metrics": evaluate(seq.groundtruth, read_tum_trajectory(traj_path)).to_dict()}
     except D2SlamError as exc:
-        return {"eval_error": str(exc)}
-    return {k: v for k, v in dict(m).items() if isinstance(v, (int, float, str, type(None)))}
+        return {"metrics_error": str(exc)}
+    except Exception as exc:  # noqa: BLE001 - evo's own errors (e.g. a degenerate, straight-line alignment)
+        return {"metrics_error": f"{type(exc).__name__}: {exc}"}
 
 
-_SPREAD_KEYS = ("tracked", "lost", "resets", "ms_per_frame", "ms_per_frame_median", "fps", "load_s",
-                "ate_rmse", "rpe_trans", "rpe_rot")
+_SPREAD_KEYS = ("tracked", "lost", "resets", "ms_per_frame", "ms_per_frame_median", "fps", "load_s")
+_METRIC_KEYS = ("ate_rmse_m", "rpe_trans_m", "rpe_rot_deg")
+
+
+def _spread(values: list) -> dict:
+    return {"min": float(min(values)), "max": float(max(values)), "values": values}
 
 
 def _summarise(base: dict, runs: list[dict], out_traj: Path) -> dict:
@@ -440,12 +446,19 @@ def _summarise(base: dict, runs: list[dict], out_traj: Path) -> dict:
         vals = [r[key] for r in runs if isinstance(r.get(key), (int, float))]
         if vals:
             out[key] = float(np.median(vals))
-            out[f"{key}_spread"] = {"min": float(min(vals)), "max": float(max(vals)), "values": vals}
+            out[f"{key}_spread"] = _spread(vals)
+    metrics, mspread = {}, {}
+    for key in _METRIC_KEYS:
+        vals = [r["metrics"][key] for r in runs if isinstance(r.get("metrics", {}).get(key), (int, float))]
+        if vals:
+            metrics[key], mspread[key] = float(np.median(vals)), _spread(vals)
+    if metrics:
+        out["metrics"], out["metrics_spread"] = metrics, mspread
     out["frames"] = int(np.median([r["frames"] for r in runs]))
     usable = [r for r in runs if r.get("trajectory")]
     if usable:
-        if all(isinstance(r.get("ate_rmse"), (int, float)) for r in usable):
-            order = sorted(usable, key=lambda r: r["ate_rmse"])
+        if all(isinstance(r.get("metrics", {}).get("ate_rmse_m"), (int, float)) for r in usable):
+            order = sorted(usable, key=lambda r: r["metrics"]["ate_rmse_m"])
             pick = order[(len(order) - 1) // 2]
         else:
             pick = usable[0]
@@ -479,3 +492,22 @@ def _json_default(o):
     if isinstance(o, Path):
         return str(o)
     raise TypeError(type(o).__name__)
+
+
+def cli_run(args) -> int:
+    """``d2slam run SEQUENCE_DIR --method orbslam3 --out TRAJ [--metrics-json RUN.json] [--camera fr3]`` (for the
+    run command to call when ``args.method == "orbslam3"``; optional ``args.repeats``, ``args.vocab``). Prints the
+    outcome; exit status 0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed."""
+    run = run_orbslam3(args.sequence, args.out, getattr(args, "metrics_json", None),
+                       repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
+                       camera=getattr(args, "camera", None), progress=not getattr(args, "quiet", False))
+    stream = sys.stdout if run["status"] in ("ok", "lost") else sys.stderr
+    v = run.get("vocabulary") or {}
+    print(f"orbslam3 {run.get('name', args.sequence)}: {run['status']}: {run['message']}", file=stream)
+    if v:
+        print(f"  vocabulary: {v['kind']} {v['path']} (sha256 {v['sha256'][:16]})", file=stream)
+    if isinstance(run.get("ms_per_frame"), (int, float)):
+        m = run.get("metrics", {})
+        ate = f", ATE {m['ate_rmse_m']:.4f} m" if "ate_rmse_m" in m else ""
+        print(f"  tracked {run['tracked']:.0f}/{run['frames']}, {run['ms_per_frame']:.1f} ms/frame{ate}", file=stream)
+    return {"ok": 0, "lost": 1, "reset": 1}.get(run["status"], 2)

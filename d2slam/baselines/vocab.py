@@ -388,10 +388,6 @@ def training_sequences(cfg: BaselineConfig = DEFAULT.baseline, frames: int | Non
                        seeds: tuple[int, ...] | None = None, scenarios: tuple[str, ...] | None = None) -> list[Path]:
     """Synthetic training sequences (seeds 900-999, never used by the benchmarks), generated once into the cache
     with ``d2slam synth``."""
-    from d2slam.cli import COMMANDS, main
-
-    if "synth" not in COMMANDS:
-        raise D2SlamError("the synthetic generator (d2slam synth) is not available; pass --images-dir/--sequences")
     frames = frames or cfg.vocab_train_frames
     seeds = tuple(seeds or cfg.vocab_train_seeds)
     bad = [s for s in seeds if not 900 <= s <= 999]
@@ -401,12 +397,41 @@ def training_sequences(cfg: BaselineConfig = DEFAULT.baseline, frames: int | Non
     for scenario in scenarios or cfg.vocab_train_scenarios:
         for seed in seeds:
             root = cache_training_root() / f"{scenario}_s{seed}_n{frames}"
-            if not (root / "rgb.txt").is_file():
-                code = main(["synth", scenario, "--out", str(root), "--frames", str(frames), "--seed", str(seed)])
-                if code:
-                    raise D2SlamError(f"d2slam synth {scenario} --seed {seed} failed (exit {code})", path=root)
+            synthesize(scenario, root, frames, seed)
             out.append(root)
     return out
+
+
+def synthesize(scenario: str, root: Path, frames: int, seed: int, static_twin: bool = False) -> Path:
+    """``d2slam synth SCENARIO --out root --frames N --seed S [--static-twin]`` unless ``root`` already holds that
+    sequence (its scene.json says so)."""
+    import json as _json
+
+    scene = root / "scene.json"
+    if scene.is_file():
+        try:
+            meta = _json.loads(scene.read_text())
+            if (meta.get("scenario"), meta.get("seed"), meta.get("frames"), bool(meta.get("static_twin"))) == \
+                    (scenario, seed, frames, static_twin) and (root / "rgb.txt").is_file():
+                return root
+        except (OSError, ValueError):
+            pass
+    from d2slam.cli import COMMANDS, main
+
+    argv = [scenario, "--out", str(root), "--frames", str(frames), "--seed", str(seed)]
+    argv += ["--static-twin"] if static_twin else []
+    if "synth" in COMMANDS:
+        code = main(["synth", *argv])
+        if code:
+            raise D2SlamError(f"d2slam synth {' '.join(argv)} failed (exit {code})", path=root)
+    else:  # the generator's Python API, before its command is registered
+        try:
+            from d2slam.synth.generate import generate
+        except ImportError:
+            raise D2SlamError("the synthetic generator (d2slam synth) is not available; use --images-dir / "
+                              "--sequences or --no-synthetic") from None
+        generate(scenario, root, frames=frames, seed=seed, static_twin=static_twin)
+    return root
 
 
 def cache_training_root() -> Path:

@@ -1,0 +1,158 @@
+"""``d2slam bench orbslam3``: the real ORB-SLAM3 (pyorbslam3) against our engine's ``none`` method, side by side on
+the same synthetic sequences: the static twins and the walking scenarios (benchmark seeds 101, 102, 103: never
+tuned on). Figures: status, tracked frames, ATE RMSE, RPE (translation m, rotation deg over 1 s pairs; evo via
+:mod:`d2slam.eval.trajectory`), ms per frame. ORB-SLAM3 is not deterministic (threads): ``--repeats N`` runs it N
+times and prints the median with the [min, max] spread. Sequences are generated once into the cache."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+DESCRIPTION = ("real ORB-SLAM3 (pyorbslam3) vs our `none` engine on static twins and walking scenarios: "
+               "ATE, RPE, tracked frames, ms per frame")
+SCENARIOS = ("walking_xyz", "walking_static", "walking_halfsphere", "walking_rpy")
+METHODS = ("orbslam3", "none")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), metavar="SCENARIO")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[101], metavar="SEED")
+    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--variants", nargs="+", choices=("twin", "dynamic"), default=["twin", "dynamic"],
+                        help="static twin (no people, no moved objects) and/or the dynamic sequence")
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    parser.add_argument("--repeats", type=int, default=1, help="ORB-SLAM3 runs per sequence (median, spread)")
+    parser.add_argument("--vocab", default=None, help="DBoW2 text vocabulary (default: $PYORBSLAM3_VOCAB or the "
+                        "project-built one)")
+    parser.add_argument("--out", default=None, help="output folder (default: the d2slam cache)")
+
+
+def _sequence(scenario: str, seed: int, frames: int, twin: bool) -> Path:
+    from d2slam.baselines.vocab import synthesize
+    from d2slam.paths import cache_dir
+
+    root = cache_dir("synth") / f"{scenario}_s{seed}_n{frames}{'_twin' if twin else ''}"
+    return synthesize(scenario, root, frames, seed, static_twin=twin)
+
+
+def _run_engine(seq: Path, out: Path) -> dict:
+    """Our engine, ``d2slam run SEQ --method none``, in a child process (a crash is recorded, not raised)."""
+    from d2slam.cli import COMMANDS
+
+    traj, run_json = out / "none.txt", out / "none.json"
+    if "run" not in COMMANDS:
+        return {"method": "none", "status": "unavailable", "message": "`d2slam run` (our engine) is not in this "
+                "checkout yet"}
+    for p in (traj, run_json):
+        p.unlink(missing_ok=True)
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", "none", "--out",
+                           str(traj), "--metrics-json", str(run_json)], capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0 or not run_json.is_file():
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        return {"method": "none", "status": "failed", "message": " | ".join(tail), "wall_s": wall}
+    run = json.loads(run_json.read_text())
+    run.setdefault("method", "none")
+    run.setdefault("status", "ok")
+    run["wall_s"] = wall
+    run["trajectory"] = str(traj) if traj.is_file() else None
+    return run
+
+
+def _ms_per_frame(run: dict):
+    for key in ("ms_per_frame", "ms_per_frame_mean", "mean_ms_per_frame"):
+        if isinstance(run.get(key), (int, float)):
+            return float(run[key])
+    if isinstance(run.get("fps"), (int, float)) and run["fps"] > 0:
+        return 1000.0 / run["fps"]
+    return None
+
+
+def _fmt(run: dict, key: str, fmt: str, metric: bool = False) -> str:
+    v = (run.get("metrics") or {}).get(key) if metric else run.get(key)
+    if not isinstance(v, (int, float)):
+        return "-"
+    s = format(v, fmt)
+    spread = (run.get("metrics_spread") or {}).get(key) if metric else run.get(f"{key}_spread")
+    if spread:
+        s += f" [{format(spread['min'], fmt)}, {format(spread['max'], fmt)}]"
+    return s
+
+
+def run(args) -> int:
+    from d2slam.baselines.orbslam3 import evaluate_trajectory, run_orbslam3
+    from d2slam.data import open_sequence
+    from d2slam.errors import D2SlamError
+    from d2slam.paths import cache_dir
+
+    if args.frames < 30:
+        raise D2SlamError("--frames must be at least 30 (RPE needs 1 s pairs)")
+    out_root = Path(args.out) if args.out else cache_dir("bench", "orbslam3")
+    out_root.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for scenario in args.scenarios:
+        for seed in args.seeds:
+            for variant in args.variants:
+                twin = variant == "twin"
+                seq = _sequence(scenario, seed, args.frames, twin)
+                name = f"{scenario}{' twin' if twin else ''} s{seed}"
+                out = out_root / seq.name
+                out.mkdir(parents=True, exist_ok=True)
+                sequence = open_sequence(seq)
+                for method in args.methods:
+                    if method == "orbslam3":
+                        r = run_orbslam3(seq, out / "orbslam3.txt", out / "orbslam3.json", repeats=args.repeats,
+                                         vocab=args.vocab)
+                    else:
+                        r = _run_engine(seq, out)
+                        if r.get("trajectory") and "metrics" not in r and "metrics_error" not in r:
+                            r.update(evaluate_trajectory(sequence, r["trajectory"]))
+                    r["ms_per_frame"] = _ms_per_frame(r)
+                    rows.append({"sequence": name, "variant": variant, "scenario": scenario, "seed": seed,
+                                 "method": method, **r})
+                    print(f"  {name:32s} {method:9s} {r.get('status', '?'):8s} {r.get('message', '')}",
+                          file=sys.stderr)
+    _print_table(rows, args)
+    summary = out_root / "bench_orbslam3.json"
+    summary.write_text(json.dumps({"args": {k: v for k, v in vars(args).items() if k != "func"}, "rows": rows},
+                                  indent=1, default=str))
+    print(f"\nper-run JSON, trajectories and this summary: {summary}")
+    return 0
+
+
+def _print_table(rows: list[dict], args) -> None:
+    vocab = next((r.get("vocabulary") for r in rows if r.get("vocabulary")), None)
+    print(f"\nORB-SLAM3 (pyorbslam3, RGB-D) vs our engine `none`; {args.frames} frames; "
+          f"ORB-SLAM3 repeats: {args.repeats} (median [min, max])")
+    if vocab:
+        print(f"vocabulary: {vocab['kind']} {vocab['path']} sha256 {vocab['sha256'][:16]}")
+    head = (f"{'sequence':30s} {'method':9s} {'status':8s} {'tracked':>9s} {'ATE m':>22s} {'RPE m':>22s} "
+            f"{'RPE deg':>22s} {'ms/frame':>22s}")
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        frames = r.get("frames") or r.get("frames_expected") or 0
+        tracked = f"{r['tracked']:.0f}/{frames}" if isinstance(r.get("tracked"), (int, float)) else "-"
+        print(f"{r['sequence']:30s} {r['method']:9s} {str(r.get('status', '?')):8s} {tracked:>9s} "
+              f"{_fmt(r, 'ate_rmse_m', '.4f', True):>22s} {_fmt(r, 'rpe_trans_m', '.4f', True):>22s} "
+              f"{_fmt(r, 'rpe_rot_deg', '.3f', True):>22s} {_fmt(r, 'ms_per_frame', '.1f'):>22s}")
+    ours = [r for r in rows if r["method"] == "none" and isinstance(r.get("ms_per_frame"), float)]
+    theirs = [r for r in rows if r["method"] == "orbslam3" and isinstance(r.get("ms_per_frame"), float)]
+    if ours and theirs:
+        a = float(np.median([r["ms_per_frame"] for r in ours]))
+        b = float(np.median([r["ms_per_frame"] for r in theirs]))
+        print(f"\nspeed: our engine {a:.1f} ms/frame vs ORB-SLAM3 {b:.1f} ms/frame (tracking thread) "
+              f"= {a / b:.1f}x")
+    for method in ("orbslam3", "none"):
+        for variant in ("twin", "dynamic"):
+            ates = [r["metrics"]["ate_rmse_m"] for r in rows if r["method"] == method and r["variant"] == variant
+                    and isinstance((r.get("metrics") or {}).get("ate_rmse_m"), (int, float))]
+            if ates:
+                print(f"median ATE {method:8s} {variant:7s}: {np.median(ates):.4f} m over {len(ates)} sequence(s)")
