@@ -9,16 +9,17 @@ probability of being dynamic with the depth-adaptive slope beta(z), and the mask
 keypoint's rounded pixel, i.e. the distance between pixel centres to the nearest background pixel (inside) or the
 nearest mask pixel (outside); the image border is not an edge (a person cut by the border continues out of view).
 
-Deviation, measured (``/tmp`` micro-benchmark recorded in the module note of the report, 640x480, one person-sized
-mask, 1 thread): ``cv2.distanceTransform(DIST_L2, DIST_MASK_PRECISE)`` costs 2.9 ms per full-image transform
-and still 0.64 ms + 1.40 ms on a crop around the mask (+ 80 px), so two masks alone would exceed the 3 ms budget of
-all modules. We obtain the *same values* at the keypoints only: the nearest background pixel of an inside pixel is
+Deviation, measured (640x480, one person-sized ellipse mask, 1 thread, this project's 2-core build machine):
+``cv2.distanceTransform(DIST_L2, DIST_MASK_PRECISE)`` costs 2.9 ms per full-image transform (scipy's
+``distance_transform_edt`` 15 ms) and still 0.64 ms + 1.40 ms on crops around the mask (+ 80 px), so two masks
+alone would exceed the 3 ms budget of all modules. We obtain the *same values* at the keypoints only: the nearest background pixel of an inside pixel is
 4-adjacent to the mask, and the nearest mask pixel of an outside pixel is 4-adjacent to the background, so the
 distance transforms at the keypoints equal nearest-neighbour distances to the border pixels of the mask and of its
 complement (morphology on the mask's bounding box), found with ``scipy.spatial.cKDTree``. ``tests/test_dynamics
 _semantic.py`` checks the equality against ``scipy.ndimage.distance_transform_edt`` on random masks. Outside
-points are only searched within ``margin`` px of the mask (a margin that covers the uncertainty zone and the OIM's
-interaction zone); beyond it ``d = -max(margin, distance to the mask's bounding box)``, a lower bound of the true
+points are only searched within ``margin`` px of the mask (the classifier passes the widest uncertainty zone and
+extends the search to the OIM's interaction zone only for the keypoints that need it, ``interaction.zone_distances``);
+beyond it ``d = -max(margin, distance to the mask's bounding box)``, a lower bound of the true
 distance that changes neither zone nor eq 7 (P_S is used by eq 7 only inside the mask area), and P_S there is below
 1 / (1 + exp(beta margin)).
 
