@@ -35,8 +35,8 @@ from d2slam.config import Config, DynamicsConfig
 from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, fuse, prior_belief
 from d2slam.dynamics.geometric import geometric_module
-from d2slam.dynamics.interaction import interaction_zone, mask_depths, object_interaction, zone_distances, zone_prefilter
-from d2slam.dynamics.semantic import mask_edges, semantic_module
+from d2slam.dynamics.interaction import mask_depths, oim_frame
+from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.errors import D2SlamError
 from d2slam.slam.hook import FilterInput
 
@@ -161,16 +161,19 @@ class D2SlamFilter:
 
         # Full method and its ablations.
         ud = self.use_depth
-        b, a = dz.beta(z, cfg, ud), dz.alpha(z, cfg, ud)
+        maps = dz.DepthMaps(z, cfg, ud)  # beta, alpha, delta, gamma of every keypoint, once
+        b, a = maps.beta, maps.alpha
         t1 = clock()
         t["depth_maps"] = (t1 - t0) * 1e3
-        # Signed distances are searched as far as the widest uncertainty zone (the OIM extends them later).
-        edges = mask_edges(masks)
+        # The masks seen from the keypoints (edges, pixel lookups, bounding-box distances), shared by the semantic
+        # module and the OIM. Signed distances are searched as far as the widest uncertainty zone (the OIM extends
+        # them later, only where it needs to).
+        fm = FrameMasks(masks, kps, np.shape(inp.depth))
         margin = float(dz.uncertainty_width(b.min(), cfg)) + 1.0 if n else 0.0
-        z_n = mask_depths(inp.depth, edges, cfg) if self.use_oim else np.full(len(edges), np.nan)
+        z_n = mask_depths(inp.depth, fm, cfg) if self.use_oim else np.full(len(fm.edges), np.nan)
         t2 = clock()
         t["mask_edges_depth"] = (t2 - t1) * 1e3
-        sem = semantic_module(edges, kps, b, margin, cfg)
+        sem = semantic_module(fm, kps, b, margin, cfg)
         t3 = clock()
         t["semantic"] = (t3 - t2) * 1e3
         geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg)
@@ -189,13 +192,10 @@ class D2SlamFilter:
         t["bayes"] = (t6 - t5) * 1e3
         belief, zone, oim = bel, None, None
         if self.use_oim:
-            # eq 10's centroid test first, on every static keypoint (cheap), then the zone test (eq 9) only where
+            # eq 10's centroid test first, on the static keypoints near a mask, then the zone test (eq 9) only where
             # it would flip: the same result as testing the zone first, with far fewer edge searches.
-            static = (bel <= cfg.dynamic_threshold) & zone_prefilter(edges, kps, z, z_n, cfg, ud)
-            would_flip, _ = object_interaction(kps, z, static, geo.dynamic, cfg, ud)
-            d_zone = zone_distances(edges, kps, z, z_n, sem.d, np.full(len(edges), margin), would_flip, cfg, ud)
-            zone = interaction_zone(d_zone, z, z_n, cfg, ud) & would_flip
-            oim = zone
+            zone, oim = oim_frame(fm, kps, maps, z_n, sem.d, margin, bel <= cfg.dynamic_threshold, geo.dynamic,
+                                  cfg, ud)
             belief = np.where(oim, np.maximum(bel, cfg.oim_belief), bel)
         t["oim"] = (clock() - t6) * 1e3
         t["total"] = sum(t.values())

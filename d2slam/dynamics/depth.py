@@ -116,3 +116,35 @@ def keypoint_depth(depth: np.ndarray, kps: np.ndarray, radius: int | None = None
     rows = np.arange(n)
     med = 0.5 * (vals[rows, lo] + vals[rows, np.minimum(hi, vals.shape[1] - 1)])
     return np.where(cnt > 0, med, 0.0).astype(np.float32)
+
+
+class DepthMaps:
+    """beta, alpha, delta, gamma (eq 2, 5, 9, 10) of one frame's keypoint depths, computed once and shared by the
+    modules: the same values as ``beta(z)``, ``alpha(z)``, ``delta(z)``, ``gamma(z)`` (s(z) and the validity test are
+    evaluated once instead of once per quantity). ``valid`` (N,) bool is ``valid_depth(z)``."""
+
+    __slots__ = ("z", "valid", "beta", "alpha", "delta", "gamma")
+
+    def __init__(self, z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True):
+        z = np.asarray(z, dtype=np.float64)
+        self.z = z
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(z) & (z > 0)
+        self.valid = ok
+        if not use_depth:
+            self.beta = np.full(z.shape, 0.5 * (cfg.beta_min + cfg.beta_max))
+            self.alpha = np.full(z.shape, 0.5 * (cfg.alpha_max + cfg.alpha_min))
+            self.delta = np.full(z.shape, 0.5 * (cfg.delta_min + cfg.delta_max))
+            self.gamma = np.full(z.shape, 0.5 * (cfg.gamma_max + cfg.gamma_min))
+            return
+        z0 = np.where(ok, z, 0.0)
+        s = np.clip((z0 - cfg.z_near) / (cfg.z_far - cfg.z_near), 0.0, 1.0)
+
+        def lin(lo, hi):
+            return np.where(ok, lo + (hi - lo) * s, 0.5 * (lo + hi))
+
+        self.beta = lin(cfg.beta_min, cfg.beta_max)
+        self.alpha = lin(cfg.alpha_max, cfg.alpha_min)
+        self.gamma = lin(cfg.gamma_max, cfg.gamma_min)
+        self.delta = np.where(ok, np.clip(cfg.delta_a - cfg.delta_b * z0, cfg.delta_min, cfg.delta_max),
+                              0.5 * (cfg.delta_min + cfg.delta_max))

@@ -25,8 +25,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from d2slam.config import DynamicsConfig
-from d2slam.dynamics.depth import delta, gamma, valid_depth
-from d2slam.dynamics.semantic import MaskEdges, keypoint_pixels, mask_edges
+from d2slam.dynamics.depth import DepthMaps, delta, gamma, valid_depth
+from d2slam.dynamics.semantic import FrameMasks, MaskEdges, keypoint_pixels, mask_edges
 
 _DEFAULT = DynamicsConfig()
 
@@ -35,13 +35,13 @@ def mask_depths(depth: np.ndarray, masks: np.ndarray | list[MaskEdges] | None,
                 cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
     """eq 9: z_n, the median of the valid depths of each mask (n,), NaN for a mask without valid depth.
 
-    ``masks`` (n, H, W) bool or the frame's ``mask_edges`` (their bounding boxes are reused).
+    ``masks`` (n, H, W) bool, the frame's ``mask_edges`` or ``FrameMasks`` (their bounding boxes are reused).
     Deviation, measured: the median is taken over the mask pixels of a grid of stride ``zone_median_stride`` (4:
     1/16 of the pixels) inside the mask's bounding box. On two person-sized masks (640x480, ``toy.two_view_scene``,
     process CPU time, loaded 2-core machine) the medians cost 0.70 ms at stride 1, 0.24 ms at 2, 0.14 ms at 4, and
     differ from the full median by about 2 mm, against the zone's 1 m tolerance (the tests bound the difference).
     Stride 1 = every pixel. A mask the grid misses entirely falls back to every pixel."""
-    edges = masks if isinstance(masks, list) else mask_edges(masks)
+    edges = masks.edges if isinstance(masks, FrameMasks) else masks if isinstance(masks, list) else mask_edges(masks)
     s = max(int(cfg.zone_median_stride), 1)
     depth = np.asarray(depth)
     out = np.full(len(edges), np.nan)
@@ -51,7 +51,8 @@ def mask_depths(depth: np.ndarray, masks: np.ndarray | list[MaskEdges] | None,
         x, y, w, h = e.bbox
         m = e.mask.view(bool)
         vals = depth[y:y + h:s, x:x + w:s][m[y:y + h:s, x:x + w:s]]
-        vals = vals[valid_depth(vals)]
+        with np.errstate(invalid="ignore"):
+            vals = vals[np.isfinite(vals) & (vals > 0)]  # valid_depth without the float64 copy
         if len(vals) == 0 and s > 1:
             vals = depth[y:y + h, x:x + w][m[y:y + h, x:x + w]]
             vals = vals[valid_depth(vals)]
@@ -134,24 +135,28 @@ def interaction_zone(d: np.ndarray, z: np.ndarray, z_n: np.ndarray, cfg: Dynamic
 
 
 def object_interaction(kps: np.ndarray, z: np.ndarray, candidate: np.ndarray, dynamic: np.ndarray,
-                       cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                       cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True, maps: DepthMaps | None = None,
+                       finite: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """eq 9-10: (flip (N,) bool, G (N, 2) centroid, NaN where p_i has no neighbour or is no candidate).
 
     ``candidate`` (N,) bool: static keypoints inside an interaction zone; ``dynamic`` (N,) bool: the geometric
-    module's flag err > alpha."""
+    module's flag err > alpha. ``maps`` (the frame's ``DepthMaps`` of ``z`` with the same ``use_depth``) and
+    ``finite`` (finite keypoint coordinates) are reused when given instead of being recomputed."""
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     z = np.asarray(z, dtype=np.float64).reshape(-1)
     n = len(kps)
     flip = np.zeros(n, dtype=bool)
     centroid = np.full((n, 2), np.nan)
-    finite = np.all(np.isfinite(kps), axis=1)
+    if finite is None:
+        finite = np.isfinite(kps[:, 0]) & np.isfinite(kps[:, 1])
     if use_depth:
-        finite &= valid_depth(z)
+        finite = finite & (maps.valid if maps is not None else valid_depth(z))
     ci = np.flatnonzero(np.asarray(candidate, bool) & finite)
     di = np.flatnonzero(np.asarray(dynamic, bool) & finite)
     if len(ci) == 0 or len(di) == 0:
         return flip, centroid
-    radius = delta(z[ci], cfg, use_depth)  # delta(z_i) of each candidate (eq 9)
+    # delta(z_i) of each candidate (eq 9)
+    radius = maps.delta[ci] if maps is not None else delta(z[ci], cfg, use_depth)
     pairs = cKDTree(kps[ci]).sparse_distance_matrix(cKDTree(kps[di]), float(radius.max()), output_type="ndarray")
     i, j, dist = pairs["i"], pairs["j"], pairs["v"]
     keep = (dist < radius[i]) & (ci[i] != di[j])
@@ -169,7 +174,74 @@ def object_interaction(kps: np.ndarray, z: np.ndarray, candidate: np.ndarray, dy
     with np.errstate(invalid="ignore", divide="ignore"):
         g = np.stack([gx / wsum, gy / wsum], axis=1)  # eq 10
     dist_g = np.hypot(kps[ci, 0] - g[:, 0], kps[ci, 1] - g[:, 1])
+    gam = maps.gamma[ci] if maps is not None else gamma(z[ci], cfg, use_depth)
     with np.errstate(invalid="ignore"):
-        flip[ci] = has & (dist_g < gamma(z[ci], cfg, use_depth))
+        flip[ci] = has & (dist_g < gam)
     centroid[ci[has]] = g[has]
     return flip, centroid
+
+
+def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray, d: np.ndarray, known: float,
+              static: np.ndarray, dynamic: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
+              use_depth: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """eq 9-10 for one frame, reusing the semantic module's work: (zone (N,) bool, oim (N,) bool).
+
+    ``fm`` the frame's ``FrameMasks`` (edges, trees, pixel lookups, bounding-box distances), ``maps`` its
+    ``DepthMaps``, ``z_n`` the mask depths, ``d`` the semantic module's signed distances (exact within ``known`` px of
+    each mask), ``static`` the eq 8 belief <= 0.5, ``dynamic`` the geometric flag err > alpha. Order of the tests
+    (same result as zone first, far fewer edge searches):
+
+    1. candidates: static keypoints passing a necessary condition of the zone (within 2 delta(z_n) px of some mask's
+       bounding box and |z - z_n| < ``zone_depth``; ``zone_prefilter``);
+    2. eq 10's centroid test on them (``object_interaction``) -> the keypoints that would flip;
+    3. the exact zone (eq 9, ``zone_distances`` + ``interaction_zone``) on those rows only, the distances beyond
+       ``known`` searched again up to the zone's reach with the mask's cached edge trees.
+
+    ``zone`` is the zone flag where step 3 ran (False elsewhere), and ``oim = zone`` (those keypoints flip)."""
+    n = len(maps.z)
+    zone = np.zeros(n, dtype=bool)
+    edges = fm.edges
+    if not edges or n == 0:
+        return zone, zone.copy()
+    z = maps.z
+    finite = fm.kp.finite
+    reach = cfg.zone_factor * delta(z_n, cfg, use_depth)
+    zn_ok = valid_depth(z_n)
+    with np.errstate(invalid="ignore"):
+        near_depth = [maps.valid & (np.abs(z - z_n[k]) < cfg.zone_depth) for k in range(len(edges))] \
+            if use_depth else None
+    # 1. candidates (zone_prefilter)
+    cand = np.zeros(n, dtype=bool)
+    for k, e in enumerate(edges):  # loop over masks only
+        if e.empty or (use_depth and not zn_ok[k]):
+            continue
+        ok = fm.box[k] <= reach[k]
+        if use_depth:
+            ok &= near_depth[k]
+        cand |= ok
+    cand &= finite & static
+    # 2. eq 10
+    would_flip, _ = object_interaction(kps, z, cand, dynamic, cfg, use_depth, maps=maps, finite=finite)
+    rows = np.flatnonzero(would_flip)
+    if len(rows) == 0:
+        return zone, zone.copy()
+    # 3. eq 9 on the rows that would flip
+    hit = np.zeros(len(rows), dtype=bool)
+    for k, e in enumerate(edges):  # loop over masks only
+        dk = d[rows, k]
+        depth_ok = near_depth[k][rows] if use_depth else None
+        if not (e.empty or e.full or reach[k] <= known) and (zn_ok[k] or not use_depth):
+            sel = (dk <= -known) & finite[rows]
+            if use_depth:
+                sel &= depth_ok
+            sel &= fm.box[k][rows] <= reach[k]
+            if sel.any():
+                dk = dk.copy()
+                dk[sel] = fm.signed(k, float(reach[k]), rows[sel])
+        with np.errstate(invalid="ignore"):
+            zk = dk > -reach[k]
+        if use_depth:
+            zk &= depth_ok & zn_ok[k]
+        hit |= zk
+    zone[rows] = hit
+    return zone, zone.copy()

@@ -48,11 +48,39 @@ _DEFAULT = DynamicsConfig()
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
+def _tree(pts: np.ndarray) -> cKDTree:
+    """cKDTree of a mask's edge pixels. Unbalanced, non-compacted nodes: measured faster to build and to query on
+    these ~10^3 contour pixels (build 0.09 -> 0.07 ms, query of 235 inside keypoints 0.12 -> 0.10 ms, 640x480
+    person mask); the nearest distances returned are the same (exact search either way)."""
+    return cKDTree(pts, balanced_tree=False, compact_nodes=False)
+
+
 def _nonzero_xy(img: np.ndarray, offset: np.ndarray) -> np.ndarray:
     pts = cv2.findNonZero(img)
     if pts is None:
         return np.zeros((0, 2))
     return pts.reshape(-1, 2).astype(np.float64) + offset
+
+
+class KeypointPixels:
+    """A frame's keypoints rounded to the nearest pixel and clipped to the image, computed once per frame and shared
+    by every mask and module: ``pu``, ``pv`` (N,) int64, ``pts`` (N, 2) float64 (the same pixels), ``finite`` (N,)
+    bool (non-finite keypoints sit at pixel (0, 0) and are flagged), ``flat`` (N,) row-major pixel index."""
+
+    __slots__ = ("pu", "pv", "pts", "finite", "flat", "shape")
+
+    def __init__(self, kps: np.ndarray, shape: tuple[int, int]):
+        kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
+        h, w = shape
+        self.shape = (h, w)
+        self.finite = np.isfinite(kps[:, 0]) & np.isfinite(kps[:, 1])
+        pix = np.rint(kps)
+        if not self.finite.all():
+            pix[~self.finite] = 0.0
+        self.pts = np.clip(pix, 0.0, np.array([w - 1, h - 1], dtype=np.float64))
+        self.pu = self.pts[:, 0].astype(np.int64)
+        self.pv = self.pts[:, 1].astype(np.int64)
+        self.flat = self.pv * w + self.pu
 
 
 class MaskEdges:
@@ -61,11 +89,13 @@ class MaskEdges:
     ``inner``: mask pixels 4-adjacent to the background (the nearest mask pixel of any outside pixel is one of them);
     ``outer``: background pixels 4-adjacent to the mask (the nearest background pixel of any inside pixel). Both are
     found on the bounding box + 1 px only (morphology with a 3x3 cross); the image border is not an edge. The
-    cKDTrees are built lazily, on the first query that needs them."""
+    cKDTrees are built lazily, on the first query that needs them, and reused by every later query of the frame
+    (the semantic module's, then the OIM's zone test)."""
 
     def __init__(self, mask: np.ndarray):
         mb = mask if mask.dtype == bool else mask != 0
         self.mask = np.ascontiguousarray(mb).view(np.uint8)
+        self.flat = self.mask.reshape(-1)
         h, w = self.mask.shape
         self.shape = (h, w)
         self.diag = float(np.hypot(h, w))
@@ -90,34 +120,38 @@ class MaskEdges:
         gy = np.maximum(np.maximum(y - pts[:, 1], pts[:, 1] - (y + bh - 1)), 0.0)
         return np.hypot(gx, gy)
 
-    def signed(self, pu: np.ndarray, pv: np.ndarray, margin: float = np.inf) -> np.ndarray:
-        """eq 1 at integer in-image pixels (pu, pv): + distance to the nearest background pixel inside, - distance to
-        the nearest mask pixel outside (exact within ``margin``; ``-max(margin, box distance)`` beyond)."""
-        n = len(pu)
+    def signed_px(self, pts: np.ndarray, inside: np.ndarray, box: np.ndarray, margin: float = np.inf) -> np.ndarray:
+        """eq 1 at pixel positions ``pts`` (P, 2) given the mask at them (``inside``, (P,) bool) and their distances
+        to its bounding box (``box``, (P,)): + distance to the nearest background pixel inside, - distance to the
+        nearest mask pixel outside, exact within ``margin``, ``-max(margin, box)`` beyond (the box test: an outside
+        keypoint farther than ``margin`` from the bounding box is never searched)."""
+        n = len(pts)
         if self.empty:
             return np.full(n, -np.inf)
         if self.full:
             return np.full(n, self.diag)
-        d = np.empty(n)
-        inside = self.mask[pv, pu].view(bool)
-        pts = np.stack([pu, pv], axis=1).astype(np.float64)
+        d = -np.maximum(margin, box)
         if inside.any():
             if self._outer_tree is None:
-                self._outer_tree = cKDTree(self.outer)
-            d[inside], _ = self._outer_tree.query(pts[inside])
-        out = ~inside
-        if out.any():
-            box = self.box_distance(pts[out])
-            res = np.maximum(margin, box)
-            near = box <= margin
-            if near.any():
-                if self._inner_tree is None:
-                    inner = self.crop - cv2.erode(self.crop, _CROSS, borderType=cv2.BORDER_REPLICATE)
-                    self._inner_tree = cKDTree(_nonzero_xy(inner, self.offset))
-                q, _ = self._inner_tree.query(pts[out][near], distance_upper_bound=margin)
-                res[near] = np.where(np.isfinite(q), q, res[near])
-            d[out] = -res
+                self._outer_tree = _tree(self.outer)
+            d[inside] = self._outer_tree.query(pts[inside])[0]
+        near = (box <= margin) & ~inside
+        if near.any():
+            if self._inner_tree is None:
+                inner = self.crop - cv2.erode(self.crop, _CROSS, borderType=cv2.BORDER_REPLICATE)
+                self._inner_tree = _tree(_nonzero_xy(inner, self.offset))
+            q = self._inner_tree.query(pts[near], distance_upper_bound=margin)[0]
+            found = np.isfinite(q)
+            d[np.flatnonzero(near)[found]] = -q[found]
         return d
+
+    def signed(self, pu: np.ndarray, pv: np.ndarray, margin: float = np.inf) -> np.ndarray:
+        """eq 1 at integer in-image pixels (pu, pv): + distance to the nearest background pixel inside, - distance to
+        the nearest mask pixel outside (exact within ``margin``; ``-max(margin, box distance)`` beyond)."""
+        if self.empty:
+            return np.full(len(pu), -np.inf)
+        pts = np.stack([pu, pv], axis=1).astype(np.float64)
+        return self.signed_px(pts, self.mask[pv, pu].view(bool), self.box_distance(pts), margin)
 
 
 def mask_edges(masks: np.ndarray | None) -> list[MaskEdges]:
@@ -130,15 +164,57 @@ def mask_edges(masks: np.ndarray | None) -> list[MaskEdges]:
     return [MaskEdges(masks[k]) for k in range(len(masks))]
 
 
+class FrameMasks:
+    """A frame's person masks seen from its keypoints, built once and shared by eq 1-2 and the OIM's zone (eq 9).
+
+    ``edges`` (one ``MaskEdges`` per mask, with their cached trees), ``kp`` (``KeypointPixels``), and per mask k:
+    ``inside[k]`` (N,) bool, the mask at each keypoint's pixel, and ``box[k]`` (N,) the distance of each keypoint's
+    pixel to the mask's bounding box (None for an empty mask)."""
+
+    def __init__(self, masks: np.ndarray | list[MaskEdges] | None, kps: np.ndarray,
+                 shape: tuple[int, int] | None = None):
+        self.edges = masks if isinstance(masks, list) else mask_edges(masks)
+        if shape is None:
+            shape = self.edges[0].shape if self.edges else (1, 1)
+        self.kp = KeypointPixels(kps, shape)
+        self.inside: list[np.ndarray | None] = []
+        self.box: list[np.ndarray | None] = []
+        for e in self.edges:  # loop over masks only
+            if e.empty:
+                self.inside.append(None)
+                self.box.append(None)
+            else:
+                self.inside.append(e.flat.take(self.kp.flat).view(bool))
+                self.box.append(e.box_distance(self.kp.pts))
+
+    def signed(self, k: int, margin: float, rows: np.ndarray | None = None) -> np.ndarray:
+        """eq 1 for mask k at all keypoints (or the index array ``rows``); NaN is not set here (see ``distances``)."""
+        e = self.edges[k]
+        if e.empty:
+            return np.full(self.kp.pu.shape if rows is None else len(rows), -np.inf)
+        if rows is None:
+            return e.signed_px(self.kp.pts, self.inside[k], self.box[k], margin)
+        return e.signed_px(self.kp.pts[rows], self.inside[k][rows], self.box[k][rows], margin)
+
+    def distances(self, margin: float | np.ndarray = np.inf) -> np.ndarray:
+        """eq 1: (N, n) signed distances, exact within ``margin`` (scalar or (n,)) of each mask; NaN rows for
+        non-finite keypoints (see ``signed_distances``)."""
+        n_kp = len(self.kp.pu)
+        out = np.full((n_kp, len(self.edges)), -np.inf)
+        if n_kp == 0 or not self.edges:
+            return out
+        margins = np.broadcast_to(np.asarray(margin, dtype=np.float64), (len(self.edges),))
+        for k in range(len(self.edges)):  # loop over masks only
+            out[:, k] = self.signed(k, float(margins[k]))
+        if not self.kp.finite.all():
+            out[~self.kp.finite] = np.nan
+        return out
+
+
 def keypoint_pixels(kps: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(pu, pv, finite): keypoints rounded to the nearest pixel and clipped to the image; non-finite ones -> (0, 0)."""
-    kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
-    h, w = shape
-    finite = np.all(np.isfinite(kps), axis=1)
-    pix = np.where(finite[:, None], np.rint(kps), 0.0)
-    pu = np.clip(pix[:, 0], 0, w - 1).astype(np.int64)
-    pv = np.clip(pix[:, 1], 0, h - 1).astype(np.int64)
-    return pu, pv, finite
+    kp = KeypointPixels(kps, shape)
+    return kp.pu, kp.pv, kp.finite
 
 
 def signed_distances(masks: np.ndarray | list[MaskEdges] | None, kps: np.ndarray,
@@ -150,17 +226,7 @@ def signed_distances(masks: np.ndarray | list[MaskEdges] | None, kps: np.ndarray
     or (n,)): outside points farther than this from mask n get ``-max(margin, distance to the bounding box)`` (see
     the module docstring). The loop is over masks, never over keypoints or pixels.
     """
-    edges = masks if isinstance(masks, list) else mask_edges(masks)
-    kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
-    out = np.full((len(kps), len(edges)), -np.inf)
-    if len(kps) == 0 or not edges:
-        return out
-    margins = np.broadcast_to(np.asarray(margin, dtype=np.float64), (len(edges),))
-    pu, pv, finite = keypoint_pixels(kps, edges[0].shape)
-    for k, e in enumerate(edges):
-        out[:, k] = e.signed(pu, pv, float(margins[k]))
-    out[~finite] = np.nan
-    return out
+    return FrameMasks(masks, kps).distances(margin)
 
 
 def semantic_probability(d: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -178,21 +244,25 @@ class SemanticResult:
     in_area: np.ndarray  # (N,) bool: inside a mask or in its uncertainty zone (the "mask area" of eq 7)
 
 
-def semantic_module(masks: np.ndarray | list[MaskEdges] | None, kps: np.ndarray, b: np.ndarray,
+def semantic_module(masks: np.ndarray | list[MaskEdges] | FrameMasks | None, kps: np.ndarray, b: np.ndarray,
                     margin: float | np.ndarray = np.inf, cfg: DynamicsConfig = _DEFAULT) -> SemanticResult:
-    """eq 1-2 for all keypoints and masks. ``b`` (N,) is beta(z) of each keypoint (``depth.beta``).
+    """eq 1-2 for all keypoints and masks. ``b`` (N,) is beta(z) of each keypoint (``depth.beta``). ``masks`` may be
+    the frame's ``FrameMasks`` (built on the same ``kps``), whose edges, trees and pixel lookups are then reused.
 
     P_S is monotone in d for a given keypoint (same beta for every mask), so the largest P_S over the masks is the
     one of the largest signed distance ``d_max``; the uncertainty zone is taken on that same mask, i.e. it is exactly
     the set where the keypoint's P_S lies in (0.25, 0.75). Non-finite keypoints: P_S = 0, outside every area.
     """
-    d = signed_distances(masks, kps, margin)
+    fm = masks if isinstance(masks, FrameMasks) else FrameMasks(masks, kps)
+    d = fm.distances(margin)
     b = np.asarray(b, dtype=np.float64).reshape(-1)
     n = d.shape[0]
     if d.shape[1] == 0:
         d_max = np.full(n, -np.inf)
     else:
-        d_max = np.max(np.nan_to_num(d, nan=-np.inf), axis=1)
+        d_max = d.max(axis=1)  # NaN only on the rows of non-finite keypoints (whole rows)
+        if not fm.kp.finite.all():
+            d_max[~fm.kp.finite] = -np.inf
     p_s = semantic_probability(d_max, b)
     inside = d_max > 0
     with np.errstate(invalid="ignore"):

@@ -73,7 +73,8 @@ def two_view_scene(seed: int = 0, n_kps: int = 1000, n_matches: int = 800, n_per
                                 rng.normal(0, 0.01, n_persons)]) if n_persons else np.zeros((0, 3))
     z = np.where(kp_depth > 0, kp_depth, 2.5).astype(np.float64)
     Xc = np.column_stack([(kps[:, 0] - K_FR3[0, 2]) * z / K_FR3[0, 0], (kps[:, 1] - K_FR3[1, 2]) * z / K_FR3[1, 1], z])
-    Xc = Xc - np.where(truth[:, None], v_person[np.maximum(who, 0)], 0.0)  # where the point was at t-1
+    if n_persons:
+        Xc = Xc - np.where(truth[:, None], v_person[np.maximum(who, 0)], 0.0)  # where the point was at t-1
     q = _project(Xc @ R.T + t, K_FR3) + rng.normal(0, pixel_noise, (n_kps, 2))
     # Previous frame: the matched keypoints (shuffled order) plus unmatched ones.
     n_matches = min(n_matches, n_kps)

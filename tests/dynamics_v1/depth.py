@@ -1,0 +1,118 @@
+"""Depth-adaptive quantities of D2SLAM (eq 2, 5, 9, 10) and the robust per-keypoint depth.
+
+The paper gives a range and a direction for each depth-adaptive quantity, not the mapping. DESIGN.md section 1
+fixes the reading used here, with the normalised depth
+
+    s(z) = clip((z - z_near) / (z_far - z_near), 0, 1),      z_near = 0.5 m, z_far = 4.5 m
+
+    beta(z)  = beta_min + (beta_max - beta_min) s(z)          eq 2,  in [0.05, 0.25], proportional to depth
+    alpha(z) = alpha_max - (alpha_max - alpha_min) s(z)       eq 5,  in [0.5, 0.9] px, inversely proportional
+    delta(z) = clip(delta_a - delta_b z, delta_min, delta_max) eq 9, 48 - 4 z px, in [11, 48]
+    gamma(z) = gamma_max - (gamma_max - gamma_min) s(z)       eq 10, in [10, 28] px, inversely proportional
+
+A depth is *valid* when it is finite and > 0 (0 = invalid, the project convention). Every function returns the
+midpoint of its range for an invalid depth (beta 0.15, alpha 0.7, delta 29.5, gamma 19), and for every depth when
+``use_depth=False`` (the "no-depth" ablation). All functions are vectorised over arrays of any shape.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from d2slam.config import DynamicsConfig
+
+_DEFAULT = DynamicsConfig()
+
+
+def valid_depth(z: np.ndarray) -> np.ndarray:
+    """Boolean array: depth finite and strictly positive (0, negative, NaN and inf are invalid)."""
+    z = np.asarray(z, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(z) & (z > 0)
+
+
+def normalised_depth(z: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """s(z) = clip((z - z_near) / (z_far - z_near), 0, 1); NaN where the depth is invalid."""
+    z = np.asarray(z, dtype=np.float64)
+    ok = valid_depth(z)
+    s = np.clip((np.where(ok, z, 0.0) - cfg.z_near) / (cfg.z_far - cfg.z_near), 0.0, 1.0)
+    return np.where(ok, s, np.nan)
+
+
+def _linear(z, lo_at_near: float, hi_at_far: float, cfg: DynamicsConfig, use_depth: bool) -> np.ndarray:
+    """lo_at_near + (hi_at_far - lo_at_near) s(z), the midpoint where z is invalid or use_depth is False."""
+    z = np.asarray(z, dtype=np.float64)
+    mid = 0.5 * (lo_at_near + hi_at_far)
+    if not use_depth:
+        return np.full(z.shape, mid)
+    s = normalised_depth(z, cfg)
+    return np.where(np.isnan(s), mid, lo_at_near + (hi_at_far - lo_at_near) * np.nan_to_num(s))
+
+
+def beta(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarray:
+    """eq 2: beta(z) = beta_min + (beta_max - beta_min) s(z), the logistic slope (1/px), proportional to depth."""
+    return _linear(z, cfg.beta_min, cfg.beta_max, cfg, use_depth)
+
+
+def alpha(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarray:
+    """eq 5: alpha(z) = alpha_max - (alpha_max - alpha_min) s(z), the epipolar threshold (px), inversely
+    proportional to depth."""
+    return _linear(z, cfg.alpha_max, cfg.alpha_min, cfg, use_depth)
+
+
+def gamma(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarray:
+    """eq 10: gamma(z) = gamma_max - (gamma_max - gamma_min) s(z), the OIM centroid threshold (px)."""
+    return _linear(z, cfg.gamma_max, cfg.gamma_min, cfg, use_depth)
+
+
+def delta(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarray:
+    """eq 9: delta(z) = clip(48 - 4 z, 11, 48), the OIM neighbourhood radius (px). Not a function of s(z): the
+    paper prints this one. Midpoint 29.5 px where z is invalid or use_depth is False."""
+    z = np.asarray(z, dtype=np.float64)
+    mid = 0.5 * (cfg.delta_min + cfg.delta_max)
+    if not use_depth:
+        return np.full(z.shape, mid)
+    ok = valid_depth(z)
+    d = np.clip(cfg.delta_a - cfg.delta_b * np.where(ok, z, 0.0), cfg.delta_min, cfg.delta_max)
+    return np.where(ok, d, mid)
+
+
+def uncertainty_width(b: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """eq 2 / fig 2: half-width (px) of the mask's uncertainty zone for slope ``b``: P_S stays within
+    (1 - p, p) for |d| < ln(p / (1 - p)) / beta, p = ``uncertainty_prob`` (0.75 -> ln 3 / beta)."""
+    p = cfg.uncertainty_prob
+    return np.log(p / (1.0 - p)) / np.asarray(b, dtype=np.float64)
+
+
+def keypoint_depth(depth: np.ndarray, kps: np.ndarray, radius: int | None = None,
+                   cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """Robust depth of each keypoint: median of the valid pixels of the (2 r + 1)^2 patch around its rounded pixel.
+
+    ``depth`` (H, W) metres (0 / NaN / inf invalid), ``kps`` (N, 2) pixel (u, v). Patch pixels outside the image are
+    ignored; a keypoint with no valid patch pixel (or a non-finite position) gets 0 (invalid). Vectorised: the patches
+    are gathered as an (N, P) array, invalid entries sorted to the end as +inf, and the median is read at the middle
+    of each row's valid count (mean of the two middle values when the count is even).
+    """
+    r = cfg.depth_patch_radius if radius is None else int(radius)
+    kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
+    depth = np.asarray(depth)
+    h, w = depth.shape
+    n = len(kps)
+    if n == 0:
+        return np.zeros(0, dtype=np.float32)
+    finite = np.all(np.isfinite(kps), axis=1)
+    c = np.where(finite[:, None], np.rint(kps), -10 * (r + 1)).astype(np.int64)
+    off = np.arange(-r, r + 1)
+    du, dv = np.meshgrid(off, off)
+    u = c[:, 0:1] + du.ravel()[None, :]
+    v = c[:, 1:2] + dv.ravel()[None, :]
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    vals = depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)].astype(np.float64)
+    ok = inside & valid_depth(vals)
+    vals = np.sort(np.where(ok, vals, np.inf), axis=1)
+    cnt = ok.sum(axis=1)
+    lo = np.maximum((cnt - 1) // 2, 0)
+    hi = np.maximum(cnt // 2, 0)
+    rows = np.arange(n)
+    med = 0.5 * (vals[rows, lo] + vals[rows, np.minimum(hi, vals.shape[1] - 1)])
+    return np.where(cnt > 0, med, 0.0).astype(np.float32)
