@@ -412,25 +412,34 @@ def synthesize(scenario: str, root: Path, frames: int, seed: int, static_twin: b
         try:
             meta = _json.loads(scene.read_text())
             if (meta.get("scenario"), meta.get("seed"), meta.get("frames"), bool(meta.get("static_twin"))) == \
-                    (scenario, seed, frames, static_twin) and (root / "rgb.txt").is_file():
-                return root
+                    (scenario, seed, frames, static_twin) and (root / "rgb.txt").is_file() and \
+                    sum(1 for _ in (root / "rgb").glob("*.png")) == frames and \
+                    sum(1 for _ in (root / "depth").glob("*.png")) == frames:
+                return root  # complete (an interrupted generation is redone)
         except (OSError, ValueError):
             pass
-    from d2slam.cli import COMMANDS, main
+    import subprocess
+    import sys
+
+    from d2slam.cli import COMMANDS
 
     argv = [scenario, "--out", str(root), "--frames", str(frames), "--seed", str(seed)]
     argv += ["--static-twin"] if static_twin else []
+    # a fresh process per sequence: the generator forks a worker pool, which must not inherit this process's threads
     if "synth" in COMMANDS:
-        code = main(["synth", *argv])
-        if code:
-            raise D2SlamError(f"d2slam synth {' '.join(argv)} failed (exit {code})", path=root)
+        cmd = [sys.executable, "-m", "d2slam.cli", "synth", *argv]
     else:  # the generator's Python API, before its command is registered
-        try:
-            from d2slam.synth.generate import generate
-        except ImportError:
-            raise D2SlamError("the synthetic generator (d2slam synth) is not available; use --images-dir / "
-                              "--sequences or --no-synthetic") from None
-        generate(scenario, root, frames=frames, seed=seed, static_twin=static_twin)
+        cmd = [sys.executable, "-c", "from d2slam.synth.generate import generate; "
+               f"generate({scenario!r}, {str(root)!r}, frames={frames}, seed={seed}, static_twin={static_twin}, "
+               "workers=1, progress=False)"]
+    limit = 120.0 + 5.0 * frames
+    try:
+        proc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, timeout=limit)
+    except subprocess.TimeoutExpired:
+        raise D2SlamError(f"d2slam synth {' '.join(argv)} did not finish within {limit:.0f} s", path=root) from None
+    if proc.returncode != 0:
+        tail = " | ".join(proc.stderr.strip().splitlines()[-2:])
+        raise D2SlamError(f"d2slam synth {' '.join(argv)} failed (exit {proc.returncode}): {tail}", path=root)
     return root
 
 
