@@ -35,8 +35,9 @@ def check_matches(matches: np.ndarray, n_cur: int, n_prev: int) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     if m.ndim != 2 or m.shape[1] != 2:
         raise D2SlamError(f"matches must be a (K, 2) array of (current, previous) indices, got shape {m.shape}")
-    m = m.astype(np.int64)
-    if m[:, 0].min() < 0 or m[:, 0].max() >= n_cur or m[:, 1].min() < 0 or m[:, 1].max() >= n_prev:
+    m = m.astype(np.int64, copy=False)
+    lo, hi = m.min(axis=0), m.max(axis=0)
+    if lo[0] < 0 or hi[0] >= n_cur or lo[1] < 0 or hi[1] >= n_prev:
         raise D2SlamError(f"match indices out of range ({n_cur} current and {n_prev} previous keypoints)")
     return m
 
@@ -119,13 +120,15 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     if len(m) == 0:
         return empty
     p, q = kps[m[:, 0]], prev_kps[m[:, 1]]
-    ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(q), axis=1)
-    m, p, q = m[ok], p[ok], q[ok]
+    ok = np.isfinite(p[:, 0]) & np.isfinite(p[:, 1]) & np.isfinite(q[:, 0]) & np.isfinite(q[:, 1])
+    if not ok.all():
+        m, p, q = m[ok], p[ok], q[ok]
     pb = np.asarray(prev_belief, dtype=np.float64).reshape(-1)
     if len(pb) != len(prev_kps):
         raise D2SlamError(f"prev_belief has {len(pb)} entries for {len(prev_kps)} previous keypoints")
-    bel_q = np.nan_to_num(pb[m[:, 1]], nan=cfg.prior)
-    static = bel_q <= cfg.dynamic_threshold
+    bel_q = pb[m[:, 1]]
+    with np.errstate(invalid="ignore"):
+        static = np.where(np.isnan(bel_q), cfg.prior, bel_q) <= cfg.dynamic_threshold  # NaN belief = the prior
     used_static = int(static.sum()) >= cfg.f_min_static_matches
     sel = static if used_static else np.ones(len(m), dtype=bool)
     F, _ = fundamental_matrix(q[sel], p[sel], cfg, seed)
