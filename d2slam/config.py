@@ -87,6 +87,10 @@ class OrbConfig:
     patch_size: int = 31
     # Spatial bucketing: the image is cut in cells of about this size (pixels) at level 0 (x scale^level above).
     cell_size: int = 35
+    # Corners detected per kept feature before bucketing (OpenCV ORB keeps the best by Harris response).
+    oversample: float = 2.0
+    # Keypoint depth: median of the valid depth pixels in a (2 r + 1)^2 patch around the keypoint.
+    depth_patch_radius: int = 1
 
 
 @dataclass(frozen=True)
@@ -95,10 +99,6 @@ class EngineConfig:
     bf: float = 40.0
     th_depth: float = 40.0
     depth_factor: float = 5000.0
-    # Corners detected per kept feature before bucketing (OpenCV ORB keeps the best by Harris response).
-    oversample: float = 2.0
-    # Keypoint depth: median of the valid depth pixels in a (2 r + 1)^2 patch around the keypoint.
-    depth_patch_radius: int = 1
     min_depth: float = 0.1
     max_depth: float = 8.0
     # Chi-square thresholds at 95 % (ORB-SLAM): 2 dof mono, 3 dof stereo.
@@ -134,23 +134,15 @@ class EngineConfig:
     kf_max_frames: int = 30
     kf_close_tracked: int = 100
     kf_close_untracked: int = 70
+    kf_min_inliers: int = 15
+    kf_new_points_min: int = 100  # CreateNewKeyFrame: close points added until at least this many (maxPoint)
     # Local mapping.
     local_ba_iterations: int = 10
     local_ba_window: int = 10  # covisible keyframes optimised with the new one (best by shared points)
     covisibility_min_shared: int = 15
     mappoint_found_ratio: float = 0.25
-    keyframe_redundancy: float = 0.9
-    # Map points with a dynamic belief above this are culled (hook output, eq 8).
-    mappoint_belief_threshold: float = 0.5
-    kf_min_inliers: int = 15
-    kf_new_points_min: int = 100  # CreateNewKeyFrame: close points added until at least this many (maxPoint)
-    ransac_seed: int = 0
-
-
-# --------------------------------------------------------------------------------------------------
-# Segmentation (YOLOv8n-seg person masks through onnxruntime)
     mappoint_min_obs: int = 3  # ORB-SLAM cnThObs (RGB-D): weighted observations (stereo counts 2)
-# --------------------------------------------------------------------------------------------------
+    keyframe_redundancy: float = 0.9
     keyframe_redundant_obs: int = 3
     # Tracking the local map: keyframes sharing points with the frame (at most this many) + their covisibles.
     local_map_max_keyframes: int = 80
@@ -162,11 +154,19 @@ class EngineConfig:
     pnp_confidence: float = 0.99
     # Keypoint filter (hook): frame-to-frame mutual-nearest matches within this pixel displacement.
     filter_match_window: float = 80.0
+    # Map points with a dynamic belief above this are culled (hook output, eq 8).
+    mappoint_belief_threshold: float = 0.5
+    ransac_seed: int = 0
+    # OpenCV thread count, set explicitly (cv2.setNumThreads) for deterministic, reproducible timings.
+    cv_threads: int = 1
+
+
+# --------------------------------------------------------------------------------------------------
+# Segmentation (YOLOv8n-seg person masks through onnxruntime)
+# --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SegmentationConfig:
     score_threshold: float = 0.25
-    # OpenCV thread count, set explicitly (cv2.setNumThreads) for deterministic, reproducible timings.
-    cv_threads: int = 1
     nms_iou: float = 0.7
     mask_threshold: float = 0.5
     dilation_px: int = 0
@@ -181,8 +181,18 @@ class SegmentationConfig:
 class SynthConfig:
     width: int = 640
     height: int = 480
+    # Pinhole intrinsics of the synthetic camera: the TUM freiburg3 values (ORB-SLAM3 TUM3.yaml).
+    fx: float = 535.4
+    fy: float = 539.2
+    cx: float = 320.1
+    cy: float = 247.6
     fps: float = 30.0
     gt_rate: float = 100.0
+    # TUM-like clock: first RGB timestamp (s) and uniform jitter of each frame time around i / fps (s).
+    start_time: float = 1341846313.592026
+    frame_jitter: float = 0.0015
+    # Ground truth covers the frames with this margin (s) on both ends, like the mocap logs of TUM.
+    gt_margin: float = 0.5
     # Kinect-like depth noise sigma(z) = a + b (z - c)^2 metres, quantised to 1 / depth_factor.
     depth_noise_a: float = 0.0012
     depth_noise_b: float = 0.0019
@@ -190,7 +200,47 @@ class SynthConfig:
     depth_factor: float = 5000.0
     depth_max: float = 4.5
     # RGB timestamps vs depth timestamps: depth lags by a uniform offset in this range (seconds).
+    # Both images are rendered at the RGB instant (the offset only exercises association).
     depth_time_offset: tuple[float, float] = (0.002, 0.012)
+    # Depth holes: at depth edges (jump above edge_jump_a + edge_jump_b z metres within 3x3 px), each edge pixel
+    # dropped with probability hole_edge_prob after a dilation of hole_edge_dilate px; random small blobs covering
+    # about hole_blob_fraction of the image (blobs of about hole_blob_cell px).
+    hole_edge_jump_a: float = 0.05
+    hole_edge_jump_b: float = 0.03
+    hole_edge_prob: float = 0.6
+    hole_edge_dilate: int = 1
+    hole_blob_fraction: float = 0.01
+    hole_blob_cell: int = 12
+    near_plane: float = 0.05
+    # RGB sensor: Gaussian noise (grey levels), motion blur over the exposure from the camera motion (capped px).
+    rgb_noise_sigma: float = 2.0
+    exposure: float = 0.012
+    blur_max_px: float = 9.0
+    # Texture resolution (texels per metre) of the room and of people / objects.
+    room_texels_per_m: float = 220.0
+    body_texels_per_m: float = 420.0
+    # People: walking speed (m/s), step frequency (Hz), arm / leg swing amplitude (rad).
+    walk_speed: tuple[float, float] = (0.8, 1.15)
+    step_freq: float = 0.9
+    arm_swing: float = 0.55
+    leg_swing: float = 0.5
+    # Simulated segmenter (mask_sim): relative boundary error (fraction of the person's apparent size
+    # sqrt(bbox area)) grows linearly with normalised depth s(z) = clip((z - seg_z_near) / (seg_z_far - seg_z_near));
+    seg_z_near: float = 0.5
+    seg_z_far: float = 4.5
+    seg_rel_err_near: float = 0.012
+    seg_rel_err_far: float = 0.09
+    # ... per-frame miss probability: flicker everywhere, plus far people (z beyond seg_far_start), plus people cut
+    # by the image border whose visible fraction of an expected full body is small, plus tiny ones (< min area).
+    seg_flicker: float = 0.03
+    seg_far_start: float = 3.0
+    seg_far_miss: float = 0.35
+    seg_cut_miss: float = 0.5
+    seg_cut_visible: float = 0.25
+    seg_min_area: int = 250
+    # Process pool over frames (0 = min(2, cpu count)); per-frame RNGs are seeded from (seed, frame index).
+    workers: int = 0
+    png_compression: int = 1
 
 
 # --------------------------------------------------------------------------------------------------
