@@ -51,3 +51,9 @@ def get_filter(name: str, config: Config):
 
 register("none", lambda config: None, needs_masks=False, help="engine with the keypoint filter off (ORB-SLAM3 "
          "stand-in)")
+
+# The dynamics modes (d2slam, no-depth, no-oim, no-bayes, semantic, geometric): a light import, the classifier loads
+# when a filter is built.
+from d2slam.dynamics import register_methods as _register_dynamics  # noqa: E402
+
+_register_dynamics(register)

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from d2slam.config import Config, DynamicsConfig
+from d2slam.dynamics import METHODS, MODES, NEEDS_MASKS, register_methods  # noqa: F401 (names defined there, light)
 from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, fuse, prior_belief
 from d2slam.dynamics.geometric import geometric_module
@@ -39,9 +40,6 @@ from d2slam.dynamics.interaction import mask_depths, oim_frame
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.errors import D2SlamError
 from d2slam.slam.hook import FilterInput
-
-MODES = ("d2slam", "no-depth", "no-oim", "no-bayes", "semantic", "geometric")
-METHODS = MODES + ("none",)
 
 
 @dataclass

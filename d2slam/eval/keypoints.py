@@ -3,6 +3,8 @@
 ``keypoint_truth(kps, dynamic_mask)`` labels each keypoint from a per-pixel truth mask (the synthetic benchmark's
 ``SyntheticSequence.dynamic_mask(i)``: a person, or a moved object while it moves). ``KeypointMetrics`` accumulates
 confusion counts over frames (and ``ModuleMetrics`` one per module of the classifier's diagnostics).
+``KeypointRecorder(sequence)`` is the per-frame recorder of ``d2slam.pipeline.run_sequence`` that does all of it over a
+run and returns a JSON-ready dict (``result()``).
 
 Undefined ratios (no predicted or no true dynamic keypoint at all) are NaN, never a made-up 0 or 1.
 """
@@ -105,3 +107,78 @@ class ModuleMetrics:
 
     def as_dict(self) -> dict[str, dict[str, float]]:
         return {name: m.as_dict() for name, m in self.modules.items()}
+
+
+MODULE_ORDER = ("semantic", "geometric", "fusion", "bayes", "oim", "final")
+
+
+def _json_number(v):
+    """NaN (an undefined ratio) -> None, so that the dict is strict JSON; ints stay ints."""
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    return v
+
+
+class KeypointRecorder:
+    """Recorder for ``run_sequence(..., recorder=KeypointRecorder(sequence))``: precision / recall / F1 of "dynamic"
+    per module of the classifier, and static precision, against the sequence's keypoint truth.
+
+    Called once per frame as ``recorder(index, kps (N, 2), beliefs (N,) or None, diagnostics)``: the truth of each
+    keypoint is ``keypoint_truth(kps, sequence.dynamic_mask(index))``; the predictions are the diagnostics'
+    ``predictions()`` (``FrameDiagnostics``: semantic, geometric, fusion, bayes, oim, final - whichever modules the
+    mode ran) when the diagnostics belong to this frame (same ``frame_index`` and keypoint count), otherwise only
+    ``final`` from the beliefs (belief > ``threshold``; no beliefs, i.e. method ``none``: every keypoint static).
+    ``sequence`` must have ``dynamic_mask(i)`` (``d2slam.data.SyntheticSequence``); anything else is a D2SlamError.
+    """
+
+    def __init__(self, sequence, threshold: float = 0.5):
+        if not callable(getattr(sequence, "dynamic_mask", None)):
+            raise D2SlamError("keypoint metrics need a synthetic sequence (per-pixel truth in mask_gt/ and scene.json)",
+                              path=getattr(sequence, "root", None))
+        self.sequence = sequence
+        self.threshold = float(threshold)
+        self.metrics = ModuleMetrics()
+        self.frames = 0
+        self.keypoints = 0
+        self.dynamic_keypoints = 0
+        self.frames_with_diagnostics = 0
+
+    def __call__(self, index: int, kps: np.ndarray, beliefs: np.ndarray | None, diagnostics=None) -> None:
+        kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
+        n = len(kps)
+        truth = keypoint_truth(kps, self.sequence.dynamic_mask(index))
+        preds = None
+        if diagnostics is not None and getattr(diagnostics, "frame_index", None) == index \
+                and len(getattr(diagnostics, "belief", ())) == n:
+            preds = diagnostics.predictions(self.threshold)
+            self.frames_with_diagnostics += 1
+        if preds is None:
+            if beliefs is None:
+                final = np.zeros(n, dtype=bool)
+            else:
+                b = np.asarray(beliefs, dtype=np.float64).reshape(-1)
+                if len(b) != n:
+                    raise D2SlamError(f"frame {index}: {len(b)} beliefs for {n} keypoints")
+                final = b > self.threshold
+            preds = {"final": final}
+        self.metrics.update(preds, truth)
+        self.frames += 1
+        self.keypoints += n
+        self.dynamic_keypoints += int(truth.sum())
+
+    def result(self) -> dict:
+        """JSON-ready: frames, keypoints, dynamic_keypoints, threshold and, per module (in the pipeline's order),
+        tp/fp/fn/tn, precision, recall, f1, static_precision (None where a ratio is undefined)."""
+        mods = self.metrics.as_dict()
+        names = [m for m in MODULE_ORDER if m in mods] + sorted(set(mods) - set(MODULE_ORDER))
+        return {"frames": self.frames, "frames_with_diagnostics": self.frames_with_diagnostics,
+                "keypoints": self.keypoints, "dynamic_keypoints": self.dynamic_keypoints,
+                "threshold": self.threshold,
+                "modules": {m: {k: _json_number(v) for k, v in mods[m].items()} for m in names}}
+
+
+def keypoint_recorder(sequence, threshold: float = 0.5) -> KeypointRecorder | None:
+    """A ``KeypointRecorder`` when ``sequence`` carries keypoint truth (synthetic), None otherwise (TUM)."""
+    if callable(getattr(sequence, "dynamic_mask", None)):
+        return KeypointRecorder(sequence, threshold)
+    return None
