@@ -12,6 +12,8 @@ from d2slam.errors import D2SlamError
 # Subcommand modules, in the order ``d2slam --help`` lists them.
 COMMANDS = [
     "bench",
+    "synth",
+    "demo",
     "segment",
     "vocab",
     "download",

@@ -103,6 +103,7 @@ def _write(path: Path, img: np.ndarray, compression: int) -> None:
 
 def _frame_job(i: int) -> dict:
     scene, renderer, out = _STATE["scene"], _STATE["renderer"], _STATE["out"]
+    cpu0 = time.process_time()
     f = render_frame(scene, renderer, i)
     t_w = time.perf_counter()
     comp = scene.cfg.png_compression
@@ -113,9 +114,10 @@ def _frame_job(i: int) -> dict:
     _write(out / "mask_gt" / name, f["mask_gt"], comp)
     _write(out / "mask_sim" / name, f["mask_sim"], comp)
     f["ms"]["write"] = 1e3 * (time.perf_counter() - t_w)
+    cpu_ms = 1e3 * (time.process_time() - cpu0)
     counts = np.bincount(f["mask_gt"].ravel(), minlength=256)
     n = f["mask_gt"].size
-    return {"index": i, "ms": f["ms"],
+    return {"index": i, "ms": f["ms"], "cpu_ms": cpu_ms,
             "person_fraction": float(sum(counts[p] for p in scene.person_ids)) / n,
             "moved_fraction": float(sum(counts[o] for o in scene.moved_object_ids)) / n,
             "sim_fraction": float(np.count_nonzero(f["mask_sim"])) / n,
@@ -214,8 +216,10 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
                                          + "# timestamp tx ty tz qx qy qz qw\n" + lines)
     (out / "scene.json").write_text(json.dumps(scene_json(scene), indent=1) + "\n")
 
-    n_workers = workers if workers is not None else (cfg.workers or min(2, os.cpu_count() or 1))
-    n_workers = max(1, min(int(n_workers), frames // 20))  # a spawned worker costs ~1 s to start
+    if workers is None:  # default: up to two, but a spawned worker costs ~1 s to start, so not for short runs
+        n_workers = max(1, min(cfg.workers or min(2, os.cpu_count() or 1), frames // 20))
+    else:
+        n_workers = max(1, min(int(workers), frames))
     renderer = Renderer(scene.K, cfg.width, cfg.height, scene.textures, cfg.near_plane)
     _STATE.clear()
     _STATE.update(scene=scene, renderer=renderer, out=out)

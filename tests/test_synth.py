@@ -1,0 +1,292 @@
+"""The synthetic benchmark generator: determinism, TUM layout round trip, people and objects really moving, masks,
+static twin, coverage, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from d2slam.config import SynthConfig
+from d2slam.errors import D2SlamError
+from d2slam.synth import SCENARIOS, Scene, generate
+from d2slam.synth.render import Renderer
+from d2slam.synth.scene import MOVED_BOX_ID, MOVED_CHAIR_ID
+
+FRAMES = 24
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def seqs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synth")
+    out = {}
+    out["a"] = generate("walking_xyz", root / "a", frames=FRAMES, seed=0, workers=2, progress=False)
+    out["b"] = generate("walking_xyz", root / "b", frames=FRAMES, seed=0, workers=1, progress=False)
+    out["twin"] = generate("walking_xyz", root / "twin", frames=FRAMES, seed=0, static_twin=True, workers=1,
+                           progress=False)
+    out["seed1"] = generate("walking_xyz", root / "seed1", frames=4, seed=1, workers=1, progress=False)
+    return out
+
+
+def _read_list(path: Path):
+    rows = [ln.split() for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    return rows
+
+
+def _sorted_stems(root: Path, sub: str) -> list[str]:
+    return [row[1] for row in _read_list(root / f"{sub}.txt")]
+
+
+# ---------------------------------------------------------------------------------------------- determinism
+def test_same_seed_gives_byte_identical_files_whatever_the_workers(seqs):
+    a, b = _files(seqs["a"]["out"]), _files(seqs["b"]["out"])
+    assert seqs["a"]["workers"] == 2 and seqs["b"]["workers"] == 1
+    assert len(a) == 4 * FRAMES + 4 and a.keys() == b.keys()
+    diff = [k for k in a if a[k] != b[k]]
+    assert diff == []
+
+
+def test_other_seed_gives_other_people_and_textures(seqs):
+    a, c = seqs["a"]["out"], seqs["seed1"]["out"]
+    ra = cv2.imread(str(a / _sorted_stems(a, "rgb")[0]))
+    rc = cv2.imread(str(c / _sorted_stems(c, "rgb")[0]))
+    assert np.abs(ra.astype(int) - rc.astype(int)).mean() > 10
+    s0, s1 = Scene("walking_xyz", 0, FRAMES), Scene("walking_xyz", 1, FRAMES)
+    p0 = np.array([p.root(0.5)[:3, 3] for p in s0.people])
+    p1 = np.array([p.root(0.5)[:3, 3] for p in s1.people])
+    assert np.abs(p0 - p1).max() > 0.1
+
+
+# ---------------------------------------------------------------------------------------------- TUM layout
+def test_tum_layout_round_trip_with_opencv(seqs):
+    root = seqs["a"]["out"]
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+        head = (root / name).read_text().splitlines()[:3]
+        assert all(line.startswith("# ") for line in head)
+    rgb_rows, depth_rows = _read_list(root / "rgb.txt"), _read_list(root / "depth.txt")
+    assert len(rgb_rows) == len(depth_rows) == FRAMES
+    t_rgb = np.array([float(r[0]) for r in rgb_rows])
+    t_depth = np.array([float(r[0]) for r in depth_rows])
+    assert np.all(np.diff(t_rgb) > 0) and np.all(np.diff(t_depth) > 0)
+    dt = np.diff(t_rgb)
+    assert abs(dt.mean() - 1 / 30) < 0.002 and dt.std() > 0  # 30 Hz with jitter
+    off = t_depth - t_rgb
+    assert off.min() >= 0.002 - 1e-6 and off.max() <= 0.012 + 1e-6  # depth a few ms after RGB
+    for (t, name), (td, dname) in zip(rgb_rows[:3], depth_rows[:3]):
+        assert name == f"rgb/{t}.png" and len(t.split(".")[1]) == 6 and t.startswith("1341846")
+        rgb = cv2.imread(str(root / name), cv2.IMREAD_UNCHANGED)
+        assert rgb.dtype == np.uint8 and rgb.shape == (480, 640, 3)
+        depth = cv2.imread(str(root / dname), cv2.IMREAD_UNCHANGED)
+        assert depth.dtype == np.uint16 and depth.shape == (480, 640)
+        metres = depth[depth > 0] / 5000.0
+        assert 0.3 < metres.min() and metres.max() < 4.5 + 0.05
+        for sub in ("mask_gt", "mask_sim"):
+            m = cv2.imread(str(root / sub / f"{t}.png"), cv2.IMREAD_UNCHANGED)
+            assert m.dtype == np.uint8 and m.shape == (480, 640)
+    gt = np.array([[float(v) for v in r] for r in _read_list(root / "groundtruth.txt")])
+    assert gt.shape[1] == 8
+    rate = 1 / np.diff(gt[:, 0]).mean()
+    assert abs(rate - 100) < 0.5 and np.all(np.diff(gt[:, 0]) > 0)
+    assert gt[0, 0] < t_rgb[0] and gt[-1, 0] > t_rgb[-1]  # covers all frames
+    np.testing.assert_allclose(np.linalg.norm(gt[:, 4:], axis=1), 1, atol=1e-6)
+    # the 100 Hz ground truth samples the same path as the frames: compare at the nearest gt sample
+    scene = Scene("walking_xyz", 0, FRAMES)
+    k = np.searchsorted(gt[:, 0], t_rgb[5])
+    T = scene.camera.poses([gt[k, 0] - scene.t0])[0]
+    np.testing.assert_allclose(gt[k, 1:4], T[:3, 3], atol=2e-6)
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_quat(gt[k, 4:]).as_matrix()
+    np.testing.assert_allclose(R, T[:3, :3], atol=1e-6)
+    # optical frame: z forward looks into the room (+Y world), y down points to the floor (-Z world)
+    assert T[1, 2] > 0.8 and T[2, 1] < -0.8
+
+
+def test_scene_json(seqs):
+    root = seqs["a"]["out"]
+    scene = json.loads((root / "scene.json").read_text())
+    assert scene["format"] == "d2slam-synth/1" and scene["scenario"] == "walking_xyz" and scene["seed"] == 0
+    assert scene["frames"] == FRAMES and scene["static_twin"] is False
+    assert scene["camera"] == {"fx": 535.4, "fy": 539.2, "cx": 320.1, "cy": 247.6, "width": 640, "height": 480,
+                               "depth_factor": 5000.0}
+    assert scene["person_ids"] == [1, 2, 3] and sorted(scene["moved_object_ids"]) == [MOVED_BOX_ID, MOVED_CHAIR_ID]
+    kinds = {o["id"]: o for o in scene["objects"]}
+    for oid in scene["moved_object_ids"]:
+        o = kinds[oid]
+        assert o["kind"] == "object" and o["moved"] and len(o["moving_intervals"]) == 1
+        a, b = o["moving_intervals"][0]
+        assert scene["generator"]["start_time"] <= a < b
+    assert scene["generator"]["depth_rendered_at"] == "rgb_timestamp"
+    assert scene["generator"]["config"]["depth_noise_b"] == 0.0019
+
+
+def test_reads_back_through_the_library_reader(seqs):
+    synthetic = pytest.importorskip("d2slam.data.synthetic")
+    seq = synthetic.SyntheticSequence(seqs["a"]["out"])
+    assert len(seq) == FRAMES
+    f = seq[3]
+    assert f.depth.dtype == np.float32 and 0.3 < f.depth[f.depth > 0].min()
+    assert seq.dynamic_mask(3).any()
+    gt = seq.frame_gt_poses()
+    scene = Scene("walking_xyz", 0, FRAMES)
+    np.testing.assert_allclose(gt[:, :3, 3], scene.camera.poses(scene.t_rel)[:, :3, 3], atol=2e-3)
+
+
+# ---------------------------------------------------------------------------------------------- dynamics
+def _render_ids(scene: Scene, times) -> list[np.ndarray]:
+    c = scene.cfg
+    r = Renderer(scene.K, c.width, c.height, scene.textures, c.near_plane)
+    T = scene.camera.poses(times)
+    return [r.render(scene.quads(t), T[k])[2] for k, t in enumerate(times)]
+
+
+def _centroid(mask):
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.mean(), ys.mean()]) if len(xs) else None
+
+
+@pytest.mark.parametrize("scenario", [s for s in SCENARIOS if s.startswith("walking")])
+def test_walking_people_move_and_cover_much_of_the_image(scenario):
+    scene = Scene(scenario, 0, 300)
+    times = np.arange(0.0, 3.01, 0.5)
+    ids = _render_ids(scene, times)
+    # people walk: each root moves > 0.4 m per second on average
+    for p in scene.people:
+        d = np.linalg.norm(p.root(3.0)[:2, 3] - p.root(0.0)[:2, 3])
+        path = sum(np.linalg.norm(p.root(t + 0.1)[:2, 3] - p.root(t)[:2, 3]) for t in np.arange(0, 3, 0.1))
+        assert path > 1.2 and d > 0.2
+    # and their masks change a lot between frames 0.5 s apart
+    person = [np.isin(m, scene.person_ids) for m in ids]
+    changes = [(a ^ b).sum() / max((a | b).sum(), 1) for a, b in zip(person[:-1], person[1:])]
+    assert np.median(changes) > 0.3
+    coverage = [m.mean() for m in person]
+    assert max(coverage) >= 0.2
+
+
+def test_sitting_people_move_a_little():
+    scene = Scene("sitting_static", 0, 300)
+    ids = _render_ids(scene, [0.0, 0.5, 1.0])
+    for pid in scene.person_ids:
+        masks = [m == pid for m in ids]
+        assert all(m.sum() > 5000 for m in masks)  # both sitters are in view
+        change = (masks[0] ^ masks[2]).sum() / (masks[0] | masks[2]).sum()
+        assert 0.005 < change < 0.35
+        shift = np.linalg.norm(_centroid(masks[0]) - _centroid(masks[2]))
+        assert shift < 30  # they stay in place
+    for p in scene.people:  # roots fixed, limbs move
+        np.testing.assert_allclose(p.root(0.0), p.root(2.0))
+        moves = [np.linalg.norm(a[0][:3, 3] - b[0][:3, 3]) for a, b in zip(p.parts(0.0), p.parts(1.0))]
+        assert 0.005 < max(moves) < 0.5
+
+
+def test_moved_objects_move_only_during_their_interval():
+    scene = Scene("walking_xyz", 0, 300)  # 10 s
+    assert {o.oid for o in scene.objects} == {MOVED_BOX_ID, MOVED_CHAIR_ID}
+    for obj in scene.objects:
+        a, b = obj.interval
+        before = [obj.pose(t)[:3, 3] for t in (0.0, a * 0.5, a)]
+        after = [obj.pose(t)[:3, 3] for t in (b, (b + 10) / 2, 10.0)]
+        np.testing.assert_allclose(before[0], before[2])
+        np.testing.assert_allclose(after[0], after[2])
+        during = np.array([obj.pose(t)[:3, 3] for t in np.linspace(a, b, 30)])
+        travelled = np.linalg.norm(np.diff(during, axis=0), axis=1).sum()
+        assert travelled > 1.0  # carried / pushed a long way
+        assert not obj.moving(a - 0.01) and obj.moving((a + b) / 2)
+        # it follows its carrier: distance to the carrier's root stays under a metre while moving
+        for t in np.linspace(a, b, 10):
+            assert np.linalg.norm(obj.pose(t)[:2, 3] - obj.carrier.root(t)[:2, 3]) < 1.0
+    # and it is seen moving in the images
+    box = next(o for o in scene.objects if o.kind == "box")
+    a, b = box.interval
+    times = np.linspace(a + 0.5, b - 0.5, 6)
+    seen = [_centroid(m == MOVED_BOX_ID) for m in _render_ids(scene, times)]
+    seen = [c for c in seen if c is not None]
+    assert len(seen) >= 2
+    assert max(np.linalg.norm(c - seen[0]) for c in seen) > 30
+
+
+def test_masks_consistent_with_rendered_people(seqs):
+    root = seqs["a"]["out"]
+    scene = json.loads((root / "scene.json").read_text())
+    pids, oids = scene["person_ids"], scene["moved_object_ids"]
+    ious, moved_labelled, moved_total = [], 0, 0
+    for t, name in _read_list(root / "rgb.txt"):
+        gt = cv2.imread(str(root / "mask_gt" / f"{t}.png"), cv2.IMREAD_UNCHANGED)
+        sim = cv2.imread(str(root / "mask_sim" / f"{t}.png"), cv2.IMREAD_UNCHANGED)
+        assert set(np.unique(gt)) <= {0, *pids, *oids}
+        n = int(sim.max())
+        assert set(np.unique(sim)) == set(range(n + 1))
+        person = np.isin(gt, pids)
+        if person.sum() > 2000:
+            ious.append(((sim > 0) & person).sum() / ((sim > 0) | person).sum())
+        moved = np.isin(gt, oids)
+        # the segmenter labels objects only by bleeding over a person's contour
+        far_from_people = moved & (cv2.dilate(person.astype(np.uint8), np.ones((31, 31), np.uint8)) == 0)
+        moved_labelled += int((far_from_people & (sim > 0)).sum())
+        moved_total += int(far_from_people.sum())
+    assert np.median(ious) > 0.75
+    assert moved_total == 0 or moved_labelled / moved_total < 0.02
+
+
+def test_walking_frames_reach_20_percent_people(seqs):
+    frac = np.array([s["person_fraction"] for s in seqs["a"]["stats"]])
+    assert frac.max() >= 0.2
+    assert (frac > 0).all()
+
+
+def test_static_twin_has_no_dynamic_pixels_and_same_room_and_path(seqs):
+    twin, dyn = seqs["twin"]["out"], seqs["a"]["out"]
+    scene = json.loads((twin / "scene.json").read_text())
+    assert scene["static_twin"] is True and scene["person_ids"] == [] and scene["objects"] == []
+    assert (twin / "groundtruth.txt").read_bytes().splitlines()[3:] == \
+        (dyn / "groundtruth.txt").read_bytes().splitlines()[3:]
+    assert _read_list(twin / "rgb.txt") == _read_list(dyn / "rgb.txt")
+    same = []
+    for (t, _), (td, dname) in zip(_read_list(twin / "rgb.txt"), _read_list(twin / "depth.txt")):
+        for sub in ("mask_gt", "mask_sim"):
+            assert not cv2.imread(str(twin / sub / f"{t}.png"), cv2.IMREAD_UNCHANGED).any()
+        gt = cv2.imread(str(dyn / "mask_gt" / f"{t}.png"), cv2.IMREAD_UNCHANGED)
+        away = cv2.dilate((gt > 0).astype(np.uint8), np.ones((9, 9), np.uint8)) == 0
+        d0 = cv2.imread(str(twin / dname), cv2.IMREAD_UNCHANGED)
+        d1 = cv2.imread(str(dyn / dname), cv2.IMREAD_UNCHANGED)
+        same.append((d0[away] == d1[away]).mean())
+    assert min(same) > 0.99  # the same room, path and noise away from the people
+
+
+# ---------------------------------------------------------------------------------------------- bad input, CLI
+def test_bad_input_is_a_clear_error(tmp_path):
+    with pytest.raises(D2SlamError, match="unknown scenario"):
+        Scene("walking_sideways", 0, 10)
+    with pytest.raises(D2SlamError, match="frames"):
+        Scene("walking_xyz", 0, 0)
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(D2SlamError, match="refusing"):
+        generate("walking_xyz", tmp_path, frames=2, workers=1, progress=False)
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+
+
+def test_cli_synth_and_rerun_replaces(tmp_path, capsys):
+    from d2slam.cli import main
+
+    out = tmp_path / "seq"
+    assert main(["synth", "sitting_static", "--out", str(out), "--frames", "5", "--seed", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "wrote 5 frames of sitting_static" in text and "person pixels" in text
+    assert main(["synth", "sitting_static", "--out", str(out), "--frames", "3", "--seed", "2"]) == 0
+    assert len(list((out / "rgb").iterdir())) == 3  # the longer previous run is gone
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "nope", "--out", str(out)])
+    assert exc.value.code == 2
+
+
+def test_config_constants_drive_the_noise():
+    cfg = SynthConfig()
+    assert (cfg.depth_noise_a, cfg.depth_noise_b, cfg.depth_noise_c) == (0.0012, 0.0019, 0.4)
+    assert cfg.depth_factor == 5000.0 and cfg.fps == 30.0 and cfg.gt_rate == 100.0
