@@ -85,10 +85,10 @@ def evaluate(groundtruth: Trajectory, estimate: Trajectory, max_diff: float = MA
         n_matched=int(n), n_estimated=int(len(estimate.timestamps)), n_rpe_pairs=int(len(pairs)))
 
 
-def second_pairs(ts: np.ndarray, delta_s: float, rel_tol: float = 0.1) -> np.ndarray:
+def second_pairs(ts: np.ndarray, delta_s: float, tol_s: float = MAX_DIFF) -> np.ndarray:
     """(K, 2) index pairs (i, j) with t_j the timestamp closest to t_i + delta_s (TUM ``evaluate_rpe.py
-    --fixed_delta --delta_unit s``, all pairs), kept when |t_j - t_i - delta_s| <= rel_tol * delta_s (a tracking gap
-    does not make a 3-second pair count as a 1-second one). evo's RPE has no seconds unit, hence this selection;
+    --fixed_delta --delta_unit s``, all pairs), kept when |t_j - t_i - delta_s| <= tol_s (the association
+    tolerance: a tracking gap or the end of the sequence does not turn a 0.9 s or 3 s pair into a 1 s one). evo's RPE has no seconds unit, hence this selection;
     the errors themselves follow evo's RPE definition (:func:`relative_errors`)."""
     ts = np.asarray(ts, dtype=np.float64)
     if len(ts) < 2:
@@ -97,7 +97,7 @@ def second_pairs(ts: np.ndarray, delta_s: float, rel_tol: float = 0.1) -> np.nda
     j = np.clip(np.searchsorted(ts, target), 1, len(ts) - 1)
     j = np.where(np.abs(ts[j - 1] - target) <= np.abs(ts[j] - target), j - 1, j)
     i = np.arange(len(ts))
-    ok = (j > i) & (np.abs(ts[j] - target) <= rel_tol * delta_s)
+    ok = (j > i) & (np.abs(ts[j] - target) <= tol_s)
     return np.stack([i[ok], j[ok]], axis=1)
 
 
@@ -117,8 +117,10 @@ def relative_errors(ref: np.ndarray, est: np.ndarray, pairs: np.ndarray) -> tupl
     Rq_t = np.transpose(Rq, (0, 2, 1))
     RE = Rq_t @ Rp
     tE = np.einsum("nij,nj->ni", Rq_t, tp - tq)
-    cos = np.clip((np.trace(RE, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    return np.linalg.norm(tE, axis=1), np.degrees(np.arccos(cos))
+    cos = (np.trace(RE, axis1=1, axis2=2) - 1.0) / 2.0
+    axis = np.stack([RE[:, 2, 1] - RE[:, 1, 2], RE[:, 0, 2] - RE[:, 2, 0], RE[:, 1, 0] - RE[:, 0, 1]], 1)
+    sin = np.linalg.norm(axis, axis=1) / 2.0
+    return np.linalg.norm(tE, axis=1), np.degrees(np.arctan2(sin, cos))  # well conditioned near 0
 
 
 def aligned_estimate(groundtruth: Trajectory, estimate: Trajectory, max_diff: float = MAX_DIFF):
