@@ -19,6 +19,7 @@ COMMANDS = [
     "download",
     "run",
     "eval",
+    "study",
 ]
 
 

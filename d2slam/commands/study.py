@@ -1,0 +1,112 @@
+"""``d2slam study --out results/``: the reproducible study (grid of scenarios x methods x seeds, static twins)."""
+
+from __future__ import annotations
+
+import os
+
+ENV_TUM = "D2SLAM_TUM_ROOT"
+
+
+def register(sub) -> None:
+    from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS, SCENARIOS, TWIN_METHODS
+
+    p = sub.add_parser(
+        "study", help="run the study grid and write runs.csv, summary.csv, tables.md, plots, manifest.json",
+        description="Run every (scenario, method, seed) of the grid on synthetic TUM-like sequences (generated once "
+        "into the cache, keyed by scenario/seed/frames/generator version) and on their static twins (methods of "
+        "--twin-methods), evaluate each run with evo (ATE, 1-second RPE) and the keypoint truth, and write "
+        "OUT/runs.csv (one row per run, grid order; timing columns last), OUT/summary.csv (median, min, max over "
+        "seeds), OUT/tables.md (the paper's Tables 1-3 as improvement over `none` and, when run, over real "
+        "ORB-SLAM3, absolute values, static-twin ratios, keypoint F1), OUT/plots/*.png, OUT/trajectories/, "
+        "OUT/runs/*.json and OUT/manifest.json. A failed run is a row with status=failed and its error.")
+    p.add_argument("--out", required=True, metavar="DIR", help="results folder (created)")
+    p.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS), metavar="SCENARIO",
+                   help=f"default: all five ({', '.join(SCENARIOS)})")
+    p.add_argument("--methods", nargs="+", default=None, metavar="METHOD",
+                   help="default: every registered method and orbslam3 (real ORB-SLAM3)")
+    p.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), metavar="SEED",
+                   help=f"default: {' '.join(map(str, DEFAULT_SEEDS))} (the study seeds, never tuned on)")
+    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help=f"frames per sequence (default "
+                   f"{DEFAULT_FRAMES}; >= 40 so that 1-second RPE pairs exist; on TUM data: first N frames, 0 = all)")
+    p.add_argument("--twin-methods", nargs="*", default=list(TWIN_METHODS), metavar="METHOD",
+                   help="methods also run on each static twin (default: none d2slam; give none of them to skip)")
+    p.add_argument("--jobs", "-j", type=int, default=1, help="local worker processes (joblib/loky, single-threaded "
+                   "BLAS each; default 1 = serial in this process)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", default=None,
+                   help="run the grid on a dask.distributed cluster instead (workers need d2slam installed and the "
+                   "same cache, or they generate the sequences themselves)")
+    p.add_argument("--orbslam3-repeats", type=int, default=5, help="ORB-SLAM3 runs per sequence (not deterministic:"
+                   " median and spread reported; default 5)")
+    p.add_argument("--masks", choices=["gt", "sim", "onnx"], default=None,
+                   help="person masks (default: sim on synthetic sequences, onnx on TUM data)")
+    p.add_argument("--tum-root", metavar="DIR", default=None,
+                   help=f"run on a real TUM copy (folders rgbd_dataset_freiburg3_*) instead of synthetic data "
+                   f"(default ${ENV_TUM} only when --tum is given)")
+    p.add_argument("--tum", action="store_true", help=f"use the TUM copy at ${ENV_TUM}")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--tables-only", action="store_true",
+                   help="re-render OUT/tables.md and OUT/summary.csv from an existing OUT/runs.csv; run nothing")
+    p.add_argument("--dry-run", action="store_true", help="print the grid and which sequences are cached; run nothing")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from d2slam.errors import D2SlamError
+    from d2slam.study import grid as G
+
+    out = Path(args.out)
+    if args.tables_only:
+        from d2slam.study.core import rebuild_tables
+
+        if not (out / "runs.csv").is_file():
+            raise D2SlamError("no runs.csv to build tables from", path=out / "runs.csv")
+        print(f"wrote {rebuild_tables(out)}")
+        return 0
+    tum_root = args.tum_root
+    if args.tum and not tum_root:
+        tum_root = os.environ.get(ENV_TUM)
+        if not tum_root:
+            raise D2SlamError(f"--tum needs ${ENV_TUM} pointing at a TUM RGB-D copy")
+    methods = args.methods or G.default_methods()
+    from d2slam.methods import methods as registered
+
+    unknown = [m for m in methods if m not in registered() and m != G.ORBSLAM3]
+    if unknown:
+        raise D2SlamError(f"unknown method(s) {', '.join(unknown)}; choose from "
+                          f"{', '.join(registered() + [G.ORBSLAM3])}")
+    if not tum_root and args.frames < 40:
+        raise D2SlamError(f"--frames {args.frames} is too short: RPE needs 1-second pairs (>= 40 frames at 30 Hz)")
+    if args.jobs < 1:
+        raise D2SlamError(f"--jobs must be >= 1, got {args.jobs}")
+    specs = G.expand_grid(args.scenarios, methods, args.seeds, args.frames, args.twin_methods,
+                          source="tum" if tum_root else "synth")
+    if args.dry_run:
+        return _dry_run(specs)
+    from d2slam.study import run_study
+
+    res = run_study(out, specs=specs, jobs=args.jobs, scheduler=args.scheduler, tum_root=tum_root,
+                    masks=args.masks, orbslam3_repeats=args.orbslam3_repeats, plots=not args.no_plots,
+                    progress=False if args.quiet else None)
+    df = res.runs
+    n_ok = int((df["status"] == "ok").sum())
+    print(f"{len(df)} runs: {n_ok} ok, {int((df['status'] == 'failed').sum())} failed, "
+          f"{len(df) - n_ok - int((df['status'] == 'failed').sum())} other (see tables.md, 'Runs without metrics')")
+    for name, path in res.files.items():
+        print(f"  {name}: {path}")
+    print(f"  {res.manifest['timing'].get('total_s', 0):.0f} s ({res.manifest['executor']['executor']}, "
+          f"jobs {args.jobs})")
+    return 0
+
+
+def _dry_run(specs) -> int:
+    from d2slam.study.sequences import is_complete, sequence_dir
+
+    keys = list(dict.fromkeys(s.sequence_key for s in specs))
+    cached = [k for k in keys if k[0] == "synth" and is_complete(sequence_dir(*k[1:]))]
+    print(f"{len(specs)} runs on {len(keys)} sequences ({len(cached)} already cached)")
+    for s in specs:
+        print(f"  {s.run_id}")
+    return 0

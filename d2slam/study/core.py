@@ -1,0 +1,180 @@
+"""``run_study``: the whole grid, end to end.
+
+1. expand the grid (:func:`d2slam.study.grid.expand_grid`);
+2. generate or reuse every sequence it needs (the cache of :mod:`d2slam.study.sequences`), on the executor;
+3. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask);
+4. write ``runs.csv`` (grid order), ``summary.csv``, ``tables.md``, ``plots/*.png``, ``trajectories/<run>.txt``,
+   ``runs/<run>.json`` (per-module keypoint metrics and stage timings) and ``manifest.json``.
+
+Same inputs give the same deterministic columns whichever executor ran them (tests/test_study_run.py).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from d2slam.errors import D2SlamError
+from d2slam.study import tables as T
+from d2slam.study.executors import executor_name, map_ordered
+from d2slam.study.grid import RunSpec, expand_grid
+from d2slam.study.runner import base_row, execute_run, prepare_sequence, run_options
+
+
+@dataclass
+class StudyResult:
+    out: Path
+    runs: pd.DataFrame
+    summary: pd.DataFrame
+    manifest: dict
+    files: dict = field(default_factory=dict)
+
+
+def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None = None, jobs: int = 1,
+              scheduler=None, config=None, specs: list[RunSpec] | None = None, twin_methods=None,
+              cache_root=None, tum_root=None, masks: str | None = None, orbslam3_repeats: int = 5,
+              orbslam3_timeout: float | None = None, plots: bool = True, progress: bool | None = None) -> StudyResult:
+    """Run the study grid and write its results into ``out`` (created). See the module docstring."""
+    from d2slam.config import DEFAULT
+    from d2slam.study import grid as G
+    from d2slam.study.sequences import generator_version
+
+    config = config or DEFAULT
+    if specs is None:
+        specs = expand_grid(scenarios or G.SCENARIOS, methods, seeds or G.DEFAULT_SEEDS,
+                            G.DEFAULT_FRAMES if frames is None else frames,
+                            G.TWIN_METHODS if twin_methods is None else twin_methods,
+                            source="tum" if tum_root else "synth")
+    if not specs:
+        raise D2SlamError("the study grid is empty")
+    method_order = list(dict.fromkeys(s.method for s in specs))
+    out = Path(out).expanduser()
+    out.mkdir(parents=True, exist_ok=True)
+    options = run_options(config, cache_root=cache_root, tum_root=tum_root, masks=masks,
+                          orbslam3_repeats=orbslam3_repeats, orbslam3_timeout=orbslam3_timeout)
+    ex = {"executor": executor_name(jobs, scheduler), "jobs": int(jobs),
+          "scheduler": scheduler if isinstance(scheduler, str) else (None if scheduler is None else "in-process")}
+    t0 = time.perf_counter()
+
+    keys = list(dict.fromkeys(s.sequence_key for s in specs))
+    prepared = map_ordered(prepare_sequence, keys, (options,), jobs, scheduler, desc="sequences", progress=progress)
+    prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
+    t_seq = time.perf_counter() - t0
+
+    todo = [s for s in specs if s.sequence_key not in prep_error]
+    done = map_ordered(execute_run, todo, (options,), jobs, scheduler, desc="study", progress=progress)
+    by_id = {s.run_id: r for s, r in zip(todo, done)}
+    results = []
+    for s in specs:
+        if s.run_id in by_id:
+            results.append(by_id[s.run_id])
+        else:
+            row = base_row(s)
+            row.update(status="failed", error=f"sequence: {prep_error[s.sequence_key]}")
+            results.append({"row": row, "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}})
+    t_runs = time.perf_counter() - t0 - t_seq
+
+    grid = {"scenarios": list(dict.fromkeys(s.scenario for s in specs)), "methods": method_order,
+            "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
+            "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
+            "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": int(orbslam3_repeats),
+            "masks": masks}
+    from d2slam.study.manifest import build_manifest
+
+    manifest = build_manifest(config, grid, ex, generator_version(),
+                              {"sequences_s": round(t_seq, 2), "runs_s": round(t_runs, 2)})
+    res = write_results(out, specs, results, method_order, manifest, plots=plots)
+    manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
+    return res
+
+
+def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_order: list[str], manifest: dict,
+                  plots: bool = True) -> StudyResult:
+    from d2slam.data import Trajectory, write_tum_trajectory
+
+    files = {}
+    (out / "trajectories").mkdir(exist_ok=True)
+    (out / "runs").mkdir(exist_ok=True)
+    for s, r in zip(specs, results):
+        if r.get("trajectory") is not None and len(r["trajectory"][0]):
+            ts, poses = r["trajectory"]
+            write_tum_trajectory(out / "trajectories" / f"{s.run_id}.txt", Trajectory(ts, poses),
+                                 header=f"d2slam study {s.run_id}")
+        record = {"run": s.to_dict(), "row": r["row"], "keypoints": r.get("keypoints"), "stage_ms": r.get("stage_ms")}
+        (out / "runs" / f"{s.run_id}.json").write_text(json.dumps(record, indent=1, default=_json_default) + "\n")
+    df = T.sort_runs(T.runs_frame([r["row"] for r in results]), method_order)
+    T.write_runs_csv(df, out / "runs.csv")
+    summary = T.summarise(df)
+    T.write_summary_csv(summary, out / "summary.csv")
+    (out / "tables.md").write_text(T.tables_markdown(df, method_order, manifest))
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
+    files.update(runs=out / "runs.csv", summary=out / "summary.csv", tables=out / "tables.md",
+                 manifest=out / "manifest.json")
+    if plots:
+        files.update(make_plots(out, specs, results, df, summary, method_order))
+    return StudyResult(out, df, summary, manifest, files)
+
+
+def module_f1(specs: list[RunSpec], results: list[dict]) -> pd.DataFrame:
+    """Median F1 over the dynamic-sequence runs, per (method, classifier module)."""
+    vals: dict = {}
+    for s, r in zip(specs, results):
+        kp = r.get("keypoints")
+        if s.twin or not kp:
+            continue
+        for mod, m in kp.get("modules", {}).items():
+            f1 = m.get("f1")
+            if f1 is not None and math.isfinite(f1):
+                vals.setdefault((s.method, mod), []).append(f1)
+    rows = [{"method": m, "module": mod, "f1": float(np.median(v)), "runs": len(v)} for (m, mod), v in vals.items()]
+    return pd.DataFrame(rows, columns=["method", "module", "f1", "runs"])
+
+
+def make_plots(out: Path, specs, results, df, summary, method_order) -> dict:
+    from d2slam.study import plots as P
+
+    pdir = out / "plots"
+    pdir.mkdir(exist_ok=True)
+    files = {}
+    seed = min(s.seed for s in specs)
+    aligned = {(s.scenario, s.twin, s.method): r["aligned"] for s, r in zip(specs, results)
+               if s.seed == seed and r.get("aligned") is not None}
+    for name, path in (("trajectories", P.plot_trajectories(aligned, pdir / "trajectories.png", seed)),
+                       ("ate_bars", P.plot_ate_bars(summary, pdir / "ate_bars.png", method_order)),
+                       ("keypoint_f1", P.plot_keypoint_f1(module_f1(specs, results), pdir / "keypoint_f1.png")),
+                       ("runtime", P.plot_runtime(df, pdir / "runtime.png", method_order))):
+        if path is not None:
+            files[name] = path
+    return files
+
+
+def rebuild_tables(out) -> Path:
+    """Re-render ``tables.md`` and ``summary.csv`` of a finished study from its ``runs.csv`` (and manifest)."""
+    out = Path(out)
+    df = T.read_runs_csv(out / "runs.csv")
+    manifest = json.loads((out / "manifest.json").read_text()) if (out / "manifest.json").is_file() else None
+    methods = (manifest or {}).get("grid", {}).get("methods") or list(dict.fromkeys(df["method"]))
+    T.write_summary_csv(T.summarise(df), out / "summary.csv")
+    (out / "tables.md").write_text(T.tables_markdown(df, methods, manifest))
+    return out / "tables.md"
+
+
+def _json_default(o):
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return None if not np.isfinite(o) else float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    if isinstance(o, tuple):
+        return list(o)
+    raise TypeError(type(o).__name__)

@@ -1,0 +1,107 @@
+"""The study grid: which runs a study makes, in one deterministic order.
+
+A run is a :class:`RunSpec` ``(scenario, method, seed, frames, twin)``: the engine (or real ORB-SLAM3) with one
+keypoint-filter method on the synthetic sequence ``scenario`` generated with ``seed`` and ``frames`` frames, or on
+its *static twin* (same camera path and room, no people, no moved objects) when ``twin`` is true. On a real TUM
+copy (``source="tum"``) the scenario names a fr3 folder and the seed only seeds the engine's RANSAC.
+
+Order (rows of ``runs.csv``): scenarios in the paper's order (w/xyz, w/half, w/static, w/rpy, s/static), then the
+dynamic sequence before its twin, then seeds ascending, then methods in the order given. The order never depends
+on which executor ran the grid or when a run finished.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from d2slam.errors import D2SlamError
+
+# The five fr3 sequences of the paper's Tables 1-3, in their order, with the paper's row labels.
+SCENARIOS = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy", "sitting_static")
+LABELS = {"walking_xyz": "w/xyz", "walking_halfsphere": "w/half", "walking_static": "w/static",
+          "walking_rpy": "w/rpy", "sitting_static": "s/static"}
+TUM_FOLDERS = {s: f"rgbd_dataset_freiburg3_{s}" for s in SCENARIOS}
+DEFAULT_SEEDS = (101, 102, 103)  # CONTRIBUTING.md: study seeds, never tuned on
+DEFAULT_FRAMES = 300
+BASELINE = "none"  # the engine with the hook off: our in-engine stand-in for ORB-SLAM3
+ORBSLAM3 = "orbslam3"  # the real ORB-SLAM3 (not deterministic: repeated, median and spread)
+FULL = "d2slam"
+# Methods also run on the static twins: the engine's own floor ("none") and the full method.
+TWIN_METHODS = (BASELINE, FULL)
+
+
+@dataclass(frozen=True, order=False)
+class RunSpec:
+    scenario: str
+    method: str
+    seed: int
+    frames: int
+    twin: bool = False
+    source: str = "synth"  # "synth" (generated, cached) | "tum" (a real TUM folder)
+
+    @property
+    def label(self) -> str:
+        """The paper's row label (``w/xyz``), ``+ twin`` for a static twin."""
+        return LABELS.get(self.scenario, self.scenario) + (" (twin)" if self.twin else "")
+
+    @property
+    def run_id(self) -> str:
+        """A file-name-safe identity, unique in a grid."""
+        twin = "_twin" if self.twin else ""
+        src = "tum_" if self.source == "tum" else ""
+        return f"{src}{self.scenario}{twin}_s{self.seed}_n{self.frames}_{self.method}"
+
+    @property
+    def sequence_key(self) -> tuple:
+        """Runs with the same key share one sequence."""
+        return (self.source, self.scenario, self.seed, self.frames, self.twin)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _scenario_rank(name: str) -> int:
+    return SCENARIOS.index(name) if name in SCENARIOS else len(SCENARIOS)
+
+
+def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: int = DEFAULT_FRAMES,
+                twin_methods=TWIN_METHODS, source: str = "synth") -> list[RunSpec]:
+    """Every run of the study, in the documented order. ``methods`` default: every registered method plus
+    ``orbslam3``. ``twin_methods``: the methods also run on each static twin (only those of ``methods``; none on
+    a real TUM copy, which has no twin). Duplicates in the arguments are dropped (first occurrence kept)."""
+    if methods is None:
+        methods = default_methods()
+    scenarios, methods, seeds = _unique(scenarios), _unique(methods), _unique(int(s) for s in seeds)
+    if not scenarios or not methods or not seeds:
+        raise D2SlamError("the study grid is empty: give at least one scenario, method and seed")
+    if int(frames) < 2:
+        raise D2SlamError(f"--frames must be >= 2, got {frames}")
+    if source not in ("synth", "tum"):
+        raise D2SlamError(f"unknown sequence source {source!r} (synth or tum)")
+    unknown = [s for s in scenarios if s not in SCENARIOS]
+    if unknown:
+        raise D2SlamError(f"unknown scenario(s) {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}")
+    twins = [] if source == "tum" else [m for m in methods if m in set(twin_methods or ())]
+    specs = []
+    for scenario in sorted(scenarios, key=_scenario_rank):
+        for twin, ms in ((False, methods), (True, twins)):
+            for seed in sorted(seeds):
+                for m in ms:
+                    specs.append(RunSpec(scenario, m, seed, int(frames), twin, source))
+    return specs
+
+
+def default_methods() -> list[str]:
+    """Every method of the run registry (``none`` first) and ``orbslam3``."""
+    from d2slam.methods import methods
+
+    names = list(methods())
+    return names + ([ORBSLAM3] if ORBSLAM3 not in names else [])
+
+
+def _unique(items) -> list:
+    out = []
+    for x in items:
+        if x not in out:
+            out.append(x)
+    return out

@@ -1,0 +1,237 @@
+"""One run of the study grid, as a plain function of picklable arguments (so that any executor can call it: the
+caller's process, a joblib/loky worker or a Dask worker): generate or reuse the sequence, run the engine with the
+method's keypoint filter (or real ORB-SLAM3), evaluate with evo, classify keypoints against the synthetic truth.
+
+:func:`execute_run` never raises: any failure becomes ``status="failed"`` with the error message in the row, so a
+study records every run of its grid. Everything it returns is plain data (the trajectory as arrays), so a remote
+Dask worker needs no access to the study's output folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from d2slam.errors import D2SlamError
+from d2slam.study.grid import LABELS, ORBSLAM3, RunSpec
+
+ENGINE_STAGES = ("load", "segment", "extract", "filter", "track", "local_ba")
+
+
+def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
+                orbslam3_repeats: int = 5, orbslam3_timeout: float | None = None) -> dict:
+    """The options every run of a study shares, as a picklable dict (``config`` as a nested dict)."""
+    from d2slam.config import DEFAULT
+
+    config = config or DEFAULT
+    return {"config": config.to_dict(), "cache_root": None if cache_root is None else str(cache_root),
+            "tum_root": None if tum_root is None else str(tum_root), "masks": masks,
+            "orbslam3_repeats": int(orbslam3_repeats), "orbslam3_timeout": orbslam3_timeout}
+
+
+def prepare_sequence(key: tuple, options: dict) -> dict:
+    """Generate (or find) the sequence of ``RunSpec.sequence_key``; returns ``{"key", "path", "error"}``."""
+    source, scenario, seed, frames, twin = key
+    try:
+        with _single_threaded():
+            path = _sequence_path(source, scenario, seed, frames, twin, options)
+        return {"key": key, "path": str(path), "error": None}
+    except Exception as exc:  # noqa: BLE001 - recorded, the runs on it fail with this message
+        return {"key": key, "path": None, "error": _message(exc)}
+
+
+def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
+    if source == "tum":
+        from d2slam.study.sequences import tum_sequence_dir
+
+        if not options.get("tum_root"):
+            raise D2SlamError("a TUM run needs tum_root (D2SLAM_TUM_ROOT)")
+        return tum_sequence_dir(options["tum_root"], scenario)
+    from d2slam.study.sequences import ensure_sequence
+
+    return ensure_sequence(scenario, seed, frames, twin, root=options.get("cache_root"))
+
+
+def execute_run(spec: RunSpec | dict, options: dict) -> dict:
+    """Run one grid cell. Returns ``{"row": {...}, "trajectory": (timestamps, poses) | None,
+    "aligned": (gt_xyz, est_xyz) | None, "keypoints": per-module dict | None, "stage_ms": {...}}``; never raises."""
+    if isinstance(spec, dict):
+        spec = RunSpec(**spec)
+    t0 = time.perf_counter()
+    out = {"row": base_row(spec), "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}}
+    try:
+        with _single_threaded():
+            path = _sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, spec.twin, options)
+            if spec.method == ORBSLAM3:
+                _run_orbslam3(spec, path, options, out)
+            else:
+                _run_engine(spec, path, options, out)
+    except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a crash of the study
+        out["row"].update(status="failed", error=_message(exc))
+    out["row"]["wall_s"] = time.perf_counter() - t0
+    return out
+
+
+def base_row(spec: RunSpec) -> dict:
+    return {"scenario": spec.scenario, "sequence": LABELS.get(spec.scenario, spec.scenario), "twin": int(spec.twin),
+            "method": spec.method, "seed": int(spec.seed), "frames": int(spec.frames), "source": spec.source,
+            "status": "failed", "error": "", "deterministic": int(spec.method != ORBSLAM3), "repeats": 1}
+
+
+def _config(spec: RunSpec, options: dict):
+    from d2slam.config import Config
+
+    config = Config.from_dict(options["config"])
+    return dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=int(spec.seed)))
+
+
+class _Head:
+    """The first ``n`` frames of a sequence (a real TUM folder cut to the study's ``--frames``)."""
+
+    def __init__(self, seq, n: int):
+        self._seq, self._n = seq, min(len(seq), int(n))
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: int):
+        if not 0 <= i < self._n:
+            raise IndexError(i)
+        return self._seq[i]
+
+    def __getattr__(self, name):
+        return getattr(self._seq, name)
+
+
+def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
+    from d2slam.data import open_sequence
+    from d2slam.eval.keypoints import keypoint_recorder
+    from d2slam.eval.trajectory import aligned_estimate, evaluate
+    from d2slam.methods import get_method
+    from d2slam.pipeline import run_sequence
+
+    config = _config(spec, options)
+    row = out["row"]
+    row["config_hash"] = config.hash()
+    method = get_method(spec.method)
+    seq = open_sequence(path)
+    if spec.source == "synth" and len(seq) != spec.frames:
+        raise D2SlamError(f"sequence has {len(seq)} frames, the study expects {spec.frames}", path=path)
+    if spec.source == "tum" and spec.frames > 0:
+        seq = _Head(seq, spec.frames)
+    kfilter = method.factory(config)
+    provider = None
+    if method.needs_masks:
+        from d2slam.segmentation import masks_for, stack_masks
+
+        kind = options.get("masks") or ("sim" if spec.source == "synth" else "onnx")
+        shape = (seq.camera.height, seq.camera.width)
+
+        def provider(i):
+            return stack_masks(masks_for(seq, i, kind, config), shape)
+
+    recorder = keypoint_recorder(seq)
+    result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=recorder,
+                          progress=False)
+    row.update(frames_tracked=result.tracked, frames_lost=result.lost, keyframes=result.keyframes,
+               map_points=result.map_points, fps=result.fps,
+               ms_per_frame=1000.0 * result.total_s / max(result.frames, 1))
+    for k in ENGINE_STAGES:
+        if k in result.stage_ms:
+            row[f"ms_{k}"] = result.stage_ms[k]
+    out["stage_ms"] = dict(result.stage_ms)
+    traj = result.trajectory
+    out["trajectory"] = (np.asarray(traj.timestamps), np.asarray(traj.poses))
+    if recorder is not None:
+        kp = recorder.result()
+        out["keypoints"] = kp
+        final = kp["modules"].get("final", {})
+        row.update(kp_precision=final.get("precision"), kp_recall=final.get("recall"), kp_f1=final.get("f1"),
+                   kp_static_precision=final.get("static_precision"))
+    gt = seq.groundtruth
+    if gt is None:
+        row.update(status="unevaluated", error="the sequence has no ground truth")
+        return
+    try:
+        m = evaluate(gt, traj)
+        out["aligned"] = tuple(np.asarray(a) for a in aligned_estimate(gt, traj)[:2])
+    except D2SlamError as exc:
+        row.update(status="unevaluated", error=f"evaluation: {exc}")
+        return
+    except Exception as exc:  # noqa: BLE001 - evo's own errors (degenerate alignment)
+        row.update(status="unevaluated", error=f"evaluation: {type(exc).__name__}: {exc}")
+        return
+    row.update(status="ok", error="", ate_rmse_m=m.ate_rmse_m, rpe_trans_m=m.rpe_trans_m, rpe_rot_deg=m.rpe_rot_deg)
+
+
+def _run_orbslam3(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
+    from d2slam.baselines.orbslam3 import run_orbslam3
+    from d2slam.data import open_sequence, read_tum_trajectory
+    from d2slam.eval.trajectory import aligned_estimate
+
+    config = _config(spec, options)
+    row = out["row"]
+    repeats = int(options.get("orbslam3_repeats") or 5)
+    row.update(config_hash=config.hash(), repeats=repeats)
+    with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
+        traj_path = Path(tmp) / "orbslam3.txt"
+        res = run_orbslam3(path, traj_path, repeats=repeats, config=config, progress=False,
+                           max_frames=spec.frames if spec.source == "tum" else 0,
+                           timeout=options.get("orbslam3_timeout"))
+        traj = read_tum_trajectory(traj_path) if res.get("trajectory") and traj_path.is_file() else None
+    status = res.get("status", "failed")
+    metrics = res.get("metrics") or {}
+    spread = res.get("metrics_spread") or {}
+    row.update(error="" if status == "ok" else str(res.get("message") or res.get("metrics_error") or ""),
+               frames_tracked=res.get("tracked"), frames_lost=res.get("lost"), fps=res.get("fps"),
+               ms_per_frame=res.get("ms_per_frame"))
+    if metrics:  # medians over the repeats; ORB-SLAM3's own status (ok / lost / reset / crashed ...) is kept
+        ate = spread.get("ate_rmse_m")
+        row.update(status=status, ate_rmse_m=metrics.get("ate_rmse_m"), rpe_trans_m=metrics.get("rpe_trans_m"),
+                   rpe_rot_deg=metrics.get("rpe_rot_deg"),
+                   ate_min_m=ate["min"] if ate else metrics.get("ate_rmse_m"),
+                   ate_max_m=ate["max"] if ate else metrics.get("ate_rmse_m"))
+    else:
+        row["status"] = status if status in ("failed", "crashed", "timeout") else "unevaluated"
+        row["error"] = row["error"] or str(res.get("metrics_error") or "no metrics")
+    if traj is not None:
+        out["trajectory"] = (np.asarray(traj.timestamps), np.asarray(traj.poses))
+        seq = open_sequence(path)
+        if seq.groundtruth is not None:
+            try:
+                out["aligned"] = tuple(np.asarray(a) for a in aligned_estimate(seq.groundtruth, traj)[:2])
+            except Exception:  # noqa: BLE001 - only the plot misses it
+                out["aligned"] = None
+
+
+def _message(exc: BaseException) -> str:
+    """One line: the D2SlamError text (it names the file), else the exception type, text and where it arose."""
+    if isinstance(exc, D2SlamError):
+        return str(exc)
+    tb = traceback.extract_tb(exc.__traceback__)
+    where = f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
+    return f"{type(exc).__name__}: {exc}{where}".replace("\n", " ")
+
+
+class _single_threaded:
+    """OpenCV on one thread for the duration of a run (BLAS is single-threaded by ``d2slam/__init__`` and the
+    executors' worker environments): the numbers do not depend on the executor, and two jobs do not
+    oversubscribe the cores."""
+
+    def __enter__(self):
+        import cv2
+
+        self._prev = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        return self
+
+    def __exit__(self, *exc):
+        import cv2
+
+        cv2.setNumThreads(self._prev)
+        return False

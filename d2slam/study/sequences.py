@@ -1,0 +1,102 @@
+"""The study's sequence cache: synthetic sequences generated once and reused, keyed by scenario, seed, frames,
+static twin and *generator version*.
+
+``cache_dir("study", "sequences", "<scenario>_s<seed>_n<frames>[_twin]-<generator version>")``. The generator version
+is a digest of the synthetic format, the package version, every ``SynthConfig`` value and the source of
+``d2slam/synth/*.py``: a changed generator never feeds a study a stale sequence. A sequence counts as present only
+when its ``.complete`` marker (written last, holding the key) is there; it is generated into a temporary folder and
+renamed into place, under a lock file, so concurrent workers (processes or a Dask cluster sharing the cache)
+never read a half-written sequence and never generate the same one twice.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+from functools import lru_cache
+from pathlib import Path
+
+from d2slam.errors import D2SlamError
+
+MARKER = ".complete"
+
+
+@lru_cache(maxsize=1)
+def generator_version() -> str:
+    """16 hex digits identifying what ``d2slam.synth`` would write."""
+    import d2slam
+    from d2slam.config import SynthConfig
+    from d2slam.synth import FORMAT
+
+    h = hashlib.sha256()
+    h.update(f"{FORMAT}|{d2slam.__version__}|".encode())
+    h.update(json.dumps(dataclasses.asdict(SynthConfig()), sort_keys=True, default=str).encode())
+    src = Path(__file__).resolve().parent.parent / "synth"
+    for path in sorted(src.glob("*.py")):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def sequence_name(scenario: str, seed: int, frames: int, twin: bool) -> str:
+    return f"{scenario}_s{int(seed)}_n{int(frames)}{'_twin' if twin else ''}"
+
+
+def sequence_dir(scenario: str, seed: int, frames: int, twin: bool, root: str | Path | None = None) -> Path:
+    """Where the cached sequence lives (it may not exist yet)."""
+    from d2slam.paths import cache_dir
+
+    base = Path(root) if root is not None else cache_dir("study", "sequences")
+    return base / f"{sequence_name(scenario, seed, frames, twin)}-{generator_version()}"
+
+
+def is_complete(path: Path) -> bool:
+    return (Path(path) / MARKER).is_file()
+
+
+def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, root: str | Path | None = None,
+                    progress: bool = False) -> Path:
+    """The cached sequence's folder, generated (single process, deterministic) if missing or incomplete."""
+    path = sequence_dir(scenario, seed, frames, twin, root)
+    if is_complete(path):
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock_path = path.parent / (path.name + ".lock")
+    with open(lock_path, "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # another worker may be generating it: wait, then reuse
+        try:
+            if is_complete(path):
+                return path
+            from d2slam.synth import generate
+
+            tmp = path.parent / f"{path.name}.tmp-{os.getpid()}"
+            shutil.rmtree(tmp, ignore_errors=True)
+            try:
+                generate(scenario, tmp, frames=int(frames), seed=int(seed), static_twin=bool(twin), workers=1,
+                         progress=progress)
+                key = {"scenario": scenario, "seed": int(seed), "frames": int(frames), "static_twin": bool(twin),
+                       "generator_version": generator_version()}
+                (tmp / MARKER).write_text(json.dumps(key) + "\n")
+                shutil.rmtree(path, ignore_errors=True)  # an incomplete earlier attempt
+                os.replace(tmp, path)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    return path
+
+
+def tum_sequence_dir(tum_root: str | Path, scenario: str) -> Path:
+    """The fr3 folder of ``scenario`` under a real TUM copy (``rgbd_dataset_freiburg3_<scenario>``)."""
+    from d2slam.study.grid import TUM_FOLDERS
+
+    root = Path(tum_root).expanduser()
+    path = root / TUM_FOLDERS[scenario]
+    if not path.is_dir():
+        raise D2SlamError(f"TUM sequence {TUM_FOLDERS[scenario]} not found under the TUM root", path=root)
+    return path

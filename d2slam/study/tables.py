@@ -1,0 +1,330 @@
+"""The study's numbers: the CSV schema, medians and spreads over seeds, improvement over a baseline, and the
+paper-format Markdown tables (Tables 1-3 of the paper: rows fr3 w/xyz, w/half, w/static, w/rpy, s/static; columns
+methods).
+
+Improvement over a baseline, as in the paper's tables (DESIGN.md section 4): ``(1 - ours / baseline) x 100`` %.
+In our tables both are medians over seeds (``improvement(median ours, median baseline)``); the bracket gives the
+range of the per-seed (paired: same sequence) improvements. ORB-SLAM3's per-sequence figure is already the median
+of its repeats.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from d2slam.study.grid import BASELINE, FULL, LABELS, ORBSLAM3, SCENARIOS
+
+# runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
+KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source"]
+OUTCOME_COLUMNS = ["status", "error", "deterministic", "repeats", "config_hash"]
+METRIC_COLUMNS = ["ate_rmse_m", "rpe_trans_m", "rpe_rot_deg"]
+RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp_recall", "kp_f1",
+                                   "kp_static_precision", "frames_tracked", "frames_lost", "keyframes", "map_points"]
+TIMING_COLUMNS = ["fps", "ms_per_frame", "ms_load", "ms_segment", "ms_extract", "ms_filter", "ms_track",
+                  "ms_local_ba", "wall_s"]
+RUN_COLUMNS = KEY_COLUMNS + OUTCOME_COLUMNS + RESULT_COLUMNS + TIMING_COLUMNS
+SUMMARY_STATS = ("median", "min", "max")
+SUMMARY_METRICS = METRIC_COLUMNS + ["kp_precision", "kp_recall", "kp_f1", "frames_tracked", "frames_lost"]
+SUMMARY_TIMINGS = ["fps", "ms_per_frame"]
+GROUP = ["source", "scenario", "sequence", "twin", "method", "frames"]
+UNITS = {"ate_rmse_m": "m", "rpe_trans_m": "m", "rpe_rot_deg": "deg"}
+TITLES = {"ate_rmse_m": "ATE", "rpe_trans_m": "translational RPE", "rpe_rot_deg": "rotational RPE"}
+DECIMALS = {"ate_rmse_m": 4, "rpe_trans_m": 4, "rpe_rot_deg": 3}
+
+
+def improvement(ours, baseline):
+    """``(1 - ours / baseline) x 100`` (%), elementwise; NaN where either is missing or the baseline is not > 0."""
+    ours = np.asarray(ours, dtype=np.float64)
+    base = np.asarray(baseline, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = (1.0 - ours / base) * 100.0
+    out = np.where(np.isfinite(ours) & np.isfinite(base) & (base > 0), out, np.nan)
+    return out if out.ndim else float(out)
+
+
+def runs_frame(rows: list[dict]) -> pd.DataFrame:
+    """The runs as a DataFrame with exactly :data:`RUN_COLUMNS` (missing values NaN / empty)."""
+    df = pd.DataFrame(rows)
+    for c in RUN_COLUMNS:
+        if c not in df:
+            df[c] = np.nan
+    df = df[RUN_COLUMNS].copy()
+    for c in RESULT_COLUMNS + TIMING_COLUMNS:
+        df[c] = pd.to_numeric(df[c], errors="coerce").astype(np.float64)
+    for c in ("twin", "seed", "frames", "deterministic", "repeats"):
+        df[c] = pd.to_numeric(df[c], errors="coerce").fillna(0).astype(np.int64)
+    for c in ("error", "config_hash"):
+        df[c] = df[c].fillna("").astype(str)
+    return df
+
+
+def sort_runs(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFrame:
+    """Grid order (see :mod:`d2slam.study.grid`): scenario (paper order), dynamic before twin, seed, method."""
+    methods = list(methods) if methods is not None else list(dict.fromkeys(df["method"]))
+    key = pd.DataFrame({
+        "s": df["scenario"].map(lambda s: SCENARIOS.index(s) if s in SCENARIOS else len(SCENARIOS)),
+        "t": df["twin"], "seed": df["seed"],
+        "m": df["method"].map(lambda m: methods.index(m) if m in methods else len(methods)),
+        "src": df["source"]})
+    order = key.sort_values(["src", "s", "t", "seed", "m"], kind="mergesort").index
+    return df.loc[order].reset_index(drop=True)
+
+
+def write_runs_csv(df: pd.DataFrame, path) -> None:
+    df[RUN_COLUMNS].to_csv(path, index=False, float_format="%.10g")
+
+
+def read_runs_csv(path) -> pd.DataFrame:
+    df = pd.read_csv(path, keep_default_na=True)
+    missing = [c for c in RUN_COLUMNS if c not in df.columns]
+    if missing:
+        from d2slam.errors import D2SlamError
+
+        raise D2SlamError(f"not a study runs.csv: missing columns {', '.join(missing)}", path=path)
+    return runs_frame(df.to_dict("records"))
+
+
+def summarise(df: pd.DataFrame) -> pd.DataFrame:
+    """One row per (source, scenario, twin, method, frames) in grid order: number of runs and of runs with
+    metrics, then median / min / max over seeds of each metric (runs without the metric are left out), then the
+    timing medians (separate, last)."""
+    rows = []
+    for key, g in df.groupby(GROUP, sort=False, dropna=False):
+        row = dict(zip(GROUP, key))
+        row["n_runs"] = int(len(g))
+        row["n_ok"] = int(np.isfinite(g["ate_rmse_m"]).sum())
+        row["seeds"] = " ".join(str(s) for s in sorted(g["seed"]))
+        for c in SUMMARY_METRICS:
+            v = g[c].to_numpy(np.float64)
+            v = v[np.isfinite(v)]
+            for stat, f in zip(SUMMARY_STATS, (np.median, np.min, np.max)):
+                row[f"{c}_{stat}"] = float(f(v)) if len(v) else np.nan
+        for c in SUMMARY_TIMINGS:
+            v = g[c].to_numpy(np.float64)
+            v = v[np.isfinite(v)]
+            row[f"{c}_median"] = float(np.median(v)) if len(v) else np.nan
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def write_summary_csv(summary: pd.DataFrame, path) -> None:
+    summary.to_csv(path, index=False, float_format="%.10g")
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Paper-format tables
+# ------------------------------------------------------------------------------------------------------------
+def _scenarios(df) -> list[str]:
+    present = set(df["scenario"])
+    return [s for s in SCENARIOS if s in present] + sorted(present - set(SCENARIOS))
+
+
+def _methods(df) -> list[str]:
+    return list(dict.fromkeys(df["method"]))
+
+
+def metric_matrix(df: pd.DataFrame, metric: str, twin: int = 0) -> pd.DataFrame:
+    """Per-seed values: index (scenario, seed), columns methods (NaN where a run has no metric)."""
+    d = df[df["twin"] == twin]
+    if d.empty:
+        return pd.DataFrame()
+    return d.pivot_table(index=["scenario", "seed"], columns="method", values=metric, aggfunc="first",
+                         dropna=False)
+
+
+def improvement_table(df: pd.DataFrame, metric: str, baseline: str = BASELINE, methods: list[str] | None = None):
+    """Rows scenarios, columns methods: ``(improvement of the medians, min, max of the per-seed improvements)``,
+    or None where not computable. Returns (scenarios, methods, cells dict)."""
+    scen = _scenarios(df[df["twin"] == 0])
+    methods = [m for m in (methods or _methods(df)) if m != baseline]
+    mat = metric_matrix(df, metric)
+    cells = {}
+    for s in scen:
+        for m in methods:
+            cells[(s, m)] = None
+            if mat.empty or m not in mat.columns or baseline not in mat.columns or s not in mat.index:
+                continue
+            ours = mat.loc[s, m].to_numpy(np.float64)
+            base = mat.loc[s, baseline].to_numpy(np.float64)
+            med_o, med_b = _nanmedian(ours), _nanmedian(base)
+            imp = improvement(med_o, med_b)
+            if not math.isfinite(imp):
+                continue
+            per_seed = improvement(ours, base)
+            per_seed = per_seed[np.isfinite(per_seed)]
+            cells[(s, m)] = (imp, float(per_seed.min()) if len(per_seed) else np.nan,
+                             float(per_seed.max()) if len(per_seed) else np.nan, len(per_seed))
+    return scen, methods, cells
+
+
+def _nanmedian(v) -> float:
+    v = np.asarray(v, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if len(v) else float("nan")
+
+
+def _fmt_imp(cell) -> str:
+    if cell is None:
+        return "n/a"
+    imp, lo, hi, n = cell
+    s = f"{imp:.1f} %"
+    if n > 1:
+        s += f" [{lo:.1f}, {hi:.1f}]"
+    return s
+
+
+def _md(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] * len(header)) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def improvement_markdown(df: pd.DataFrame, metric: str, baseline: str = BASELINE,
+                         methods: list[str] | None = None) -> str:
+    scen, ms, cells = improvement_table(df, metric, baseline, methods)
+    rows = [[LABELS.get(s, s)] + [_fmt_imp(cells[(s, m)]) for m in ms] for s in scen]
+    return _md(["fr3 (synthetic)"] + [f"`{m}`" for m in ms], rows)
+
+
+def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: list[str] | None = None) -> str:
+    """Median [min, max] over seeds (ORB-SLAM3: of the per-sequence medians over its repeats)."""
+    d = df[df["twin"] == twin]
+    ms = [m for m in (methods or _methods(df)) if m in set(d["method"])]
+    nd = DECIMALS.get(metric, 4)
+    rows = []
+    for s in _scenarios(d):
+        r = [LABELS.get(s, s)]
+        for m in ms:
+            v = d[(d["scenario"] == s) & (d["method"] == m)][metric].to_numpy(np.float64)
+            n_all = len(v)
+            v = v[np.isfinite(v)]
+            if not len(v):
+                r.append("failed" if n_all else "")
+                continue
+            cell = f"{np.median(v):.{nd}f}"
+            if len(v) > 1:
+                cell += f" [{v.min():.{nd}f}, {v.max():.{nd}f}]"
+            if len(v) < n_all:
+                cell += f" ({n_all - len(v)} failed)"
+            r.append(cell)
+        rows.append(r)
+    return _md(["fr3 (synthetic)" + (" static twin" if twin else "")] + [f"`{m}`" for m in ms], rows)
+
+
+def twin_ratios(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFrame:
+    """ATE of each method on the dynamic sequence divided by the engine's (``none``) ATE on its static twin
+    (medians over seeds), per scenario; NaN where either is missing. Issue 4's targets: ``d2slam`` <= 1.2,
+    ``none`` >= 5 on the walking scenarios."""
+    ms = [m for m in (methods or _methods(df))]
+    out = []
+    for s in _scenarios(df):
+        twin = df[(df["scenario"] == s) & (df["twin"] == 1) & (df["method"] == BASELINE)]["ate_rmse_m"]
+        t = _nanmedian(twin)
+        row = {"scenario": s, "sequence": LABELS.get(s, s), "twin_none_ate_m": t,
+               "twin_d2slam_ate_m": _nanmedian(df[(df["scenario"] == s) & (df["twin"] == 1)
+                                                  & (df["method"] == FULL)]["ate_rmse_m"])}
+        for m in ms:
+            a = _nanmedian(df[(df["scenario"] == s) & (df["twin"] == 0) & (df["method"] == m)]["ate_rmse_m"])
+            row[m] = a / t if math.isfinite(a) and math.isfinite(t) and t > 0 else np.nan
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def twin_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
+    ms = [m for m in (methods or _methods(df))]
+    tr = twin_ratios(df, ms)
+    if tr.empty or not np.isfinite(tr["twin_none_ate_m"]).any():
+        return "_No static-twin run with metrics (run the study with the `none` method on synthetic data)._"
+    rows = []
+    for _, r in tr.iterrows():
+        cells = [r["sequence"], _num(r["twin_none_ate_m"], 4), _num(r["twin_d2slam_ate_m"], 4)]
+        cells += [_num(r[m], 2, "x") for m in ms]
+        walking = r["scenario"].startswith("walking")
+        full = r.get(FULL, np.nan)
+        none = r.get(BASELINE, np.nan)
+        cells.append("n/a" if not math.isfinite(full) else ("yes" if full <= 1.2 else "no"))
+        cells.append("n/a" if not walking or not math.isfinite(none) else ("yes" if none >= 5.0 else "no"))
+        rows.append(cells)
+    header = (["fr3 (synthetic)", "twin ATE `none` (m)", "twin ATE `d2slam` (m)"]
+              + [f"`{m}` / twin" for m in ms] + ["`d2slam` <= 1.2x twin", "`none` >= 5x twin (walking)"])
+    return _md(header, rows)
+
+
+def _num(v, nd: int, suffix: str = "") -> str:
+    return f"{v:.{nd}f}{suffix}" if isinstance(v, (int, float, np.floating)) and math.isfinite(v) else "n/a"
+
+
+def keypoint_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
+    """F1 (precision / recall) of "dynamic" keypoints, medians over seeds, dynamic sequences."""
+    d = df[(df["twin"] == 0) & np.isfinite(df["kp_f1"].astype(np.float64))]
+    ms = [m for m in (methods or _methods(df)) if m in set(d["method"])]
+    if d.empty:
+        return "_No keypoint metrics (they need synthetic sequences and a dynamics method)._"
+    rows = []
+    for s in _scenarios(d):
+        r = [LABELS.get(s, s)]
+        for m in ms:
+            g = d[(d["scenario"] == s) & (d["method"] == m)]
+            if g.empty:
+                r.append("")
+                continue
+            r.append(f"{_nanmedian(g['kp_f1']):.3f} ({_nanmedian(g['kp_precision']):.3f} / "
+                     f"{_nanmedian(g['kp_recall']):.3f})")
+        rows.append(r)
+    return _md(["fr3 (synthetic)"] + [f"`{m}`" for m in ms], rows)
+
+
+def failures_markdown(df: pd.DataFrame) -> str:
+    bad = df[~np.isfinite(df["ate_rmse_m"].astype(np.float64)) | ~df["status"].isin(["ok"])]
+    if bad.empty:
+        return "Every run has metrics (status ok)."
+    rows = [[r["sequence"] + (" (twin)" if r["twin"] else ""), f"`{r['method']}`", str(r["seed"]), r["status"],
+             str(r["error"]).replace("|", "/")[:200]] for _, r in bad.iterrows()]
+    return _md(["sequence", "method", "seed", "status", "error"], rows)
+
+
+def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest: dict | None = None) -> str:
+    """The whole ``tables.md``: Tables 1-3 over ``none`` and (when run) over ORB-SLAM3, absolute values, static-twin
+    ratios, keypoint classification, runs without metrics. Deterministic for a given runs table (no timings)."""
+    methods = [m for m in (methods or _methods(df)) if m in set(df["method"])]
+    seeds = sorted(set(int(s) for s in df["seed"]))
+    frames = sorted(set(int(f) for f in df["frames"]))
+    src = "real TUM RGB-D" if (df["source"] == "tum").all() else "synthetic TUM-like"
+    out = ["# D2SLAM study: results", "",
+           f"Sequences: {src}, {', '.join(str(f) for f in frames)} frames; seeds {', '.join(map(str, seeds))}; "
+           f"{len(df)} runs. Generated by `d2slam study` from `runs.csv` (medians over seeds).",
+           "Improvement over a baseline = (1 - ours / baseline) x 100 % (the paper's convention), computed on the "
+           "medians over seeds; in brackets the range of the per-seed (paired) improvements.",
+           "`none` is our engine with the keypoint filter off (the in-engine stand-in for ORB-SLAM3); `orbslam3` "
+           "is the real ORB-SLAM3 (median of its repeats per sequence; not deterministic)."]
+    if manifest:
+        out.append(f"Config hash `{manifest.get('config_hash', '')}`, git `{manifest.get('git', {}).get('commit', '')}`"
+                   f", generator `{manifest.get('generator_version', '')}`.")
+    have_orb = ORBSLAM3 in methods and np.isfinite(df[df["method"] == ORBSLAM3]["ate_rmse_m"]).any()
+    n = 0
+    for metric in METRIC_COLUMNS:
+        n += 1
+        title, unit = TITLES[metric], UNITS[metric]
+        out += ["", f"## Table {n}: {title} ({unit}), improvement over `{BASELINE}`", ""]
+        if BASELINE in methods:
+            out.append(improvement_markdown(df, metric, BASELINE, [m for m in methods if m != ORBSLAM3]))
+        else:
+            out.append(f"_`{BASELINE}` was not run: no improvement over it._")
+        if have_orb:
+            out += ["", f"### Table {n}b: {title}, improvement over real ORB-SLAM3 (`orbslam3`)", "",
+                    improvement_markdown(df, metric, ORBSLAM3, methods)]
+        out += ["", f"### Table {n}c: {title} ({unit}), absolute: median [min, max] over seeds", "",
+                absolute_markdown(df, metric, 0, methods)]
+    if (df["twin"] == 1).any():
+        out += ["", "## Static twins: ATE (m), absolute", "", absolute_markdown(df, "ate_rmse_m", 1, methods)]
+    out += ["", "## ATE relative to the engine's ATE on the static twin", "",
+            "Median ATE of each method on the dynamic sequence / median ATE of `none` on its static twin (same "
+            "camera path, no people). Targets (issue 4): `d2slam` <= 1.2x; `none` >= 5x on the walking scenarios.",
+            "", twin_markdown(df, [m for m in methods])]
+    out += ["", "## Dynamic-keypoint classification: F1 (precision / recall), medians over seeds", "",
+            keypoint_markdown(df, methods)]
+    out += ["", "## Runs without metrics", "", failures_markdown(df), ""]
+    return "\n".join(out)
