@@ -14,7 +14,6 @@ import pytest
 
 from d2slam.cli import main
 from d2slam.config import Config, SegmentationConfig
-from d2slam.data.base import Frame
 from d2slam.errors import D2SlamError
 from d2slam.paths import shared_dir
 from d2slam.segmentation import CachedSegmenter, get_segmenter, masks_for
