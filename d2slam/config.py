@@ -166,11 +166,17 @@ class EngineConfig:
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SegmentationConfig:
+    # A proposal is a person when its best class is person (class 0) and its person score exceeds this.
     score_threshold: float = 0.25
+    # IoU above which cv2.dnn.NMSBoxes suppresses the lower-scored person box (Ultralytics default 0.7).
     nms_iou: float = 0.7
+    # sigmoid(coefficients . prototypes), upsampled to the frame, is a person pixel above this.
     mask_threshold: float = 0.5
+    # Optional dilation of every mask by this radius (pixels, elliptic kernel); 0 = none.
     dilation_px: int = 0
+    # onnxruntime intra-op threads (inter-op 1, sequential); not part of the mask-cache key.
     intra_op_threads: int = 2
+    # At most this many persons per frame, highest scores first.
     max_persons: int = 20
 
 
