@@ -340,3 +340,11 @@ def test_with_the_project_readers(tmp_path):
         c = CachedSegmenter(seg, reader)
         assert [len(c.instances(i)) for i in range(len(reader))] == [1, 1, 1] and c.hits == 3
     assert seg.calls == 3
+
+
+def test_unwritable_cache_is_a_clear_error(seq):
+    cached = CachedSegmenter(CountingSegmenter(), seq)
+    cached.path_for(seq.timestamps[0]).mkdir()  # a folder where the file should go: the write fails
+    with pytest.raises(D2SlamError, match="cannot write the mask cache.*D2SLAM_CACHE"):
+        cached.instances(0)
+    assert not list(cached.dir.glob(".tmp-*"))  # no temporary file left behind

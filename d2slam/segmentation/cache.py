@@ -132,7 +132,12 @@ class CachedSegmenter:
     def _compute(self, frame) -> list[PersonInstance]:
         persons = self.segmenter(frame)
         self.misses += 1
-        save_instances(self.path_for(frame.timestamp), persons, frame.rgb.shape[:2], frame.timestamp)
+        path = self.path_for(frame.timestamp)
+        try:
+            save_instances(path, persons, frame.rgb.shape[:2], frame.timestamp)
+        except OSError as exc:
+            raise D2SlamError(f"cannot write the mask cache ({exc.strerror or exc}); set $D2SLAM_CACHE to a "
+                              "writable folder", path=path) from None
         return persons
 
     def instances(self, index: int) -> list[PersonInstance]:
