@@ -179,3 +179,26 @@ def test_bad_arguments_raise(tmp_path, seq_dir):
 def test_config_section_defaults():
     assert DEFAULT.baseline.vocab_k == 10 and DEFAULT.baseline.vocab_levels == 6
     assert all(900 <= s <= 999 for s in DEFAULT.baseline.vocab_train_seeds)
+
+
+def test_bench_helpers_and_topic_registered(capsys):
+    from d2slam import bench
+    from d2slam.bench import orbslam3 as B
+
+    assert "orbslam3" in bench.topics()
+    assert B._ms_per_frame({"fps": 20.0}) == 50.0 and B._ms_per_frame({"ms_per_frame": 7}) == 7.0
+    assert B._ms_per_frame({}) is None
+    row = {"sequence": "walking_xyz s101", "variant": "dynamic", "method": "orbslam3", "status": "lost",
+           "frames": 300, "tracked": 280, "ms_per_frame": 20.0, "ms_per_frame_spread": {"min": 18.0, "max": 25.0},
+           "metrics": {"ate_rmse_m": 0.25, "rpe_trans_m": 0.3, "rpe_rot_deg": 5.0},
+           "metrics_spread": {"ate_rmse_m": {"min": 0.2, "max": 0.4}}}
+    ours = dict(row, method="none", status="ok", tracked=300, ms_per_frame=50.0, ms_per_frame_spread=None,
+                metrics_spread=None)
+
+    class Args:
+        frames, repeats = 300, 3
+
+    B._print_table([row, ours], Args)
+    out = capsys.readouterr().out
+    assert "0.2500 [0.2000, 0.4000]" in out and "280/300" in out and "20.0 [18.0, 25.0]" in out
+    assert "= 2.5x" in out

@@ -115,10 +115,10 @@ def run(args) -> int:
                         if r.get("trajectory") and "metrics" not in r and "metrics_error" not in r:
                             r.update(evaluate_trajectory(sequence, r["trajectory"]))
                     r["ms_per_frame"] = _ms_per_frame(r)
-                    rows.append({"sequence": name, "variant": variant, "scenario": scenario, "seed": seed,
-                                 "method": method, **r})
-                    print(f"  {name:32s} {method:9s} {r.get('status', '?'):8s} {r.get('message', '')}",
-                          file=sys.stderr)
+                    rows.append({**r, "sequence_dir": str(seq), "sequence": name, "variant": variant,
+                                 "scenario": scenario, "seed": seed, "method": method})
+                    msg = r.get("message") or f"tracked {r.get('tracked')}/{r.get('frames')}"
+                    print(f"  {name:32s} {method:9s} {r.get('status', '?'):8s} {msg}", file=sys.stderr)
     _print_table(rows, args)
     summary = out_root / "bench_orbslam3.json"
     summary.write_text(json.dumps({"args": {k: v for k, v in vars(args).items() if k != "func"}, "rows": rows},
