@@ -284,7 +284,7 @@ class Engine:
         safe = np.minimum(cand, max(frame.n - 1, 0))
         stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
         best, d1, d2, l1, l2 = search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi,
-                                                 available, k, extra_ok=stereo_ok)
+                                                 available, k, extra_ok=stereo_ok, cand=cand)
         ok = (best >= 0) & (d1 <= self.cfg.desc_th_high)
         if ratio is not None:
             ok &= ~((l1 == l2) & (d1 > ratio * d2))
@@ -445,7 +445,7 @@ class Engine:
         safe = np.minimum(cand, max(frame.n - 1, 0))
         stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
         best, d1, d2, l1, l2 = search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi,
-                                                 available, k, extra_ok=stereo_ok)
+                                                 available, k, extra_ok=stereo_ok, cand=cand)
         ok = (best >= 0) & (d1 <= self.cfg.desc_th_high) & ~((l1 == l2) & (d1 > self.cfg.nn_ratio_local_map * d2))
         kp, p, d = best[ok], pid[ok], d1[ok]
         keep = unique_by_target(p, kp, d)

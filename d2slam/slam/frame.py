@@ -169,13 +169,13 @@ def keypoint_depth(depth: np.ndarray, pts: np.ndarray, radius: int, engine: Engi
     uu = np.clip(u[:, None, None] + off[None, None, :], 0, w - 1)
     vv = np.clip(v[:, None, None] + off[None, :, None], 0, h - 1)
     patch = depth[vv, uu].reshape(len(pts), -1).astype(np.float64)
-    patch[~(patch > 0)] = np.nan
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            z = np.nanmedian(patch, axis=1)
+    patch[~(patch > 0)] = np.inf  # invalid pixels sort last
+    patch.sort(axis=1)
+    n_valid = np.isfinite(patch).sum(axis=1)
+    rows = np.arange(len(pts))
+    lo = patch[rows, np.maximum(n_valid - 1, 0) // 2]
+    hi = np.where(n_valid % 2 == 0, patch[rows, np.minimum(n_valid // 2, patch.shape[1] - 1)], lo)
+    z = np.where(n_valid > 0, 0.5 * (lo + hi), 0.0)
     z = np.where(np.isfinite(z) & (z >= engine.min_depth) & (z <= engine.max_depth), z, 0.0)
     return z
 

@@ -60,12 +60,14 @@ class KeypointIndex:
 
 def search_candidates(index: KeypointIndex, uv: np.ndarray, radius: np.ndarray, q_desc: np.ndarray,
                       kp_desc: np.ndarray, kp_octave: np.ndarray, min_level: np.ndarray, max_level: np.ndarray,
-                      available: np.ndarray, k: int, extra_ok: np.ndarray | None = None):
+                      available: np.ndarray, k: int, extra_ok: np.ndarray | None = None,
+                      cand: np.ndarray | None = None):
     """Best and second-best candidate per query: returns (best_idx (-1 none), best_dist, second_dist,
     best_level, second_level). ``available`` (N,) bool masks keypoints that may be matched; ``extra_ok`` (Q, k)
-    optional additional per-candidate test (e.g. the virtual-right coordinate check)."""
+    optional additional per-candidate test (e.g. the virtual-right coordinate check); ``cand`` precomputed
+    ``index.candidates(uv, radius, k)[0]``."""
     q = len(uv)
-    idx, _ = index.candidates(uv, radius, k)
+    idx = index.candidates(uv, radius, k)[0] if cand is None else cand
     n = index.n
     valid = idx < n
     safe = np.where(valid, idx, 0)

@@ -38,6 +38,14 @@ def _optimizer(dense: bool, gain_threshold: float = 0.0):
     return opt
 
 
+def _infos(inv_sigma2: np.ndarray) -> tuple[list, list]:
+    """Information matrices per observation, built once per distinct value (one per pyramid level)."""
+    vals, inv = np.unique(inv_sigma2, return_inverse=True)
+    i2 = [np.eye(2) * v for v in vals]
+    i3 = [np.eye(3) * v for v in vals]
+    return [i2[k] for k in inv], [i3[k] for k in inv]
+
+
 def reprojection_chi2(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
                       K: np.ndarray, bf: float) -> tuple[np.ndarray, np.ndarray]:
     """Chi2 of every observation (stereo where ``ur >= 0``) and whether the point is in front of the camera."""
@@ -72,8 +80,12 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     stereo = ur >= 0
     d_mono, d_stereo = np.sqrt(cfg.chi2_mono), np.sqrt(cfg.chi2_stereo)
-    edges, kernels = [], []
-    eye2, eye3 = np.eye(2), np.eye(3)
+    # One Huber kernel per edge type, shared by the edges (g2o holds kernels by shared_ptr): fewer Python calls,
+    # and dropping the kernel for the last rounds is one call.
+    k_mono, k_stereo = g2o.RobustKernelHuber(d_mono), g2o.RobustKernelHuber(d_stereo)
+    info2, info3 = _infos(inv_sigma2)
+    meas3 = np.column_stack([uv, ur])
+    edges = []
     for i in range(m):
         if stereo[i]:
             vp = g2o.VertexPointXYZ()
@@ -84,22 +96,20 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
             e = g2o.EdgeStereoSE3ProjectXYZ()
             e.set_vertex(0, vp)
             e.set_vertex(1, vpose)
-            e.set_measurement(np.array([uv[i, 0], uv[i, 1], ur[i]]))
-            e.set_information(eye3 * inv_sigma2[i])
+            e.set_measurement(meas3[i])
+            e.set_information(info3[i])
             e.bf = bf
-            k = g2o.RobustKernelHuber(d_stereo)
+            e.set_robust_kernel(k_stereo)
         else:
             e = g2o.EdgeSE3ProjectXYZOnlyPose()
             e.set_vertex(0, vpose)
             e.set_measurement(uv[i])
-            e.set_information(eye2 * inv_sigma2[i])
+            e.set_information(info2[i])
             e.Xw = X[i]
-            k = g2o.RobustKernelHuber(d_mono)
+            e.set_robust_kernel(k_mono)
         e.fx, e.fy, e.cx, e.cy = fx, fy, cx, cy
-        e.set_robust_kernel(k)
         opt.add_edge(e)
         edges.append(e)
-        kernels.append(k)
     th = np.where(stereo, cfg.chi2_stereo, cfg.chi2_mono)
     level = np.zeros(m, dtype=np.int64)
     T = Tcw.copy()
@@ -116,8 +126,8 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
             edges[i].set_level(int(new_level[i]))
         level = new_level
         if it == 2:  # ORB-SLAM drops the robust kernel from here on (the binding has no null kernel: infinite delta)
-            for k in kernels:
-                k.set_delta(1e12)
+            k_mono.set_delta(1e12)
+            k_stereo.set_delta(1e12)
         if inlier.sum() < 10:
             break
     _KEEP_ALIVE.pop(id(opt), None)
@@ -151,21 +161,22 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
         vpts.append(v)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     d_mono, d_stereo = np.sqrt(cfg.chi2_mono), np.sqrt(cfg.chi2_stereo)
-    eye2, eye3 = np.eye(2), np.eye(3)
+    k_mono, k_stereo = g2o.RobustKernelHuber(d_mono), g2o.RobustKernelHuber(d_stereo)  # shared by the edges
+    info2, info3 = _infos(inv_sigma2)
     stereo = ur >= 0
     meas3 = np.column_stack([uv, ur])
     for o in range(len(obs_cam)):
         if stereo[o]:
             e = g2o.EdgeStereoSE3ProjectXYZ()
             e.set_measurement(meas3[o])
-            e.set_information(eye3 * inv_sigma2[o])
+            e.set_information(info3[o])
             e.bf = bf
-            e.set_robust_kernel(g2o.RobustKernelHuber(d_stereo))
+            e.set_robust_kernel(k_stereo)
         else:
             e = g2o.EdgeSE3ProjectXYZ()
             e.set_measurement(uv[o])
-            e.set_information(eye2 * inv_sigma2[o])
-            e.set_robust_kernel(g2o.RobustKernelHuber(d_mono))
+            e.set_information(info2[o])
+            e.set_robust_kernel(k_mono)
         e.set_vertex(0, vpts[obs_pt[o]])
         e.set_vertex(1, vposes[obs_cam[o]])
         e.fx, e.fy, e.cx, e.cy = fx, fy, cx, cy
