@@ -74,8 +74,8 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     scenarios, methods, seeds = _unique(scenarios), _unique(methods), _unique(int(s) for s in seeds)
     if not scenarios or not methods or not seeds:
         raise D2SlamError("the study grid is empty: give at least one scenario, method and seed")
-    if int(frames) < 2:
-        raise D2SlamError(f"--frames must be >= 2, got {frames}")
+    if int(frames) < (0 if source == "tum" else 2):
+        raise D2SlamError(f"--frames must be >= 2 (0 = all frames of a TUM folder), got {frames}")
     if source not in ("synth", "tum"):
         raise D2SlamError(f"unknown sequence source {source!r} (synth or tum)")
     unknown = [s for s in scenarios if s not in SCENARIOS]

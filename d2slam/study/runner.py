@@ -160,13 +160,31 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     try:
         m = evaluate(gt, traj)
         out["aligned"] = tuple(np.asarray(a) for a in aligned_estimate(gt, traj)[:2])
-    except D2SlamError as exc:
-        row.update(status="unevaluated", error=f"evaluation: {exc}")
-        return
-    except Exception as exc:  # noqa: BLE001 - evo's own errors (degenerate alignment)
-        row.update(status="unevaluated", error=f"evaluation: {type(exc).__name__}: {exc}")
+    except Exception as exc:  # noqa: BLE001 - D2SlamError, or evo's own errors (degenerate alignment)
+        msg = str(exc) if isinstance(exc, D2SlamError) else f"{type(exc).__name__}: {exc}"
+        ate = _ate_only(gt, traj) if "RPE" in msg else None
+        if ate is None:
+            row.update(status="unevaluated", error=f"evaluation: {msg}")
+            return
+        out["aligned"], ate_m = ate
+        row.update(status="partial", error=f"ATE only: {msg}", ate_rmse_m=ate_m)
         return
     row.update(status="ok", error="", ate_rmse_m=m.ate_rmse_m, rpe_trans_m=m.rpe_trans_m, rpe_rot_deg=m.rpe_rot_deg)
+
+
+def _ate_only(gt, traj):
+    """When the tracked part is too short for a 1-second RPE pair: the ATE alone, from evo's association and
+    SE(3) Umeyama alignment (``aligned_estimate``), RMSE of the position errors (= evo APE translation RMSE)."""
+    from d2slam.eval.trajectory import aligned_estimate
+
+    try:
+        g, e, _ = aligned_estimate(gt, traj)
+    except Exception:  # noqa: BLE001
+        return None
+    g, e = np.asarray(g), np.asarray(e)
+    if len(g) < 3:
+        return None
+    return (g, e), float(np.sqrt(np.mean(np.sum((g - e) ** 2, axis=1))))
 
 
 def _run_orbslam3(spec: RunSpec, path: Path, options: dict, out: dict) -> None:

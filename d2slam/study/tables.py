@@ -57,7 +57,7 @@ def runs_frame(rows: list[dict]) -> pd.DataFrame:
     for c in ("twin", "seed", "frames", "deterministic", "repeats"):
         df[c] = pd.to_numeric(df[c], errors="coerce").fillna(0).astype(np.int64)
     for c in ("error", "config_hash"):
-        df[c] = df[c].fillna("").astype(str)
+        df[c] = ["" if (isinstance(v, float) and math.isnan(v)) or v is None else str(v) for v in df[c]]
     return df
 
 
@@ -74,11 +74,12 @@ def sort_runs(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFram
 
 
 def write_runs_csv(df: pd.DataFrame, path) -> None:
-    df[RUN_COLUMNS].to_csv(path, index=False, float_format="%.10g")
+    df[RUN_COLUMNS].to_csv(path, index=False)  # repr: exact round trip
 
 
 def read_runs_csv(path) -> pd.DataFrame:
-    df = pd.read_csv(path, keep_default_na=True)
+    text = {c: str for c in ("scenario", "sequence", "method", "source", "status", "error", "config_hash")}
+    df = pd.read_csv(path, keep_default_na=True, dtype=text)
     missing = [c for c in RUN_COLUMNS if c not in df.columns]
     if missing:
         from d2slam.errors import D2SlamError
@@ -111,7 +112,7 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def write_summary_csv(summary: pd.DataFrame, path) -> None:
-    summary.to_csv(path, index=False, float_format="%.10g")
+    summary.to_csv(path, index=False)  # repr: exact round trip
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -277,6 +278,23 @@ def keypoint_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str
     return _md(["fr3 (synthetic)"] + [f"`{m}`" for m in ms], rows)
 
 
+def tracking_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
+    """Per sequence (dynamic, then twin) and method: median over seeds of 100 x frames_tracked / frames."""
+    ms = [m for m in (methods or _methods(df)) if m in set(df["method"])]
+    rows = []
+    for twin in (0, 1):
+        d = df[df["twin"] == twin]
+        for s in _scenarios(d):
+            r = [LABELS.get(s, s) + (" twin" if twin else "")]
+            for m in ms:
+                g = d[(d["scenario"] == s) & (d["method"] == m)]
+                v = 100.0 * g["frames_tracked"].to_numpy(np.float64) / np.maximum(g["frames"].to_numpy(np.float64), 1)
+                v = v[np.isfinite(v)]
+                r.append(f"{np.median(v):.0f}" if len(v) else "")
+            rows.append(r)
+    return _md(["fr3 (synthetic)"] + [f"`{m}`" for m in ms], rows)
+
+
 def failures_markdown(df: pd.DataFrame) -> str:
     bad = df[~np.isfinite(df["ate_rmse_m"].astype(np.float64)) | ~df["status"].isin(["ok"])]
     if bad.empty:
@@ -324,6 +342,10 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
             "Median ATE of each method on the dynamic sequence / median ATE of `none` on its static twin (same "
             "camera path, no people). Targets (issue 4): `d2slam` <= 1.2x; `none` >= 5x on the walking scenarios.",
             "", twin_markdown(df, [m for m in methods])]
+    out += ["", "## Frames tracked (%), median over seeds", "",
+            "ATE and RPE are computed on the tracked frames only (the TUM convention); a method that loses track "
+            "early can show a small error over a short trajectory: read the errors with this table.", "",
+            tracking_markdown(df, methods)]
     out += ["", "## Dynamic-keypoint classification: F1 (precision / recall), medians over seeds", "",
             keypoint_markdown(df, methods)]
     out += ["", "## Runs without metrics", "", failures_markdown(df), ""]

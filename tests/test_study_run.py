@@ -1,0 +1,123 @@
+"""Study end to end on a tiny grid (walking_xyz, 40 frames, seed 101, methods none + d2slam, no twins): the
+same deterministic numbers from the serial, joblib (2 processes) and Dask (LocalCluster on loopback) executors;
+failed runs (unknown method, corrupt sequence) recorded with their error; output files, manifest and CLI."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from d2slam.study import run_study
+from d2slam.study import tables as T
+from d2slam.study.grid import RunSpec
+from d2slam.study.sequences import MARKER, ensure_sequence
+
+FRAMES = 40
+GRID = dict(scenarios=["walking_xyz"], methods=["none", "d2slam"], seeds=[101], frames=FRAMES, twin_methods=())
+# deterministic columns compared between executors: everything but the timing columns
+COMPARE = [c for c in T.RUN_COLUMNS if c not in T.TIMING_COLUMNS]
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    # the sequence lives in the study cache (generated once per generator version, reused by later test runs)
+    ensure_sequence("walking_xyz", 101, FRAMES, False)
+    return run_study(tmp_path_factory.mktemp("serial"), jobs=1, progress=False, **GRID)
+
+
+def _same(a: pd.DataFrame, b: pd.DataFrame) -> None:
+    pd.testing.assert_frame_equal(a[COMPARE].reset_index(drop=True), b[COMPARE].reset_index(drop=True),
+                                  check_exact=True)
+
+
+def test_serial_outputs(serial):
+    df = serial.runs
+    assert df["method"].tolist() == ["none", "d2slam"]
+    assert (df["frames"] == FRAMES).all() and (df["seed"] == 101).all()
+    # none runs through the engine and is evaluated; every row has a status and either metrics or an error
+    assert df.loc[0, "status"] == "ok" and np.isfinite(df.loc[0, "ate_rmse_m"]) and df.loc[0, "frames_tracked"] > 0
+    for _, r in df.iterrows():
+        assert r["status"] in ("ok", "partial", "unevaluated") and (r["status"] == "ok") == (r["error"] == "")
+    assert np.isfinite(df.loc[1, "kp_f1"])  # d2slam classifies keypoints against the synthetic truth
+    assert np.isfinite(df["fps"]).all()
+    out = serial.out
+    for name in ("runs.csv", "summary.csv", "tables.md", "manifest.json", "plots/runtime.png",
+                 "plots/keypoint_f1.png", "runs/walking_xyz_s101_n40_d2slam.json"):
+        assert (out / name).is_file(), name
+    assert (out / "trajectories" / "walking_xyz_s101_n40_none.txt").is_file()
+    assert (out / "plots" / "trajectories.png").is_file() and (out / "plots" / "ate_bars.png").is_file()
+    _same(T.read_runs_csv(out / "runs.csv"), df)
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["grid"]["seeds"] == [101] and m["grid"]["frames"] == [FRAMES]
+    assert m["grid"]["methods"] == ["none", "d2slam"] and m["executor"]["executor"] == "serial"
+    assert len(m["git"]["commit"]) == 40 and m["machine"]["cores"] >= 1 and m["packages"]["evo"]
+    kp = json.loads((out / "runs" / "walking_xyz_s101_n40_d2slam.json").read_text())["keypoints"]
+    assert "final" in kp["modules"] and kp["frames"] == FRAMES
+    md = (out / "tables.md").read_text()
+    assert "## Table 1: ATE (m), improvement over `none`" in md and "| w/xyz |" in md
+
+
+def test_joblib_and_dask_reproduce_serial(serial, tmp_path):
+    par = run_study(tmp_path / "joblib", jobs=2, progress=False, plots=False, **GRID)
+    _same(par.runs, serial.runs)
+    assert par.manifest["executor"]["executor"] == "joblib"
+
+    from distributed import LocalCluster
+
+    # a real TCP scheduler on loopback (workers in this process), reached by address like a remote cluster
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, protocol="tcp://", host="127.0.0.1",
+                      dashboard_address=":0") as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        dk = run_study(tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False, plots=False, **GRID)
+    _same(dk.runs, serial.runs)
+    assert dk.manifest["executor"]["executor"] == "dask"
+    assert _tables(tmp_path / "dask") == _tables(serial.out)
+
+
+def _tables(out) -> list[str]:
+    """tables.md without its provenance line (the git commit moves while others commit)."""
+    return [ln for ln in (out / "tables.md").read_text().splitlines() if not ln.startswith("Config hash")]
+
+
+def test_failed_runs_are_recorded(tmp_path):
+    # a corrupt cached sequence (marked complete, rgb.txt garbage) and an unknown method
+    src = ensure_sequence("walking_xyz", 101, FRAMES, False)
+    root = tmp_path / "cache"
+    bad = ensure_sequence.__globals__["sequence_dir"]("walking_xyz", 101, FRAMES, False, root=root)
+    shutil.copytree(src, bad)
+    (bad / "rgb.txt").write_text("# header\n1.0 rgb/missing.png\nnot-a-number rgb/x.png\n")
+    assert (bad / MARKER).is_file()
+    res = run_study(tmp_path / "out", scenarios=["walking_xyz"], methods=["none", "no-such-method"], seeds=[101],
+                    frames=FRAMES, twin_methods=(), cache_root=root, progress=False)
+    df = res.runs
+    assert len(df) == 2 and (df["status"] == "failed").all()
+    assert "rgb.txt" in df.loc[0, "error"]  # the error names the corrupt file
+    assert "unknown method 'no-such-method'" in df.loc[1, "error"]
+    md = (tmp_path / "out" / "tables.md").read_text()
+    assert "no-such-method" in md and "## Runs without metrics" in md
+
+
+def test_cli_dry_run_tables_only_and_bad_args(serial, tmp_path, capsys):
+    from d2slam.cli import main
+
+    assert main(["study", "--out", str(tmp_path), "--scenarios", "walking_xyz", "--methods", "none",
+                 "--seeds", "101", "--frames", "40", "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "2 runs on 2 sequences" in out and "walking_xyz_twin_s101_n40_none" in out  # none on the twin too
+    assert main(["study", "--out", str(tmp_path), "--methods", "bogus", "--frames", "40"]) == 2
+    assert "unknown method" in capsys.readouterr().err
+    assert main(["study", "--out", str(tmp_path), "--frames", "10"]) == 2
+    assert main(["study", "--out", str(tmp_path), "--tables-only"]) == 2  # no runs.csv there
+    shutil.copy(serial.out / "runs.csv", tmp_path / "runs.csv")
+    shutil.copy(serial.out / "manifest.json", tmp_path / "manifest.json")
+    assert main(["study", "--out", str(tmp_path), "--tables-only"]) == 0
+    assert (tmp_path / "tables.md").read_text() == (serial.out / "tables.md").read_text()  # same manifest
+
+
+def test_runspec_roundtrip():
+    s = RunSpec("walking_rpy", "d2slam", 102, 300, True)
+    assert RunSpec(**s.to_dict()) == s and s.run_id == "walking_rpy_twin_s102_n300_d2slam"
