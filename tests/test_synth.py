@@ -128,8 +128,9 @@ def test_scene_json(seqs):
 
 
 def test_reads_back_through_the_library_reader(seqs):
-    synthetic = pytest.importorskip("d2slam.data.synthetic")
-    seq = synthetic.SyntheticSequence(seqs["a"]["out"])
+    from d2slam.data.synthetic import SyntheticSequence
+
+    seq = SyntheticSequence(seqs["a"]["out"])
     assert len(seq) == FRAMES
     f = seq[3]
     assert f.depth.dtype == np.float32 and 0.3 < f.depth[f.depth > 0].min()
@@ -266,6 +267,8 @@ def test_bad_input_is_a_clear_error(tmp_path):
         Scene("walking_sideways", 0, 10)
     with pytest.raises(D2SlamError, match="frames"):
         Scene("walking_xyz", 0, 0)
+    with pytest.raises(D2SlamError, match="seed"):
+        Scene("walking_xyz", -1, 10)
     (tmp_path / "notes.txt").write_text("mine")
     with pytest.raises(D2SlamError, match="refusing"):
         generate("walking_xyz", tmp_path, frames=2, workers=1, progress=False)

@@ -327,8 +327,10 @@ class Scene:
                  cfg: SynthConfig | None = None):
         if scenario not in SCENARIOS:
             raise D2SlamError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
-        if frames < 1:
+        if int(frames) < 1:
             raise D2SlamError(f"--frames must be at least 1 (got {frames})")
+        if int(seed) < 0:
+            raise D2SlamError(f"--seed must be a non-negative integer (got {seed})")
         self.cfg = cfg or SynthConfig()
         self.scenario, self.seed, self.frames, self.static_twin = scenario, int(seed), int(frames), bool(static_twin)
         sidx = SCENARIOS.index(scenario)
