@@ -180,3 +180,14 @@ def test_sequence_cache_key_names_generator(tmp_path):
     p = sequence_dir("walking_xyz", 101, 60, True, root=tmp_path)
     assert p.name == f"walking_xyz_s101_n60_twin-{generator_version()}"
     assert not is_complete(p)
+
+
+def test_short_tracking_is_flagged():
+    df = _runs()
+    df.loc[(df["method"] == "d2slam") & (df["twin"] == 0), "frames_tracked"] = [30, 60, 20]  # median 50 %
+    md = T.tables_markdown(df, ["none", "d2slam", "semantic"])
+    assert "| w/xyz | 95.0 % [90.0, 95.0] † | 62.5 % [50.0, 75.0] |" in md
+    assert "| w/xyz | 0.2000 | 0.2500 | 10.00x | 0.50x † | 3.75x | yes † | yes |" in md
+    assert T.DAGGER_NOTE in md
+    assert T.tracked_fraction(df, "walking_xyz", "d2slam") == pytest.approx(0.5)
+    assert "| w/xyz | 100 | 50 | 100 |" in md  # the tracking table (percent)

@@ -167,6 +167,24 @@ def _nanmedian(v) -> float:
     return float(np.median(v)) if len(v) else float("nan")
 
 
+TRACKED_FLAG = 0.9  # cells of runs that tracked less than this fraction of the frames (median over seeds) get a dagger
+DAGGER = " †"
+DAGGER_NOTE = ("† the method tracked fewer than 90 % of the frames (median over seeds): its errors are over a "
+               "shorter trajectory (see the tracking table).")
+
+
+def tracked_fraction(df: pd.DataFrame, scenario: str, method: str, twin: int = 0) -> float:
+    """Median over seeds of frames_tracked / frames (NaN when no run recorded it)."""
+    g = df[(df["scenario"] == scenario) & (df["method"] == method) & (df["twin"] == twin)]
+    v = g["frames_tracked"].to_numpy(np.float64) / np.maximum(g["frames"].to_numpy(np.float64), 1)
+    return _nanmedian(v)
+
+
+def _flag(df, scenario, method, twin=0) -> str:
+    f = tracked_fraction(df, scenario, method, twin)
+    return DAGGER if math.isfinite(f) and f < TRACKED_FLAG else ""
+
+
 def _fmt_imp(cell) -> str:
     if cell is None:
         return "n/a"
@@ -186,7 +204,8 @@ def _md(header: list[str], rows: list[list[str]]) -> str:
 def improvement_markdown(df: pd.DataFrame, metric: str, baseline: str = BASELINE,
                          methods: list[str] | None = None) -> str:
     scen, ms, cells = improvement_table(df, metric, baseline, methods)
-    rows = [[LABELS.get(s, s)] + [_fmt_imp(cells[(s, m)]) for m in ms] for s in scen]
+    rows = [[LABELS.get(s, s)] + [_fmt_imp(cells[(s, m)]) + (_flag(df, s, m) if cells[(s, m)] else "")
+                                  for m in ms] for s in scen]
     return _md(["fr3 (synthetic)"] + [f"`{m}`" for m in ms], rows)
 
 
@@ -210,7 +229,7 @@ def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: lis
                 cell += f" [{v.min():.{nd}f}, {v.max():.{nd}f}]"
             if len(v) < n_all:
                 cell += f" ({n_all - len(v)} failed)"
-            r.append(cell)
+            r.append(cell + _flag(df, s, m, twin))
         rows.append(r)
     return _md(["fr3 (synthetic)" + (" static twin" if twin else "")] + [f"`{m}`" for m in ms], rows)
 
@@ -242,11 +261,11 @@ def twin_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
     rows = []
     for _, r in tr.iterrows():
         cells = [r["sequence"], _num(r["twin_none_ate_m"], 4), _num(r["twin_d2slam_ate_m"], 4)]
-        cells += [_num(r[m], 2, "x") for m in ms]
+        cells += [_num(r[m], 2, "x") + (_flag(df, r["scenario"], m) if math.isfinite(r[m]) else "") for m in ms]
         walking = r["scenario"].startswith("walking")
         full = r.get(FULL, np.nan)
         none = r.get(BASELINE, np.nan)
-        cells.append("n/a" if not math.isfinite(full) else ("yes" if full <= 1.2 else "no"))
+        cells.append("n/a" if not math.isfinite(full) else ("yes" if full <= 1.2 else "no") + _flag(df, r["scenario"], FULL))
         cells.append("n/a" if not walking or not math.isfinite(none) else ("yes" if none >= 5.0 else "no"))
         rows.append(cells)
     header = (["fr3 (synthetic)", "twin ATE `none` (m)", "twin ATE `d2slam` (m)"]
@@ -317,7 +336,7 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
            "Improvement over a baseline = (1 - ours / baseline) x 100 % (the paper's convention), computed on the "
            "medians over seeds; in brackets the range of the per-seed (paired) improvements.",
            "`none` is our engine with the keypoint filter off (the in-engine stand-in for ORB-SLAM3); `orbslam3` "
-           "is the real ORB-SLAM3 (median of its repeats per sequence; not deterministic)."]
+           "is the real ORB-SLAM3 (median of its repeats per sequence; not deterministic).", DAGGER_NOTE]
     if manifest:
         out.append(f"Config hash `{manifest.get('config_hash', '')}`, git `{manifest.get('git', {}).get('commit', '')}`"
                    f", generator `{manifest.get('generator_version', '')}`.")
