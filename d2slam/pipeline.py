@@ -78,7 +78,8 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
         states.append(res.state)
         keyframes += int(res.keyframe)
         per_frame.append({"index": i, "state": res.state, "how": res.how, "keypoints": res.n_keypoints,
-                          "inliers": res.n_inliers, "keyframe": res.keyframe})
+                          "inliers": res.n_inliers, "keyframe": res.keyframe,
+                          "map_points": engine.map.n_points, "keyframes": len(engine.map.good_keyframes())})
         if recorder is not None:
             last = engine.last
             recorder(i, last.kps, last.belief, getattr(keypoint_filter, "last", None))

@@ -63,10 +63,10 @@ def _fmt(row: dict) -> str:
 def run(args) -> int:
     if args.compare_optimisers:
         return compare_optimisers(args)
-    import cv2
+    from d2slam.config import DEFAULT
 
     print(f"d2slam bench engine: seed {args.seed}, {args.frames} frames, --method none, "
-          f"cv2 threads {cv2.getNumThreads()} (set by the engine)")
+          f"cv2 threads {DEFAULT.engine.cv_threads} (set by the engine), config {DEFAULT.hash()}")
     print(f"{'scenario':<19} {'kind':<7} {'tracked':>9} {'KFs':>4} {'ATEcm':>7} {'RPEcm':>7} {'RPEdeg':>7} "
           f"{'fps':>6} {'cpufps':>6}  load  extr track  lba (ms/frame)")
     rows = []
