@@ -10,6 +10,7 @@ the CPU time is the figure that stays meaningful when other processes load the m
 
 from __future__ import annotations
 
+import os
 import time
 
 import cv2
@@ -87,8 +88,11 @@ def run(args) -> int:
         mean, med, _ = _stats(res["total"])
         cmean, cmed, _ = _stats(res["cpu time (call)"])
         verdict = "meets" if med <= 3.0 else "MISSES"
+        cverdict = "meets" if cmed <= 3.0 else "MISSES"
         print(f"  -> total (wall) median {med:.3f} ms, mean {mean:.3f} ms: {verdict} the 3 ms target; "
-              f"process CPU time median {cmed:.3f} ms, mean {cmean:.3f} ms")
+              f"process CPU time median {cmed:.3f} ms, mean {cmean:.3f} ms: {cverdict} it")
+    print(f"load average (1, 5, 15 min): {' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs "
+          "(wall-clock figures are only meaningful on an idle machine; CPU time is steadier)")
     mean, med, p95 = _stats(kd)
     print(f"\nengine side: keypoint_depth (3x3 median) {mean:.3f} / {med:.3f} / {p95:.3f} ms (mean/median/p95)")
     return 0

@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps, delta, gamma, valid_depth
-from d2slam.dynamics.semantic import FrameMasks, MaskEdges, keypoint_pixels, mask_edges
+from d2slam.dynamics.semantic import FrameMasks, MaskEdges, mask_edges
 
 _DEFAULT = DynamicsConfig()
 
@@ -59,60 +59,6 @@ def mask_depths(depth: np.ndarray, masks: np.ndarray | list[MaskEdges] | None,
         if len(vals):
             out[k] = float(np.median(vals))
     return out
-
-
-def zone_prefilter(edges: list[MaskEdges], kps: np.ndarray, z: np.ndarray, z_n: np.ndarray,
-                   cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarray:
-    """(N,) bool, a necessary condition of eq 9's zone, cheap: within 2 delta(z_n) px of mask n's bounding box and
-    (with depth) |z - z_n| < ``zone_depth`` for some mask n. Used to skip keypoints before the exact tests."""
-    n = len(kps)
-    out = np.zeros(n, dtype=bool)
-    if not edges or n == 0:
-        return out
-    reach = cfg.zone_factor * delta(z_n, cfg, use_depth)
-    pu, pv, finite = keypoint_pixels(kps, edges[0].shape)
-    pts = np.stack([pu, pv], axis=1).astype(np.float64)
-    zf = np.asarray(z, dtype=np.float64)
-    zok = valid_depth(zf)
-    for k, e in enumerate(edges):  # loop over masks only
-        if e.empty:
-            continue
-        ok = finite & (e.box_distance(pts) <= reach[k])
-        if use_depth:
-            if not valid_depth(z_n[k]):
-                continue
-            ok &= zok & (np.abs(np.where(zok, zf, 0.0) - z_n[k]) < cfg.zone_depth)
-        out |= ok
-    return out
-
-
-def zone_distances(edges: list[MaskEdges], kps: np.ndarray, z: np.ndarray, z_n: np.ndarray, d: np.ndarray,
-                   known: np.ndarray, need: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
-                   use_depth: bool = True) -> np.ndarray:
-    """Signed distances (N, n) exact up to each interaction zone's reach 2 delta(z_n) for the rows that need them.
-
-    ``d`` are the semantic module's distances, exact within ``known`` (n,) px of each mask (its search margin);
-    only rows in ``need`` (the OIM's candidates) that pass mask n's depth test and lie within reach of its bounding
-    box are searched again, with the mask's cached edge trees. Other entries are returned unchanged."""
-    d = np.array(d, dtype=np.float64, copy=True)
-    if not edges or not need.any():
-        return d
-    reach = cfg.zone_factor * delta(z_n, cfg, use_depth)
-    pu, pv, finite = keypoint_pixels(kps, edges[0].shape)
-    pts = np.stack([pu, pv], axis=1).astype(np.float64)
-    for k, e in enumerate(edges):  # loop over masks only
-        if e.empty or e.full or reach[k] <= known[k]:
-            continue
-        rows = need & finite & (np.nan_to_num(d[:, k], nan=-np.inf) <= -known[k])
-        if use_depth:
-            if not valid_depth(z_n[k]):
-                continue
-            with np.errstate(invalid="ignore"):
-                rows &= valid_depth(z) & (np.abs(z - z_n[k]) < cfg.zone_depth)
-        rows[rows] = e.box_distance(pts[rows]) <= reach[k]
-        if rows.any():
-            d[rows, k] = e.signed(pu[rows], pv[rows], float(reach[k]))
-    return d
 
 
 def interaction_zone(d: np.ndarray, z: np.ndarray, z_n: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
@@ -192,10 +138,10 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     (same result as zone first, far fewer edge searches):
 
     1. candidates: static keypoints passing a necessary condition of the zone (within 2 delta(z_n) px of some mask's
-       bounding box and |z - z_n| < ``zone_depth``; ``zone_prefilter``);
+       bounding box, a lower bound of the distance to the mask, and |z - z_n| < ``zone_depth``);
     2. eq 10's centroid test on them (``object_interaction``) -> the keypoints that would flip;
-    3. the exact zone (eq 9, ``zone_distances`` + ``interaction_zone``) on those rows only, the distances beyond
-       ``known`` searched again up to the zone's reach with the mask's cached edge trees.
+    3. the exact zone (eq 9, the test of ``interaction_zone``) on those rows only: distances beyond ``known`` are
+       searched again up to the zone's reach with the mask's cached edge trees.
 
     ``zone`` is the zone flag where step 3 ran (False elsewhere), and ``oim = zone`` (those keypoints flip)."""
     n = len(maps.z)
@@ -210,7 +156,7 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     with np.errstate(invalid="ignore"):
         near_depth = [maps.valid & (np.abs(z - z_n[k]) < cfg.zone_depth) for k in range(len(edges))] \
             if use_depth else None
-    # 1. candidates (zone_prefilter)
+    # 1. candidates
     cand = np.zeros(n, dtype=bool)
     for k, e in enumerate(edges):  # loop over masks only
         if e.empty or (use_depth and not zn_ok[k]):
