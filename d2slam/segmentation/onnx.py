@@ -181,7 +181,12 @@ class OnnxSegmenter:
                               f"(inputs {[(i.name, i.shape) for i in inputs]}, outputs "
                               f"{[(o.name, o.shape) for o in outputs]})", path=self.model_path)
         self.input_name = inputs[0].name
-        self.output_names = [o.name for o in outputs]
+        # The 3-D output holds the proposals, the 4-D one the prototypes (in either order).
+        ranks = sorted((len(o.shape), o.name) for o in outputs)
+        if [r for r, _ in ranks] != [3, 4]:
+            raise D2SlamError(f"expected a 3-D proposal output and a 4-D prototype output, got "
+                              f"{[(o.name, o.shape) for o in outputs]}", path=self.model_path)
+        self.output_names = [name for _, name in ranks]
         self.input_hw = (int(shape[2]), int(shape[3]))
         self.timings = (0.0, 0.0, 0.0)
 
