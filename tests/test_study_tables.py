@@ -191,3 +191,25 @@ def test_short_tracking_is_flagged():
     assert T.DAGGER_NOTE in md
     assert T.tracked_fraction(df, "walking_xyz", "d2slam") == pytest.approx(0.5)
     assert "| w/xyz | 100 | 50 | 100 |" in md  # the tracking table (percent)
+
+
+def test_paper_numbers_and_implied_absolute():
+    from d2slam.study import paper as P
+
+    t1 = P.paper_table(1)
+    assert list(t1.index) == ["w/xyz", "w/half", "w/static", "w/rpy", "s/static"]
+    assert list(t1.columns) == ["DynaSLAM", "DS-SLAM", "DP-SLAM", "D2SLAM"]
+    assert t1.loc["w/xyz", "D2SLAM"] == 97.9 and t1.loc["s/static", "DynaSLAM"] == -2.0
+    assert P.paper_table(3).loc["s/static", "D2SLAM"] == 27.1
+    base = P.orbslam3_baselines()
+    assert base.shape == (5, 2) and np.isnan(base.loc["s/static"]).all()
+    imp = P.implied_absolute(1)
+    ngd = "re-run reported in the NGD-SLAM paper"
+    assert imp[ngd].loc["w/xyz", "D2SLAM"] == pytest.approx(0.390 * (1 - 0.979))
+    assert imp["value reused in DG-SLAM and others"].loc["w/rpy", "DS-SLAM"] == pytest.approx(0.687 * 0.4)
+    ib = P.implied_baseline()
+    assert ib.loc["w/xyz", "DynaSLAM"] == pytest.approx(0.015 / (1 - 0.982))
+    with pytest.raises(D2SlamError):
+        P.implied_absolute(2)
+    sbs = P.side_by_side(_runs(), 1)
+    assert sbs.loc["w/xyz"].tolist() == [97.9, pytest.approx(95.0)] and np.isnan(sbs.loc["w/rpy"].iloc[1])

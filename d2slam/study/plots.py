@@ -38,13 +38,10 @@ def plot_trajectories(aligned: dict, out: Path, seed: int) -> Path | None:
     rows = (n + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 4.3 * rows), squeeze=False)
     for ax, (s, t) in zip(axes.flat, keys):
-        gt_drawn = False
-        for (s2, t2, m), (gt, est) in aligned.items():
-            if (s2, t2) != (s, t):
-                continue
-            if not gt_drawn:
-                ax.plot(gt[:, 0], gt[:, 1], color="0.5", lw=2, label="ground truth")
-                gt_drawn = True
+        runs = [(m, gt, est) for (s2, t2, m), (gt, est) in aligned.items() if (s2, t2) == (s, t)]
+        gt = max((g for _, g, _ in runs), key=len)  # the ground truth matched by the longest tracked run
+        ax.plot(gt[:, 0], gt[:, 1], color="0.5", lw=2, label="ground truth")
+        for m, _, est in runs:
             ax.plot(est[:, 0], est[:, 1], lw=1, label=m)
         ax.set_title(f"{LABELS.get(s, s)}{' twin' if t else ''} (seed {seed})")
         ax.set_xlabel("x (m)")

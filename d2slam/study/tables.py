@@ -260,7 +260,8 @@ def twin_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
         return "_No static-twin run with metrics (run the study with the `none` method on synthetic data)._"
     rows = []
     for _, r in tr.iterrows():
-        cells = [r["sequence"], _num(r["twin_none_ate_m"], 4), _num(r["twin_d2slam_ate_m"], 4)]
+        cells = [r["sequence"], _num(r["twin_none_ate_m"], 4) + _flag(df, r["scenario"], BASELINE, 1),
+                 _num(r["twin_d2slam_ate_m"], 4) + _flag(df, r["scenario"], FULL, 1)]
         cells += [_num(r[m], 2, "x") + (_flag(df, r["scenario"], m) if math.isfinite(r[m]) else "") for m in ms]
         walking = r["scenario"].startswith("walking")
         full = r.get(FULL, np.nan)
