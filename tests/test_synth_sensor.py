@@ -178,3 +178,32 @@ def test_segmenter_never_labels_objects_and_labels_instances_by_area():
         assert set(np.unique(lab)) == set(range(n + 1))  # instances 1..n
         if n == 2:
             assert (lab == 1).sum() > (lab == 2).sum()  # by decreasing area: the near person first
+
+
+def test_rendered_depth_stays_within_each_box_even_for_edge_on_faces():
+    """Rasterised edge pixels of (nearly) edge-on faces must not extrapolate the plane's depth (a regression:
+    thin lines of pixels a few cm from the camera)."""
+    from d2slam.synth.scene import rot_x, rot_y, rot_z, tf
+
+    r = _renderer()
+    rng = np.random.default_rng(3)
+    Ts, halves = [], []
+    for k in range(12):
+        R = rot_z(rng.uniform(-3, 3)) @ rot_x(rng.uniform(-3, 3)) @ rot_y(rng.uniform(-3, 3))
+        if k < 4:  # faces exactly or nearly edge-on to the camera
+            R = rot_y(np.pi / 2 + rng.uniform(-1e-3, 1e-3))
+        Ts.append(tf(R, [rng.uniform(-1.5, 1.5), rng.uniform(-1, 1), rng.uniform(1.0, 4.0)]))
+        halves.append(rng.uniform(0.05, 0.4, 3))
+    qs = boxes(np.stack(Ts), np.stack(halves), np.zeros(12, int), np.arange(1, 13))
+    _, invz, ids = r.render(qs, np.eye(4))
+    z = np.divide(1.0, invz, out=np.zeros_like(invz), where=invz > 0)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    seen = 0
+    for k in range(12):
+        m = ids == k + 1
+        if not m.any():
+            continue
+        seen += 1
+        cz = (corners * halves[k]) @ Ts[k][:3, :3].T + Ts[k][:3, 3]
+        assert z[m].min() >= cz[:, 2].min() - 1e-4 and z[m].max() <= cz[:, 2].max() + 1e-4
+    assert seen >= 6

@@ -183,13 +183,14 @@ class Renderer:
         u_img, v_img = self._u, self._v
         for i in order:
             if full[i]:
-                uu, vv = u[i], v[i]
+                uu, vv, zi = u[i], v[i], z[i]
             else:
                 Pi = _clip_near(P[i], near)
                 if len(Pi) == 0:
                     continue
                 uu = fx * Pi[:, 0] / Pi[:, 2] + cx
                 vv = fy * Pi[:, 1] / Pi[:, 2] + cy
+                zi = Pi[:, 2]
             x0, x1 = max(int(np.floor(uu.min())), 0), min(int(np.ceil(uu.max())) + 1, W)
             y0, y1 = max(int(np.floor(vv.min())), 0), min(int(np.ceil(vv.max())) + 1, H)
             if x1 <= x0 or y1 <= y0:
@@ -201,6 +202,9 @@ class Renderer:
             # inverse depth, affine in (u, v) on the plane
             a = (nc[i] @ Kinv) / dd[i]
             iz = (np.float32(a[0]) * u_img[x0:x1])[None, :] + (np.float32(a[1]) * v_img[y0:y1] + np.float32(a[2]))[:, None]
+            # on the polygon 1/z lies between its vertices' values; rasterised edge pixels just outside a
+            # near edge-on quad would extrapolate far beyond, so clamp
+            np.clip(iz, np.float32(1.0 / zi.max()), np.float32(1.0 / zi.min()), out=iz)
             zb = invz[y0:y1, x0:x1]
             m = (iz > zb) & (cov != 0)
             if not m.any():
