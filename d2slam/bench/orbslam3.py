@@ -31,13 +31,20 @@ def add_arguments(parser) -> None:
     parser.add_argument("--vocab", default=None, help="DBoW2 text vocabulary (default: $PYORBSLAM3_VOCAB or the "
                         "project-built one)")
     parser.add_argument("--out", default=None, help="output folder (default: the d2slam cache)")
+    parser.add_argument("--regenerate", action="store_true",
+                        help="generate the sequences again (after a change of the generator)")
 
 
-def _sequence(scenario: str, seed: int, frames: int, twin: bool) -> Path:
+def _sequence(scenario: str, seed: int, frames: int, twin: bool, regenerate: bool = False) -> Path:
+    """The benchmark sequence, generated once with ``d2slam synth`` into this benchmark's cache folder."""
+    import shutil
+
     from d2slam.baselines.vocab import synthesize
     from d2slam.paths import cache_dir
 
-    root = cache_dir("synth") / f"{scenario}_s{seed}_n{frames}{'_twin' if twin else ''}"
+    root = cache_dir("bench", "orbslam3", "sequences") / f"{scenario}_s{seed}_n{frames}{'_twin' if twin else ''}"
+    if regenerate and root.exists():
+        shutil.rmtree(root)
     return synthesize(scenario, root, frames, seed, static_twin=twin)
 
 
@@ -101,7 +108,7 @@ def run(args) -> int:
         for seed in args.seeds:
             for variant in args.variants:
                 twin = variant == "twin"
-                seq = _sequence(scenario, seed, args.frames, twin)
+                seq = _sequence(scenario, seed, args.frames, twin, args.regenerate)
                 name = f"{scenario}{' twin' if twin else ''} s{seed}"
                 out = out_root / seq.name
                 out.mkdir(parents=True, exist_ok=True)
