@@ -202,3 +202,16 @@ def test_bench_helpers_and_topic_registered(capsys):
     out = capsys.readouterr().out
     assert "0.2500 [0.2000, 0.4000]" in out and "280/300" in out and "20.0 [18.0, 25.0]" in out
     assert "= 2.5x" in out
+
+
+def test_cli_run_entry_for_the_run_command(tmp_path, seq_dir, built_vocab, capsys):
+    from argparse import Namespace
+
+    args = Namespace(sequence=str(seq_dir), out=str(tmp_path / "t.txt"), metrics_json=str(tmp_path / "r.json"),
+                     camera=None, quiet=True, vocab=str(built_vocab))
+    assert O.cli_run(args) == 0
+    out = capsys.readouterr().out
+    assert "orbslam3 rgbd_dataset_freiburg3_shift: ok" in out and "vocabulary: built" in out
+    args.vocab = str(tmp_path / "missing.txt")
+    assert O.cli_run(args) == 2
+    assert "failed" in capsys.readouterr().err
