@@ -95,9 +95,13 @@ class OrbConfig:
 
 @dataclass(frozen=True)
 class EngineConfig:
-    # Virtual stereo: u_R = u - bf / z; points closer than th_depth * b are "close" (stereo edges).
+    # Virtual stereo: u_R = u - bf / z; points closer than th_depth * b (b = bf / fx) are "close".
     bf: float = 40.0
     th_depth: float = 40.0
+    # True: every keypoint with valid depth gets u_R and a stereo edge (ORB-SLAM2/3 ComputeStereoFromRGBD); th_depth
+    # then only decides which points are "close" (new map points, keyframe decision, keyframe culling). False: far
+    # points (beyond th_depth * b) get monocular edges.
+    stereo_far_points: bool = True
     depth_factor: float = 5000.0
     min_depth: float = 0.1
     max_depth: float = 8.0

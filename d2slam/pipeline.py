@@ -3,7 +3,8 @@
     result = run_sequence(open_sequence(path), keypoint_filter=None, mask_provider=None)
     result.trajectory  # tracked frames only (T_world_camera), result.tracked / result.lost, result.fps
 
-Stages timed per frame: ``load`` (reading images), ``segment`` (the mask provider, when there is one), ``extract``
+Stages timed per frame: ``load`` (waiting for the images; the next frame is read by one prefetch thread while
+the current one is processed), ``segment`` (the mask provider, when there is one), ``extract``
 (ORB + depth), ``filter`` (frame-to-frame matches + the hook), ``track`` (all tracking steps), ``local_ba`` (new
 keyframe + local mapping).
 """
@@ -11,6 +12,7 @@ keyframe + local mapping).
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -50,7 +52,7 @@ class RunResult:
 def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
                  mask_provider: Callable[[int], "np.ndarray | None"] | None = None,
                  recorder: Recorder | None = None, progress: bool | None = None, desc: str | None = None,
-                 engine: Engine | None = None) -> RunResult:
+                 engine: Engine | None = None, prefetch: bool = True) -> RunResult:
     """Run every frame of ``sequence`` through the engine (see module docstring). ``recorder(frame index, keypoints
     (N, 2), beliefs (N,) or None, diagnostics)`` is called after each frame (diagnostics: the filter's ``last``
     attribute when it has one)."""
@@ -64,9 +66,18 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     t_start = time.perf_counter()
     bar = tqdm(range(n), desc=desc or f"run {getattr(sequence, 'name', '')}", unit="frame",
                disable=None if progress is None else not progress)
+    # Frame i+1 is read (PNG decoding releases the GIL) while frame i is processed: one reader thread, results
+    # identical to reading in order; ``load`` is the time spent waiting for the frame.
+    pool = ThreadPoolExecutor(max_workers=1) if prefetch and n > 1 else None
+    pending = pool.submit(sequence.__getitem__, 0) if pool else None
     for i in bar:
         t0 = time.perf_counter()
-        frame = sequence[i]
+        if pool:
+            frame = pending.result()
+            if i + 1 < n:
+                pending = pool.submit(sequence.__getitem__, i + 1)
+        else:
+            frame = sequence[i]
         t1 = time.perf_counter()
         masks = mask_provider(i) if mask_provider is not None else None
         t2 = time.perf_counter()
@@ -85,6 +96,8 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
             recorder(i, last.kps, last.belief, getattr(keypoint_filter, "last", None))
         if i % 10 == 0:
             bar.set_postfix(tracked=sum(s == "ok" for s in states), kfs=keyframes)
+    if pool:
+        pool.shutdown()
     total = time.perf_counter() - t_start
     _, ts, poses = engine.trajectory()
     tracked = int(sum(s == "ok" for s in states))

@@ -69,9 +69,20 @@ def test_extractor_settings_depth_and_virtual_right(room):
     assert len(np.unique(bx)) == 16
     u, v = np.rint(f.kps_raw).astype(int).T
     np.testing.assert_allclose(f.depth, depth[v, u], atol=0.02)
-    close = f.depth < 40 * BF / FR3.fx
-    np.testing.assert_allclose(f.ur[close], f.kps[close, 0] - BF / f.depth[close])
-    assert np.all(f.ur[~close] == -1)
+    valid = f.depth > 0  # ORB-SLAM: u_R for every keypoint with depth
+    np.testing.assert_allclose(f.ur[valid], f.kps[valid, 0] - BF / f.depth[valid])
+    assert np.all(f.ur[~valid] == -1)
+    from dataclasses import replace
+
+    ex_close = OrbExtractor(DEFAULT.orb, replace(DEFAULT.engine, stereo_far_points=False), FR3)
+    depth2 = depth.copy()
+    depth2[:, :320] = 1.5  # left half close (< 3 m), right half far (4 m)
+    depth2[:, 320:] = 4.0
+    f2 = ex_close(gray, depth2)
+    close = (f2.depth > 0) & (f2.depth < 40 * BF / FR3.fx)
+    assert close.any() and (~close).any()
+    np.testing.assert_allclose(f2.ur[close], f2.kps[close, 0] - BF / f2.depth[close])
+    assert np.all(f2.ur[~close] == -1)
 
 
 def test_keypoint_depth_ignores_invalid_pixels():

@@ -136,7 +136,8 @@ class OrbExtractor:
         angle = attrs[:, 3].astype(np.float32)
         pts = undistort(raw, self.camera)
         z = keypoint_depth(depth, raw, self.cfg.depth_patch_radius, self.engine)
-        ur = virtual_right(pts[:, 0], z, self.camera.bf, self.th_depth_m)
+        ur = virtual_right(pts[:, 0], z, self.camera.bf,
+                           np.inf if self.engine.stereo_far_points else self.th_depth_m)
         return Frame(index=index, timestamp=timestamp, kps=pts, kps_raw=raw, octave=octave, angle=angle,
                      desc=np.ascontiguousarray(desc), depth=z, ur=ur, inv_sigma2=self.inv_level_sigma2[octave])
 
@@ -186,8 +187,10 @@ def close_depth(camera: Camera, engine: EngineConfig) -> float:
 
 
 def virtual_right(u: np.ndarray, z: np.ndarray, bf: float, th_depth_m: float) -> np.ndarray:
-    """``u_R = u - bf / z`` for close points (0 < z < th_depth_m): stereo edges; -1 marks far or invalid-depth
-    keypoints (monocular edges), as ORB-SLAM's ``mvuRight < 0``."""
+    """``u_R = u - bf / z`` for keypoints with depth below ``th_depth_m`` (stereo edges); -1 marks the others
+    (monocular edges), as ORB-SLAM's ``mvuRight < 0``. ORB-SLAM's ``ComputeStereoFromRGBD`` sets ``u_R`` for every
+    valid depth (``th_depth_m = inf``, ``EngineConfig.stereo_far_points``); with it off only close points
+    (``th_depth * b``) get stereo edges."""
     close = (z > 0) & (z < th_depth_m)
     ur = np.full(len(u), -1.0)
     ur[close] = u[close] - bf / z[close]
