@@ -188,6 +188,8 @@ def test_bench_helpers_and_topic_registered(capsys):
     assert "orbslam3" in bench.topics()
     assert B._ms_per_frame({"fps": 20.0}) == 50.0 and B._ms_per_frame({"ms_per_frame": 7}) == 7.0
     assert B._ms_per_frame({}) is None
+    assert B._ms_per_frame({"method": "none", "fps": 5.0, "stage_ms": {"load": 30.0, "extract": 20.0,
+                                                                       "track": 40.0}}) == 60.0
     row = {"sequence": "walking_xyz s101", "variant": "dynamic", "method": "orbslam3", "status": "lost",
            "frames": 300, "tracked": 280, "ms_per_frame": 20.0, "ms_per_frame_spread": {"min": 18.0, "max": 25.0},
            "metrics": {"ate_rmse_m": 0.25, "rpe_trans_m": 0.3, "rpe_rot_deg": 5.0},
