@@ -16,7 +16,7 @@ from d2slam.synth import SCENARIOS, Scene, generate
 from d2slam.synth.render import Renderer
 from d2slam.synth.scene import MOVED_BOX_ID, MOVED_CHAIR_ID
 
-FRAMES = 24
+FRAMES = 16
 
 
 def _files(root: Path) -> dict[str, bytes]:
