@@ -30,8 +30,9 @@ def register(sub) -> None:
                    f"{DEFAULT_FRAMES}; >= 40 so that 1-second RPE pairs exist; on TUM data: first N frames, 0 = all)")
     p.add_argument("--twin-methods", nargs="*", default=list(TWIN_METHODS), metavar="METHOD",
                    help="methods also run on each static twin (default: none d2slam; give none of them to skip)")
-    p.add_argument("--jobs", "-j", type=int, default=1, help="local worker processes (joblib/loky, single-threaded "
-                   "BLAS each; default 1 = serial in this process)")
+    p.add_argument("--jobs", "-j", type=int, default=min(2, os.cpu_count() or 1),
+                   help="local worker processes (joblib/loky, single-threaded BLAS and OpenCV each; 1 = serial in "
+                   "this process; default min(2, cores)). The numbers do not depend on it")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", default=None,
                    help="run the grid on a dask.distributed cluster instead (workers need d2slam installed and the "
                    "same cache, or they generate the sequences themselves)")
