@@ -92,7 +92,7 @@ def test_failed_runs_are_recorded(tmp_path):
     (bad / "rgb.txt").write_text("# header\n1.0 rgb/missing.png\nnot-a-number rgb/x.png\n")
     assert (bad / MARKER).is_file()
     res = run_study(tmp_path / "out", scenarios=["walking_xyz"], methods=["none", "no-such-method"], seeds=[101],
-                    frames=FRAMES, twin_methods=(), cache_root=root, progress=False)
+                    frames=FRAMES, twin_methods=(), cache_root=root, progress=False, plots=False)
     df = res.runs
     assert len(df) == 2 and (df["status"] == "failed").all()
     assert "rgb.txt" in df.loc[0, "error"]  # the error names the corrupt file

@@ -67,6 +67,8 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
     t_seq = time.perf_counter() - t0
 
+    if any(s.method == G.ORBSLAM3 for s in specs):
+        _prepare_vocabulary(progress)
     todo = [s for s in specs if s.sequence_key not in prep_error]
     done = map_ordered(execute_run, todo, (options,), jobs, scheduler, desc="study", progress=progress)
     by_id = {s.run_id: r for s, r in zip(todo, done)}
@@ -93,6 +95,17 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
     return res
+
+
+def _prepare_vocabulary(progress) -> None:
+    """Build the ORB vocabulary once, here, before ORB-SLAM3 runs start in parallel workers (each would otherwise
+    build it on first use). A failure is left to the runs, which record it."""
+    from d2slam.baselines.vocab import resolve_vocabulary
+
+    try:
+        resolve_vocabulary(None, build=True, progress=bool(progress))
+    except D2SlamError:
+        pass
 
 
 def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_order: list[str], manifest: dict,
