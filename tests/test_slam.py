@@ -200,8 +200,11 @@ def test_textureless_and_invalid_depth_frames_are_lost(room):
     assert r.state == "not_initialized" and not r.tracked  # no depth: cannot initialise
     r = eng.process(*blank, 1, ts[1])
     assert not r.tracked and r.n_keypoints == 0
-    for i in range(2, 6):
+    for i in range(2, 5):
         assert eng.process(*frames[i], i, ts[i]).tracked
+    # all-invalid depth once the map exists: tracked from monocular edges only (every keypoint has u_R = -1)
+    r = eng.process(frames[5][0], np.zeros_like(frames[5][1]), 5, ts[5])
+    assert r.tracked and r.n_inliers > 50 and np.all(eng.last.ur == -1)
     r = eng.process(*blank, 6, ts[6])
     assert r.state == "lost" and eng.velocity is None
     r = eng.process(*frames[7], 7, ts[7])  # relocalisation from the map
