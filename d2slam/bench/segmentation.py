@@ -4,6 +4,7 @@ on the five real TUM frames of the shared folder repeated. Targets: >= 20 fps at
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -41,6 +42,8 @@ def run(args) -> int:
     if args.threads:
         cfg = dataclasses.replace(cfg, intra_op_threads=args.threads)
     n = len(frames) * max(1, args.repeats)
+    print(f"machine: {os.cpu_count()} CPUs, load average (1 min) at start {os.getloadavg()[0]:.1f} "
+          "(other processes share the cores: compare runs at similar load)")
     print(f"{len(frames)} frames of {frames[0].shape[1]}x{frames[0].shape[0]} x {max(1, args.repeats)} = {n} "
           f"timed frames per model, intra_op_threads={cfg.intra_op_threads}")
     print(f"{'model':32s} {'input':>8s} {'fps':>6s} {'total ms':>9s} {'pre':>6s} {'infer':>6s} {'post':>6s}  "
@@ -63,4 +66,5 @@ def run(args) -> int:
         h, w = seg.input_hw
         print(f"{path.name:32s} {f'{h}x{w}':>8s} {fps:6.1f} {1000 * total / n:9.1f} {ms[0]:6.1f} {ms[1]:6.1f} "
               f"{ms[2]:6.1f}  {persons / max(1, args.repeats):7.0f}  {verdict}")
+    print(f"load average (1 min) at end {os.getloadavg()[0]:.1f}")
     return 0
