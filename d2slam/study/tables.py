@@ -210,7 +210,8 @@ def improvement_markdown(df: pd.DataFrame, metric: str, baseline: str = BASELINE
 
 
 def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: list[str] | None = None) -> str:
-    """Median [min, max] over seeds (ORB-SLAM3: of the per-sequence medians over its repeats)."""
+    """Median [min, max] over seeds (ORB-SLAM3: of the per-sequence medians over its repeats; for the ATE also
+    ``{repeats lo-hi}``, the lowest and highest ATE of any single repeat)."""
     d = df[df["twin"] == twin]
     ms = [m for m in (methods or _methods(df)) if m in set(d["method"])]
     nd = DECIMALS.get(metric, 4)
@@ -229,6 +230,11 @@ def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: lis
                 cell += f" [{v.min():.{nd}f}, {v.max():.{nd}f}]"
             if len(v) < n_all:
                 cell += f" ({n_all - len(v)} failed)"
+            if m == ORBSLAM3 and metric == "ate_rmse_m":  # the spread of ORB-SLAM3's own repeats
+                g = d[(d["scenario"] == s) & (d["method"] == m)]
+                lo, hi = g["ate_min_m"].to_numpy(np.float64), g["ate_max_m"].to_numpy(np.float64)
+                if np.isfinite(lo).any() and np.isfinite(hi).any():
+                    cell += f" {{repeats {np.nanmin(lo):.{nd}f}-{np.nanmax(hi):.{nd}f}}}"
             r.append(cell + _flag(df, s, m, twin))
         rows.append(r)
     return _md(["fr3 (synthetic)" + (" static twin" if twin else "")] + [f"`{m}`" for m in ms], rows)
