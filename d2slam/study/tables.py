@@ -195,6 +195,10 @@ def _fmt_imp(cell) -> str:
     return s
 
 
+def _rowhead(df: pd.DataFrame) -> str:
+    return "fr3 (real TUM)" if len(df) and (df["source"] == "tum").all() else "fr3 (synthetic)"
+
+
 def _md(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] * len(header)) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -206,7 +210,7 @@ def improvement_markdown(df: pd.DataFrame, metric: str, baseline: str = BASELINE
     scen, ms, cells = improvement_table(df, metric, baseline, methods)
     rows = [[LABELS.get(s, s)] + [_fmt_imp(cells[(s, m)]) + (_flag(df, s, m) if cells[(s, m)] else "")
                                   for m in ms] for s in scen]
-    return _md(["fr3 (synthetic)"] + [f"`{m}`" for m in ms], rows)
+    return _md([_rowhead(df)] + [f"`{m}`" for m in ms], rows)
 
 
 def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: list[str] | None = None) -> str:
@@ -237,7 +241,7 @@ def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: lis
                     cell += f" {{repeats {np.nanmin(lo):.{nd}f}-{np.nanmax(hi):.{nd}f}}}"
             r.append(cell + _flag(df, s, m, twin))
         rows.append(r)
-    return _md(["fr3 (synthetic)" + (" static twin" if twin else "")] + [f"`{m}`" for m in ms], rows)
+    return _md([_rowhead(df) + (" static twin" if twin else "")] + [f"`{m}`" for m in ms], rows)
 
 
 def twin_ratios(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFrame:
@@ -301,7 +305,7 @@ def keypoint_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str
             r.append(f"{_nanmedian(g['kp_f1']):.3f} ({_nanmedian(g['kp_precision']):.3f} / "
                      f"{_nanmedian(g['kp_recall']):.3f})")
         rows.append(r)
-    return _md(["fr3 (synthetic)"] + [f"`{m}`" for m in ms], rows)
+    return _md([_rowhead(df)] + [f"`{m}`" for m in ms], rows)
 
 
 def tracking_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
@@ -318,7 +322,7 @@ def tracking_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str
                 v = v[np.isfinite(v)]
                 r.append(f"{np.median(v):.0f}" if len(v) else "")
             rows.append(r)
-    return _md(["fr3 (synthetic)"] + [f"`{m}`" for m in ms], rows)
+    return _md([_rowhead(df)] + [f"`{m}`" for m in ms], rows)
 
 
 def failures_markdown(df: pd.DataFrame) -> str:
