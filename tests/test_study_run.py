@@ -121,3 +121,22 @@ def test_cli_dry_run_tables_only_and_bad_args(serial, tmp_path, capsys):
 def test_runspec_roundtrip():
     s = RunSpec("walking_rpy", "d2slam", 102, 300, True)
     assert RunSpec(**s.to_dict()) == s and s.run_id == "walking_rpy_twin_s102_n300_d2slam"
+
+
+def test_resume_reuses_matching_runs_only(serial, tmp_path):
+    from d2slam.study.core import load_run
+    from d2slam.study.runner import run_key, run_options
+
+    out = tmp_path / "resumed"
+    shutil.copytree(serial.out, out)
+    res = run_study(out, progress=False, plots=False, resume=True, **GRID)
+    assert res.manifest["grid"]["reused_runs"] == ["walking_xyz_s101_n40_d2slam", "walking_xyz_s101_n40_none"]
+    pd.testing.assert_frame_equal(res.runs, serial.runs, check_exact=True)  # timings too: nothing re-ran
+    spec = RunSpec("walking_xyz", "none", 101, FRAMES)
+    key = run_key(spec, run_options())
+    assert load_run(out, spec, key)["trajectory"][1].shape[1:] == (4, 4)
+    assert load_run(out, spec, "another-key") is None  # a changed config / code / generator is rerun
+    rec = json.loads((out / "runs" / f"{spec.run_id}.json").read_text())
+    rec["row"]["status"] = "failed"
+    (out / "runs" / f"{spec.run_id}.json").write_text(json.dumps(rec))
+    assert load_run(out, spec, key) is None  # failed runs are redone

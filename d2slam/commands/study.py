@@ -44,6 +44,9 @@ def register(sub) -> None:
                    help=f"run on a real TUM copy (folders rgbd_dataset_freiburg3_*) instead of synthetic data "
                    f"(default ${ENV_TUM} only when --tum is given)")
     p.add_argument("--tum", action="store_true", help=f"use the TUM copy at ${ENV_TUM}")
+    p.add_argument("--resume", action="store_true",
+                   help="reuse the runs already in OUT/runs/ whose key matches (same run, config, masks, generator "
+                   "version, source of the code computing it, package versions; failed runs are redone)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--tables-only", action="store_true",
                    help="re-render OUT/tables.md and OUT/summary.csv from an existing OUT/runs.csv; run nothing")
@@ -90,13 +93,15 @@ def run(args) -> int:
 
     res = run_study(out, specs=specs, jobs=args.jobs, scheduler=args.scheduler, tum_root=tum_root,
                     masks=args.masks, orbslam3_repeats=args.orbslam3_repeats, plots=not args.no_plots,
-                    progress=False if args.quiet else None)
+                    progress=False if args.quiet else None, resume=args.resume)
     df = res.runs
     n_ok = int((df["status"] == "ok").sum())
     print(f"{len(df)} runs: {n_ok} ok, {int((df['status'] == 'failed').sum())} failed, "
           f"{len(df) - n_ok - int((df['status'] == 'failed').sum())} other (see tables.md, 'Runs without metrics')")
     for name, path in res.files.items():
         print(f"  {name}: {path}")
+    if res.manifest["grid"].get("reused_runs"):
+        print(f"  {len(res.manifest['grid']['reused_runs'])} runs reused from {out / 'runs'} (--resume)")
     print(f"  {res.manifest['timing'].get('total_s', 0):.0f} s ({res.manifest['executor']['executor']}, "
           f"jobs {args.jobs})")
     return 0

@@ -24,7 +24,9 @@ from d2slam.errors import D2SlamError
 from d2slam.study import tables as T
 from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
-from d2slam.study.runner import base_row, execute_run, prepare_sequence, run_options
+from d2slam.study.runner import base_row, execute_run, prepare_sequence, run_key, run_options
+
+RETRY = ("failed", "crashed", "timeout")  # statuses never reused by --resume
 
 
 @dataclass
@@ -39,8 +41,13 @@ class StudyResult:
 def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None = None, jobs: int = 1,
               scheduler=None, config=None, specs: list[RunSpec] | None = None, twin_methods=None,
               cache_root=None, tum_root=None, masks: str | None = None, orbslam3_repeats: int = 5,
-              orbslam3_timeout: float | None = None, plots: bool = True, progress: bool | None = None) -> StudyResult:
-    """Run the study grid and write its results into ``out`` (created). See the module docstring."""
+              orbslam3_timeout: float | None = None, plots: bool = True, progress: bool | None = None,
+              resume: bool = False) -> StudyResult:
+    """Run the study grid and write its results into ``out`` (created). See the module docstring.
+
+    ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.runner.run_key`: the run, config,
+    masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
+    and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
     from d2slam.config import DEFAULT
     from d2slam.study import grid as G
     from d2slam.study.sequences import generator_version
@@ -69,9 +76,20 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
 
     if any(s.method == G.ORBSLAM3 for s in specs):
         _prepare_vocabulary(progress)
-    todo = [s for s in specs if s.sequence_key not in prep_error]
+    keys_by_id = {s.run_id: run_key(s, options) for s in specs}
+    reused = {}
+    if resume:
+        for s in specs:
+            r = load_run(out, s, keys_by_id[s.run_id])
+            if r is not None:
+                reused[s.run_id] = r
+    todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
     done = map_ordered(execute_run, todo, (options,), jobs, scheduler, desc="study", progress=progress)
     by_id = {s.run_id: r for s, r in zip(todo, done)}
+    by_id.update(reused)
+    for s in specs:
+        if s.run_id in by_id:
+            by_id[s.run_id]["key"] = keys_by_id[s.run_id]
     results = []
     for s in specs:
         if s.run_id in by_id:
@@ -86,7 +104,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
             "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
             "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
             "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": int(orbslam3_repeats),
-            "masks": masks}
+            "masks": masks, "reused_runs": sorted(reused)}
     from d2slam.study.manifest import build_manifest
 
     manifest = build_manifest(config, grid, ex, generator_version(),
@@ -94,6 +112,31 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     res = write_results(out, specs, results, method_order, manifest, plots=plots)
     manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
+    return res
+
+
+def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
+    """The result of a finished run in ``out/runs/`` when its key is ``key`` and it did not fail, else None."""
+    path = out / "runs" / f"{spec.run_id}.json"
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    row = record.get("row") or {}
+    if record.get("key") != key or row.get("status") in RETRY:
+        return None
+    res = {"row": row, "trajectory": None, "aligned": None, "keypoints": record.get("keypoints"),
+           "stage_ms": record.get("stage_ms") or {}}
+    npz = out / "runs" / f"{spec.run_id}.npz"
+    if npz.is_file():
+        try:
+            with np.load(npz) as z:
+                if "timestamps" in z:
+                    res["trajectory"] = (z["timestamps"], z["poses"])
+                if "gt_xyz" in z:
+                    res["aligned"] = (z["gt_xyz"], z["est_xyz"])
+        except (OSError, ValueError, KeyError):
+            return None
     return res
 
 
@@ -120,8 +163,19 @@ def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_o
             ts, poses = r["trajectory"]
             write_tum_trajectory(out / "trajectories" / f"{s.run_id}.txt", Trajectory(ts, poses),
                                  header=f"d2slam study {s.run_id}")
-        record = {"run": s.to_dict(), "row": r["row"], "keypoints": r.get("keypoints"), "stage_ms": r.get("stage_ms")}
+        record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
+                  "stage_ms": r.get("stage_ms")}
         (out / "runs" / f"{s.run_id}.json").write_text(json.dumps(record, indent=1, default=_json_default) + "\n")
+        arrays = {}
+        if r.get("trajectory") is not None:
+            arrays.update(timestamps=r["trajectory"][0], poses=r["trajectory"][1])
+        if r.get("aligned") is not None:
+            arrays.update(gt_xyz=r["aligned"][0], est_xyz=r["aligned"][1])
+        npz = out / "runs" / f"{s.run_id}.npz"
+        if arrays:
+            np.savez_compressed(npz, **arrays)
+        else:
+            npz.unlink(missing_ok=True)
     df = T.sort_runs(T.runs_frame([r["row"] for r in results]), method_order)
     T.write_runs_csv(df, out / "runs.csv")
     summary = T.summarise(df)

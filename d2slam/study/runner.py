@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import tempfile
+from functools import lru_cache
 import time
 import traceback
 from pathlib import Path
@@ -253,3 +254,68 @@ class _single_threaded:
 
         cv2.setNumThreads(self._prev)
         return False
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Identity of a run's result (for ``d2slam study --resume``)
+# ------------------------------------------------------------------------------------------------------------
+# Source that decides an engine run's numbers, and an ORB-SLAM3 run's (which never touches the engine or dynamics).
+_ENGINE_CODE = ("slam", "dynamics", "segmentation", "data", "eval", "methods.py", "pipeline.py", "config.py",
+                "study/runner.py")
+_ORBSLAM3_CODE = ("baselines", "data", "eval", "config.py", "study/runner.py")
+_RUN_PACKAGES = ("numpy", "scipy", "opencv-python-headless", "onnxruntime", "gtsam", "g2opy", "evo", "pyorbslam3")
+
+
+@lru_cache(maxsize=8)
+def source_digest(parts: tuple) -> str:
+    """sha256 (16 hex) of the package source files under ``parts`` (folders or files of ``d2slam/``)."""
+    import hashlib
+
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for part in parts:
+        p = root / part
+        files = sorted(p.rglob("*.py")) if p.is_dir() else [p]
+        for f in files:
+            if f.is_file():
+                h.update(str(f.relative_to(root)).encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def run_key(spec: RunSpec, options: dict) -> str:
+    """What a run's numbers depend on: the run, the config (seeded), the masks, the generator version, the source
+    of the code that computes them and the versions of the numeric packages (and, for ORB-SLAM3, its repeats and
+    vocabulary file). Equal keys => a finished run can be reused (``--resume``)."""
+    import hashlib
+    import json
+
+    orb = spec.method == ORBSLAM3
+    ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options.get("masks"),
+             "tum_root": options.get("tum_root"), "code": source_digest(_ORBSLAM3_CODE if orb else _ENGINE_CODE),
+             "packages": _packages()}
+    if spec.source == "synth":
+        from d2slam.study.sequences import generator_version
+
+        ident["generator"] = generator_version()
+    if orb:
+        ident["repeats"] = options.get("orbslam3_repeats")
+        ident["vocabulary"] = _vocabulary_sha()
+    return hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+@lru_cache(maxsize=1)
+def _packages() -> dict:
+    from d2slam.study.manifest import package_versions
+
+    return package_versions(_RUN_PACKAGES)
+
+
+@lru_cache(maxsize=1)
+def _vocabulary_sha():
+    try:
+        from d2slam.baselines.vocab import resolve_vocabulary
+
+        return resolve_vocabulary(None, build=False, progress=False)["sha256"]
+    except Exception:  # noqa: BLE001 - no vocabulary yet: the key says so
+        return None
