@@ -127,7 +127,7 @@ class EngineConfig:
     search_radius_last_frame: float = 15.0  # ORB-SLAM3 RGB-D (non-stereo sensor): th = 15
     search_radius_local_map: float = 3.0  # ORB-SLAM3 RGB-D: th = 3
     search_radius_relocalisation: float = 10.0
-    candidates_per_point: int = 16  # k nearest keypoints examined per projected point (k-d tree)
+    candidates_per_point: int = 8  # k nearest keypoints of each allowed pyramid level per projected point (k-d trees)
     check_orientation: bool = True
     # Initialisation (ORB-SLAM StereoInitialization): keypoints with valid depth needed for the first keyframe.
     init_min_keypoints: int = 500

@@ -280,7 +280,7 @@ class Engine:
         k = self.cfg.candidates_per_point
         index = self._kp_index(frame)
         available = frame.mp < 0
-        cand, _ = index.candidates(uv, radius, k)
+        cand, _ = index.candidates(uv, radius, k, lo, hi)
         safe = np.minimum(cand, max(frame.n - 1, 0))
         stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
         best, d1, d2, l1, l2 = search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi,
@@ -292,7 +292,7 @@ class Engine:
 
     def _kp_index(self, frame: Frame) -> KeypointIndex:
         if getattr(frame, "_index", None) is None:
-            frame._index = KeypointIndex(frame.kps)
+            frame._index = KeypointIndex(frame.kps, frame.octave)
         return frame._index
 
     def track_with_motion_model(self, frame: Frame) -> bool:
@@ -441,7 +441,7 @@ class Engine:
         k = self.cfg.candidates_per_point
         index = self._kp_index(frame)
         available = frame.mp < 0
-        cand, _ = index.candidates(uv, radius, k)
+        cand, _ = index.candidates(uv, radius, k, lo, hi)
         safe = np.minimum(cand, max(frame.n - 1, 0))
         stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
         best, d1, d2, l1, l2 = search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi,

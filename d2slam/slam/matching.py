@@ -38,24 +38,57 @@ def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray) -> np.ndarray:
 
 
 class KeypointIndex:
-    """k-d tree over a frame's keypoints, queried with per-query radii and level windows."""
+    """k-d trees over a frame's keypoints, one per pyramid level, queried with per-query radii and level windows
+    (ORB-SLAM's ``GetFeaturesInArea(u, v, r, minLevel, maxLevel)``, vectorised per level: the k nearest keypoints
+    *of each allowed level*, so crowded other levels never push the right candidate out of the set)."""
 
-    def __init__(self, kps: np.ndarray):
+    def __init__(self, kps: np.ndarray, octave: np.ndarray | None = None):
         self.n = len(kps)
         self.tree = cKDTree(kps) if self.n else None
+        self.levels: list[tuple[int, np.ndarray, cKDTree]] = []
+        if self.n and octave is not None:
+            for lv in np.unique(octave):
+                members = np.flatnonzero(octave == lv)
+                self.levels.append((int(lv), members, cKDTree(kps[members])))
 
-    def candidates(self, uv: np.ndarray, radius: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """(Q, k) candidate indices (``n`` = none) and their distances for queries ``uv`` within ``radius``."""
+    def candidates(self, uv: np.ndarray, radius: np.ndarray, k: int, lo: np.ndarray | None = None,
+                   hi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(Q, K) candidate indices (``n`` = none) and their distances for queries ``uv`` within ``radius``; with
+        level windows ``lo``/``hi`` (and per-level trees) the k nearest of every level in the window."""
         q = len(uv)
         if self.n == 0 or q == 0:
             return np.full((q, k), self.n, dtype=np.int64), np.full((q, k), np.inf)
-        k = min(k, self.n)
-        dist, idx = self.tree.query(uv, k=k, distance_upper_bound=float(np.max(radius)))
-        if k == 1:
-            dist, idx = dist[:, None], idx[:, None]
-        bad = dist > radius[:, None]
-        idx = np.where(bad, self.n, idx)
-        return idx, dist
+        rmax = float(np.max(radius))
+        if lo is None or not self.levels:
+            kk = min(k, self.n)
+            dist, idx = self.tree.query(uv, k=kk, distance_upper_bound=rmax)
+            if kk == 1:
+                dist, idx = dist[:, None], idx[:, None]
+            bad = dist > radius[:, None]
+            return np.where(bad, self.n, idx), dist
+        blocks_i, blocks_d = [], []
+        for lv, members, tree in self.levels:
+            sel = np.flatnonzero((lo <= lv) & (hi >= lv))
+            if len(sel) == 0:
+                continue
+            kk = min(k, len(members))
+            dist, idx = tree.query(uv[sel], k=kk, distance_upper_bound=rmax)
+            if kk == 1:
+                dist, idx = dist[:, None], idx[:, None]
+            ok = dist <= radius[sel, None]
+            gi = np.full((q, kk), self.n, dtype=np.int64)
+            gd = np.full((q, kk), np.inf)
+            gi[sel] = np.where(ok, members[np.minimum(idx, len(members) - 1)], self.n)
+            gd[sel] = np.where(ok, dist, np.inf)
+            blocks_i.append(gi)
+            blocks_d.append(gd)
+        if not blocks_i:
+            return np.full((q, 1), self.n, dtype=np.int64), np.full((q, 1), np.inf)
+        idx, dist = np.concatenate(blocks_i, axis=1), np.concatenate(blocks_d, axis=1)
+        keep = (idx < self.n).any(axis=0)  # drop all-empty columns
+        if not keep.any():
+            keep[0] = True
+        return idx[:, keep], dist[:, keep]
 
 
 def search_candidates(index: KeypointIndex, uv: np.ndarray, radius: np.ndarray, q_desc: np.ndarray,
