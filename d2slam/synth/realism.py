@@ -1,0 +1,157 @@
+"""How much of a frame people cover and how many of the engine's ORB keypoints fall on them.
+
+These two statistics are the measured basis for the synthetic people (``d2slam bench realism``): a person who is
+much more feature-rich than the room makes any dynamic-SLAM method look worse than on real data (removing the
+person's keypoints leaves too few for tracking), a textureless person tests nothing. Per frame:
+
+- ``area``: fraction of the image covered by the mask (people; for synthetic frames also "dynamic" = people plus
+  moved objects while they move);
+- ``kp``: fraction of the engine's keypoints (``d2slam.slam.frame.OrbExtractor``: ORB-SLAM settings, bucketing)
+  whose pixel lies in the mask;
+- ``ratio = kp / area`` (1 = a person is as feature-rich as the rest of the frame), defined for frames where the
+  mask covers at least ``MIN_AREA`` of the image.
+
+Synthetic frames are rendered in memory by the generator's own ``render_frame`` (the same pixels as the PNGs that
+``d2slam synth`` writes), so sampling a few frames of a long sequence costs no disk and no full generation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from d2slam.config import DEFAULT, Config, SynthConfig
+from d2slam.errors import D2SlamError
+
+MIN_AREA = 0.02  # frames with less mask than this have no meaningful ratio
+
+
+@dataclass
+class FrameStats:
+    """Per-frame statistics of one source (arrays over the sampled frames)."""
+
+    name: str
+    frames: np.ndarray  # frame indices (synthetic) or 0..n-1 (real images)
+    area: np.ndarray  # person area fraction
+    kp: np.ndarray  # fraction of keypoints on persons
+    n_kp: np.ndarray  # keypoints per frame
+    dyn_area: np.ndarray | None = None  # synthetic only: persons + moving objects
+    dyn_kp: np.ndarray | None = None
+
+    @property
+    def ratio(self) -> np.ndarray:
+        return ratio(self.kp, self.area)
+
+    @property
+    def dyn_ratio(self) -> np.ndarray | None:
+        return None if self.dyn_area is None else ratio(self.dyn_kp, self.dyn_area)
+
+
+def ratio(kp: np.ndarray, area: np.ndarray) -> np.ndarray:
+    """kp / area over the frames whose area is at least ``MIN_AREA`` (others dropped)."""
+    kp, area = np.asarray(kp, float), np.asarray(area, float)
+    ok = area >= MIN_AREA
+    return kp[ok] / area[ok]
+
+
+def extractor(camera=None, config: Config | None = None):
+    """The engine's ORB extractor (ORB-SLAM settings) for a 640x480 fr3-like camera."""
+    from d2slam.data.base import Camera
+    from d2slam.slam.frame import OrbExtractor
+
+    cfg = config or DEFAULT
+    if camera is None:
+        s = cfg.synth
+        camera = Camera(s.fx, s.fy, s.cx, s.cy, s.width, s.height)
+    return OrbExtractor(cfg.orb, cfg.engine, camera)
+
+
+def keypoints_on(kps: np.ndarray, masks: list[np.ndarray]) -> list[float]:
+    """Fraction of keypoints (N, 2) pixel coordinates whose rounded pixel lies in each (H, W) bool mask."""
+    if len(kps) == 0:
+        return [0.0 for _ in masks]
+    h, w = masks[0].shape
+    u = np.clip(np.round(kps[:, 0]).astype(np.int64), 0, w - 1)
+    v = np.clip(np.round(kps[:, 1]).astype(np.int64), 0, h - 1)
+    return [float(m[v, u].mean()) for m in masks]
+
+
+def frame_stats(gray: np.ndarray, depth: np.ndarray, masks: list[np.ndarray], ext) -> tuple[list, list, int]:
+    """(areas, keypoint fractions, number of keypoints) of one frame for each mask."""
+    fr = ext(gray, depth)
+    kps = fr.kps_raw if fr.n else np.zeros((0, 2))
+    return [float(m.mean()) for m in masks], keypoints_on(kps, masks), int(fr.n)
+
+
+def sample_indices(frames: int, stride: int) -> np.ndarray:
+    if stride < 1:
+        raise D2SlamError(f"--stride must be at least 1 (got {stride})")
+    return np.arange(0, int(frames), int(stride))
+
+
+def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: int = 10,
+                    cfg: SynthConfig | None = None, config: Config | None = None, ext=None) -> FrameStats:
+    """Person / dynamic statistics of every ``stride``-th frame of a synthetic sequence (rendered in memory)."""
+    from d2slam.synth.generate import render_frame
+    from d2slam.synth.render import Renderer
+    from d2slam.synth.scene import Scene
+
+    config = config or DEFAULT
+    cfg = cfg or config.synth
+    scene = Scene(scenario, seed, frames, False, cfg)
+    renderer = Renderer(scene.K, cfg.width, cfg.height, scene.textures, cfg.near_plane)
+    ext = ext or extractor(config=config)
+    idx = sample_indices(frames, stride)
+    person_lut = np.zeros(256, bool)
+    person_lut[scene.person_ids] = True
+    rows = []
+    for i in idx:
+        f = render_frame(scene, renderer, int(i))
+        t = float(scene.t_rel[i])
+        dyn_lut = person_lut.copy()
+        dyn_lut[[o.oid for o in scene.objects if o.moving(t)]] = True
+        masks = [person_lut[f["mask_gt"]], dyn_lut[f["mask_gt"]]]
+        gray = cv2.cvtColor(f["rgb"], cv2.COLOR_RGB2GRAY)
+        areas, kps, n = frame_stats(gray, f["depth"].astype(np.float32) / cfg.depth_factor, masks, ext)
+        rows.append((areas[0], kps[0], n, areas[1], kps[1]))
+    a = np.array(rows, float).reshape(-1, 5)
+    return FrameStats(f"{scenario} seed {seed}", idx, a[:, 0], a[:, 1], a[:, 2].astype(int), a[:, 3], a[:, 4])
+
+
+def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, ext=None) -> FrameStats:
+    """Person statistics of real RGB frames (no depth needed), persons from ``segmenter`` (default: ONNX)."""
+    from d2slam.data.base import Frame
+
+    if not paths:
+        raise D2SlamError("no real frames to measure")
+    if segmenter is None:
+        from d2slam.segmentation import get_segmenter
+
+        segmenter = get_segmenter("onnx", config=config)
+    ext = ext or extractor(config=config)
+    rows = []
+    for p in paths:
+        bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise D2SlamError("image cannot be decoded", path=p)
+        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        depth = np.zeros(rgb.shape[:2], np.float32)  # keypoint positions do not depend on depth
+        frame = Frame(0, 0.0, 0.0, rgb, depth, rgb_path=Path(p))
+        mask = np.zeros(rgb.shape[:2], bool)
+        for inst in segmenter(frame):
+            mask |= inst.mask
+        areas, kps, n = frame_stats(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), depth, [mask], ext)
+        rows.append((areas[0], kps[0], n))
+    a = np.array(rows, float)
+    return FrameStats("TUM fr3 (real, ONNX masks)", np.arange(len(paths)), a[:, 0], a[:, 1], a[:, 2].astype(int))
+
+
+def summary(values: np.ndarray) -> tuple[float, float, float]:
+    """(mean, min, max); NaNs for no values."""
+    v = np.asarray(values, float)
+    if v.size == 0:
+        return (float("nan"),) * 3
+    return float(v.mean()), float(v.min()), float(v.max())
