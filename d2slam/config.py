@@ -234,6 +234,21 @@ class SynthConfig:
     step_freq: float = 0.9
     arm_swing: float = 0.55
     leg_swing: float = 0.5
+    # People's clothes, calibrated with `d2slam bench realism` so that the fraction of engine ORB keypoints on people
+    # over their area fraction is about 0.4-0.7 as in real fr3 walking frames (real: mean 0.44; the former busy
+    # clothes gave ~1.1): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
+    # check period (m), grey-level contrast of a garment's colours, folds and seams, probability of one printed logo,
+    # small printed marks per square metre and their size (m), contrast of logos and marks, fabric blur sigma (m).
+    # The carried box and pushed chair keep their busy room textures.
+    cloth_plain_prob: float = 0.15
+    cloth_check_prob: float = 0.5
+    cloth_pattern_m: tuple[float, float] = (0.05, 0.12)
+    cloth_contrast: int = 60
+    cloth_print_prob: float = 0.4
+    cloth_marks_per_m2: float = 200.0
+    cloth_mark_m: tuple[float, float] = (0.035, 0.065)
+    cloth_print_contrast: int = 130
+    cloth_blur_m: float = 0.0015
     # Simulated segmenter (mask_sim): relative boundary error (fraction of the person's apparent size
     # sqrt(bbox area)) grows linearly with normalised depth s(z) = clip((z - seg_z_near) / (seg_z_far - seg_z_near));
     seg_z_near: float = 0.5

@@ -26,7 +26,7 @@ import numpy as np
 from d2slam.config import DEFAULT, Config, SynthConfig
 from d2slam.errors import D2SlamError
 
-MIN_AREA = 0.02  # frames with less mask than this have no meaningful ratio
+MIN_AREA = 0.05  # frames with less mask than this (a sliver at the border) have no meaningful ratio
 
 
 @dataclass

@@ -3,7 +3,7 @@
 World frame: metres, Z up, the floor at Z = 0; the camera starts near (0, 0, 1.35) looking along +Y into the
 room. Camera frame: the TUM / OpenCV optical frame (x right, y down, z forward); poses are 4x4
 ``T_world_camera`` of the optical centre. Everything is a deterministic function of ``(scenario, seed, frames)``
-through separate seeded streams (room, people, camera, clock), so the static twin shares the room, the camera
+through separate seeded streams (room, people paths, camera, clock, each actor's textures), so the static twin shares the room, the camera
 path and the clock of its dynamic sequence.
 """
 
@@ -356,7 +356,7 @@ class Scene:
     def _tex(self, rng, kind, w_m, h_m, tpm) -> int:
         w = int(np.clip(w_m * tpm, 24, 1400))
         h = int(np.clip(h_m * tpm, 24, 1400))
-        self.textures.append(make_texture(rng, kind, w, h))
+        self.textures.append(make_texture(rng, kind, w, h, self.cfg, tpm))
         return len(self.textures) - 1
 
     def _box(self, rng, centre, half, kind, front=None, front_kind=None, R=None):
@@ -417,6 +417,11 @@ class Scene:
             h = rng.uniform(0.05, 0.12)
             self._box(rng, (x + rng.uniform(-0.1, 0.1), 3.3, 0.76 + h), (rng.uniform(0.08, 0.15), 0.1, h), "box")
 
+    def _texture_rng(self, k: int) -> np.random.Generator:
+        """Texture stream of actor k (its clothes and the object it moves), apart from the paths' stream so that
+        the clothes can change without moving anyone."""
+        return np.random.default_rng([self.seed, 5, SCENARIOS.index(self.scenario), k])
+
     def _person_textures(self, rng) -> dict:
         tpm = self.cfg.body_texels_per_m
         shirt = self._tex(rng, "cloth", 0.5, 0.6, tpm)
@@ -439,8 +444,9 @@ class Scene:
                 x, y, hd = x + rng.uniform(-0.1, 0.1), y + rng.uniform(-0.15, 0.15), hd + rng.uniform(-0.15, 0.15)
                 params = {"x": x, "y": y, "heading": hd, "f": rng.uniform(2.0, 6.0, size=8),
                           "ph": rng.uniform(0, 2 * np.pi, size=8)}
-                self.people.append(Person(k + 1, f"person_{k + 1}", "sit", self._person_textures(rng), params))
-                chair_tex = self._tex(rng, "chair", 0.5, 0.5, c.room_texels_per_m)
+                trng = self._texture_rng(k)
+                self.people.append(Person(k + 1, f"person_{k + 1}", "sit", self._person_textures(trng), params))
+                chair_tex = self._tex(trng, "chair", 0.5, 0.5, c.room_texels_per_m)
                 for Tp, half in chair_parts(tf(rot_z(hd - np.pi / 2), [x, y, 0.0]) @ tf(t=[0, 0.02, 0])):
                     self.static_quads += box_quads(Tp, half, chair_tex, 0)
             return
@@ -468,13 +474,14 @@ class Scene:
                 a = rng.uniform(0.1, 0.25)
                 b = rng.uniform(0.65, 0.85)
                 interval = (a * D, b * D)
-            person = Person(k + 1, f"person_{k + 1}", role, self._person_textures(rng), params, interval)
+            trng = self._texture_rng(k)
+            person = Person(k + 1, f"person_{k + 1}", role, self._person_textures(trng), params, interval)
             self.people.append(person)
             if role == "carry":
-                tex = self._tex(rng, "box", 0.45, 0.32, c.body_texels_per_m)
+                tex = self._tex(trng, "box", 0.45, 0.32, c.body_texels_per_m)
                 self.objects.append(MovedObject(MOVED_BOX_ID, "carried_box", "box", person, interval, tex))
             elif role == "push":
-                tex = self._tex(rng, "chair", 0.5, 0.5, c.body_texels_per_m)
+                tex = self._tex(trng, "chair", 0.5, 0.5, c.body_texels_per_m)
                 self.objects.append(MovedObject(MOVED_CHAIR_ID, "pushed_chair", "chair", person, interval, tex))
 
     # ---- per-frame ----

@@ -1,6 +1,10 @@
-"""Seeded procedural textures that give ORB plenty of corners: rectangles, lines, text-like marks, blobs.
+"""Seeded procedural textures. The room's give ORB plenty of corners (rectangles, lines, text-like marks, blobs);
+people's clothes are plainer, like real clothes: a base colour, large low-contrast stripes or checks or none, soft
+folds, seams, at most one printed logo, blurred like fabric (constants in ``SynthConfig``, calibrated with
+``d2slam bench realism`` against real TUM fr3 frames).
 
-Every texture is a function of ``(rng, kind, width, height)`` only, so the same seed gives the same pixels.
+Every texture is a function of ``(rng, kind, width, height)`` (and the config) only, so the same seed gives the
+same pixels.
 Textures are HxWx3 uint8 in RGB order. They are built once per sequence (set-up cost, not per frame).
 """
 
@@ -10,6 +14,8 @@ import string
 
 import cv2
 import numpy as np
+
+from d2slam.config import SynthConfig
 
 _FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX, cv2.FONT_HERSHEY_PLAIN,
           cv2.FONT_HERSHEY_TRIPLEX)
@@ -69,8 +75,11 @@ def _grain(img, rng, amount):
     return np.clip(img.astype(np.float32) + noise, 0, 255).astype(np.uint8)
 
 
-def make_texture(rng: np.random.Generator, kind: str, width: int, height: int) -> np.ndarray:
-    """A ``height x width`` RGB texture of the given kind (see ``KINDS``), drawn with ``rng``."""
+def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, cfg: SynthConfig | None = None,
+                 texels_per_m: float | None = None) -> np.ndarray:
+    """A ``height x width`` RGB texture of the given kind (see ``KINDS``), drawn with ``rng``. Clothes, skin and
+    hair (``cloth``, ``trousers``, ``skin``, ``hair``) follow the people constants of ``cfg`` (pattern sizes in
+    metres, converted with ``texels_per_m``, default ``cfg.body_texels_per_m``)."""
     width, height = max(int(width), 16), max(int(height), 16)
     area = width * height
     img = np.empty((height, width, 3), np.uint8)
@@ -144,44 +153,8 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int) -
         img[:] = _colour(rng, 0, 60)
         _rects(img, rng, 12, max(10, min(width, height) // 3), [_colour(rng, 60, 255) for _ in range(5)])
         _text(img, rng, 14, (0.4, 1.0), [(230, 230, 230), (120, 230, 120)])
-    elif kind == "cloth":
-        # Patterned clothes: stripes or checks, a printed logo and text, so a person yields ORB features.
-        a, b = _colour(rng, 0, 255), _colour(rng, 0, 255)
-        img[:] = a
-        step = int(rng.integers(10, 26))
-        if rng.random() < 0.5:
-            for y in range(0, height, 2 * step):
-                cv2.rectangle(img, (0, y), (width, y + step - 1), b, -1)
-        else:
-            for y in range(0, height, step):
-                for x in range((y // step) % 2 * step, width, 2 * step):
-                    cv2.rectangle(img, (x, y), (x + step - 1, y + step - 1), b, -1)
-        pal = [_colour(rng) for _ in range(5)]
-        _blobs(img, rng, 6 + area // 4000, max(6, min(width, height) // 10), pal)
-        _rects(img, rng, 4 + area // 6000, max(10, min(width, height) // 5), pal)
-        _text(img, rng, 6 + area // 3000, (0.6, 1.8), [(255, 255, 255), (0, 0, 0)] + pal[:2], (1, 3))
-        img = _grain(img, rng, 5.0)
-    elif kind == "trousers":
-        base = _colour(rng, 20, 120)
-        img[:] = base
-        _lines(img, rng, 10 + area // 2000, [_jitter(base, rng, 80) for _ in range(4)], (1, 3))
-        _rects(img, rng, 4 + area // 5000, max(8, min(width, height) // 5), [_colour(rng) for _ in range(3)])
-        _blobs(img, rng, 4 + area // 6000, 8, [_colour(rng) for _ in range(3)])
-        img = _grain(img, rng, 6.0)
-    elif kind == "skin":
-        base = (int(rng.integers(120, 235)), int(rng.integers(85, 185)), int(rng.integers(60, 150)))
-        img[:] = base
-        _blobs(img, rng, 6 + area // 3000, max(4, min(width, height) // 12), [_jitter(base, rng, 55)])
-        # a face: eyes, mouth (the front face of a head gets the whole texture)
-        cx, cy = width // 2, height // 2
-        for dx in (-width // 5, width // 5):
-            cv2.circle(img, (cx + dx, cy - height // 8), max(2, width // 14), (30, 30, 30), -1)
-        cv2.line(img, (cx - width // 6, cy + height // 5), (cx + width // 6, cy + height // 5), (120, 40, 40), 3)
-        img = _grain(img, rng, 4.0)
-    elif kind == "hair":
-        base = _colour(rng, 10, 110)
-        img[:] = base
-        _lines(img, rng, 30 + area // 300, [_jitter(base, rng, 70) for _ in range(3)], (1, 2))
+    elif kind in _CLOTHES:
+        return _clothes(rng, kind, width, height, cfg or SynthConfig(), texels_per_m)
     elif kind == "chair":
         base = _colour(rng, 10, 90)
         img[:] = base
@@ -192,3 +165,92 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int) -
     else:
         raise ValueError(f"unknown texture kind {kind!r}")
     return cv2.GaussianBlur(img, (3, 3), 0.6)
+
+
+_CLOTHES = ("cloth", "trousers", "skin", "hair")
+
+
+def _shifted(base, rng, contrast) -> tuple[int, int, int]:
+    """A colour lighter or darker than ``base`` by about ``contrast`` grey levels (half to all of it)."""
+    d = float(rng.choice([-1.0, 1.0])) * rng.uniform(0.7, 1.0) * contrast
+    if not 0 <= np.mean(base) + d <= 255:
+        d = -d
+    return tuple(int(np.clip(c + d + rng.integers(-8, 9), 0, 255)) for c in base)
+
+
+def _clothes(rng, kind, width, height, cfg: SynthConfig, texels_per_m: float | None) -> np.ndarray:
+    """Clothes, skin and hair (see the module docstring); sizes in metres times ``texels_per_m``."""
+    tpm = float(texels_per_m or cfg.body_texels_per_m)
+    img = np.empty((height, width, 3), np.uint8)
+    contrast = cfg.cloth_contrast
+    if kind == "cloth":
+        base = _colour(rng, 25, 225)
+        img[:] = base
+        other = _shifted(base, rng, contrast)
+        u = rng.random()
+        step = max(4, int(rng.uniform(*cfg.cloth_pattern_m) * tpm))
+        if u >= cfg.cloth_plain_prob:
+            if rng.random() >= cfg.cloth_check_prob:  # stripes, horizontal or vertical
+                vertical = rng.random() < 0.3
+                for k in range(0, width if vertical else height, step):
+                    a, b = ((k, 0), (k + step // 2 - 1, height)) if vertical else ((0, k), (width, k + step // 2 - 1))
+                    cv2.rectangle(img, a, b, other, -1)
+            else:  # checks: stripes both ways, blended where they cross (plaid)
+                layer = img.copy()
+                for k in range(0, height, step):
+                    cv2.rectangle(layer, (0, k), (width, k + step // 2 - 1), other, -1)
+                img = cv2.addWeighted(img, 0.5, layer, 0.5, 0)
+                layer = img.copy()
+                for k in range(0, width, step):
+                    cv2.rectangle(layer, (k, 0), (k + step // 2 - 1, height), other, -1)
+                img = cv2.addWeighted(img, 0.5, layer, 0.5, 0)
+        # soft folds
+        _lines(img, rng, int(rng.integers(2, 6)), [_shifted(base, rng, contrast / 2)],
+               (max(1, int(0.008 * tpm)), max(2, int(0.02 * tpm))))
+        # small printed marks (motifs, buttons, letters), Poisson with cloth_marks_per_m2
+        n_marks = int(rng.poisson(cfg.cloth_marks_per_m2 * width * height / tpm ** 2))
+        if n_marks:
+            pal = [_shifted(base, rng, cfg.cloth_print_contrast) for _ in range(2)]
+            size = max(4, int(rng.uniform(*cfg.cloth_mark_m) * tpm))
+            kinds = rng.integers(0, 3, size=n_marks)
+            _rects(img, rng, int((kinds == 0).sum()), size, pal, filled=0.8)
+            _blobs(img, rng, int((kinds == 1).sum()), size // 2, pal)
+            _text(img, rng, int((kinds == 2).sum()), (size / 40, size / 25), pal, (1, 2))
+        if rng.random() < cfg.cloth_print_prob:  # one printed logo: a patch and a short word on it
+            size = rng.uniform(0.08, 0.16) * tpm
+            x, y = int(rng.uniform(0.2, 0.6) * width), int(rng.uniform(0.15, 0.5) * height)
+            col = _shifted(base, rng, cfg.cloth_print_contrast)
+            if rng.random() < 0.5:
+                cv2.rectangle(img, (x, y), (x + int(size), y + int(0.6 * size)), col, -1)
+            else:
+                cv2.ellipse(img, (x, y), (int(size / 2), int(size / 3)), 0.0, 0, 360, col, -1, cv2.LINE_AA)
+            _text(img, rng, 1, (0.3 * size / 20, 0.5 * size / 20), [_shifted(col, rng, cfg.cloth_print_contrast)],
+                  (1, 2))
+    elif kind == "trousers":
+        base = _colour(rng, 20, 130)
+        img[:] = base
+        seam = _shifted(base, rng, contrast / 2)
+        _lines(img, rng, int(rng.integers(2, 6)), [seam], (max(1, int(0.006 * tpm)), max(2, int(0.015 * tpm))))
+        for x in (int(rng.uniform(0.2, 0.35) * width), int(rng.uniform(0.65, 0.8) * width)):
+            cv2.line(img, (x, 0), (x + int(rng.integers(-4, 5)), height), seam, max(1, int(0.005 * tpm)))
+        if rng.random() < 0.5:  # a pocket
+            w = int(0.12 * tpm)
+            x, y = int(rng.uniform(0.1, 0.5) * width), int(rng.uniform(0.05, 0.3) * height)
+            cv2.rectangle(img, (x, y), (x + w, y + w), seam, max(1, int(0.004 * tpm)))
+    elif kind == "skin":
+        base = (int(rng.integers(120, 235)), int(rng.integers(85, 185)), int(rng.integers(60, 150)))
+        img[:] = base
+        _blobs(img, rng, 2 + width * height // 20000, max(4, min(width, height) // 8), [_jitter(base, rng, 20)])
+        # a face: eyes, mouth (the front face of a head gets the whole texture)
+        cx, cy = width // 2, height // 2
+        for dx in (-width // 5, width // 5):
+            cv2.circle(img, (cx + dx, cy - height // 8), max(2, width // 16), _jitter((60, 45, 40), rng, 15), -1)
+        cv2.line(img, (cx - width // 6, cy + height // 5), (cx + width // 6, cy + height // 5),
+                 _jitter((140, 70, 60), rng, 15), 3)
+    else:  # hair
+        base = _colour(rng, 10, 110)
+        img[:] = base
+        _lines(img, rng, 8 + width * height // 4000, [_jitter(base, rng, contrast // 2) for _ in range(3)], (1, 2))
+    img = _grain(img, rng, 2.0)
+    sigma = max(cfg.cloth_blur_m * tpm, 0.6)
+    return cv2.GaussianBlur(img, (0, 0), sigma)
