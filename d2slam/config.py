@@ -295,6 +295,22 @@ class BaselineConfig:
 
 
 # --------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
+# Data: TUM reading and downloading (DESIGN.md section 3-4)
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DataConfig:
+    # RGB/depth association tolerance (s), TUM associate.py convention (strict <).
+    max_dt: float = 0.02
+    # Ground-truth interpolation refuses to bridge gaps longer than this (s); TUM mocap runs at 100 Hz.
+    gt_max_gap: float = 0.1
+    # Trajectory validation: |q| - 1 tolerance and rotation orthonormality tolerance.
+    quaternion_norm_tolerance: float = 1e-2
+    rotation_tolerance: float = 1e-5
+    # `d2slam download`: connect/read timeout (s) so an unreachable server fails fast.
+    download_timeout: float = 10.0
+
+
 @dataclass(frozen=True)
 class Config:
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
@@ -303,6 +319,7 @@ class Config:
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     baseline: BaselineConfig = field(default_factory=BaselineConfig)
+    data: DataConfig = field(default_factory=DataConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

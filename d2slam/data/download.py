@@ -43,11 +43,13 @@ from pathlib import Path, PurePosixPath
 from tqdm import tqdm
 
 from d2slam import __version__
+from d2slam.config import DEFAULT
 from d2slam.errors import D2SlamError
 from d2slam.paths import cache_dir
 
-#: Seconds to wait for a connection (and for each read) before calling the server unreachable / stalled.
-CONNECT_TIMEOUT = 10.0
+#: Seconds to wait for a connection (and for each read) before calling the server unreachable / stalled
+#: (``DataConfig.download_timeout``).
+CONNECT_TIMEOUT = DEFAULT.data.download_timeout
 #: Automatic resumed retries of a transfer that breaks off after data started to flow.
 TRANSFER_RETRIES = 3
 CHUNK = 1 << 20

@@ -39,17 +39,19 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from d2slam.data.base import Camera, Frame, Trajectory
 from d2slam.data.intrinsics import resolve_camera
+from d2slam.config import DEFAULT
 from d2slam.errors import D2SlamError
 
+# The constants live in ``d2slam.config.DataConfig``; these names are their defaults here.
 #: RGB/depth association tolerance of TUM's associate.py (seconds).
-DEFAULT_MAX_DT = 0.02
+DEFAULT_MAX_DT = DEFAULT.data.max_dt
 #: Ground-truth interpolation refuses to bridge gaps between samples longer than this (seconds); TUM ground truth
 #: is 100 Hz, so 0.1 s is ten missing samples.
-DEFAULT_GT_MAX_GAP = 0.1
+DEFAULT_GT_MAX_GAP = DEFAULT.data.gt_max_gap
 #: A quaternion whose norm is further than this from 1 is an error (TUM files are unit to ~1e-4).
-QUATERNION_NORM_TOLERANCE = 1e-2
+QUATERNION_NORM_TOLERANCE = DEFAULT.data.quaternion_norm_tolerance
 #: A rotation block with ``|R^T R - I| > tol`` or ``det(R) <= 0`` is rejected by the trajectory writer.
-ROTATION_TOLERANCE = 1e-5
+ROTATION_TOLERANCE = DEFAULT.data.rotation_tolerance
 
 _TRAJECTORY_HEADER = "# timestamp tx ty tz qx qy qz qw"
 
