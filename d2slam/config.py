@@ -30,6 +30,9 @@ class DynamicsConfig:
     # eq 5: alpha(z) = alpha_max - (alpha_max - alpha_min) s(z) pixels, inversely proportional to depth.
     alpha_min: float = 0.5
     alpha_max: float = 0.9
+    # eq 5 (ours, measured): alpha is expressed at the keypoint's detection scale, alpha(z) * alpha_octave_scale^octave
+    # (ORB-SLAM's per-level sigma; = OrbConfig.scale_factor). 1.0 or no octaves from the engine = the paper as printed.
+    alpha_octave_scale: float = 1.2
     # eq 6: sigma of the epipolar-error model, P_g = 1 - exp(-de^2 / (2 sigma^2)) (our reading).
     sigma: float = 1.0
     # eq 7: weight of the geometric term, in the mask's uncertainty zone / in the reliable area.

@@ -201,3 +201,33 @@ def test_property_probabilities_in_unit_interval(inp, mode):
                           "matches": np.column_stack([np.arange(n), np.arange(n)]).astype(np.int64)})
     bel2 = f(inp2)
     assert np.isfinite(bel2).all() and ((bel2 >= 0) & (bel2 <= 1)).all()
+
+
+def test_alpha_at_the_keypoint_detection_scale():
+    """eq 5 deviation (depth.octave_factor): the epipolar threshold is alpha(z) * 1.2^octave; octave None or a scale
+    of 1 is the paper as printed; a wrong-length octave array is a clear error."""
+    from d2slam.dynamics import depth as dz
+
+    np.testing.assert_allclose(dz.octave_factor(np.array([0, 1, 3]), 3), 1.2 ** np.array([0, 1, 3]))
+    assert dz.octave_factor(None, 3) == 1.0
+    assert dz.octave_factor(np.array([2, 5]), 2, DynamicsConfig(alpha_octave_scale=1.0)) == 1.0
+    with pytest.raises(D2SlamError, match="octave"):
+        dz.octave_factor(np.zeros(2, int), 3)
+    inp, _ = two_view_scene(3)
+    n = len(inp.kps)
+    for mode in ("d2slam", "geometric"):
+        base = get_filter(mode)
+        base(inp)
+        err, dyn0 = base.last.err, base.last.geo_dynamic
+        lvl = FilterInput(**{**inp.__dict__, "octave": np.full(n, 7)})
+        f = get_filter(mode)
+        f(lvl)
+        a = (dz.alpha(inp.kp_depth) if mode == "d2slam" else DynamicsConfig().fixed_alpha) * 1.2 ** 7
+        with np.errstate(invalid="ignore"):
+            np.testing.assert_array_equal(f.last.geo_dynamic, err > a)
+        assert f.last.geo_dynamic.sum() <= dyn0.sum()
+        lvl0 = FilterInput(**{**inp.__dict__, "octave": np.zeros(n, int)})
+        g = get_filter(mode)
+        np.testing.assert_array_equal(g(lvl0), base(inp))  # level 0 = no scaling
+    with pytest.raises(D2SlamError, match="octave"):
+        get_filter("d2slam")(FilterInput(**{**inp.__dict__, "octave": np.zeros(n - 1, int)}))

@@ -17,7 +17,8 @@ Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``
 - ``no-oim``    without the Object Interaction Module.
 - ``no-bayes``  the eq 7 probability P used directly as the belief (no temporal filter, no prior).
 - ``semantic``  masks only, DynaSLAM-like: every keypoint inside a mask is dynamic (belief 1), every other 0.
-- ``geometric`` epipolar check only with the fixed threshold ``fixed_alpha``, no masks, no filter: belief = P_g
+- ``geometric`` epipolar check only with the fixed threshold ``fixed_alpha`` (x 1.2^octave like alpha(z), see
+                ``depth.octave_factor``), no masks, no filter: belief = P_g
                 for matched keypoints (1 above the threshold), 0.5 (no observation) for the others.
 
 ``last`` holds the diagnostics of the last frame (``FrameDiagnostics``): every module's output and its time, so
@@ -148,7 +149,8 @@ class D2SlamFilter:
             return belief
 
         if mode == "geometric":
-            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, cfg.fixed_alpha, cfg)
+            a = cfg.fixed_alpha * dz.octave_factor(getattr(inp, "octave", None), n, cfg)  # at the detection scale
+            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg)
             belief = np.where(geo.observed, np.nan_to_num(geo.p_g), cfg.p_no_observation)
             t["geometric"] = (clock() - t0) * 1e3
             t["total"] = sum(t.values())
@@ -160,7 +162,8 @@ class D2SlamFilter:
         # Full method and its ablations.
         ud = self.use_depth
         maps = dz.DepthMaps(z, cfg, ud)  # beta, alpha, delta, gamma of every keypoint, once
-        b, a = maps.beta, maps.alpha
+        # eq 5 threshold at each keypoint's detection scale (alpha(z) * 1.2^octave, see depth.octave_factor).
+        b, a = maps.beta, maps.alpha * dz.octave_factor(getattr(inp, "octave", None), n, cfg)
         t1 = clock()
         t["depth_maps"] = (t1 - t0) * 1e3
         # The masks seen from the keypoints (edges, pixel lookups, bounding-box distances), shared by the semantic

@@ -29,6 +29,9 @@ class FilterInput:
     matches: np.ndarray  # (K, 2) int: rows (current index, previous index), one-to-one
     mappoint_belief: np.ndarray  # (N,) belief carried by the map point each keypoint was associated to, NaN if none
     masks: np.ndarray | None  # (n, H, W) bool person masks, or None when the run has no segmenter
+    # (N,) int pyramid level (ORB octave) of each current keypoint, or None when the engine does not give it. Used by
+    # the geometric module to express alpha(z) at the keypoint's detection scale (DynamicsConfig.alpha_octave_scale).
+    octave: np.ndarray | None = None
 
 
 class KeypointFilter(Protocol):
