@@ -268,3 +268,27 @@ def test_filter_bad_output_is_a_clear_error(room):
     eng = Engine(FR3, DEFAULT, Bad())
     with pytest.raises(D2SlamError, match="keypoint filter returned"):
         eng.process(*frames[0], 0, ts[0])
+
+
+class LateFalseAlarms(LeftHalfDynamic):
+    """Static scene; from frame 3 on the filter flags the left quarter (false alarms on mapped static points)."""
+
+    def __call__(self, inp):
+        self.calls.append(inp)
+        late = inp.frame_index >= 3
+        return np.where(late & (inp.kps[:, 0] < 160), 0.9, 0.1)
+
+
+def test_dynamic_keypoints_take_no_match_and_cull_no_static_point(room):
+    """As in DynaSLAM (keypoints in masks never extracted): a keypoint flagged dynamic is not a candidate in any
+    search, so it neither takes a map point's match nor deletes the static point it would have matched."""
+    frames, gt, ts = room
+    eng, res = _run(frames[:8], ts[:8], kfilter=LateFalseAlarms(), masks=None)
+    assert all(r.tracked for r in res)
+    M = eng.map
+    first = M.keyframes[0]
+    left = (first.mp >= 0) & (first.kps[:, 0] < 160)
+    created = (first.kps[:, 0] < 160) & (first.depth > 0)  # frame 0 (all static) made a point for each of these
+    assert created.sum() > 100 and left.sum() >= 0.9 * created.sum()  # they survive the later false alarms
+    assert M.points.view("alive")[first.mp[left]].all()
+    assert np.all(eng.last.mp[eng.last.dynamic] < 0)

@@ -279,7 +279,7 @@ class Engine:
     def _match_projected(self, frame: Frame, uv, ur_proj, radius, pid, lo, hi, desc, ref_angle, ratio):
         k = self.cfg.candidates_per_point
         index = self._kp_index(frame)
-        available = frame.mp < 0
+        available = (frame.mp < 0) & ~frame.dynamic  # dynamic keypoints take no match (as if never extracted)
         cand, _ = index.candidates(uv, radius, k, lo, hi)
         safe = np.minimum(cand, max(frame.n - 1, 0))
         stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
@@ -440,7 +440,7 @@ class Engine:
         """Local-map search: ratio test on the same level, no orientation check (as ORB-SLAM)."""
         k = self.cfg.candidates_per_point
         index = self._kp_index(frame)
-        available = frame.mp < 0
+        available = (frame.mp < 0) & ~frame.dynamic  # dynamic keypoints take no match (as if never extracted)
         cand, _ = index.candidates(uv, radius, k, lo, hi)
         safe = np.minimum(cand, max(frame.n - 1, 0))
         stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
