@@ -24,14 +24,17 @@ class Method:
     factory: Callable[[Config], object | None]
     needs_masks: bool = False
     help: str = ""
+    # A method that is not a keypoint filter of our engine (the real ORB-SLAM3): ``runner(args) -> exit status`` runs
+    # the whole of ``d2slam run`` instead of the engine (``factory`` is then unused and returns None).
+    runner: Callable[[object], int] | None = None
 
 
 _REGISTRY: dict[str, Method] = {}
 
 
 def register(name: str, factory: Callable[[Config], object | None], needs_masks: bool = False,
-             help: str = "") -> None:
-    _REGISTRY[name] = Method(name, factory, needs_masks, help)
+             help: str = "", runner: Callable[[object], int] | None = None) -> None:
+    _REGISTRY[name] = Method(name, factory, needs_masks, help, runner)
 
 
 def methods() -> list[str]:
@@ -51,6 +54,17 @@ def get_filter(name: str, config: Config):
 
 register("none", lambda config: None, needs_masks=False, help="engine with the keypoint filter off (ORB-SLAM3 "
          "stand-in)")
+
+
+
+def _orbslam3_runner(args) -> int:
+    from d2slam.baselines.orbslam3 import cli_run  # imported on use: pyorbslam3 loads only for this method
+
+    return cli_run(args)
+
+
+register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_runner,
+         help="the real ORB-SLAM3 RGB-D (pyorbslam3) on the sequence, not our engine: d2slam.baselines.orbslam3")
 
 # The dynamics modes (d2slam, no-depth, no-oim, no-bayes, semantic, geometric): a light import, the classifier loads
 # when a filter is built.

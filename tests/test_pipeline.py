@@ -69,3 +69,55 @@ def test_run_command_clear_errors(tmp_path, capsys):
     assert main(["run", str(tmp_path / "missing"), "--camera", "fr3", "--out", str(tmp_path / "t.txt")]) == 2
     assert main(["run", str(tmp_path), "--camera", "fr3", "--out", str(tmp_path / "no" / "t.txt")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def synth_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("synth") / "wx"
+    assert main(["synth", "walking_xyz", "--out", str(d), "--frames", "6", "--seed", "0", "--workers", "1"]) == 0
+    return d
+
+
+def test_run_command_records_keypoint_truth_on_synthetic(synth_dir, tmp_path):
+    out, js = tmp_path / "traj.txt", tmp_path / "run.json"
+    assert main(["run", str(synth_dir), "--method", "semantic", "--masks", "gt", "--out", str(out),
+                 "--metrics-json", str(js), "--quiet"]) == 0
+    kp = json.loads(js.read_text())["keypoints"]
+    assert kp["frames"] == 6 and kp["keypoints"] > 0 and kp["dynamic_keypoints"] > 0
+    assert kp["frames_with_diagnostics"] == 6
+
+
+def test_run_command_no_keypoint_truth_on_tum(room_dir, tmp_path):
+    js = tmp_path / "run.json"
+    assert main(["run", str(room_dir), "--camera", "fr3", "--out", str(tmp_path / "t.txt"), "--metrics-json",
+                 str(js), "--quiet"]) == 0
+    assert "keypoints" not in json.loads(js.read_text())
+
+
+def test_run_command_onnx_masks_go_through_masks_for(room_dir, tmp_path, monkeypatch):
+    import d2slam.segmentation as seg
+
+    kinds = []
+
+    def fake_masks_for(sequence, index, kind="onnx", config=None, model=None):
+        kinds.append((index, kind))
+        return []
+
+    monkeypatch.setattr(seg, "masks_for", fake_masks_for)
+    assert main(["run", str(room_dir), "--camera", "fr3", "--method", "semantic", "--out", str(tmp_path / "t.txt"),
+                 "--quiet"]) == 0  # a TUM folder defaults to onnx masks
+    assert kinds == [(i, "onnx") for i in range(20)]
+
+
+def test_run_command_dispatches_orbslam3(room_dir, tmp_path, monkeypatch):
+    import d2slam.baselines.orbslam3 as orb
+
+    seen = []
+    monkeypatch.setattr(orb, "cli_run", lambda args: seen.append(args) or 0)
+    out = tmp_path / "t.txt"
+    assert "orbslam3" in methods() and get_method("orbslam3").runner is not None
+    assert main(["run", str(room_dir), "--camera", "fr3", "--method", "orbslam3", "--out", str(out),
+                 "--repeats", "2", "--quiet"]) == 0
+    (args,) = seen
+    assert args.sequence == str(room_dir) and args.out == str(out) and args.repeats == 2 and args.camera == "fr3"
+    assert main(["run", str(room_dir), "--method", "orbslam3", "--masks", "gt", "--out", str(out)]) == 2

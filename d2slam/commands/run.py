@@ -22,6 +22,7 @@ def register(sub) -> None:
     p.add_argument("--camera", metavar="fr1|fr2|fr3", default=None,
                    help="camera of a TUM folder whose name does not say (synthetic sequences carry their own)")
     p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
+    p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 only: runs of ORB-SLAM3 (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     p.set_defaults(func=run)
 
@@ -34,15 +35,21 @@ def run(args) -> int:
     from d2slam.config import DEFAULT
     from d2slam.data import open_sequence, write_tum_trajectory
     from d2slam.errors import D2SlamError
+    from d2slam.eval.keypoints import keypoint_recorder
     from d2slam.methods import get_method
     from d2slam.pipeline import run_sequence
+
+    method = get_method(args.method)
+    if method.runner is not None:  # not a keypoint filter of our engine (orbslam3): its own command
+        if args.masks is not None:
+            raise D2SlamError(f"--masks does not apply to --method {args.method}")
+        return method.runner(args)
 
     out = Path(args.out)
     if not out.parent.is_dir():
         raise D2SlamError("output folder does not exist", path=out.parent)
     config = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, ransac_seed=args.seed))
     seq = open_sequence(args.sequence, **({"camera": args.camera} if args.camera else {}))
-    method = get_method(args.method)
     kfilter = method.factory(config)
     masks_kind = args.masks
     if masks_kind is None and method.needs_masks:
@@ -56,7 +63,8 @@ def run(args) -> int:
         def provider(i):
             return stack_masks(masks_for(seq, i, masks_kind, config), shape)
 
-    result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider,
+    rec = keypoint_recorder(seq)  # keypoint truth (synthetic sequences only; None on TUM folders)
+    result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=rec,
                           progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
     if result.tracked == 0:
         write_tum_trajectory(out, result.trajectory, header=f"d2slam run {args.method}: no frame tracked")
@@ -65,6 +73,8 @@ def run(args) -> int:
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
               "seed": args.seed, "config_hash": config.hash(), **result.summary(),
               "trajectory": str(out)}
+    if rec is not None:
+        record["keypoints"] = rec.result()
     gt = seq.groundtruth
     if gt is not None and result.tracked >= 3:
         from d2slam.eval.trajectory import evaluate
