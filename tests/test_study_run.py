@@ -1,4 +1,4 @@
-"""Study end to end on a tiny grid (walking_xyz, 40 frames, seed 101, methods none + d2slam, no twins): the
+"""Study end to end on a tiny grid (sitting_static, 40 frames, seed 101, methods none + d2slam, no twins): the
 same deterministic numbers from the serial, joblib (2 processes) and Dask (LocalCluster on loopback) executors;
 failed runs (unknown method, corrupt sequence) recorded with their error; output files, manifest and CLI."""
 
@@ -17,7 +17,7 @@ from d2slam.study.grid import RunSpec
 from d2slam.study.sequences import MARKER, ensure_sequence
 
 FRAMES = 40
-GRID = dict(scenarios=["walking_xyz"], methods=["none", "d2slam"], seeds=[101], frames=FRAMES, twin_methods=())
+GRID = dict(scenarios=["sitting_static"], methods=["none", "d2slam"], seeds=[101], frames=FRAMES, twin_methods=())
 # deterministic columns compared between executors: everything but the timing columns
 COMPARE = [c for c in T.RUN_COLUMNS if c not in T.TIMING_COLUMNS]
 
@@ -25,7 +25,7 @@ COMPARE = [c for c in T.RUN_COLUMNS if c not in T.TIMING_COLUMNS]
 @pytest.fixture(scope="module")
 def serial(tmp_path_factory):
     # the sequence lives in the study cache (generated once per generator version, reused by later test runs)
-    ensure_sequence("walking_xyz", 101, FRAMES, False)
+    ensure_sequence("sitting_static", 101, FRAMES, False)
     return run_study(tmp_path_factory.mktemp("serial"), jobs=1, progress=False, **GRID)
 
 
@@ -46,19 +46,19 @@ def test_serial_outputs(serial):
     assert np.isfinite(df["fps"]).all()
     out = serial.out
     for name in ("runs.csv", "summary.csv", "tables.md", "manifest.json", "plots/runtime.png",
-                 "plots/keypoint_f1.png", "runs/walking_xyz_s101_n40_d2slam.json"):
+                 "plots/keypoint_f1.png", "runs/sitting_static_s101_n40_d2slam.json"):
         assert (out / name).is_file(), name
-    assert (out / "trajectories" / "walking_xyz_s101_n40_none.txt").is_file()
+    assert (out / "trajectories" / "sitting_static_s101_n40_none.txt").is_file()
     assert (out / "plots" / "trajectories.png").is_file() and (out / "plots" / "ate_bars.png").is_file()
     _same(T.read_runs_csv(out / "runs.csv"), df)
     m = json.loads((out / "manifest.json").read_text())
     assert m["grid"]["seeds"] == [101] and m["grid"]["frames"] == [FRAMES]
     assert m["grid"]["methods"] == ["none", "d2slam"] and m["executor"]["executor"] == "serial"
     assert len(m["git"]["commit"]) == 40 and m["machine"]["cores"] >= 1 and m["packages"]["evo"]
-    kp = json.loads((out / "runs" / "walking_xyz_s101_n40_d2slam.json").read_text())["keypoints"]
+    kp = json.loads((out / "runs" / "sitting_static_s101_n40_d2slam.json").read_text())["keypoints"]
     assert "final" in kp["modules"] and kp["frames"] == FRAMES
     md = (out / "tables.md").read_text()
-    assert "## Table 1: ATE (m), improvement over `none`" in md and "| w/xyz |" in md
+    assert "## Table 1: ATE (m), improvement over `none`" in md and "| s/static |" in md
 
 
 def test_joblib_and_dask_reproduce_serial(serial, tmp_path):
@@ -85,13 +85,13 @@ def _tables(out) -> list[str]:
 
 def test_failed_runs_are_recorded(tmp_path):
     # a corrupt cached sequence (marked complete, rgb.txt garbage) and an unknown method
-    src = ensure_sequence("walking_xyz", 101, FRAMES, False)
+    src = ensure_sequence("sitting_static", 101, FRAMES, False)
     root = tmp_path / "cache"
-    bad = ensure_sequence.__globals__["sequence_dir"]("walking_xyz", 101, FRAMES, False, root=root)
+    bad = ensure_sequence.__globals__["sequence_dir"]("sitting_static", 101, FRAMES, False, root=root)
     shutil.copytree(src, bad)
     (bad / "rgb.txt").write_text("# header\n1.0 rgb/missing.png\nnot-a-number rgb/x.png\n")
     assert (bad / MARKER).is_file()
-    res = run_study(tmp_path / "out", scenarios=["walking_xyz"], methods=["none", "no-such-method"], seeds=[101],
+    res = run_study(tmp_path / "out", scenarios=["sitting_static"], methods=["none", "no-such-method"], seeds=[101],
                     frames=FRAMES, twin_methods=(), cache_root=root, progress=False, plots=False)
     df = res.runs
     assert len(df) == 2 and (df["status"] == "failed").all()
@@ -104,10 +104,10 @@ def test_failed_runs_are_recorded(tmp_path):
 def test_cli_dry_run_tables_only_and_bad_args(serial, tmp_path, capsys):
     from d2slam.cli import main
 
-    assert main(["study", "--out", str(tmp_path), "--scenarios", "walking_xyz", "--methods", "none",
+    assert main(["study", "--out", str(tmp_path), "--scenarios", "sitting_static", "--methods", "none",
                  "--seeds", "101", "--frames", "40", "--dry-run"]) == 0
     out = capsys.readouterr().out
-    assert "2 runs on 2 sequences" in out and "walking_xyz_twin_s101_n40_none" in out  # none on the twin too
+    assert "2 runs on 2 sequences" in out and "sitting_static_twin_s101_n40_none" in out  # none on the twin too
     assert main(["study", "--out", str(tmp_path), "--methods", "bogus", "--frames", "40"]) == 2
     assert "unknown method" in capsys.readouterr().err
     assert main(["study", "--out", str(tmp_path), "--frames", "10"]) == 2
@@ -130,9 +130,9 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path):
     out = tmp_path / "resumed"
     shutil.copytree(serial.out, out)
     res = run_study(out, progress=False, plots=False, resume=True, **GRID)
-    assert res.manifest["grid"]["reused_runs"] == ["walking_xyz_s101_n40_d2slam", "walking_xyz_s101_n40_none"]
+    assert res.manifest["grid"]["reused_runs"] == ["sitting_static_s101_n40_d2slam", "sitting_static_s101_n40_none"]
     pd.testing.assert_frame_equal(res.runs, serial.runs, check_exact=True)  # timings too: nothing re-ran
-    spec = RunSpec("walking_xyz", "none", 101, FRAMES)
+    spec = RunSpec("sitting_static", "none", 101, FRAMES)
     key = run_key(spec, run_options())
     assert load_run(out, spec, key)["trajectory"][1].shape[1:] == (4, 4)
     assert load_run(out, spec, "another-key") is None  # a changed config / code / generator is rerun

@@ -161,7 +161,7 @@ class Engine:
         inp = FilterInput(frame_index=frame.index, timestamp=frame.timestamp, gray=gray, depth=depth, K=self.K,
                           kps=frame.kps.astype(np.float32), kp_depth=frame.depth.astype(np.float32),
                           prev_kps=prev_kps, prev_kp_depth=prev_depth, prev_belief=np.asarray(prev_belief),
-                          matches=matches, mappoint_belief=mp_belief, masks=masks)
+                          matches=matches, mappoint_belief=mp_belief, masks=masks, octave=frame.octave)
         belief = np.asarray(self.filter(inp), dtype=np.float64)
         if belief.shape != (n,) or not np.all(np.isfinite(belief)) or belief.min(initial=0) < 0 or \
                 belief.max(initial=0) > 1:
