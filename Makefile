@@ -18,7 +18,8 @@ export PYTHONHASHSEED := 0
 install: $(STAMP)
 
 $(STAMP): environment.txt pyproject.toml
-	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@# (re)create the venv when it is missing or broken (e.g. an interrupted creation left no pip)
+	@$(PY) -m pip --version >/dev/null 2>&1 || { rm -rf $(VENV) && $(PYTHON) -m venv $(VENV); }
 	$(PY) -m pip install --quiet --disable-pip-version-check -r environment.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@touch $(STAMP)

@@ -276,15 +276,20 @@ class Engine:
         return self._match_projected(frame, np.c_[u, v], u - self.bf / z, radius, pid, lo, hi,
                                      self.map.points.desc[pid], last.angle[sel], ratio=None)
 
-    def _match_projected(self, frame: Frame, uv, ur_proj, radius, pid, lo, hi, desc, ref_angle, ratio):
+    def _search_projected(self, frame: Frame, uv, ur_proj, radius, lo, hi, desc):
+        """Best and second-best keypoint of ``frame`` for each projected point (shared by both projection
+        searches): candidates within ``radius`` on levels [lo, hi], free, static, and consistent in ``u_R``."""
         k = self.cfg.candidates_per_point
         index = self._kp_index(frame)
         available = (frame.mp < 0) & ~frame.dynamic  # dynamic keypoints take no match (as if never extracted)
         cand, _ = index.candidates(uv, radius, k, lo, hi)
         safe = np.minimum(cand, max(frame.n - 1, 0))
         stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
-        best, d1, d2, l1, l2 = search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi,
-                                                 available, k, extra_ok=stereo_ok, cand=cand)
+        return search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi, available, k,
+                                 extra_ok=stereo_ok, cand=cand)
+
+    def _match_projected(self, frame: Frame, uv, ur_proj, radius, pid, lo, hi, desc, ref_angle, ratio):
+        best, d1, d2, l1, l2 = self._search_projected(frame, uv, ur_proj, radius, lo, hi, desc)
         ok = (best >= 0) & (d1 <= self.cfg.desc_th_high)
         if ratio is not None:
             ok &= ~((l1 == l2) & (d1 > ratio * d2))
@@ -438,14 +443,7 @@ class Engine:
 
     def _match_projected_noangle(self, frame, uv, ur_proj, radius, pid, lo, hi, desc):
         """Local-map search: ratio test on the same level, no orientation check (as ORB-SLAM)."""
-        k = self.cfg.candidates_per_point
-        index = self._kp_index(frame)
-        available = (frame.mp < 0) & ~frame.dynamic  # dynamic keypoints take no match (as if never extracted)
-        cand, _ = index.candidates(uv, radius, k, lo, hi)
-        safe = np.minimum(cand, max(frame.n - 1, 0))
-        stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
-        best, d1, d2, l1, l2 = search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi,
-                                                 available, k, extra_ok=stereo_ok, cand=cand)
+        best, d1, d2, l1, l2 = self._search_projected(frame, uv, ur_proj, radius, lo, hi, desc)
         ok = (best >= 0) & (d1 <= self.cfg.desc_th_high) & ~((l1 == l2) & (d1 > self.cfg.nn_ratio_local_map * d2))
         kp, p, d = best[ok], pid[ok], d1[ok]
         keep = unique_by_target(p, kp, d)
