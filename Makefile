@@ -10,7 +10,6 @@ STAMP  := $(VENV)/.d2slam-installed
 export OPENBLAS_NUM_THREADS := 1
 export OMP_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
-export MPLBACKEND := Agg
 export PYTHONHASHSEED := 0
 
 .PHONY: demo test install clean-venv
