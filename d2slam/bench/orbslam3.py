@@ -2,7 +2,8 @@
 the same synthetic sequences: the static twins and the walking scenarios (benchmark seeds 101, 102, 103: never
 tuned on). Figures: status, tracked frames, ATE RMSE, RPE (translation m, rotation deg over 1 s pairs; evo via
 :mod:`d2slam.eval.trajectory`), ms per frame. ORB-SLAM3 is not deterministic (threads): ``--repeats N`` runs it N
-times and prints the median with the [min, max] spread. Sequences are generated once into the cache."""
+times and prints the median with the [min, max] spread. Sequences come from the study's cache (keyed by the
+generator version)."""
 
 from __future__ import annotations
 
@@ -32,20 +33,19 @@ def add_arguments(parser) -> None:
                         "project-built one)")
     parser.add_argument("--out", default=None, help="output folder (default: the d2slam cache)")
     parser.add_argument("--regenerate", action="store_true",
-                        help="generate the sequences again (after a change of the generator)")
+                        help="generate the sequences again (the cache is already keyed by the generator version)")
 
 
 def _sequence(scenario: str, seed: int, frames: int, twin: bool, regenerate: bool = False) -> Path:
-    """The benchmark sequence, generated once with ``d2slam synth`` into this benchmark's cache folder."""
+    """The benchmark sequence: the study's cached copy, keyed by the generator version (a generator change makes a
+    new one), shared with `d2slam study` and `d2slam bench engine`."""
     import shutil
 
-    from d2slam.baselines.vocab import synthesize
-    from d2slam.paths import cache_dir
+    from d2slam.study.sequences import ensure_sequence, sequence_dir
 
-    root = cache_dir("bench", "orbslam3", "sequences") / f"{scenario}_s{seed}_n{frames}{'_twin' if twin else ''}"
-    if regenerate and root.exists():
-        shutil.rmtree(root)
-    return synthesize(scenario, root, frames, seed, static_twin=twin)
+    if regenerate and sequence_dir(scenario, seed, frames, twin).exists():
+        shutil.rmtree(sequence_dir(scenario, seed, frames, twin))
+    return ensure_sequence(scenario, seed, frames, twin)
 
 
 def _run_engine(seq: Path, out: Path) -> dict:
