@@ -46,6 +46,16 @@ def _infos(inv_sigma2: np.ndarray) -> tuple[list, list]:
     return [i2[k] for k in inv], [i3[k] for k in inv]
 
 
+def _edge_setup(uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray, cfg: EngineConfig):
+    """What both optimisations build their edges from: one Huber kernel per edge type (chi2 95 % thresholds),
+    shared by the edges (g2o holds kernels by shared_ptr: fewer Python calls, and dropping the kernel is one call),
+    the information matrices, the stereo flag (``u_R >= 0``) and the stereo measurements ``(u, v, u_R)``."""
+    k_mono = g2o.RobustKernelHuber(np.sqrt(cfg.chi2_mono))
+    k_stereo = g2o.RobustKernelHuber(np.sqrt(cfg.chi2_stereo))
+    info2, info3 = _infos(inv_sigma2)
+    return k_mono, k_stereo, info2, info3, ur >= 0, np.column_stack([uv, ur])
+
+
 def reprojection_chi2(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
                       K: np.ndarray, bf: float) -> tuple[np.ndarray, np.ndarray]:
     """Chi2 of every observation (stereo where ``ur >= 0``) and whether the point is in front of the camera."""
@@ -78,13 +88,7 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     vpose.set_id(0)
     opt.add_vertex(vpose)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    stereo = ur >= 0
-    d_mono, d_stereo = np.sqrt(cfg.chi2_mono), np.sqrt(cfg.chi2_stereo)
-    # One Huber kernel per edge type, shared by the edges (g2o holds kernels by shared_ptr): fewer Python calls,
-    # and dropping the kernel for the last rounds is one call.
-    k_mono, k_stereo = g2o.RobustKernelHuber(d_mono), g2o.RobustKernelHuber(d_stereo)
-    info2, info3 = _infos(inv_sigma2)
-    meas3 = np.column_stack([uv, ur])
+    k_mono, k_stereo, info2, info3, stereo, meas3 = _edge_setup(uv, ur, inv_sigma2, cfg)
     edges = []
     for i in range(m):
         if stereo[i]:
@@ -160,11 +164,7 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
         opt.add_vertex(v)
         vpts.append(v)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    d_mono, d_stereo = np.sqrt(cfg.chi2_mono), np.sqrt(cfg.chi2_stereo)
-    k_mono, k_stereo = g2o.RobustKernelHuber(d_mono), g2o.RobustKernelHuber(d_stereo)  # shared by the edges
-    info2, info3 = _infos(inv_sigma2)
-    stereo = ur >= 0
-    meas3 = np.column_stack([uv, ur])
+    k_mono, k_stereo, info2, info3, stereo, meas3 = _edge_setup(uv, ur, inv_sigma2, cfg)
     for o in range(len(obs_cam)):
         if stereo[o]:
             e = g2o.EdgeStereoSE3ProjectXYZ()
