@@ -22,6 +22,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    import pandas as pd
+
     from d2slam.commands.synth import summarise
     from d2slam.paths import cache_dir
     from d2slam.study import run_study
@@ -42,7 +44,7 @@ def run(args) -> int:
     cols = ["scenario", "twin", "method", "status", "frames_tracked", "frames", "ate_rmse_m", "rpe_trans_m",
             "rpe_rot_deg", "kp_precision", "kp_recall", "kp_f1", "fps"]
     runs = study.runs[[c for c in cols if c in study.runs.columns]].astype({"frames_tracked": "Int64", "twin": bool})
-    with __import__("pandas").option_context("display.width", 160, "display.max_columns", 20):
+    with pd.option_context("display.width", 160, "display.max_columns", 20):
         print(runs.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
     print(f"\nTables: {study.out / 'tables.md'}; the full study: `d2slam study --out results/` (see README).")
     return 0
