@@ -59,8 +59,17 @@ def plot_trajectories(aligned: dict, out: Path, seed: int) -> Path | None:
 
 def plot_ate_bars(summary: pd.DataFrame, out: Path, methods: list[str]) -> Path | None:
     """Median ATE per sequence and method (dynamic sequences), error bars min-max over seeds, log scale."""
+    return plot_summary_bars(summary, out, methods, "ate_rmse_m",
+                             "ATE RMSE (m), median over seeds, bars min-max", log=True)
+
+
+def plot_summary_bars(summary: pd.DataFrame, out: Path, methods: list[str], metric: str, ylabel: str,
+                      log: bool = False, ylim: tuple | None = None) -> Path | None:
+    """Bars of ``<metric>_median`` per sequence (dynamic sequences) and method from a ``summary.csv`` frame, error
+    bars ``<metric>_min`` - ``<metric>_max`` (over seeds); None when no finite median. Missing cells stay empty."""
     d = summary[summary["twin"] == 0]
-    if d.empty or not np.isfinite(d["ate_rmse_m_median"]).any():
+    col = f"{metric}_median"
+    if d.empty or col not in d or not np.isfinite(d[col].to_numpy(np.float64)).any():
         return None
     plt = _plt()
     scen = _scen(d)
@@ -72,15 +81,18 @@ def plot_ate_bars(summary: pd.DataFrame, out: Path, methods: list[str]) -> Path 
         med, lo, hi = [], [], []
         for s in scen:
             r = d[(d["scenario"] == s) & (d["method"] == m)]
-            med.append(float(r["ate_rmse_m_median"].iloc[0]) if len(r) else np.nan)
-            lo.append(float(r["ate_rmse_m_min"].iloc[0]) if len(r) else np.nan)
-            hi.append(float(r["ate_rmse_m_max"].iloc[0]) if len(r) else np.nan)
+            med.append(float(r[col].iloc[0]) if len(r) else np.nan)
+            lo.append(float(r[f"{metric}_min"].iloc[0]) if len(r) else np.nan)
+            hi.append(float(r[f"{metric}_max"].iloc[0]) if len(r) else np.nan)
         med, lo, hi = map(np.asarray, (med, lo, hi))
         yerr = np.nan_to_num(np.stack([med - lo, hi - med]))
         ax.bar(x + (k - (len(ms) - 1) / 2) * width, med, width, yerr=yerr, capsize=2, label=m)
     ax.set_xticks(x, [LABELS.get(s, s) for s in scen])
-    ax.set_ylabel("ATE RMSE (m), median over seeds, bars min-max")
-    ax.set_yscale("log")
+    ax.set_ylabel(ylabel)
+    if log:
+        ax.set_yscale("log")
+    if ylim is not None:
+        ax.set_ylim(*ylim)
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=7, ncol=min(4, len(ms)))
     fig.tight_layout()

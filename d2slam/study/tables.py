@@ -380,3 +380,115 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
             keypoint_markdown(df, methods)]
     out += ["", "## Runs without metrics", "", failures_markdown(df), ""]
     return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Ablation tables (notebooks/07_ablations.ipynb): one row per sequence and method, spreads over seeds
+# ------------------------------------------------------------------------------------------------------------
+MODULE_METRICS = ("f1", "recall", "precision", "static_precision")
+
+
+def spread_cell(values, nd: int = 4, missing: str = "n/a") -> str:
+    """``median [min, max]`` of the finite values (just the median for one value); ``missing`` when none is
+    finite, and ``(k failed)`` appended when ``k`` of them are not finite but some are."""
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    ok = v[np.isfinite(v)]
+    if not len(ok):
+        return missing if len(v) else ""
+    cell = f"{np.median(ok):.{nd}f}"
+    if len(ok) > 1:
+        cell += f" [{ok.min():.{nd}f}, {ok.max():.{nd}f}]"
+    if len(ok) < len(v):
+        cell += f" ({len(v) - len(ok)} n/a)"
+    return cell
+
+
+def ablation_table(df: pd.DataFrame, methods: list[str] | None = None, twin: int = 0) -> pd.DataFrame:
+    """Rows (sequence, method) in grid order; columns as ``median [min, max]`` over seeds: ATE (m, † when the
+    method tracked < 90 % of the frames), keypoint F1, recall and static precision of "dynamic", frames tracked
+    (of the sequence's frames) and runs with an ATE / runs. ``none`` has no keypoint F1 (it predicts nothing
+    dynamic: precision undefined), shown ``n/a``."""
+    d = df[df["twin"] == twin]
+    ms = [m for m in (methods or _methods(d)) if m in set(d["method"])]
+    rows, index = [], []
+    for s in _scenarios(d):
+        for m in ms:
+            g = d[(d["scenario"] == s) & (d["method"] == m)]
+            if g.empty:
+                continue
+            ate = spread_cell(g["ate_rmse_m"], 4, missing="failed")
+            if np.isfinite(g["ate_rmse_m"].to_numpy(np.float64)).any():
+                ate += _flag(df, s, m, twin)
+            frames = sorted(set(int(f) for f in g["frames"]))
+            rows.append({"ATE (m)": ate,
+                         "kp F1": spread_cell(g["kp_f1"], 3),
+                         "kp recall": spread_cell(g["kp_recall"], 3),
+                         "static precision": spread_cell(g["kp_static_precision"], 3),
+                         "frames tracked": spread_cell(g["frames_tracked"], 0) + " / "
+                                           + "/".join(str(f) for f in frames),
+                         "runs ok": f"{int(np.isfinite(g['ate_rmse_m'].to_numpy(np.float64)).sum())}/{len(g)}"})
+            index.append((LABELS.get(s, s) + (" twin" if twin else ""), m))
+    return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["sequence", "method"])
+                        if index else None)
+
+
+def read_run_records(out) -> list[dict]:
+    """The per-run JSON records of a finished study (``out/runs/<run_id>.json``: run, row, keypoints, stage_ms), in
+    the order of ``out/runs.csv``. A run whose record is missing is skipped; an unreadable one is a D2SlamError
+    naming the file."""
+    import json
+    from pathlib import Path
+
+    from d2slam.errors import D2SlamError
+    from d2slam.study.grid import RunSpec
+
+    out = Path(out)
+    df = read_runs_csv(out / "runs.csv")
+    records = []
+    for r in df.itertuples(index=False):
+        spec = RunSpec(r.scenario, r.method, int(r.seed), int(r.frames), bool(r.twin), r.source)
+        path = out / "runs" / f"{spec.run_id}.json"
+        if not path.is_file():
+            continue
+        try:
+            records.append(json.loads(path.read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise D2SlamError(f"unreadable run record: {exc}", path=path) from exc
+    return records
+
+
+def module_metrics(records: list[dict]) -> pd.DataFrame:
+    """Long table of the classifier's per-module keypoint metrics: one row per (run, module) with the run's
+    scenario, sequence, twin, method, seed, frames and the module's tp/fp/fn/tn, precision, recall, f1,
+    static_precision (NaN where undefined). Modules in the pipeline's order (semantic, geometric, fusion, bayes,
+    oim, final); a method runs only some of them (``none``: only ``final``)."""
+    cols = ["scenario", "sequence", "twin", "method", "seed", "frames", "module", "tp", "fp", "fn", "tn",
+            *MODULE_METRICS]
+    rows = []
+    for rec in records:
+        run = rec.get("run") or {}
+        mods = (rec.get("keypoints") or {}).get("modules") or {}
+        for name, m in mods.items():
+            row = {"scenario": run.get("scenario"), "sequence": LABELS.get(run.get("scenario"), run.get("scenario")),
+                   "twin": int(bool(run.get("twin"))), "method": run.get("method"), "seed": run.get("seed"),
+                   "frames": run.get("frames"), "module": name}
+            for k in ("tp", "fp", "fn", "tn", *MODULE_METRICS):
+                v = m.get(k)
+                row[k] = np.nan if v is None else float(v)
+            rows.append(row)
+    return pd.DataFrame(rows, columns=cols)
+
+
+def module_table(mod: pd.DataFrame, method: str = FULL, twin: int = 0) -> pd.DataFrame:
+    """One method's per-module keypoint metrics: rows (sequence, module), columns F1, recall, precision and static
+    precision as ``median [min, max]`` over seeds (from :func:`module_metrics`)."""
+    d = mod[(mod["method"] == method) & (mod["twin"] == twin)]
+    rows, index = [], []
+    for s in _scenarios(d):
+        g = d[d["scenario"] == s]
+        for name in dict.fromkeys(g["module"]):
+            h = g[g["module"] == name]
+            rows.append({k.replace("_", " "): spread_cell(h[k], 3) for k in MODULE_METRICS})
+            index.append((LABELS.get(s, s) + (" twin" if twin else ""), name))
+    return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["sequence", "module"])
+                        if index else None)
