@@ -70,6 +70,8 @@ class DynamicsConfig:
     f_min_matches: int = 8
     f_min_static_matches: int = 30
     f_ransac_seed: int = 0
+    # "ransac" (cv2.FM_RANSAC), "magsac" (cv2.USAC_MAGSAC) or "usac_accurate".
+    f_ransac_method: str = "ransac"
     # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
     fixed_alpha: float = 0.7
     # Keypoint depth: median of valid pixels in a (2 r + 1)^2 patch.
@@ -139,13 +141,22 @@ class EngineConfig:
     kf_tracked_ratio_first: float = 0.4
     kf_min_frames: int = 0
     kf_max_frames: int = 30
+    # Local mapping counts as busy for this many frames after a keyframe (ours: emulates ORB-SLAM3's asynchronous
+    # local mapping, during which only the "tracking weak" rule inserts keyframes). 0 = always idle.
+    kf_mapping_busy_frames: int = 3
     kf_close_tracked: int = 100
     kf_close_untracked: int = 70
     kf_min_inliers: int = 15
     kf_new_points_min: int = 100  # CreateNewKeyFrame: close points added until at least this many (maxPoint)
     # Local mapping.
     local_ba_iterations: int = 10
+    # SearchInNeighbors (observation part, no point merging): the new keyframe and its best covisibles (+ their
+    # neighbours) exchange points by projection (radius th x scale, chi-square test, Hamming <= desc_th_low).
+    fuse_neighbours: int = 0  # 0 = off; 10 = ORB-SLAM. Measured off: see Engine.search_in_neighbors
+    fuse_second_neighbours: int = 5
+    fuse_radius: float = 3.0
     local_ba_window: int = 10  # covisible keyframes optimised with the new one (best by shared points)
+    local_ba_max_fixed: int = 20  # keyframes held fixed (best by observations of the local points; ours, for speed)
     covisibility_min_shared: int = 15
     mappoint_found_ratio: float = 0.25
     mappoint_min_obs: int = 3  # ORB-SLAM cnThObs (RGB-D): weighted observations (stereo counts 2)
@@ -156,11 +167,20 @@ class EngineConfig:
     local_map_neighbours: int = 10
     # Relocalisation (no DBoW2): descriptor matching against the most recent keyframes, then PnP RANSAC.
     relocalisation_candidates: int = 10
+    # ... of which the best by descriptor votes get the PnP attempt (Engine._relocalisation_shortlist).
+    relocalisation_pnp_candidates: int = 3
     pnp_iterations: int = 300
     pnp_reprojection_px: float = 4.0
     pnp_confidence: float = 0.99
     # Keypoint filter (hook): frame-to-frame mutual-nearest matches within this pixel displacement.
     filter_match_window: float = 80.0
+    # ... guided instead when the frame's pose is predicted (Engine.filter_matches): previous keypoints moved by the
+    # constant-velocity model and searched within this radius (px x scale) on their level +-1, ratio test; fewer
+    # than filter_guided_min_matches guided matches -> the window matching above.
+    filter_match_guided: bool = True
+    filter_match_radius: float = 15.0
+    filter_match_nn_ratio: float = 0.9
+    filter_guided_min_matches: int = 50
     # Map points with a dynamic belief above this are culled (hook output, eq 8).
     mappoint_belief_threshold: float = 0.5
     ransac_seed: int = 0

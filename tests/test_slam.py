@@ -292,3 +292,69 @@ def test_dynamic_keypoints_take_no_match_and_cull_no_static_point(room):
     assert created.sum() > 100 and left.sum() >= 0.9 * created.sum()  # they survive the later false alarms
     assert M.points.view("alive")[first.mp[left]].all()
     assert np.all(eng.last.mp[eng.last.dynamic] < 0)
+
+
+# ------------------------------------------------------------------ guided filter matches, point fusion
+def test_guided_filter_matches_follow_the_camera(room):
+    """The hook's frame-to-frame matches (guided by the constant-velocity model once it exists) pair keypoints that
+    are the same 3D point: their reprojection through the true relative pose agrees within a few pixels."""
+    frames, gt, ts = room
+    f = LeftHalfDynamic()
+    eng, res = _run(frames[:8], ts[:8], kfilter=f, masks=np.zeros((0, 480, 640), bool))
+    inp = f.calls[6]  # velocity known: guided
+    assert len(inp.matches) > 200
+    T = np.linalg.inv(gt[6]) @ gt[5]  # camera 5 -> camera 6
+    q, z = inp.prev_kps[inp.matches[:, 1]].astype(float), inp.prev_kp_depth[inp.matches[:, 1]].astype(float)
+    ok = z > 0
+    X = np.c_[(q[:, 0] - K[0, 2]) * z / K[0, 0], (q[:, 1] - K[1, 2]) * z / K[1, 1], z][ok]
+    Xc = X @ T[:3, :3].T + T[:3, 3]
+    uv = np.c_[K[0, 0] * Xc[:, 0] / Xc[:, 2] + K[0, 2], K[1, 1] * Xc[:, 1] / Xc[:, 2] + K[1, 2]]
+    err = np.linalg.norm(uv - inp.kps[inp.matches[ok, 0]], axis=1)
+    assert np.median(err) < 1.5 and np.mean(err < 5) > 0.95
+    assert len(np.unique(inp.matches[:, 0])) == len(inp.matches) == len(np.unique(inp.matches[:, 1]))
+
+
+def test_replace_points_moves_observations_and_kills_old():
+    from d2slam.slam.map import KeyFrame, Map
+
+    M = Map()
+    kfs = []
+    for i in range(3):
+        n = 4
+        kf = KeyFrame(id=i, frame_index=i, timestamp=float(i), Tcw=np.eye(4), kps=np.zeros((n, 2)),
+                      octave=np.zeros(n, np.int64), angle=np.zeros(n, np.float32), desc=np.zeros((n, 32), np.uint8),
+                      depth=np.ones(n), ur=np.zeros(n), inv_sigma2=np.ones(n), mp=np.full(n, -1, np.int64))
+        M.add_keyframe(kf)
+        kfs.append(kf)
+    ids = M.add_points(np.zeros((3, 3)), np.zeros((3, 32), np.uint8), np.zeros((3, 3)), np.zeros(3), np.ones(3),
+                       np.zeros(3), 0, np.zeros(3, np.float32), np.zeros(3, np.int64))
+    a, b, c = ids
+    M.add_observations(kfs[0], np.array([0, 1]), np.array([a, b]))  # kf0 sees a and b: a's row there is erased
+    M.add_observations(kfs[1], np.array([0]), np.array([a]))  # kf1 sees a only: moves to b
+    M.add_observations(kfs[2], np.array([2]), np.array([c]))
+    M.replace_points(np.array([a]), np.array([b]))
+    P = M.points
+    assert not P.alive[a] and P.alive[b] and P.alive[c]
+    assert kfs[0].mp.tolist() == [-1, b, -1, -1] and kfs[1].mp.tolist() == [b, -1, -1, -1]
+    assert P.nobs[b] == 4 and P.nobs[a] == 0 and P.nobs[c] == 2
+    rows = M.observation_rows(np.arange(P.n) == b)
+    assert sorted(M.obs.kf[rows].tolist()) == [0, 1]
+
+
+def test_fusion_adds_observations_but_never_to_dynamic_keypoints(room):
+    frames, gt, ts = room
+    f = LeftHalfDynamic()
+    eng, res = _run(frames[:16], ts[:16], kfilter=f, masks=np.zeros((0, 480, 640), bool))
+    M = eng.map
+    rows = np.flatnonzero(M.obs.view("valid"))
+    for kf in M.good_keyframes():
+        assert kf.dynamic is not None
+        sel = rows[M.obs.kf[rows] == kf.id]
+        assert not kf.dynamic[M.obs.kp[sel]].any()
+    # every keypoint -> point link of a keyframe is one valid observation row (no stale links after merging)
+    for kf in M.good_keyframes():
+        linked = np.flatnonzero(kf.mp >= 0)
+        sel = rows[M.obs.kf[rows] == kf.id]
+        assert sorted(M.obs.kp[sel].tolist()) == linked.tolist()
+        assert np.all(M.obs.pt[sel] == kf.mp[M.obs.kp[sel]])
+        assert M.points.alive[kf.mp[linked]].all()

@@ -26,6 +26,8 @@ from d2slam.config import DynamicsConfig
 from d2slam.errors import D2SlamError
 
 _DEFAULT = DynamicsConfig()
+# RANSAC flavours of cv2.findFundamentalMat (DynamicsConfig.f_ransac_method).
+_METHODS = {"ransac": cv2.FM_RANSAC, "magsac": cv2.USAC_MAGSAC, "usac_accurate": cv2.USAC_ACCURATE}
 
 
 def check_matches(matches: np.ndarray, n_cur: int, n_prev: int) -> np.ndarray:
@@ -56,10 +58,12 @@ def fundamental_matrix(q: np.ndarray, p: np.ndarray, cfg: DynamicsConfig = _DEFA
     none = (None, np.zeros(k, dtype=bool))
     if k < max(cfg.f_min_matches, 8):
         return none
+    if cfg.f_ransac_method not in _METHODS:
+        raise D2SlamError(f"unknown f_ransac_method {cfg.f_ransac_method!r}; choose one of {', '.join(_METHODS)}")
     cv2.setRNGSeed(int(cfg.f_ransac_seed if seed is None else seed))
     try:
-        F, inl = cv2.findFundamentalMat(q, p, cv2.FM_RANSAC, cfg.f_ransac_threshold_px, cfg.f_ransac_confidence,
-                                        cfg.f_ransac_max_iters)
+        F, inl = cv2.findFundamentalMat(q, p, _METHODS[cfg.f_ransac_method], cfg.f_ransac_threshold_px,
+                                        cfg.f_ransac_confidence, cfg.f_ransac_max_iters)
     except cv2.error:  # degenerate configurations OpenCV refuses (documented: no F)
         return none
     if F is None or F.shape != (3, 3) or not np.all(np.isfinite(F)):

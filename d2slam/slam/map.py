@@ -55,6 +55,7 @@ class KeyFrame:
     inv_sigma2: np.ndarray
     mp: np.ndarray  # (N,) map point ids, -1 none
     bad: bool = False
+    dynamic: np.ndarray | None = None  # (N,) bool: the hook's verdict when the keyframe was made (None: no filter)
 
     @property
     def center(self) -> np.ndarray:
@@ -133,6 +134,37 @@ class Map:
         dead[ids] = True
         rows = np.flatnonzero(self.obs.view("valid") & dead[self.obs.view("pt")])
         self.erase_observations(rows)
+
+    def replace_points(self, old: np.ndarray, new: np.ndarray) -> None:
+        """ORB-SLAM MapPoint::Replace for pairs (old[i] -> new[i]) (no point may be both old and new): every
+        observation of an old point moves to its new point, unless that keyframe already sees the new point (then
+        it is erased); visible/found counts are added; old points die."""
+        old, new = np.asarray(old, dtype=np.int64), np.asarray(new, dtype=np.int64)
+        if len(old) == 0:
+            return
+        P = self.points
+        target = np.full(P.n, -1, dtype=np.int64)
+        target[old] = new
+        valid, pt, kf = self.obs.view("valid"), self.obs.view("pt"), self.obs.view("kf")
+        rows = np.flatnonzero(valid & (target[pt] >= 0))
+        is_new = np.zeros(P.n, dtype=bool)
+        is_new[new] = True
+        new_rows = np.flatnonzero(valid & is_new[pt])
+        stride = P.n
+        seen = np.isin(kf[rows] * stride + target[pt[rows]], kf[new_rows] * stride + pt[new_rows])
+        self.erase_observations(rows[seen])
+        move = rows[~seen]
+        dest = target[pt[move]]
+        np.add.at(P.nobs, pt[move], -self.obs.weight[move])
+        np.add.at(P.nobs, dest, self.obs.weight[move])
+        self.obs.pt[move] = dest
+        for kid in np.unique(kf[move]):
+            sel = move[kf[move] == kid]
+            self.keyframes[kid].mp[self.obs.kp[sel]] = self.obs.pt[sel]
+        np.add.at(P.visible, new, P.visible[old])
+        np.add.at(P.found, new, P.found[old])
+        P.alive[old] = False
+        P.nobs[old] = 0
 
     # ------------------------------------------------------------------ keyframes
     def add_keyframe(self, kf: KeyFrame) -> None:
