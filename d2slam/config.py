@@ -156,7 +156,7 @@ class EngineConfig:
     fuse_second_neighbours: int = 5
     fuse_radius: float = 3.0
     local_ba_window: int = 10  # covisible keyframes optimised with the new one (best by shared points)
-    local_ba_max_fixed: int = 20  # keyframes held fixed (best by observations of the local points; ours, for speed)
+    local_ba_max_fixed: int = 5  # keyframes held fixed (best by observations of the local points; ours, for speed)
     covisibility_min_shared: int = 15
     mappoint_found_ratio: float = 0.25
     mappoint_min_obs: int = 3  # ORB-SLAM cnThObs (RGB-D): weighted observations (stereo counts 2)

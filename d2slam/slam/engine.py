@@ -751,6 +751,8 @@ class Engine:
         # Fixed keyframes: those observing the local points, at most local_ba_max_fixed of them (the ones with most
         # observations of those points; the others' observations are left out): without the cap a map with many
         # keyframes over the same points (people trigger keyframes often) made one local BA take over a second.
+        # Measured on synthetic sitting_static (dev seed 3, `d2slam`): cap 20 -> 12,600 observations, 0.53 s per local
+        # BA; cap 5 -> 7,900, 0.26 s; ATE 2.36 mm either way.
         pos = np.minimum(np.searchsorted(cams, obs_kf), len(cams) - 1)
         n_obs = np.bincount(pos[cams[pos] == obs_kf], minlength=len(cams))
         outside = np.flatnonzero(~is_local)
