@@ -140,3 +140,39 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path):
     rec["row"]["status"] = "failed"
     (out / "runs" / f"{spec.run_id}.json").write_text(json.dumps(rec))
     assert load_run(out, spec, key) is None  # failed runs are redone
+
+
+def test_interrupted_study_keeps_finished_runs_for_resume(serial, tmp_path, monkeypatch):
+    """Each run is saved as it finishes: a study killed after its first run leaves that run in runs/, and --resume
+    reuses it and computes only the rest (same numbers as an uninterrupted study)."""
+    import d2slam.study.core as core
+
+    real = core.execute_run
+    calls = []
+
+    def dies_on_second(spec, options):
+        calls.append(spec.run_id)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(spec, options)
+
+    monkeypatch.setattr(core, "execute_run", dies_on_second)
+    out = tmp_path / "interrupted"
+    with pytest.raises(KeyboardInterrupt):
+        run_study(out, jobs=1, progress=False, plots=False, **GRID)
+    assert not (out / "runs.csv").exists()
+    saved = sorted(p.stem for p in (out / "runs").glob("*.json"))
+    assert saved == [calls[0]]
+    monkeypatch.setattr(core, "execute_run", real)
+    res = run_study(out, jobs=1, progress=False, plots=False, resume=True, **GRID)
+    assert res.manifest["grid"]["reused_runs"] == [calls[0]]
+    _same(res.runs, serial.runs)
+
+
+def test_map_ordered_reports_each_result(tmp_path):
+    from d2slam.study.executors import map_ordered
+
+    for jobs in (1, 2):
+        seen = []
+        out = map_ordered(abs, [-3, 1, -2], jobs=jobs, progress=False, on_result=lambda i, r: seen.append((i, r)))
+        assert out == [3, 1, 2] and sorted(seen) == [(0, 3), (1, 1), (2, 2)]

@@ -84,7 +84,13 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
             if r is not None:
                 reused[s.run_id] = r
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
-    done = map_ordered(execute_run, todo, (options,), jobs, scheduler, desc="study", progress=progress)
+    (out / "runs").mkdir(exist_ok=True)
+
+    def checkpoint(i, r):  # each run is saved as it finishes, so that --resume recovers an interrupted study
+        save_run(out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
+
+    done = map_ordered(execute_run, todo, (options,), jobs, scheduler, desc="study", progress=progress,
+                       on_result=checkpoint)
     by_id = {s.run_id: r for s, r in zip(todo, done)}
     by_id.update(reused)
     for s in specs:
@@ -153,29 +159,9 @@ def _prepare_vocabulary(progress) -> None:
 
 def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_order: list[str], manifest: dict,
                   plots: bool = True) -> StudyResult:
-    from d2slam.data import Trajectory, write_tum_trajectory
-
     files = {}
-    (out / "trajectories").mkdir(exist_ok=True)
-    (out / "runs").mkdir(exist_ok=True)
     for s, r in zip(specs, results):
-        if r.get("trajectory") is not None and len(r["trajectory"][0]):
-            ts, poses = r["trajectory"]
-            write_tum_trajectory(out / "trajectories" / f"{s.run_id}.txt", Trajectory(ts, poses),
-                                 header=f"d2slam study {s.run_id}")
-        record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
-                  "stage_ms": r.get("stage_ms")}
-        (out / "runs" / f"{s.run_id}.json").write_text(json.dumps(record, indent=1, default=_json_default) + "\n")
-        arrays = {}
-        if r.get("trajectory") is not None:
-            arrays.update(timestamps=r["trajectory"][0], poses=r["trajectory"][1])
-        if r.get("aligned") is not None:
-            arrays.update(gt_xyz=r["aligned"][0], est_xyz=r["aligned"][1])
-        npz = out / "runs" / f"{s.run_id}.npz"
-        if arrays:
-            np.savez_compressed(npz, **arrays)
-        else:
-            npz.unlink(missing_ok=True)
+        save_run(out, s, r)
     df = T.sort_runs(T.runs_frame([r["row"] for r in results]), method_order)
     T.write_runs_csv(df, out / "runs.csv")
     summary = T.summarise(df)
@@ -187,6 +173,32 @@ def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_o
     if plots:
         files.update(make_plots(out, specs, results, df, summary, method_order))
     return StudyResult(out, df, summary, manifest, files)
+
+
+def save_run(out: Path, s: RunSpec, r: dict) -> None:
+    """Write one run: ``runs/<run>.json`` (run, key, row, keypoint metrics, stage timings), ``runs/<run>.npz``
+    (trajectory and aligned positions) and ``trajectories/<run>.txt`` (TUM format)."""
+    from d2slam.data import Trajectory, write_tum_trajectory
+
+    (out / "trajectories").mkdir(parents=True, exist_ok=True)
+    (out / "runs").mkdir(parents=True, exist_ok=True)
+    if r.get("trajectory") is not None and len(r["trajectory"][0]):
+        ts, poses = r["trajectory"]
+        write_tum_trajectory(out / "trajectories" / f"{s.run_id}.txt", Trajectory(ts, poses),
+                             header=f"d2slam study {s.run_id}")
+    record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
+              "stage_ms": r.get("stage_ms")}
+    (out / "runs" / f"{s.run_id}.json").write_text(json.dumps(record, indent=1, default=_json_default) + "\n")
+    arrays = {}
+    if r.get("trajectory") is not None:
+        arrays.update(timestamps=r["trajectory"][0], poses=r["trajectory"][1])
+    if r.get("aligned") is not None:
+        arrays.update(gt_xyz=r["aligned"][0], est_xyz=r["aligned"][1])
+    npz = out / "runs" / f"{s.run_id}.npz"
+    if arrays:
+        np.savez_compressed(npz, **arrays)
+    else:
+        npz.unlink(missing_ok=True)
 
 
 def module_f1(specs: list[RunSpec], results: list[dict]) -> pd.DataFrame:

@@ -27,8 +27,10 @@ def executor_name(jobs: int = 1, scheduler=None) -> str:
 
 
 def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, scheduler=None,
-                desc: str = "study", progress: bool | None = None) -> list:
-    """``[fn(item, *args) for item in items]`` on the chosen executor (see module docstring)."""
+                desc: str = "study", progress: bool | None = None,
+                on_result: Callable[[int, object], None] | None = None) -> list:
+    """``[fn(item, *args) for item in items]`` on the chosen executor (see module docstring). ``on_result(i, result)``
+    is called in this process as each result arrives (completion order), e.g. to save it at once."""
     items = list(items)
     if not items:
         return []
@@ -37,18 +39,20 @@ def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, 
         name = executor_name(jobs, scheduler)
         if name == "serial":
             out = []
-            for it in items:
+            for i, it in enumerate(items):
                 out.append(fn(it, *args))
+                if on_result is not None:
+                    on_result(i, out[-1])
                 bar.update(1)
             return out
         if name == "joblib":
-            return _joblib(fn, items, args, int(jobs), bar)
-        return _dask(fn, items, args, scheduler, bar)
+            return _joblib(fn, items, args, int(jobs), bar, on_result)
+        return _dask(fn, items, args, scheduler, bar, on_result)
     finally:
         bar.close()
 
 
-def _joblib(fn, items, args, jobs, bar) -> list:
+def _joblib(fn, items, args, jobs, bar, on_result=None) -> list:
     from joblib import Parallel, delayed, parallel_config
 
     out = [None] * len(items)
@@ -57,6 +61,8 @@ def _joblib(fn, items, args, jobs, bar) -> list:
                                                           for i, it in enumerate(items))
         for i, res in gen:
             out[i] = res
+            if on_result is not None:
+                on_result(i, res)
             bar.update(1)
     return out
 
@@ -65,7 +71,7 @@ def _indexed(i, fn, item, args):
     return i, fn(item, *args)
 
 
-def _dask(fn, items, args, scheduler, bar) -> list:
+def _dask(fn, items, args, scheduler, bar, on_result=None) -> list:
     try:
         from distributed import Client, as_completed
     except ImportError as exc:  # pragma: no cover - dask/distributed are in environment.txt
@@ -89,6 +95,8 @@ def _dask(fn, items, args, scheduler, bar) -> list:
         for fut in as_completed(futures):
             i, res = fut.result()
             out[i] = res
+            if on_result is not None:
+                on_result(i, res)
             bar.update(1)
         return out
     finally:
