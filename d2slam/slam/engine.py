@@ -207,16 +207,8 @@ class Engine:
         uv = np.c_[u[sel], v[sel]]
         octv = prev.octave[sel]
         radius = self.cfg.filter_match_radius * self.scales[octv]
-        lo, hi = octv - 1, octv + 1
-        k = self.cfg.candidates_per_point
-        index = self._kp_index(frame)
-        cand, _ = index.candidates(uv, radius, k, lo, hi)
-        safe = np.minimum(cand, frame.n - 1)
-        ur_proj = u[sel] - self.bf / np.where(has[sel], zs[sel], np.inf)
-        stereo_ok = ~has[sel, None] | (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) <
-                                                                radius[:, None])
-        best, d1, d2, l1, l2 = search_candidates(index, uv, radius, prev.desc[sel], frame.desc, frame.octave, lo, hi,
-                                                 np.ones(frame.n, dtype=bool), k, extra_ok=stereo_ok, cand=cand)
+        ur_proj = np.where(has[sel], u[sel] - self.bf / zs[sel], np.nan)  # NaN: no depth, no u_R check
+        best, d1, d2, l1, l2 = self._search_projected(frame, uv, ur_proj, radius, octv - 1, octv + 1, prev.desc[sel])
         ok = (best >= 0) & (d1 <= self.cfg.desc_th_high) & ~((l1 == l2) & (d1 > self.cfg.filter_match_nn_ratio * d2))
         cur, pv, dist = best[ok], sel[ok], d1[ok]
         keep = unique_by_target(pv, cur, dist.astype(np.float64))
@@ -335,13 +327,15 @@ class Engine:
 
     def _search_projected(self, frame: Frame, uv, ur_proj, radius, lo, hi, desc):
         """Best and second-best keypoint of ``frame`` for each projected point (shared by both projection
-        searches): candidates within ``radius`` on levels [lo, hi], free, static, and consistent in ``u_R``."""
+        searches): candidates within ``radius`` on levels [lo, hi], free, static, and consistent in ``u_R`` (no
+        check where the projected ``ur_proj`` is NaN: a point without depth)."""
         k = self.cfg.candidates_per_point
         index = self._kp_index(frame)
         available = (frame.mp < 0) & ~frame.dynamic  # dynamic keypoints take no match (as if never extracted)
         cand, _ = index.candidates(uv, radius, k, lo, hi)
         safe = np.minimum(cand, max(frame.n - 1, 0))
-        stereo_ok = (frame.ur[safe] < 0) | (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
+        stereo_ok = np.isnan(ur_proj)[:, None] | (frame.ur[safe] < 0) | \
+            (np.abs(ur_proj[:, None] - frame.ur[safe]) < radius[:, None])
         return search_candidates(index, uv, radius, desc, frame.desc, frame.octave, lo, hi, available, k,
                                  extra_ok=stereo_ok, cand=cand)
 
@@ -506,23 +500,29 @@ class Engine:
         pids = pids[~already[pids]]
         if len(pids) == 0 or frame.n == 0:
             return 0
+        pids, u, v, z, level, view_cos = self._in_frustum(frame.Tcw, pids)
+        P.visible[pids] += 1
+        if len(pids) == 0:
+            return 0
+        radius = th * np.where(view_cos > 0.998, 2.5, 4.0) * self.scales[level]
+        return self._match_projected_noangle(frame, np.c_[u, v], u - self.bf / z, radius, pids, level - 1, level,
+                                             P.desc[pids])
+
+    def _in_frustum(self, Tcw: np.ndarray, pids: np.ndarray):
+        """ORB-SLAM isInFrustum for map points ``pids`` seen from pose ``Tcw``: in front, in the image, within the
+        scale range, viewing angle < 60 deg. Returns the visible (pids, u, v, z, predicted level, viewing cosine)."""
+        P = self.map.points
         X = P.pos[pids]
-        u, v, z = self._project(frame.Tcw, X)
-        Ow = _inv(frame.Tcw)[:3, 3]
-        PO = X - Ow
+        u, v, z = self._project(Tcw, X)
+        PO = X - _inv(Tcw)[:3, 3]
         dist = np.linalg.norm(PO, axis=1)
         view_cos = np.einsum("ij,ij->i", PO, P.normal[pids]) / np.maximum(dist, 1e-12)
         ok = (z > 0) & self._in_image(u, v) & (dist >= 0.8 * P.dmin[pids]) & (dist <= 1.2 * P.dmax[pids]) & \
             (view_cos >= 0.5)
         pids, u, v, z, dist, view_cos = pids[ok], u[ok], v[ok], z[ok], dist[ok], view_cos[ok]
-        P.visible[pids] += 1
-        if len(pids) == 0:
-            return 0
         level = np.clip(np.ceil(np.log(P.dmax[pids] / dist) / self.log_scale), 0, self.orb.n_levels - 1).astype(
             np.int64)
-        radius = th * np.where(view_cos > 0.998, 2.5, 4.0) * self.scales[level]
-        return self._match_projected_noangle(frame, np.c_[u, v], u - self.bf / z, radius, pids, level - 1, level,
-                                             P.desc[pids])
+        return pids, u, v, z, level, view_cos
 
     def _match_projected_noangle(self, frame, uv, ur_proj, radius, pid, lo, hi, desc):
         """Local-map search: ratio test on the same level, no orientation check (as ORB-SLAM)."""
@@ -677,24 +677,13 @@ class Engine:
         pids = pids[~seen[pids]]
         if len(pids) == 0 or len(kf.kps) == 0:
             return 0
-        X = P.pos[pids]
-        u, v, z = self._project(kf.Tcw, X)
-        PO = X - kf.center
-        dist = np.linalg.norm(PO, axis=1)
-        view_cos = np.einsum("ij,ij->i", PO, P.normal[pids]) / np.maximum(dist, 1e-12)
-        ok = (z > 0) & self._in_image(u, v) & (dist >= 0.8 * P.dmin[pids]) & (dist <= 1.2 * P.dmax[pids]) & \
-            (view_cos >= 0.5)
-        pids, u, v, z, dist = pids[ok], u[ok], v[ok], z[ok], dist[ok]
+        pids, u, v, z, level, _ = self._in_frustum(kf.Tcw, pids)
         if len(pids) == 0:
             return 0
-        level = np.clip(np.ceil(np.log(P.dmax[pids] / dist) / self.log_scale), 0, self.orb.n_levels - 1).astype(
-            np.int64)
         radius = th * self.scales[level]
         uv = np.c_[u, v]
         k = self.cfg.candidates_per_point
-        if getattr(kf, "_index", None) is None:
-            kf._index = KeypointIndex(kf.kps, kf.octave)
-        index = kf._index
+        index = self._kp_index(kf)
         cand, _ = index.candidates(uv, radius, k, level - 1, level)
         safe = np.minimum(cand, len(kf.kps) - 1)
         ex = u[:, None] - kf.kps[safe, 0]
