@@ -19,8 +19,8 @@ from d2slam.errors import D2SlamError
 from d2slam.slam.frame import Frame, OrbExtractor, close_depth
 from d2slam.slam.hook import FilterInput, KeypointFilter
 from d2slam.slam.map import KeyFrame, Map
-from d2slam.slam.matching import (KeypointIndex, knn_ratio_match, rotation_consistent, search_candidates,
-                                  unique_by_target, window_cross_match)
+from d2slam.slam.matching import (KeypointIndex, knn_ratio_match, nearest_matches, rotation_consistent,
+                                  search_candidates, unique_by_target, window_cross_match)
 from d2slam.slam.optimizer import local_bundle_adjustment, pose_optimization
 
 OK, LOST, NOT_INITIALIZED = "ok", "lost", "not_initialized"
@@ -455,13 +455,9 @@ class Engine:
             return []
         desc = np.concatenate([kf.desc[x] for kf, x in zip(cands, sels)])
         owner = np.repeat(np.arange(len(cands)), sizes)
-        bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-        ms = bf.match(frame.desc[fsel], desc)
-        if not ms:
-            return []
-        best = np.array([(m.trainIdx, m.distance) for m in ms], dtype=np.float64).reshape(-1, 2)
-        ok = best[:, 1] <= self.cfg.desc_th_low
-        votes = np.bincount(owner[best[ok, 0].astype(np.int64)], minlength=len(cands))
+        best = nearest_matches(frame.desc[fsel], desc)
+        ok = best[:, 2] <= self.cfg.desc_th_low
+        votes = np.bincount(owner[best[ok, 1].astype(np.int64)], minlength=len(cands))
         order = np.argsort(-votes, kind="stable")[: self.cfg.relocalisation_pnp_candidates]
         return [cands[i] for i in order if votes[i] >= self.cfg.reference_min_matches]
 

@@ -156,18 +156,23 @@ def knn_ratio_match(desc_a: np.ndarray, desc_b: np.ndarray, ratio: float, max_di
     return rows[keep][:, :3].astype(np.int64)
 
 
+def nearest_matches(desc_a: np.ndarray, desc_b: np.ndarray, cross_check: bool = False) -> np.ndarray:
+    """(K, 3) float rows (index in a, index in b, Hamming distance): cv2 brute-force nearest neighbour of each
+    descriptor of a in b (mutual nearest only with ``cross_check``)."""
+    if len(desc_a) == 0 or len(desc_b) == 0:
+        return np.zeros((0, 3))
+    ms = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=cross_check).match(desc_a, desc_b)
+    return np.array([(m.queryIdx, m.trainIdx, m.distance) for m in ms], dtype=np.float64).reshape(-1, 3)
+
+
 def window_cross_match(kps_a: np.ndarray, desc_a: np.ndarray, kps_b: np.ndarray, desc_b: np.ndarray,
                        window: float, max_dist: int) -> np.ndarray:
     """(K, 2) int one-to-one frame-to-frame matches (index in a, index in b): mutual nearest neighbours in Hamming
     distance (cv2 cross-check), kept when the pixel displacement is below ``window`` and the distance below
     ``max_dist``."""
-    if len(desc_a) == 0 or len(desc_b) == 0:
+    rows = nearest_matches(desc_a, desc_b, cross_check=True)
+    if len(rows) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
-    ms = bf.match(desc_a, desc_b)
-    if not ms:
-        return np.zeros((0, 2), dtype=np.int64)
-    rows = np.array([(m.queryIdx, m.trainIdx, m.distance) for m in ms], dtype=np.float64)
     ia, ib = rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int64)
     disp = np.linalg.norm(kps_a[ia] - kps_b[ib], axis=1)
     ok = (disp < window) & (rows[:, 2] <= max_dist)
