@@ -7,6 +7,11 @@ Stages timed per frame: ``load`` (waiting for the images; the next frame is read
 the current one is processed), ``segment`` (the mask provider, when there is one), ``extract``
 (ORB + depth), ``filter`` (frame-to-frame matches + the hook), ``track`` (all tracking steps), ``local_ba`` (new
 keyframe + local mapping).
+
+``features``: a :class:`~d2slam.slam.features.FeatureRecorder` keeps every frame's extracted features (to save them),
+a :class:`~d2slam.slam.features.CachedFeatures` gives them instead of extracting (the images are then read only when
+there is a keypoint filter; ``extract`` and the fps count the extraction time stored with the features, see
+``d2slam.slam.features``).
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ class RunResult:
 def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
                  mask_provider: Callable[[int], "np.ndarray | None"] | None = None,
                  recorder: Recorder | None = None, progress: bool | None = None, desc: str | None = None,
-                 engine: Engine | None = None, prefetch: bool = True) -> RunResult:
+                 engine: Engine | None = None, prefetch: bool = True, features=None) -> RunResult:
     """Run every frame of ``sequence`` through the engine (see module docstring). ``recorder(frame index, keypoints
     (N, 2), beliefs (N,) or None, diagnostics)`` is called after each frame (diagnostics: the filter's ``last``
     attribute when it has one)."""
@@ -60,6 +65,16 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     if n == 0:
         raise D2SlamError("sequence has no frames", path=getattr(sequence, "root", None))
     engine = engine or Engine(sequence.camera, config, keypoint_filter)
+    from d2slam.slam.features import CachedFeatures, FeatureRecorder
+
+    cached = features if isinstance(features, CachedFeatures) else None
+    recorder_f = features if isinstance(features, FeatureRecorder) else None
+    if features is not None and cached is None and recorder_f is None:
+        raise D2SlamError(f"features must be a FeatureRecorder or CachedFeatures, not {type(features).__name__}")
+    if cached is not None:
+        cached.check(sequence.timestamps[:n])
+    read = cached is None or keypoint_filter is not None  # images needed
+    extract_adjust = 0.0  # cached extraction time minus the time the cached read took
     totals = dict.fromkeys(STAGES, 0.0)
     states, per_frame = [], []
     keyframes = 0
@@ -68,7 +83,7 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
                disable=None if progress is None else not progress)
     # Frame i+1 is read (PNG decoding releases the GIL) while frame i is processed: one reader thread, results
     # identical to reading in order; ``load`` is the time spent waiting for the frame.
-    pool = ThreadPoolExecutor(max_workers=1) if prefetch and n > 1 else None
+    pool = ThreadPoolExecutor(max_workers=1) if prefetch and read and n > 1 else None
     pending = pool.submit(sequence.__getitem__, 0) if pool else None
     for i in bar:
         t0 = time.perf_counter()
@@ -77,11 +92,20 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
             if i + 1 < n:
                 pending = pool.submit(sequence.__getitem__, i + 1)
         else:
-            frame = sequence[i]
+            frame = sequence[i] if read else None
         t1 = time.perf_counter()
         masks = mask_provider(i) if mask_provider is not None else None
         t2 = time.perf_counter()
-        res = engine.process(frame.gray, frame.depth, i, frame.timestamp, masks=masks)
+        if cached is not None:
+            res = engine.process(frame.gray if read else None, frame.depth if read else None, i,
+                                 float(cached.timestamps[i]), masks=masks, features=cached.frame(i))
+            stored = float(cached.extract_ms[i]) / 1000.0
+            extract_adjust += stored - res.timings["extract"]
+            res.timings["extract"] = stored
+        else:
+            res = engine.process(frame.gray, frame.depth, i, frame.timestamp, masks=masks)
+            if recorder_f is not None:
+                recorder_f.add(engine.last, res.timings["extract"])
         totals["load"] += t1 - t0
         totals["segment"] += t2 - t1
         for k, v in res.timings.items():
@@ -98,7 +122,7 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
             bar.set_postfix(tracked=sum(s == "ok" for s in states), kfs=keyframes)
     if pool:
         pool.shutdown()
-    total = time.perf_counter() - t_start
+    total = time.perf_counter() - t_start + extract_adjust
     _, ts, poses = engine.trajectory()
     tracked = int(sum(s == "ok" for s in states))
     stage_ms = {k: 1000.0 * v / n for k, v in totals.items() if k != "segment" or mask_provider is not None}

@@ -40,7 +40,7 @@ class StudyResult:
 
 def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None = None, jobs: int = 1,
               scheduler=None, config=None, specs: list[RunSpec] | None = None, twin_methods=None,
-              cache_root=None, tum_root=None, masks: str | None = None, orbslam3_repeats: int = 5,
+              cache_root=None, tum_root=None, masks: str | None = None, orbslam3_repeats: int | None = None,
               orbslam3_timeout: float | None = None, plots: bool = True, progress: bool | None = None,
               resume: bool = False) -> StudyResult:
     """Run the study grid and write its results into ``out`` (created). See the module docstring.
@@ -109,7 +109,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     grid = {"scenarios": list(dict.fromkeys(s.scenario for s in specs)), "methods": method_order,
             "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
             "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
-            "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": int(orbslam3_repeats),
+            "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options["orbslam3_repeats"],
             "masks": masks, "reused_runs": sorted(reused)}
     from d2slam.study.manifest import build_manifest
 

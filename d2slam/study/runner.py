@@ -25,14 +25,15 @@ ENGINE_STAGES = ("load", "segment", "extract", "filter", "track", "local_ba")
 
 
 def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
-                orbslam3_repeats: int = 5, orbslam3_timeout: float | None = None) -> dict:
+                orbslam3_repeats: int | None = None, orbslam3_timeout: float | None = None) -> dict:
     """The options every run of a study shares, as a picklable dict (``config`` as a nested dict)."""
     from d2slam.config import DEFAULT
 
     config = config or DEFAULT
     return {"config": config.to_dict(), "cache_root": None if cache_root is None else str(cache_root),
             "tum_root": None if tum_root is None else str(tum_root), "masks": masks,
-            "orbslam3_repeats": int(orbslam3_repeats), "orbslam3_timeout": orbslam3_timeout}
+            "orbslam3_repeats": int(orbslam3_repeats or config.baseline.orbslam3_repeats),
+            "orbslam3_timeout": orbslam3_timeout}
 
 
 def prepare_sequence(key: tuple, options: dict) -> dict:
@@ -137,8 +138,12 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
             return stack_masks(masks_for(seq, i, kind, config), shape)
 
     recorder = keypoint_recorder(seq)
+    features, save_to = _features(seq, path, config, options)
     result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=recorder,
-                          progress=False)
+                          progress=False, features=features)
+    if save_to is not None:
+        features.save(save_to)
+    row["features_cached"] = int(save_to is None and features is not None)
     row.update(frames_tracked=result.tracked, frames_lost=result.lost, keyframes=result.keyframes,
                map_points=result.map_points, fps=result.fps,
                ms_per_frame=1000.0 * result.total_s / max(result.frames, 1))
@@ -173,6 +178,43 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     row.update(status="ok", error="", ate_rmse_m=m.ate_rmse_m, rpe_trans_m=m.rpe_trans_m, rpe_rot_deg=m.rpe_rot_deg)
 
 
+def features_path(seq, path: Path, config, options: dict) -> Path:
+    """Where the study keeps a sequence's extracted features (``d2slam.slam.features``): named after the sequence
+    folder, its frame count and a digest of what an extraction depends on (ORB and engine settings, camera, OpenCV
+    version, the frame and data code), under ``<cache>/study/features`` (or ``<cache_root>/features``)."""
+    import hashlib
+    import json
+
+    import cv2
+
+    from d2slam.paths import cache_dir
+
+    cam = seq.camera
+    ident = {"orb": dataclasses.asdict(config.orb), "engine": dataclasses.asdict(config.engine),
+             "camera": [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.bf, cam.depth_factor,
+                        [float(d) for d in np.asarray(cam.dist).ravel()]],
+             "cv2": cv2.__version__, "code": source_digest(("slam/frame.py", "slam/features.py", "data"))}
+    key = hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    root = Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
+    return root / f"{Path(path).resolve().name}_n{len(seq)}-{key}.npz"
+
+
+def _features(seq, path: Path, config, options: dict):
+    """(features for ``run_sequence``, where to save them afterwards or None): the cached features of the sequence
+    when a run already saved them, else a recorder. A corrupt cache file is replaced."""
+    from d2slam.slam.features import CachedFeatures, FeatureRecorder
+
+    target = features_path(seq, path, config, options)
+    if target.is_file():
+        try:
+            cached = CachedFeatures(target)
+            cached.check(seq.timestamps[:len(seq)])
+            return cached, None
+        except D2SlamError:
+            target.unlink(missing_ok=True)
+    return FeatureRecorder(), target
+
+
 def _ate_only(gt, traj):
     """When the tracked part is too short for a 1-second RPE pair: the ATE alone, from evo's association and
     SE(3) Umeyama alignment (``aligned_estimate``), RMSE of the position errors (= evo APE translation RMSE)."""
@@ -195,7 +237,7 @@ def _run_orbslam3(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
 
     config = _config(spec, options)
     row = out["row"]
-    repeats = int(options.get("orbslam3_repeats") or 5)
+    repeats = int(options.get("orbslam3_repeats") or config.baseline.orbslam3_repeats)
     row.update(config_hash=config.hash(), repeats=repeats)
     with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
         traj_path = Path(tmp) / "orbslam3.txt"

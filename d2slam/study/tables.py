@@ -23,8 +23,10 @@ OUTCOME_COLUMNS = ["status", "error", "deterministic", "repeats", "config_hash"]
 METRIC_COLUMNS = ["ate_rmse_m", "rpe_trans_m", "rpe_rot_deg"]
 RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp_recall", "kp_f1",
                                    "kp_static_precision", "frames_tracked", "frames_lost", "keyframes", "map_points"]
+# features_cached = 1: the run read the sequence's features extracted by an earlier run (its ms_extract and fps count
+# the extraction time stored with them, d2slam.slam.features).
 TIMING_COLUMNS = ["fps", "ms_per_frame", "ms_load", "ms_segment", "ms_extract", "ms_filter", "ms_track",
-                  "ms_local_ba", "wall_s"]
+                  "ms_local_ba", "wall_s", "features_cached"]
 RUN_COLUMNS = KEY_COLUMNS + OUTCOME_COLUMNS + RESULT_COLUMNS + TIMING_COLUMNS
 SUMMARY_STATS = ("median", "min", "max")
 SUMMARY_METRICS = METRIC_COLUMNS + ["kp_precision", "kp_recall", "kp_f1", "frames_tracked", "frames_lost"]

@@ -1,0 +1,129 @@
+"""Stored features (d2slam.slam.features): a run that reads a sequence's saved features gives exactly the run that
+extracts them (trajectory, beliefs, keyframes), with and without the keypoint filter; the stored extraction time
+is what the reading run reports; bad or mismatched files give clear errors, and the study replaces a corrupt one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from d2slam.config import DEFAULT
+from d2slam.data import open_sequence
+from d2slam.errors import D2SlamError
+from d2slam.methods import get_method
+from d2slam.pipeline import run_sequence
+from d2slam.segmentation import masks_for, stack_masks
+from d2slam.slam.engine import Engine
+from d2slam.slam.features import CachedFeatures, FeatureRecorder
+from d2slam.study.sequences import ensure_sequence
+
+FRAMES = 40
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return open_sequence(ensure_sequence("sitting_static", 101, FRAMES, False))
+
+
+def _run(seq, method, features=None):
+    kfilter = get_method(method).factory(DEFAULT)
+    provider = None
+    if kfilter is not None:
+        shape = (seq.camera.height, seq.camera.width)
+
+        def provider(i):
+            return stack_masks(masks_for(seq, i, "sim", DEFAULT), shape)
+
+    beliefs = []
+
+    def rec(i, kps, bel, diag):
+        beliefs.append(None if bel is None else bel.copy())
+
+    res = run_sequence(seq, DEFAULT, keypoint_filter=kfilter, mask_provider=provider, recorder=rec,
+                       progress=False, features=features)
+    return res, beliefs
+
+
+@pytest.fixture(scope="module")
+def saved(seq, tmp_path_factory):
+    rec = FeatureRecorder()
+    res, beliefs = _run(seq, "d2slam", rec)
+    path = rec.save(tmp_path_factory.mktemp("features") / "f.npz")
+    return path, rec, res, beliefs
+
+
+@pytest.mark.parametrize("method", ["none", "d2slam"])
+def test_cached_run_equals_extracting_run(seq, saved, method):
+    path, rec, res_d2, beliefs_d2 = saved
+    ref, ref_bel = (res_d2, beliefs_d2) if method == "d2slam" else _run(seq, method)
+    cached = CachedFeatures(path)
+    res, bel = _run(seq, method, cached)
+    assert res.tracked == ref.tracked and res.keyframes == ref.keyframes and res.map_points == ref.map_points
+    np.testing.assert_array_equal(res.trajectory.timestamps, ref.trajectory.timestamps)
+    np.testing.assert_array_equal(res.trajectory.poses, ref.trajectory.poses)
+    for a, b in zip(bel, ref_bel):
+        if a is None:
+            assert b is None
+        else:
+            np.testing.assert_array_equal(a, b)
+    # the reading run reports the extraction time stored with the features
+    assert res.stage_ms["extract"] == pytest.approx(np.mean(rec.extract_ms))
+
+
+def test_frames_rebuilt_bit_identical(seq, saved):
+    path, *_ = saved
+    cached = CachedFeatures(path)
+    eng = Engine(seq.camera, DEFAULT)
+    for i in (0, FRAMES // 2, FRAMES - 1):
+        f = seq[i]
+        fresh = eng.extractor(f.gray, f.depth, i, f.timestamp)
+        got = cached.frame(i)
+        for k in ("kps", "kps_raw", "octave", "angle", "desc", "depth", "ur", "inv_sigma2"):
+            a, b = getattr(got, k), getattr(fresh, k)
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+        assert got.timestamp == f.timestamp and got.index == i
+        got.mp[:] = 7  # a frame is the caller's: the next call gives fresh arrays
+        assert (cached.frame(i).mp == -1).all()
+
+
+def test_mismatched_and_corrupt_files(seq, saved, tmp_path):
+    path, *_ = saved
+    cached = CachedFeatures(path)
+    with pytest.raises(D2SlamError, match="does not match"):
+        cached.check(seq.timestamps[:FRAMES - 1])
+    with pytest.raises(D2SlamError, match="does not match"):
+        cached.check(seq.timestamps + 1.0)
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(D2SlamError, match="unreadable feature file"):
+        CachedFeatures(bad)
+    with pytest.raises(D2SlamError, match="features must be"):
+        run_sequence(seq, DEFAULT, progress=False, features="cache.npz")
+    with pytest.raises(D2SlamError, match="no features to save"):
+        FeatureRecorder().save(tmp_path / "empty.npz")
+
+
+def test_filter_still_needs_the_images(seq, saved):
+    path, *_ = saved
+    eng = Engine(seq.camera, DEFAULT, get_method("d2slam").factory(DEFAULT))
+    with pytest.raises(D2SlamError, match="images are needed"):
+        eng.process(None, None, 0, float(seq.timestamps[0]), features=CachedFeatures(path).frame(0))
+
+
+def test_study_replaces_a_corrupt_cache_file(seq, tmp_path):
+    from d2slam.slam.features import CachedFeatures as CF
+    from d2slam.study.runner import _features, features_path
+
+    options = {"cache_root": str(tmp_path)}
+    target = features_path(seq, seq.root, DEFAULT, options)
+    features, save_to = _features(seq, seq.root, DEFAULT, options)
+    assert isinstance(features, FeatureRecorder) and save_to == target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_bytes(b"garbage")
+    features, save_to = _features(seq, seq.root, DEFAULT, options)
+    assert isinstance(features, FeatureRecorder) and save_to == target and not target.exists()
+    _run(seq, "none", features)
+    features.save(save_to)
+    features, save_to = _features(seq, seq.root, DEFAULT, options)
+    assert isinstance(features, CF) and save_to is None
