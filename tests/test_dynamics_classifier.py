@@ -60,7 +60,7 @@ def test_geometric_mode_ignores_masks_and_uses_fixed_threshold():
     d = f.last
     np.testing.assert_array_equal(d.geo_dynamic, np.nan_to_num(d.err) > DynamicsConfig().fixed_alpha)
     np.testing.assert_array_equal(bel[~d.observed], 0.5)
-    np.testing.assert_array_equal(bel[d.geo_dynamic], 1.0)
+    np.testing.assert_array_equal(bel[d.geo_dynamic], DynamicsConfig().p_g_exceed)
 
 
 def test_no_bayes_belief_is_eq7_and_no_oim_has_no_oim():

@@ -8,6 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_dynamics_classifier import filter_inputs
 
+from d2slam.config import DynamicsConfig
 from d2slam.dynamics import MODES, get_filter
 from d2slam.dynamics.toy import two_view_scene
 from d2slam.slam.hook import FilterInput
@@ -16,8 +17,12 @@ FIELDS = ("z", "belief", "p_s", "inside", "uncertain", "in_area", "err", "p_g", 
           "prior", "belief_bayes", "zone", "oim", "mask_depth")
 
 
+# The frozen modules implement eq 5 as printed (P_g = 1 above alpha): compare with that setting.
+PAPER_EQ5 = DynamicsConfig(p_g_exceed=1.0)
+
+
 def _same(mode, inp):
-    new, old = get_filter(mode), ref.D2SlamFilter(None, mode)
+    new, old = get_filter(mode, PAPER_EQ5), ref.D2SlamFilter(None, mode)
     b_new, b_old = new(inp), old(inp)
     np.testing.assert_array_equal(b_new, b_old)
     for name in FIELDS:

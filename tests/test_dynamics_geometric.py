@@ -41,6 +41,25 @@ def test_geometric_probability_eq6_and_threshold():
     # depth-adaptive threshold per keypoint
     _, dyn = geometric_probability(np.array([0.6, 0.6]), np.array([0.5, 0.9]))
     np.testing.assert_array_equal(dyn, [True, False])
+    # the measured reliability of an exceedance (config p_g_exceed, 0.7) replaces the paper's 1 above the threshold
+    p7, dyn7 = geometric_probability(err, 0.7, 1.0, 0.7)
+    np.testing.assert_array_equal(p7[3:5], 0.7)
+    np.testing.assert_array_equal(p7[:3], p[:3])
+    np.testing.assert_array_equal(dyn7, [False, False, False, True, True, False])
+
+
+def test_one_exceedance_does_not_erase_a_static_history():
+    """eq 8 with P_g = 0.7: a keypoint believed static (0.05) that exceeds alpha once stays static; with the
+    paper's P_g = 1 the same observation makes it dynamic whatever its history. A new keypoint (prior 0.5) that
+    exceeds is dynamic either way."""
+    from d2slam.config import DynamicsConfig
+    from d2slam.dynamics.fusion import bayes_update
+
+    prior = np.array([0.05, 0.5])
+    assert (bayes_update(prior, np.array([0.7, 0.7]), CFG) > 0.5).tolist() == [False, True]
+    paper = DynamicsConfig(p_g_exceed=1.0)
+    assert (bayes_update(prior, np.array([1.0, 1.0]), paper) > 0.5).tolist() == [True, True]
+    assert CFG.p_g_exceed == 0.7
 
 
 def test_fewer_than_8_matches_gives_no_F():
@@ -84,7 +103,7 @@ def test_two_view_moving_object_high_P_g_static_low():
     res = geometric_module(p, prev, matches, np.full(len(prev), 0.5), np.full(len(p), 0.7), CFG)
     assert res.F is not None and res.observed.all()
     assert res.dynamic[truth].mean() >= 0.95
-    assert (res.p_g[truth] > 0.9).mean() >= 0.95
+    assert (res.p_g[truth] >= CFG.p_g_exceed).mean() >= 0.95
     assert res.dynamic[~truth].mean() <= 0.10  # 0.2 px noise in both views, F from RANSAC
     assert np.median(res.p_g[~truth]) < 0.1
 

@@ -19,7 +19,7 @@ Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``
 - ``semantic``  masks only, DynaSLAM-like: every keypoint inside a mask is dynamic (belief 1), every other 0.
 - ``geometric`` epipolar check only with the fixed threshold ``fixed_alpha`` (x 1.2^octave like alpha(z), see
                 ``depth.octave_factor``), no masks, no filter: belief = P_g
-                for matched keypoints (1 above the threshold), 0.5 (no observation) for the others.
+                for matched keypoints (p_g_exceed = 0.7 above the threshold), 0.5 (no observation) for the others.
 
 ``last`` holds the diagnostics of the last frame (``FrameDiagnostics``): every module's output and its time, so
 per-module precision/recall can be measured (``FrameDiagnostics.predictions``).
