@@ -9,9 +9,9 @@ the current one is processed), ``segment`` (the mask provider, when there is one
 keyframe + local mapping).
 
 ``features``: a :class:`~d2slam.slam.features.FeatureRecorder` keeps every frame's extracted features (to save them),
-a :class:`~d2slam.slam.features.CachedFeatures` gives them instead of extracting (the images are then read only when
-there is a keypoint filter; ``extract`` and the fps count the extraction time stored with the features, see
-``d2slam.slam.features``).
+a :class:`~d2slam.slam.features.CachedFeatures` gives them instead of extracting: no image is read then, except the
+depth image when there is a keypoint filter (``sequence.depth_image(i)`` when the sequence has it, else the whole
+frame); ``extract`` and the fps count the extraction time stored with the features (``d2slam.slam.features``).
 """
 
 from __future__ import annotations
@@ -73,7 +73,13 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
         raise D2SlamError(f"features must be a FeatureRecorder or CachedFeatures, not {type(features).__name__}")
     if cached is not None:
         cached.check(sequence.timestamps[:n])
-    read = cached is None or keypoint_filter is not None  # images needed
+    # What is read per frame: the whole frame, the depth image only (stored features and a filter), or nothing.
+    if cached is None:
+        reader = sequence.__getitem__
+    elif keypoint_filter is not None:
+        reader = getattr(sequence, "depth_image", None) or (lambda i: sequence[i].depth)
+    else:
+        reader = None
     extract_adjust = 0.0  # cached extraction time minus the time the cached read took
     totals = dict.fromkeys(STAGES, 0.0)
     states, per_frame = [], []
@@ -83,22 +89,22 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
                disable=None if progress is None else not progress)
     # Frame i+1 is read (PNG decoding releases the GIL) while frame i is processed: one reader thread, results
     # identical to reading in order; ``load`` is the time spent waiting for the frame.
-    pool = ThreadPoolExecutor(max_workers=1) if prefetch and read and n > 1 else None
-    pending = pool.submit(sequence.__getitem__, 0) if pool else None
+    pool = ThreadPoolExecutor(max_workers=1) if prefetch and reader is not None and n > 1 else None
+    pending = pool.submit(reader, 0) if pool else None
     for i in bar:
         t0 = time.perf_counter()
         if pool:
             frame = pending.result()
             if i + 1 < n:
-                pending = pool.submit(sequence.__getitem__, i + 1)
+                pending = pool.submit(reader, i + 1)
         else:
-            frame = sequence[i] if read else None
+            frame = reader(i) if reader is not None else None
         t1 = time.perf_counter()
         masks = mask_provider(i) if mask_provider is not None else None
         t2 = time.perf_counter()
-        if cached is not None:
-            res = engine.process(frame.gray if read else None, frame.depth if read else None, i,
-                                 float(cached.timestamps[i]), masks=masks, features=cached.frame(i))
+        if cached is not None:  # frame is the depth image or None
+            res = engine.process(None, frame, i, float(cached.timestamps[i]), masks=masks,
+                                 features=cached.frame(i))
             stored = float(cached.extract_ms[i]) / 1000.0
             extract_adjust += stored - res.timings["extract"]
             res.timings["extract"] = stored

@@ -104,11 +104,41 @@ def test_mismatched_and_corrupt_files(seq, saved, tmp_path):
         FeatureRecorder().save(tmp_path / "empty.npz")
 
 
-def test_filter_still_needs_the_images(seq, saved):
+def test_what_each_run_still_reads(seq, saved):
     path, *_ = saved
+    frame0 = CachedFeatures(path).frame(0)
     eng = Engine(seq.camera, DEFAULT, get_method("d2slam").factory(DEFAULT))
+    with pytest.raises(D2SlamError, match="needs the depth image"):
+        eng.process(None, None, 0, float(seq.timestamps[0]), features=frame0)
     with pytest.raises(D2SlamError, match="images are needed"):
-        eng.process(None, None, 0, float(seq.timestamps[0]), features=CachedFeatures(path).frame(0))
+        Engine(seq.camera, DEFAULT).process(None, None, 0, float(seq.timestamps[0]))
+    Engine(seq.camera, DEFAULT).process(None, None, 0, float(seq.timestamps[0]), features=frame0)  # no filter
+    # the depth-only read equals the frame's depth (no RGB decoded)
+    for i in (0, FRAMES - 1):
+        np.testing.assert_array_equal(seq.depth_image(i), seq[i].depth)
+    with pytest.raises(IndexError):
+        seq.depth_image(FRAMES)
+
+
+def test_sequence_without_depth_only_reader(seq, saved):
+    """A sequence that has no ``depth_image`` gives its depth through whole frames: same run."""
+    path, _, ref, ref_bel = saved
+
+    class Plain:
+        def __len__(self):
+            return len(seq)
+
+        def __getitem__(self, i):
+            return seq[i]
+
+        def __getattr__(self, name):  # camera, timestamps, root, masks ... but no depth_image
+            if name == "depth_image":
+                raise AttributeError(name)
+            return getattr(seq, name)
+
+    assert not hasattr(Plain(), "depth_image")
+    res, bel = _run(Plain(), "d2slam", CachedFeatures(path))
+    np.testing.assert_array_equal(res.trajectory.poses, ref.trajectory.poses)
 
 
 def test_study_replaces_a_corrupt_cache_file(seq, tmp_path):

@@ -131,10 +131,13 @@ def test_orbslam3_tables_when_present():
     md = T.tables_markdown(df, ["none", "d2slam", "semantic", "orbslam3"])
     assert "### Table 1b: ATE, improvement over real ORB-SLAM3 (`orbslam3`)" in md
     assert "| w/xyz | 50.0 % [0.0, 75.0] | 97.5 % [90.0, 97.5] | 81.2 % [75.0, 87.5] |" in md
+    assert "one run per sequence" in md and "{repeats" not in md  # repeats 1: no spread of its own
     extra["ate_min_m"], extra["ate_max_m"] = [3.5, 3.9, 3.8], [4.5, 4.1, 4.2]
+    extra["repeats"] = 3
     df = pd.concat([df[df["method"] != "orbslam3"], extra], ignore_index=True)
     md = T.tables_markdown(df, ["none", "d2slam", "semantic", "orbslam3"])
     assert "| 4.0000 [4.0000, 4.0000] {repeats 3.5000-4.5000} |" in md
+    assert "median of its 3 repeats per sequence" in md
 
 
 def test_twin_ratio_targets_fail_visibly():

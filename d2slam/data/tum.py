@@ -449,6 +449,15 @@ class TumSequence:
                      depth_timestamp=float(self.depth_timestamps[index]), rgb=rgb, depth=depth,
                      rgb_path=self.rgb_files[index], depth_path=self.depth_files[index])
 
+    def depth_image(self, index: int) -> np.ndarray:
+        """The depth image (float32 metres) of frame ``index`` alone, without decoding the RGB image (runs that read
+        stored features need only the depth)."""
+        index = int(index)
+        if not 0 <= index < len(self):
+            raise IndexError(f"frame {index} out of range for {len(self)} frames")
+        return read_depth(self.depth_files[index], self.camera.depth_factor, self._depth_list,
+                          int(self._depth_lines[index]), (self.camera.height, self.camera.width))
+
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
             yield self[i]

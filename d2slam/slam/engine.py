@@ -85,14 +85,15 @@ class Engine:
     def process(self, gray: np.ndarray | None, depth: np.ndarray | None, index: int, timestamp: float,
                 masks: np.ndarray | None = None, features: Frame | None = None) -> TrackResult:
         """Track one frame. ``features``: the frame's features extracted earlier by an extractor with this engine's
-        settings (``d2slam.slam.features``); then the images are only needed by the keypoint filter."""
+        settings (``d2slam.slam.features``); then no image is needed, except the depth by a keypoint filter."""
         if gray is not None and gray.ndim == 3:
             gray = cv2.cvtColor(gray, cv2.COLOR_RGB2GRAY)
-        if features is None or self.filter is not None:
-            if gray is None or depth is None:
-                raise D2SlamError(f"frame {index}: the images are needed (no precomputed features or a filter)")
-            if depth.shape != gray.shape:
-                raise D2SlamError(f"frame {index}: depth {depth.shape} and image {gray.shape} differ in size")
+        if features is None and (gray is None or depth is None):
+            raise D2SlamError(f"frame {index}: the images are needed (no precomputed features)")
+        if self.filter is not None and depth is None:
+            raise D2SlamError(f"frame {index}: the keypoint filter needs the depth image")
+        if gray is not None and depth is not None and depth.shape != gray.shape:
+            raise D2SlamError(f"frame {index}: depth {depth.shape} and image {gray.shape} differ in size")
         t0 = time.perf_counter()
         frame = self.extractor(gray, depth, index, timestamp) if features is None else features
         t1 = time.perf_counter()

@@ -18,7 +18,7 @@ import numpy as np
 class FilterInput:
     frame_index: int
     timestamp: float
-    gray: np.ndarray  # (H, W) uint8
+    gray: np.ndarray | None  # (H, W) uint8; None when the run reads stored features (d2slam.slam.features)
     depth: np.ndarray  # (H, W) float32 metres, 0 = invalid
     K: np.ndarray  # (3, 3)
     kps: np.ndarray  # (N, 2) float32 pixel coordinates (u, v) of the current keypoints (level-0 image)

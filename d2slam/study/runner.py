@@ -106,6 +106,11 @@ class _Head:
             raise IndexError(i)
         return self._seq[i]
 
+    def depth_image(self, i: int):
+        if not 0 <= i < self._n:
+            raise IndexError(i)
+        return self._seq.depth_image(i)
+
     def __getattr__(self, name):
         return getattr(self._seq, name)
 
