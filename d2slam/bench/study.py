@@ -29,7 +29,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--frames", type=int, default=100, help="frames of the measured sequence (default 100)")
     parser.add_argument("--methods", nargs="+", default=None, help="default: every method and orbslam3")
     parser.add_argument("--repeat", type=int, default=2, help="measurements per method (default 2)")
-    parser.add_argument("--orbslam3-repeats", type=int, default=None, help="default: the config's (3)")
+    parser.add_argument("--orbslam3-repeats", type=int, default=None, help="default: the config's (1)")
     parser.add_argument("--gen-frames", type=int, default=30, help="frames generated to time the generator (0: skip)")
     parser.add_argument("--grid-frames", type=int, default=DEFAULT_FRAMES, help="frames of the projected grid")
     parser.add_argument("--grid-seeds", type=int, default=3)

@@ -115,7 +115,8 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
 
     manifest = build_manifest(config, grid, ex, generator_version(),
                               {"sequences_s": round(t_seq, 2), "runs_s": round(t_runs, 2)})
-    res = write_results(out, specs, results, method_order, manifest, plots=plots)
+    # the finished runs are on disk already (saved as they finished, or read from there by --resume)
+    res = write_results(out, specs, results, method_order, manifest, plots=plots, saved=set(by_id))
     manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
     return res
@@ -158,10 +159,12 @@ def _prepare_vocabulary(progress) -> None:
 
 
 def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_order: list[str], manifest: dict,
-                  plots: bool = True) -> StudyResult:
+                  plots: bool = True, saved: set[str] = frozenset()) -> StudyResult:
+    """Write the study's files; runs whose id is in ``saved`` are already in ``out/runs`` and not written again."""
     files = {}
     for s, r in zip(specs, results):
-        save_run(out, s, r)
+        if s.run_id not in saved:
+            save_run(out, s, r)
     df = T.sort_runs(T.runs_frame([r["row"] for r in results]), method_order)
     T.write_runs_csv(df, out / "runs.csv")
     summary = T.summarise(df)

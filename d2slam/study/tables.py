@@ -233,7 +233,8 @@ def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: lis
     for s in _scenarios(d):
         r = [LABELS.get(s, s)]
         for m in ms:
-            v = d[(d["scenario"] == s) & (d["method"] == m)][metric].to_numpy(np.float64)
+            g = d[(d["scenario"] == s) & (d["method"] == m)]
+            v = g[metric].to_numpy(np.float64)
             n_all = len(v)
             v = v[np.isfinite(v)]
             if not len(v):
@@ -244,9 +245,7 @@ def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: lis
                 cell += f" [{v.min():.{nd}f}, {v.max():.{nd}f}]"
             if len(v) < n_all:
                 cell += f" ({n_all - len(v)} failed)"
-            reps = d[(d["scenario"] == s) & (d["method"] == m)]["repeats"].to_numpy()
-            if m == ORBSLAM3 and metric == "ate_rmse_m" and (reps > 1).any():  # the spread of its own repeats
-                g = d[(d["scenario"] == s) & (d["method"] == m)]
+            if m == ORBSLAM3 and metric == "ate_rmse_m" and (g["repeats"] > 1).any():  # the spread of its own repeats
                 lo, hi = g["ate_min_m"].to_numpy(np.float64), g["ate_max_m"].to_numpy(np.float64)
                 if np.isfinite(lo).any() and np.isfinite(hi).any():
                     cell += f" {{repeats {np.nanmin(lo):.{nd}f}-{np.nanmax(hi):.{nd}f}}}"
