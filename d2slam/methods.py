@@ -7,6 +7,8 @@ with :func:`register` (one line each, e.g. from ``d2slam/dynamics/classifier.py`
     register("d2slam", lambda config: D2SlamFilter("d2slam", config), needs_masks=True)
 
 A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and ``reset()``, or None (hook off).
+``oracle`` (the keypoint truth as the filter: the upper bound of every method) always runs on the ``truth`` masks
+(``Method.masks``), so it exists for synthetic sequences only.
 """
 
 from __future__ import annotations
@@ -27,14 +29,31 @@ class Method:
     # A method that is not a keypoint filter of our engine (the real ORB-SLAM3): ``runner(args) -> exit status`` runs
     # the whole of ``d2slam run`` instead of the engine (``factory`` is then unused and returns None).
     runner: Callable[[object], int] | None = None
+    # The mask kind the method always uses (``--masks`` cannot change it), or None: the run's choice.
+    masks: str | None = None
 
 
 _REGISTRY: dict[str, Method] = {}
 
 
 def register(name: str, factory: Callable[[Config], object | None], needs_masks: bool = False,
-             help: str = "", runner: Callable[[object], int] | None = None) -> None:
-    _REGISTRY[name] = Method(name, factory, needs_masks, help, runner)
+             help: str = "", runner: Callable[[object], int] | None = None, masks: str | None = None) -> None:
+    _REGISTRY[name] = Method(name, factory, needs_masks, help, runner, masks)
+
+
+def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | None:
+    """The masks a run of ``method`` reads: the method's own kind, else ``requested`` (``--masks``), else ``sim`` on
+    synthetic sequences and ``onnx`` otherwise when the method needs masks (None: no masks)."""
+    if method.masks is not None:
+        if requested not in (None, method.masks):
+            raise D2SlamError(f"--method {method.name} always uses the '{method.masks}' masks, not {requested!r}")
+        if not synthetic:
+            raise D2SlamError(f"--method {method.name} needs the '{method.masks}' masks of a synthetic sequence "
+                              "(made by `d2slam synth`); real data has no such truth")
+        return method.masks
+    if requested is None and method.needs_masks:
+        return "sim" if synthetic else "onnx"
+    return requested
 
 
 def methods() -> list[str]:
@@ -65,6 +84,16 @@ def _orbslam3_runner(args) -> int:
 
 register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_runner,
          help="the real ORB-SLAM3 RGB-D (pyorbslam3) on the sequence, not our engine: d2slam.baselines.orbslam3")
+
+def _oracle(config: Config):
+    from d2slam.eval.keypoints import OracleFilter
+
+    return OracleFilter()
+
+
+register("oracle", _oracle, needs_masks=True, masks="truth",
+         help="upper bound, not a method: the keypoint truth (persons, moved objects while they move) as the filter; "
+              "synthetic sequences only")
 
 # The dynamics modes (d2slam, no-depth, no-oim, no-bayes, semantic, geometric): a light import, the classifier loads
 # when a filter is built.

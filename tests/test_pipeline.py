@@ -87,6 +87,49 @@ def test_run_command_records_keypoint_truth_on_synthetic(synth_dir, tmp_path):
     assert kp["frames_with_diagnostics"] == 6
 
 
+def test_oracle_is_the_keypoint_truth(synth_dir, tmp_path, capsys):
+    """--method oracle runs on the truth masks (persons, moved objects while they move) and its labels are the
+    keypoint truth: F1 1 by construction; it refuses other masks and real data."""
+    out, js = tmp_path / "traj.txt", tmp_path / "run.json"
+    assert main(["run", str(synth_dir), "--method", "oracle", "--out", str(out), "--metrics-json", str(js),
+                 "--quiet"]) == 0
+    rec = json.loads(js.read_text())
+    final = rec["keypoints"]["modules"]["final"]
+    assert rec["masks"] == "truth" and rec["keypoints"]["dynamic_keypoints"] > 0
+    assert final["fp"] == 0 and final["fn"] == 0 and final["f1"] == 1.0
+    assert main(["run", str(synth_dir), "--method", "oracle", "--masks", "sim", "--out", str(out)]) == 2
+    assert "always uses the 'truth' masks" in capsys.readouterr().err
+
+
+def test_truth_masks_are_the_dynamic_truth(synth_dir):
+    from d2slam.data import open_sequence
+    from d2slam.eval.keypoints import OracleFilter
+    from d2slam.segmentation import masks_for, stack_masks
+
+    seq = open_sequence(synth_dir)
+    for i in range(len(seq)):
+        m = stack_masks(masks_for(seq, i, "truth"), (seq.camera.height, seq.camera.width))
+        np.testing.assert_array_equal(m.any(axis=0), seq.dynamic_mask(i))
+    kps = np.array([[0.0, 0.0], [10.4, 3.6], [np.nan, 1.0]])
+    masks = np.zeros((2, 8, 12), bool)
+    masks[1, 4, 10] = True
+    inp = type("Inp", (), {"kps": kps, "masks": masks})()
+    np.testing.assert_array_equal(OracleFilter()(inp), [0.0, 1.0, 0.0])
+    inp.masks = None
+    np.testing.assert_array_equal(OracleFilter()(inp), [0.0, 0.0, 0.0])
+
+
+def test_oracle_needs_synthetic_truth(room_dir, tmp_path, capsys):
+    from d2slam.study.grid import default_methods, expand_grid
+
+    assert main(["run", str(room_dir), "--camera", "fr3", "--method", "oracle", "--out",
+                 str(tmp_path / "t.txt")]) == 2
+    assert "real data has no such truth" in capsys.readouterr().err
+    assert "oracle" in default_methods() and "oracle" not in default_methods("tum")
+    with pytest.raises(D2SlamError, match="synthetic truth"):
+        expand_grid(["walking_xyz"], ["none", "oracle"], [1], 0, source="tum")
+
+
 def test_run_command_no_keypoint_truth_on_tum(room_dir, tmp_path):
     js = tmp_path / "run.json"
     assert main(["run", str(room_dir), "--camera", "fr3", "--out", str(tmp_path / "t.txt"), "--metrics-json",

@@ -16,9 +16,10 @@ def register(sub) -> None:
     p.add_argument("--method", default="none", choices=methods(), help="keypoint filter (default: none)")
     p.add_argument("--out", required=True, metavar="TRAJ.txt", help="estimated trajectory (TUM format)")
     p.add_argument("--metrics-json", metavar="RUN.json", help="write run statistics and metrics as JSON")
-    p.add_argument("--masks", choices=["gt", "sim", "onnx"], default=None,
+    p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
                    help="person masks given to the filter (default: sim on synthetic sequences, onnx otherwise, "
-                   "when the method needs masks; never computed for --method none unless asked)")
+                   "when the method needs masks; never computed for --method none unless asked). truth: the "
+                   "synthetic dynamic truth (persons and moving objects), what --method oracle always uses")
     p.add_argument("--camera", metavar="fr1|fr2|fr3", default=None,
                    help="camera of a TUM folder whose name does not say (synthetic sequences carry their own)")
     p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
@@ -36,7 +37,7 @@ def run(args) -> int:
     from d2slam.data import open_sequence, write_tum_trajectory
     from d2slam.errors import D2SlamError
     from d2slam.eval.keypoints import keypoint_recorder
-    from d2slam.methods import get_method
+    from d2slam.methods import get_method, mask_kind
     from d2slam.pipeline import run_sequence
 
     method = get_method(args.method)
@@ -51,9 +52,7 @@ def run(args) -> int:
     config = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, ransac_seed=args.seed))
     seq = open_sequence(args.sequence, **({"camera": args.camera} if args.camera else {}))
     kfilter = method.factory(config)
-    masks_kind = args.masks
-    if masks_kind is None and method.needs_masks:
-        masks_kind = "sim" if (Path(args.sequence) / "scene.json").is_file() else "onnx"
+    masks_kind = mask_kind(method, args.masks, synthetic=(Path(args.sequence) / "scene.json").is_file())
     provider = None
     if masks_kind is not None:
         from d2slam.segmentation import masks_for, stack_masks

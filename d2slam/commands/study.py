@@ -38,8 +38,9 @@ def register(sub) -> None:
                    "same cache, or they generate the sequences themselves)")
     p.add_argument("--orbslam3-repeats", type=int, default=None, help="ORB-SLAM3 runs per sequence (not "
                    "deterministic: median and spread reported; default: config baseline.orbslam3_repeats, 1)")
-    p.add_argument("--masks", choices=["gt", "sim", "onnx"], default=None,
-                   help="person masks (default: sim on synthetic sequences, onnx on TUM data)")
+    p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
+                   help="person masks (default: sim on synthetic sequences, onnx on TUM data; the oracle always "
+                   "uses truth)")
     p.add_argument("--tum-root", metavar="DIR", default=None,
                    help=f"run on a real TUM copy (folders rgbd_dataset_freiburg3_*) instead of synthetic data "
                    f"(default ${ENV_TUM} only when --tum is given)")
@@ -74,7 +75,7 @@ def run(args) -> int:
         tum_root = os.environ.get(ENV_TUM)
         if not tum_root:
             raise D2SlamError(f"--tum needs ${ENV_TUM} pointing at a TUM RGB-D copy")
-    methods = args.methods or G.default_methods()
+    methods = args.methods or G.default_methods("tum" if tum_root else "synth")
     from d2slam.methods import methods as registered
 
     unknown = [m for m in methods if m not in registered() and m != G.ORBSLAM3]

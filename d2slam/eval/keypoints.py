@@ -36,6 +36,22 @@ def keypoint_truth(kps: np.ndarray, dynamic_mask: np.ndarray) -> np.ndarray:
     return out
 
 
+class OracleFilter:
+    """The ``oracle`` method's keypoint filter: belief 1 for a keypoint inside one of the frame's masks, 0 elsewhere,
+    by the same pixel test as ``keypoint_truth``. Given the ``truth`` masks (``d2slam.segmentation.sim``: the dynamic
+    truth of ``mask_gt``) its labels *are* the keypoint truth: a run shows what the engine does with a perfect
+    classifier, the upper bound of every dynamics method (synthetic sequences only)."""
+
+    def reset(self) -> None:
+        pass
+
+    def __call__(self, inp) -> np.ndarray:
+        masks = inp.masks
+        if masks is None or len(masks) == 0:
+            return np.zeros(len(inp.kps))
+        return keypoint_truth(inp.kps, np.asarray(masks, dtype=bool).any(axis=0)).astype(np.float64)
+
+
 def _ratio(a: int, b: int) -> float:
     return a / b if b > 0 else float("nan")
 

@@ -2,7 +2,9 @@
 
 * ``onnx``: YOLOv8n-seg through onnxruntime (``d2slam.segmentation.onnx.OnnxSegmenter``), any sequence;
 * ``sim``: the synthetic sequence's simulated segmenter output ``mask_sim/`` (the default for synthetic runs);
-* ``gt``: the synthetic sequence's ground-truth person ids in ``mask_gt/``.
+* ``gt``: the synthetic sequence's ground-truth person ids in ``mask_gt/``;
+* ``truth``: the synthetic sequence's dynamic truth (persons, and moved objects while they move) from ``mask_gt/``:
+  for the ``oracle`` upper bound, not a segmenter (``d2slam.segmentation.sim``).
 
 ``get_segmenter(kind, sequence, config)`` builds one; ``CachedSegmenter(segmenter, sequence)`` or
 ``masks_for(sequence, i, kind)`` (what the pipeline calls) reads the per-frame mask cache and fills it on demand.
@@ -17,7 +19,7 @@ from d2slam.errors import D2SlamError
 from d2slam.segmentation.base import PersonInstance, Segmenter, stack_masks
 from d2slam.segmentation.cache import CachedSegmenter
 
-KINDS = ("onnx", "sim", "gt")
+KINDS = ("onnx", "sim", "gt", "truth")
 
 __all__ = ["KINDS", "PersonInstance", "Segmenter", "stack_masks", "CachedSegmenter", "get_segmenter", "masks_for",
            "segmentation_config"]
@@ -35,13 +37,13 @@ def segmentation_config(config: Config | SegmentationConfig | None = None) -> Se
 
 def get_segmenter(kind: str, sequence=None, config: Config | SegmentationConfig | None = None,
                   model: str | Path | None = None, allow_unknown_model: bool | None = None):
-    """A segmenter of ``kind`` ("onnx", "sim" or "gt"). ``sequence`` is needed by sim/gt (its ``mask_*``
+    """A segmenter of ``kind`` ("onnx", "sim", "gt" or "truth"). ``sequence`` is needed by sim/gt/truth (its ``mask_*``
     folders); ``model`` overrides ``$D2SLAM_SEG_MODEL`` for onnx."""
     if kind == "onnx":
         from d2slam.segmentation.onnx import OnnxSegmenter
 
         return OnnxSegmenter(model, segmentation_config(config), allow_unknown_model)
-    if kind in ("sim", "gt"):
+    if kind in ("sim", "gt", "truth"):
         from d2slam.segmentation.sim import LabelSegmenter
 
         return LabelSegmenter(sequence, kind)

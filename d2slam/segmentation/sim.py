@@ -2,7 +2,11 @@
 
 * ``sim``: ``mask_sim/<stem>.png``, the simulated segmenter output (person instances labelled 1..n, 0 = none);
 * ``gt``: ``mask_gt/<stem>.png``, the ground-truth object ids, of which the ``person_ids`` of ``scene.json`` are
-  persons (one instance per person id present in the frame).
+  persons (one instance per person id present in the frame);
+* ``truth``: the same ``mask_gt/`` with one instance per *dynamic* id of the frame (every person, and a moved object
+  during its moving intervals: ``SyntheticSequence.dynamic_ids``), i.e. exactly the keypoint truth of
+  ``d2slam.eval.keypoints``. Not a segmenter anyone could have: it feeds the ``oracle`` upper bound and "what if the
+  masks were perfect" runs (``--masks truth``).
 
 ``<stem>`` is the RGB file's stem (its timestamp); format in CONTRIBUTING.md. ``instances(i)`` (what
 ``masks_for`` and ``CachedSegmenter`` call) uses the reader's ``person_masks_sim(i)`` / ``person_masks_gt(i)``
@@ -65,22 +69,25 @@ def read_label_png(path: Path) -> np.ndarray:
 
 
 class LabelSegmenter:
-    """``sim`` or ``gt`` person instances of a synthetic sequence (see the module docstring)."""
+    """``sim``, ``gt`` or ``truth`` instances of a synthetic sequence (see the module docstring)."""
 
     cacheable = False  # reading a label PNG is as cheap as reading a cache file
 
     def __init__(self, sequence, kind: str = "sim"):
-        if kind not in ("sim", "gt"):
-            raise D2SlamError(f"label segmenter kind must be 'sim' or 'gt', got {kind!r}")
+        if kind not in ("sim", "gt", "truth"):
+            raise D2SlamError(f"label segmenter kind must be 'sim', 'gt' or 'truth', got {kind!r}")
         if sequence is None:
             raise D2SlamError(f"the '{kind}' segmenter needs a synthetic sequence (mask_{kind}/ and scene.json)")
         self.name = kind
         self.sequence = sequence
         self.root = Path(getattr(sequence, "root", sequence))
-        self.folder = self.root / f"mask_{kind}"
+        self.folder = self.root / ("mask_sim" if kind == "sim" else "mask_gt")
         if not self.folder.is_dir():
-            raise D2SlamError(f"no mask_{kind}/ folder: the '{kind}' masks exist only for synthetic sequences "
+            raise D2SlamError(f"no {self.folder.name}/ folder: the '{kind}' masks exist only for synthetic sequences "
                               "(`d2slam synth`); use --masks onnx for real data", path=self.folder)
+        if kind == "truth" and not callable(getattr(sequence, "dynamic_ids", None)):
+            raise D2SlamError("the 'truth' masks need the synthetic reader (d2slam.data.synthetic: dynamic_ids)",
+                              path=self.root)
         self.person_ids = self._person_ids() if kind == "gt" else None
 
     def _person_ids(self) -> np.ndarray:
@@ -108,10 +115,14 @@ class LabelSegmenter:
         if labels.shape != shape:
             raise D2SlamError(f"mask size {labels.shape} differs from the frame's {shape}",
                               path=self.folder / f"{Path(rgb_path).stem}.png")
-        return instances_from_labels(labels, self.person_ids)
+        ids = self.sequence.dynamic_ids(frame.index) if self.name == "truth" else self.person_ids
+        return instances_from_labels(labels, ids)
 
     def instances(self, index: int) -> list[PersonInstance]:
-        """Persons of frame ``index``, through the reader's ``person_masks_<kind>(i)`` when it has one."""
+        """Persons of frame ``index``, through the reader's ``person_masks_<kind>(i)`` when it has one (``truth``:
+        the reader's ``mask_gt(i)`` restricted to its ``dynamic_ids(i)``)."""
+        if self.name == "truth":
+            return instances_from_labels(self.sequence.mask_gt(index), self.sequence.dynamic_ids(index))
         reader = getattr(self.sequence, f"person_masks_{self.name}", None)
         if reader is not None:
             out = reader(index)

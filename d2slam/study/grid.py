@@ -70,7 +70,7 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     ``orbslam3``. ``twin_methods``: the methods also run on each static twin (only those of ``methods``; none on
     a real TUM copy, which has no twin). Duplicates in the arguments are dropped (first occurrence kept)."""
     if methods is None:
-        methods = default_methods()
+        methods = default_methods(source)
     scenarios, methods, seeds = _unique(scenarios), _unique(methods), _unique(int(s) for s in seeds)
     if not scenarios or not methods or not seeds:
         raise D2SlamError("the study grid is empty: give at least one scenario, method and seed")
@@ -78,6 +78,10 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
         raise D2SlamError(f"--frames must be >= 2 (0 = all frames of a TUM folder), got {frames}")
     if source not in ("synth", "tum"):
         raise D2SlamError(f"unknown sequence source {source!r} (synth or tum)")
+    if source == "tum":
+        truth_only = [m for m in methods if m in _truth_methods()]
+        if truth_only:
+            raise D2SlamError(f"{', '.join(truth_only)} need(s) the synthetic truth masks: not on a real TUM copy")
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
         raise D2SlamError(f"unknown scenario(s) {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}")
@@ -91,12 +95,21 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     return specs
 
 
-def default_methods() -> list[str]:
-    """Every method of the run registry (``none`` first) and ``orbslam3``."""
+def default_methods(source: str = "synth") -> list[str]:
+    """Every method of the run registry (``none`` first) and ``orbslam3``; on a real TUM copy, not those that need
+    the synthetic truth (``oracle``)."""
     from d2slam.methods import methods
 
     names = list(methods())
+    if source == "tum":
+        names = [m for m in names if m not in _truth_methods()]
     return names + ([ORBSLAM3] if ORBSLAM3 not in names else [])
+
+
+def _truth_methods() -> set[str]:
+    from d2slam.methods import get_method, methods
+
+    return {m for m in methods() if get_method(m).masks == "truth"}
 
 
 def _unique(items) -> list:

@@ -119,7 +119,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     from d2slam.data import open_sequence
     from d2slam.eval.keypoints import keypoint_recorder
     from d2slam.eval.trajectory import aligned_estimate, evaluate
-    from d2slam.methods import get_method
+    from d2slam.methods import get_method, mask_kind
     from d2slam.pipeline import run_sequence
 
     config = _config(spec, options)
@@ -136,7 +136,8 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     if method.needs_masks:
         from d2slam.segmentation import masks_for, stack_masks
 
-        kind = options.get("masks") or ("sim" if spec.source == "synth" else "onnx")
+        # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
+        kind = mask_kind(method, None if method.masks else options.get("masks"), synthetic=spec.source == "synth")
         shape = (seq.camera.height, seq.camera.width)
 
         def provider(i):
