@@ -115,6 +115,15 @@ class EngineConfig:
     depth_factor: float = 5000.0
     min_depth: float = 0.1
     max_depth: float = 8.0
+    # Stereo observations (u, v, u_R): 0 = ORB-SLAM's information I / sigma_level^2 (u_R as noisy as a stereo match).
+    # > 0 (ours, RGB-D): u_R = u - bf / z carries u's error plus the depth's disparity error of this many pixels
+    # (optimizer.stereo_information). A Kinect's depth noise grows as sigma_z = k z^2 (k = 1.425e-3 / m, Khoshelham
+    # & Elberink 2012), i.e. a constant disparity error bf * k = 0.057 px at bf = 40 (the synthetic sensor's: 0.06-0.08
+    # px over 1-3 m); ORB-SLAM's 1 px x scale lets points slide in depth and local BA drag keyframes with them.
+    # Measured (rpy static twins, dev seeds 3-8, `none`): RPE 1.09-1.97 cm -> 0.62-1.02 cm; see the README.
+    disparity_sigma_px: float = 0.057
+    # ... in motion-only BA, the first rounds use ORB-SLAM's information all the same (wide basin from a coarse pose).
+    pose_opt_coarse_rounds: int = 1
     # Chi-square thresholds at 95 % (ORB-SLAM): 2 dof mono, 3 dof stereo.
     chi2_mono: float = 5.991
     chi2_stereo: float = 7.815

@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import time
 
@@ -144,7 +146,8 @@ def solve_g2o(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, fl
     from d2slam.config import EngineConfig
     from d2slam.slam import optimizer as opt_mod
 
-    cfg = EngineConfig()
+    # ORB-SLAM's isotropic stereo information, as the gtsam side (the problem's u_R noise is a stereo match's)
+    cfg = dataclasses.replace(EngineConfig(), disparity_sigma_px=0.0)
     t0 = time.perf_counter()
     # Same code path as the engine, timed in two parts by running the build alone first.
     poses, X, _ = opt_mod.local_bundle_adjustment(p["start"], p["fixed"], p["X0"], p["cams"], p["pts"], p["uv"],

@@ -21,7 +21,7 @@ from d2slam.slam.hook import FilterInput, KeypointFilter
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import (KeypointIndex, knn_ratio_match, nearest_matches, rotation_consistent,
                                   search_candidates, unique_by_target, window_cross_match)
-from d2slam.slam.optimizer import local_bundle_adjustment, pose_optimization
+from d2slam.slam.optimizer import local_bundle_adjustment, pose_optimization, stereo_chi2
 
 OK, LOST, NOT_INITIALIZED = "ok", "lost", "not_initialized"
 
@@ -692,7 +692,7 @@ class Engine:
         ey = v[:, None] - kf.kps[safe, 1]
         stereo = kf.ur[safe] >= 0
         er = (u - self.bf / z)[:, None] - kf.ur[safe]
-        e2 = (ex ** 2 + ey ** 2 + np.where(stereo, er ** 2, 0.0)) * kf.inv_sigma2[safe]
+        e2 = stereo_chi2(ex, ey, er, stereo, kf.inv_sigma2[safe], self.cfg.disparity_sigma_px)
         chi_ok = e2 <= np.where(stereo, self.cfg.chi2_stereo, self.cfg.chi2_mono)
         usable = np.ones(len(kf.kps), dtype=bool) if kf.dynamic is None else ~kf.dynamic
         best, d1, _, _, _ = search_candidates(index, uv, radius, P.desc[pids], kf.desc, kf.octave, level - 1, level,

@@ -38,11 +38,26 @@ def _optimizer(dense: bool, gain_threshold: float = 0.0):
     return opt
 
 
-def _infos(inv_sigma2: np.ndarray) -> tuple[list, list]:
+def stereo_information(inv_sigma2: float, disparity_sigma: float) -> np.ndarray:
+    """3x3 information of a stereo observation ``(u, v, u_R)``. ``disparity_sigma`` 0: ORB-SLAM's
+    ``I * inv_sigma2`` (u_R as noisy as a stereo match). > 0 (RGB-D): ``u_R = u - bf / z`` is computed from the
+    keypoint's own ``u``, so it carries u's error plus the depth sensor's disparity error ``disparity_sigma`` (px);
+    the information of that model makes ``r^T I r = (r_u^2 + r_v^2) * inv_sigma2 + (r_u - r_uR)^2 /
+    disparity_sigma^2``: the keypoint's position at its level's sigma, its disparity ``bf / z`` at the sensor's."""
+    info = np.eye(3) * inv_sigma2
+    if disparity_sigma > 0:
+        w = 1.0 / disparity_sigma ** 2
+        info[0, 0] += w
+        info[0, 2] = info[2, 0] = -w
+        info[2, 2] = w
+    return info
+
+
+def _infos(inv_sigma2: np.ndarray, disparity_sigma: float = 0.0) -> tuple[list, list]:
     """Information matrices per observation, built once per distinct value (one per pyramid level)."""
     vals, inv = np.unique(inv_sigma2, return_inverse=True)
     i2 = [np.eye(2) * v for v in vals]
-    i3 = [np.eye(3) * v for v in vals]
+    i3 = [stereo_information(v, disparity_sigma) for v in vals]
     return [i2[k] for k in inv], [i3[k] for k in inv]
 
 
@@ -52,22 +67,31 @@ def _edge_setup(uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray, cfg: Eng
     the information matrices, the stereo flag (``u_R >= 0``) and the stereo measurements ``(u, v, u_R)``."""
     k_mono = g2o.RobustKernelHuber(np.sqrt(cfg.chi2_mono))
     k_stereo = g2o.RobustKernelHuber(np.sqrt(cfg.chi2_stereo))
-    info2, info3 = _infos(inv_sigma2)
+    info2, info3 = _infos(inv_sigma2, cfg.disparity_sigma_px)
     return k_mono, k_stereo, info2, info3, ur >= 0, np.column_stack([uv, ur])
 
 
 def reprojection_chi2(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
-                      K: np.ndarray, bf: float) -> tuple[np.ndarray, np.ndarray]:
-    """Chi2 of every observation (stereo where ``ur >= 0``) and whether the point is in front of the camera."""
+                      K: np.ndarray, bf: float, disparity_sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Chi2 of every observation (stereo where ``ur >= 0``, with the information of ``stereo_information``) and
+    whether the point is in front of the camera."""
     Xc = X @ Tcw[:3, :3].T + Tcw[:3, 3]
     z = Xc[:, 2]
     zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
     u = K[0, 0] * Xc[:, 0] / zs + K[0, 2]
     v = K[1, 1] * Xc[:, 1] / zs + K[1, 2]
-    e2 = (uv[:, 0] - u) ** 2 + (uv[:, 1] - v) ** 2
-    stereo = ur >= 0
-    e2 = e2 + np.where(stereo, (ur - (u - bf / zs)) ** 2, 0.0)
-    return e2 * inv_sigma2, z > 0
+    return stereo_chi2(uv[:, 0] - u, uv[:, 1] - v, ur - (u - bf / zs), ur >= 0, inv_sigma2, disparity_sigma), z > 0
+
+
+def stereo_chi2(du, dv, dur, stereo, inv_sigma2, disparity_sigma: float = 0.0):
+    """``r^T I r`` for residuals (du, dv, du_R) with the information of ``stereo_information`` (du_R ignored where
+    ``stereo`` is False: a monocular observation). Broadcasts."""
+    e2 = (du ** 2 + dv ** 2) * inv_sigma2
+    if disparity_sigma > 0:
+        extra = (du - dur) ** 2 / disparity_sigma ** 2
+    else:
+        extra = dur ** 2 * inv_sigma2
+    return e2 + np.where(stereo, extra, 0.0)
 
 
 def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
@@ -89,6 +113,10 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     opt.add_vertex(vpose)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     k_mono, k_stereo, info2, info3, stereo, meas3 = _edge_setup(uv, ur, inv_sigma2, cfg)
+    coarse = cfg.disparity_sigma_px > 0 and cfg.pose_opt_coarse_rounds > 0
+    info3_final = info3
+    if coarse:  # the first rounds with ORB-SLAM's isotropic information (a wide basin from a coarse initial pose)
+        info3 = _infos(inv_sigma2)[1]
     edges = []
     for i in range(m):
         if stereo[i]:
@@ -118,12 +146,16 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     level = np.zeros(m, dtype=np.int64)
     T = Tcw.copy()
     for it in range(cfg.pose_opt_rounds):
+        if coarse and it == cfg.pose_opt_coarse_rounds:
+            for i in np.flatnonzero(stereo):
+                edges[i].set_information(info3_final[i])
+        sigma_d = 0.0 if coarse and it < cfg.pose_opt_coarse_rounds else cfg.disparity_sigma_px
         # ORB-SLAM restarts every round from the initial pose; we continue from the last estimate (fewer
         # iterations to converge with the early-termination action, same fixed point).
         opt.initialize_optimization(0)
         opt.optimize(cfg.pose_opt_iterations)
         T = _mat(vpose.estimate())
-        chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf)
+        chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf, sigma_d)
         inlier = (chi2 <= th) & front
         new_level = (~inlier).astype(np.int64)
         for i in np.flatnonzero(new_level != level):
@@ -190,7 +222,8 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
         sel = obs_cam == c
         if not sel.any():
             continue
-        chi2, front = reprojection_chi2(new_poses[c], new_X[obs_pt[sel]], uv[sel], ur[sel], inv_sigma2[sel], K, bf)
+        chi2, front = reprojection_chi2(new_poses[c], new_X[obs_pt[sel]], uv[sel], ur[sel], inv_sigma2[sel], K, bf,
+                                        cfg.disparity_sigma_px)
         th = np.where(stereo[sel], cfg.chi2_stereo, cfg.chi2_mono)
         outlier[sel] = (chi2 > th) | ~front
     return new_poses, new_X, outlier
