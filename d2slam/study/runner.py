@@ -101,15 +101,16 @@ class _Head:
     def __len__(self) -> int:
         return self._n
 
-    def __getitem__(self, i: int):
+    def _check(self, i: int) -> int:
         if not 0 <= i < self._n:
             raise IndexError(i)
-        return self._seq[i]
+        return i
+
+    def __getitem__(self, i: int):
+        return self._seq[self._check(i)]
 
     def depth_image(self, i: int):
-        if not 0 <= i < self._n:
-            raise IndexError(i)
-        return self._seq.depth_image(i)
+        return self._seq.depth_image(self._check(i))
 
     def __getattr__(self, name):
         return getattr(self._seq, name)
@@ -188,9 +189,6 @@ def features_path(seq, path: Path, config, options: dict) -> Path:
     """Where the study keeps a sequence's extracted features (``d2slam.slam.features``): named after the sequence
     folder, its frame count and a digest of what an extraction depends on (ORB and engine settings, camera, OpenCV
     version, the frame and data code), under ``<cache>/study/features`` (or ``<cache_root>/features``)."""
-    import hashlib
-    import json
-
     import cv2
 
     from d2slam.paths import cache_dir
@@ -200,7 +198,7 @@ def features_path(seq, path: Path, config, options: dict) -> Path:
              "camera": [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.bf, cam.depth_factor,
                         [float(d) for d in np.asarray(cam.dist).ravel()]],
              "cv2": cv2.__version__, "code": source_digest(("slam/frame.py", "slam/features.py", "data"))}
-    key = hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    key = _digest(ident)
     root = Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
     return root / f"{Path(path).resolve().name}_n{len(seq)}-{key}.npz"
 
@@ -335,9 +333,6 @@ def run_key(spec: RunSpec, options: dict) -> str:
     """What a run's numbers depend on: the run, the config (seeded), the masks, the generator version, the source
     of the code that computes them and the versions of the numeric packages (and, for ORB-SLAM3, its repeats and
     vocabulary file). Equal keys => a finished run can be reused (``--resume``)."""
-    import hashlib
-    import json
-
     orb = spec.method == ORBSLAM3
     ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options.get("masks"),
              "tum_root": options.get("tum_root"), "code": source_digest(_ORBSLAM3_CODE if orb else _ENGINE_CODE),
@@ -349,6 +344,14 @@ def run_key(spec: RunSpec, options: dict) -> str:
     if orb:
         ident["repeats"] = options.get("orbslam3_repeats")
         ident["vocabulary"] = _vocabulary_sha()
+    return _digest(ident)
+
+
+def _digest(ident: dict) -> str:
+    """16 hex digits of sha256 over the canonical JSON of ``ident`` (the run key and the features file name)."""
+    import hashlib
+    import json
+
     return hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
