@@ -85,6 +85,7 @@ def _orbslam3_runner(args) -> int:
 register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_runner,
          help="the real ORB-SLAM3 RGB-D (pyorbslam3) on the sequence, not our engine: d2slam.baselines.orbslam3")
 
+
 def _oracle(config: Config):
     from d2slam.eval.keypoints import OracleFilter
 

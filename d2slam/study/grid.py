@@ -26,6 +26,7 @@ DEFAULT_FRAMES = 300
 BASELINE = "none"  # the engine with the hook off: our in-engine stand-in for ORB-SLAM3
 ORBSLAM3 = "orbslam3"  # the real ORB-SLAM3 (not deterministic: repeated, median and spread)
 FULL = "d2slam"
+ORACLE = "oracle"  # the keypoint truth as the filter: the ceiling of every method (synthetic data only)
 # Methods also run on the static twins: the engine's own floor ("none") and the full method.
 TWIN_METHODS = (BASELINE, FULL)
 
@@ -79,7 +80,8 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     if source not in ("synth", "tum"):
         raise D2SlamError(f"unknown sequence source {source!r} (synth or tum)")
     if source == "tum":
-        truth_only = [m for m in methods if m in _truth_methods()]
+        truth = _truth_methods()
+        truth_only = [m for m in methods if m in truth]
         if truth_only:
             raise D2SlamError(f"{', '.join(truth_only)} need(s) the synthetic truth masks: not on a real TUM copy")
     unknown = [s for s in scenarios if s not in SCENARIOS]
@@ -102,7 +104,8 @@ def default_methods(source: str = "synth") -> list[str]:
 
     names = list(methods())
     if source == "tum":
-        names = [m for m in names if m not in _truth_methods()]
+        truth = _truth_methods()
+        names = [m for m in names if m not in truth]
     return names + ([ORBSLAM3] if ORBSLAM3 not in names else [])
 
 

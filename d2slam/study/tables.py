@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from d2slam.study.grid import BASELINE, FULL, LABELS, ORBSLAM3, SCENARIOS
+from d2slam.study.grid import BASELINE, FULL, LABELS, ORACLE, ORBSLAM3, SCENARIOS
 
 # runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
 KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source"]
@@ -344,7 +344,6 @@ def failures_markdown(df: pd.DataFrame) -> str:
     return _md(["sequence", "method", "seed", "status", "error"], rows)
 
 
-ORACLE = "oracle"
 ORACLE_NOTE = ("`oracle` is not a method but a ceiling: our engine with the keypoint truth as its filter (every "
                "keypoint on a person, or on an object while it moves, is dynamic; its F1 is 1 by construction). What "
                "separates a method from `oracle` is its classification; what separates `oracle` from the static twin "
