@@ -88,8 +88,13 @@ def test_clear_errors():
     with pytest.raises(D2SlamError, match="overlap|match"):
         evaluate(gt, Trajectory(gt.timestamps + 1000.0, gt.poses))
     short = Trajectory(gt.timestamps[:10], gt.poses[:10])
-    with pytest.raises(D2SlamError, match="RPE"):
+    with pytest.raises(D2SlamError, match="RPE.*spans only 0.30 s"):
         evaluate(gt, short)
+    # Tracked in bursts of 10 frames every 2 s: 6 s long, but no two poses 1 s apart -> the message says so.
+    keep = (np.arange(len(gt.timestamps)) % 60) < 10
+    gapped = Trajectory(gt.timestamps[keep], gt.poses[keep])
+    with pytest.raises(D2SlamError, match=r"no two matched poses are 1.0 \+- 0.02 s apart.*longest gap 1.70 s"):
+        evaluate(gt, gapped)
 
 
 def test_eval_command_json_and_plot(tmp_path, capsys):
@@ -107,3 +112,20 @@ def test_eval_command_json_and_plot(tmp_path, capsys):
     assert main(["eval", str(tmp_path / "gt.txt"), str(tmp_path / "empty.txt")]) == 2
     assert "empty" in capsys.readouterr().err
     assert main(["eval", str(tmp_path / "gt.txt"), str(tmp_path / "missing.txt")]) == 2
+
+
+def test_plot_leaves_the_callers_backend_alone(tmp_path):
+    """A notebook's inline backend must survive the library's PNG plots (they draw outside pyplot)."""
+    import matplotlib
+
+    from d2slam.eval.plots import plot_trajectory
+
+    before = matplotlib.get_backend()
+    matplotlib.use("svg")  # any non-Agg backend stands for the notebook's
+    try:
+        gt = _gt()
+        plot_trajectory(gt, gt, tmp_path / "t.png", title="same")
+        assert matplotlib.get_backend() == "svg"
+    finally:
+        matplotlib.use(before)
+    assert (tmp_path / "t.png").stat().st_size > 1000

@@ -1,4 +1,5 @@
-"""Trajectory plot against ground truth (matplotlib, Agg backend: no display needed)."""
+"""Trajectory plot against ground truth (a matplotlib Figure outside pyplot, PNG by Agg: no display needed, and
+the caller's backend, e.g. a notebook's inline plots, is left untouched)."""
 
 from __future__ import annotations
 
@@ -11,10 +12,7 @@ from d2slam.errors import D2SlamError
 def plot_trajectory(groundtruth: Trajectory, estimate: Trajectory, out: str | Path, title: str = "",
                     metrics: dict | None = None) -> Path:
     """Top (x-y) and side (x-z) views of the SE(3)-aligned estimate over ground truth, saved as PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # outside pyplot: PNG by Agg, the caller's backend untouched
 
     from d2slam.eval.trajectory import aligned_estimate
 
@@ -22,7 +20,8 @@ def plot_trajectory(groundtruth: Trajectory, estimate: Trajectory, out: str | Pa
     if not out.parent.is_dir():
         raise D2SlamError("output folder does not exist", path=out.parent)
     gt, est, _ = aligned_estimate(groundtruth, estimate)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    fig = Figure(figsize=(10, 4.5))
+    axes = fig.subplots(1, 2)
     for ax, (i, j, name) in zip(axes, [(0, 1, "x-y"), (0, 2, "x-z")]):
         ax.plot(groundtruth.poses[:, i, 3], groundtruth.poses[:, j, 3], color="0.6", lw=1, label="ground truth")
         ax.plot(est[:, i], est[:, j], color="tab:red", lw=1.2, label="estimate (SE(3)-aligned)")
@@ -39,5 +38,4 @@ def plot_trajectory(groundtruth: Trajectory, estimate: Trajectory, out: str | Pa
         fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(out, dpi=100)
-    plt.close(fig)
     return out

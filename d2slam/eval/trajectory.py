@@ -75,8 +75,12 @@ def evaluate(groundtruth: Trajectory, estimate: Trajectory, max_diff: float = MA
 
     pairs = second_pairs(ref_a.timestamps, delta_s)
     if len(pairs) == 0:
-        raise D2SlamError(f"cannot compute RPE over {delta_s} s pairs: the matched estimate spans "
-                          f"{ref_a.timestamps[-1] - ref_a.timestamps[0]:.2f} s", path=estimate.meta.get("path"))
+        ts = np.asarray(ref_a.timestamps)
+        span = ts[-1] - ts[0]
+        why = (f"the matched estimate spans only {span:.2f} s" if span < delta_s - max_diff else
+               f"no two matched poses are {delta_s} +- {max_diff} s apart (the estimate spans {span:.2f} s with "
+               f"tracking gaps; longest gap {np.diff(ts).max():.2f} s)")
+        raise D2SlamError(f"cannot compute RPE over {delta_s} s pairs: {why}", path=estimate.meta.get("path"))
     t_err, r_err = relative_errors(np.asarray(ref_a.poses_se3), np.asarray(est_a.poses_se3), pairs)
     return TrajectoryMetrics(
         ate_rmse_m=ate,

@@ -1,4 +1,4 @@
-"""The study's figures (PNG, matplotlib Agg): trajectories, ATE bars with spread, keypoint F1 per module, runtime
+"""The study's figures (PNG, matplotlib figures outside pyplot, PNG by Agg): trajectories, ATE bars with spread, keypoint F1 per module, runtime
 breakdown."""
 
 from __future__ import annotations
@@ -11,13 +11,13 @@ import pandas as pd
 from d2slam.study.grid import LABELS, SCENARIOS
 
 
-def _plt():
-    import matplotlib
+def _subplots(*grid, **kw):
+    """A figure outside pyplot (``matplotlib.figure.Figure``): saved as PNG by Agg without switching the caller's
+    backend (a notebook's inline plots keep working after the study's plots)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    fig = Figure(figsize=kw.pop("figsize", None))
+    return fig, fig.subplots(*grid, **kw)
 
 
 def _scen(df) -> list[str]:
@@ -32,11 +32,10 @@ def plot_trajectories(aligned: dict, out: Path, seed: int) -> Path | None:
                   key=lambda k: (SCENARIOS.index(k[0]) if k[0] in SCENARIOS else 99, k[1]))
     if not keys:
         return None
-    plt = _plt()
     n = len(keys)
     cols = min(3, n)
     rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 4.3 * rows), squeeze=False)
+    fig, axes = _subplots(rows, cols, figsize=(5 * cols, 4.3 * rows), squeeze=False)
     for ax, (s, t) in zip(axes.flat, keys):
         runs = [(m, gt, est) for (s2, t2, m), (gt, est) in aligned.items() if (s2, t2) == (s, t)]
         gt = max((g for _, g, _ in runs), key=len)  # the ground truth matched by the longest tracked run
@@ -53,7 +52,6 @@ def plot_trajectories(aligned: dict, out: Path, seed: int) -> Path | None:
         ax.axis("off")
     fig.tight_layout()
     fig.savefig(out, dpi=90)
-    plt.close(fig)
     return out
 
 
@@ -71,11 +69,10 @@ def plot_summary_bars(summary: pd.DataFrame, out: Path, methods: list[str], metr
     col = f"{metric}_median"
     if d.empty or col not in d or not np.isfinite(d[col].to_numpy(np.float64)).any():
         return None
-    plt = _plt()
     scen = _scen(d)
     ms = [m for m in methods if m in set(d["method"])]
     width = 0.8 / max(len(ms), 1)
-    fig, ax = plt.subplots(figsize=(max(6, 1.6 * len(scen) * max(1, len(ms) / 3)), 4.5))
+    fig, ax = _subplots(figsize=(max(6, 1.6 * len(scen) * max(1, len(ms) / 3)), 4.5))
     x = np.arange(len(scen))
     for k, m in enumerate(ms):
         med, lo, hi = [], [], []
@@ -97,7 +94,6 @@ def plot_summary_bars(summary: pd.DataFrame, out: Path, methods: list[str], metr
     ax.legend(fontsize=7, ncol=min(4, len(ms)))
     fig.tight_layout()
     fig.savefig(out, dpi=90)
-    plt.close(fig)
     return out
 
 
@@ -105,11 +101,10 @@ def plot_keypoint_f1(module_f1: pd.DataFrame, out: Path) -> Path | None:
     """F1 of "dynamic" per module of the classifier (rows: method, module, f1 = median over runs)."""
     if module_f1.empty:
         return None
-    plt = _plt()
     methods = list(dict.fromkeys(module_f1["method"]))
     modules = list(dict.fromkeys(module_f1["module"]))
     width = 0.8 / max(len(modules), 1)
-    fig, ax = plt.subplots(figsize=(max(6, 1.4 * len(methods)), 4.2))
+    fig, ax = _subplots(figsize=(max(6, 1.4 * len(methods)), 4.2))
     x = np.arange(len(methods))
     for k, mod in enumerate(modules):
         vals = [module_f1[(module_f1["method"] == m) & (module_f1["module"] == mod)]["f1"] for m in methods]
@@ -122,7 +117,6 @@ def plot_keypoint_f1(module_f1: pd.DataFrame, out: Path) -> Path | None:
     ax.legend(fontsize=7, ncol=3)
     fig.tight_layout()
     fig.savefig(out, dpi=90)
-    plt.close(fig)
     return out
 
 
@@ -133,8 +127,7 @@ def plot_runtime(df: pd.DataFrame, out: Path, methods: list[str]) -> Path | None
     ms = [m for m in methods if m in set(d["method"])]
     if d.empty or not ms:
         return None
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(max(6, 1.2 * len(ms)), 4.2))
+    fig, ax = _subplots(figsize=(max(6, 1.2 * len(ms)), 4.2))
     bottom = np.zeros(len(ms))
     for st in stages:
         v = np.array([np.nan_to_num(np.nanmedian(d[d["method"] == m][st].to_numpy(float)))
@@ -148,5 +141,4 @@ def plot_runtime(df: pd.DataFrame, out: Path, methods: list[str]) -> Path | None
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out, dpi=90)
-    plt.close(fig)
     return out
