@@ -76,9 +76,9 @@ def test_extractor_settings_depth_and_virtual_right(room):
     assert np.all(f.ur[~valid] == -1)
     from dataclasses import replace
 
-    ex_close = OrbExtractor(DEFAULT.orb, replace(DEFAULT.engine, stereo_far_points=False), FR3)
+    ex_close = OrbExtractor(DEFAULT.orb, replace(DEFAULT.engine, stereo_far_points=False, th_depth=40.0), FR3)
     depth2 = depth.copy()
-    depth2[:, :320] = 1.5  # left half close (< 3 m), right half far (4 m)
+    depth2[:, :320] = 1.5  # ORB-SLAM3's th_depth 40: left half close (< 3 m), right half far (4 m)
     depth2[:, 320:] = 4.0
     f2 = ex_close(gray, depth2)
     close = (f2.depth > 0) & (f2.depth < 40 * BF / FR3.fx)
