@@ -333,6 +333,9 @@ class BaselineConfig:
     # three seeds already give three runs per scenario, and the default study must fit in 30 min; each repeat costs
     # ~20 s per sequence, 6 s of it loading the vocabulary), subprocess time limits (vocabulary load + per frame).
     orbslam3_fps: float = 30.0
+    # ORB-SLAM3's own TUM setting (Stereo.ThDepth: close points within 40 b = 3 m; it triangulates the far ones),
+    # not our engine's EngineConfig.th_depth.
+    orbslam3_th_depth: float = 40.0
     orbslam3_repeats: int = 1
     orbslam3_load_timeout_s: float = 180.0
     orbslam3_frame_timeout_s: float = 2.0

@@ -385,3 +385,27 @@ def test_fusion_adds_observations_but_never_to_dynamic_keypoints(room):
         assert sorted(M.obs.kp[sel].tolist()) == linked.tolist()
         assert np.all(M.obs.pt[sel] == kf.mp[M.obs.kp[sel]])
         assert M.points.alive[kf.mp[linked]].all()
+
+
+@pytest.mark.parametrize("th_depth", [40.0, 60.0])
+def test_keyframe_points_from_depth_up_to_th_depth(room, th_depth):
+    """CreateNewKeyFrame: a new keyframe makes points for its untracked keypoints closer than th_depth * b (60: 4.49 m,
+    ours; 40: 2.99 m, ORB-SLAM3), beyond only until kf_new_points_min points (tracked ones included) are counted."""
+    frames, _, ts = room
+    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, th_depth=th_depth))
+    eng = Engine(FR3, cfg)
+    for i in range(2):
+        assert eng.process(*frames[i], i, ts[i]).tracked
+    f = eng.last
+    assert ((f.mp >= 0) & (f.depth > 0)).sum() > cfg.engine.kf_new_points_min  # the count is past maxPoint already
+    free = np.flatnonzero(f.mp < 0)
+    mid, far = free[::2], free[1::2]
+    f.depth[mid], f.depth[far] = 3.5, 5.0  # between the two thresholds / beyond both
+    assert len(mid) > 10
+    kf = eng.create_keyframe(f)
+    made = kf.mp >= 0
+    assert not made[far].any()
+    if th_depth == 60.0:
+        assert made[mid].all()
+    else:
+        assert not made[mid].any()
