@@ -107,13 +107,7 @@ class OrbConfig:
 class EngineConfig:
     # Virtual stereo: u_R = u - bf / z; points closer than th_depth * b (b = bf / fx) are "close".
     bf: float = 40.0
-    # ORB-SLAM3's TUM setting is 40 (3.0 m): a new keyframe makes points from depth for the close keypoints (and at
-    # least kf_new_points_min), and its local mapping triangulates the far ones between keyframes (CreateNewMapPoints).
-    # Our engine has no triangulation, so "close" reaches the Kinect range: 60 b = 4.49 m (DynamicsConfig.z_far).
-    # Measured (dev seeds 3-5, 300 frames): with 40, people filling the near field leave a keyframe few static close
-    # points and tracking was lost on walking_rpy even with the keypoint truth as filter (oracle 176-202 of 300 frames
-    # tracked, d2slam 160-204); with 60 every run tracks 300/300, d2slam w/rpy ATE 29.9 / 36.7 mm -> 9.2 / 27.5 mm.
-    th_depth: float = 60.0
+    th_depth: float = 40.0
     # True: every keypoint with valid depth gets u_R and a stereo edge (ORB-SLAM2/3 ComputeStereoFromRGBD); th_depth
     # then only decides which points are "close" (new map points, keyframe decision, keyframe culling). False: far
     # points (beyond th_depth * b) get monocular edges.
@@ -168,6 +162,15 @@ class EngineConfig:
     kf_close_untracked: int = 70
     kf_min_inliers: int = 15
     kf_new_points_min: int = 100  # CreateNewKeyFrame: close points added until at least this many (maxPoint)
+    # ... and all closer than this (m) as well (ours): ORB-SLAM3 gets its far points by triangulating keypoints between
+    # keyframes (CreateNewMapPoints), which our engine does not do; its keyframes make points from depth up to the
+    # Kinect range instead (DynamicsConfig.z_far; 0 = ORB-SLAM3's rule, th_depth * b = 3 m). Measured (dev seeds 3-5,
+    # 300 frames): with people filling the near field, keyframes got few static points and walking_rpy lost track
+    # even with the keypoint truth as filter (oracle 176-202 of 300 frames tracked); with 4.5 every d2slam, oracle and
+    # static-twin run tracks 300/300, d2slam ATE w/xyz 12.8/6.1/5.3 -> 5.8/5.1/4.0 mm (but w/rpy, now tracked
+    # throughout, 52.7/140/6.4 mm where it was 29.9/36.7/5.6 mm over the frames it tracked). The keyframe decision keeps
+    # th_depth (with "close" at 4.5 m too, keyframes fell 5-10x and the unfiltered engine survived the people).
+    kf_new_points_depth: float = 4.5
     # Local mapping.
     local_ba_iterations: int = 10
     # SearchInNeighbors (observation part, no point merging): the new keyframe and its best covisibles (+ their

@@ -76,9 +76,9 @@ def test_extractor_settings_depth_and_virtual_right(room):
     assert np.all(f.ur[~valid] == -1)
     from dataclasses import replace
 
-    ex_close = OrbExtractor(DEFAULT.orb, replace(DEFAULT.engine, stereo_far_points=False, th_depth=40.0), FR3)
+    ex_close = OrbExtractor(DEFAULT.orb, replace(DEFAULT.engine, stereo_far_points=False), FR3)
     depth2 = depth.copy()
-    depth2[:, :320] = 1.5  # ORB-SLAM3's th_depth 40: left half close (< 3 m), right half far (4 m)
+    depth2[:, :320] = 1.5  # left half close (< 3 m), right half far (4 m)
     depth2[:, 320:] = 4.0
     f2 = ex_close(gray, depth2)
     close = (f2.depth > 0) & (f2.depth < 40 * BF / FR3.fx)
@@ -387,12 +387,13 @@ def test_fusion_adds_observations_but_never_to_dynamic_keypoints(room):
         assert M.points.alive[kf.mp[linked]].all()
 
 
-@pytest.mark.parametrize("th_depth", [40.0, 60.0])
-def test_keyframe_points_from_depth_up_to_th_depth(room, th_depth):
-    """CreateNewKeyFrame: a new keyframe makes points for its untracked keypoints closer than th_depth * b (60: 4.49 m,
-    ours; 40: 2.99 m, ORB-SLAM3), beyond only until kf_new_points_min points (tracked ones included) are counted."""
+@pytest.mark.parametrize("new_points_depth", [0.0, 4.5])
+def test_keyframe_points_from_depth_up_to_the_kinect_range(room, new_points_depth):
+    """CreateNewKeyFrame: a new keyframe makes points for its untracked keypoints closer than th_depth * b (2.99 m,
+    ORB-SLAM3) or kf_new_points_depth (4.5 m, ours) if larger; beyond, only until kf_new_points_min points (tracked
+    ones included) are counted."""
     frames, _, ts = room
-    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, th_depth=th_depth))
+    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, kf_new_points_depth=new_points_depth))
     eng = Engine(FR3, cfg)
     for i in range(2):
         assert eng.process(*frames[i], i, ts[i]).tracked
@@ -400,12 +401,12 @@ def test_keyframe_points_from_depth_up_to_th_depth(room, th_depth):
     assert ((f.mp >= 0) & (f.depth > 0)).sum() > cfg.engine.kf_new_points_min  # the count is past maxPoint already
     free = np.flatnonzero(f.mp < 0)
     mid, far = free[::2], free[1::2]
-    f.depth[mid], f.depth[far] = 3.5, 5.0  # between the two thresholds / beyond both
+    f.depth[mid], f.depth[far] = 3.5, 5.0  # between 2.99 m and 4.5 m / beyond both
     assert len(mid) > 10
     kf = eng.create_keyframe(f)
     made = kf.mp >= 0
     assert not made[far].any()
-    if th_depth == 60.0:
+    if new_points_depth == 4.5:
         assert made[mid].all()
     else:
         assert not made[mid].any()

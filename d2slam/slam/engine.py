@@ -611,7 +611,9 @@ class Engine:
 
     def create_keyframe(self, frame: Frame) -> KeyFrame:
         """ORB-SLAM CreateNewKeyFrame (RGB-D): observations of the tracked points, new points from depth for the
-        closest untracked keypoints (all closer than th_depth, and at least ``kf_new_points_min``)."""
+        closest untracked keypoints: all closer than ``max(th_depth * b, kf_new_points_depth)`` (ours: up to the
+        Kinect range, in place of ORB-SLAM3's triangulation of far points, see ``EngineConfig``), and at least
+        ``kf_new_points_min`` (tracked ones counted)."""
         kf = self._make_keyframe(frame)
         self.map.add_keyframe(kf)
         tracked = (frame.mp >= 0) & ~frame.outlier & ~frame.dynamic
@@ -622,7 +624,8 @@ class Engine:
         cand = cand[np.argsort(frame.depth[cand], kind="stable")]
         has = kf.mp[cand] >= 0
         count = np.cumsum(np.ones(len(cand), dtype=np.int64))
-        stop = (frame.depth[cand] > self.th_depth_m) & (count > self.cfg.kf_new_points_min)
+        limit = max(self.th_depth_m, self.cfg.kf_new_points_depth)
+        stop = (frame.depth[cand] > limit) & (count > self.cfg.kf_new_points_min)
         if stop.any():
             cand, has = cand[: np.argmax(stop)], has[: np.argmax(stop)]
         new = cand[~has & (frame.mp[cand] < 0)]

@@ -182,8 +182,7 @@ def keypoint_depth(depth: np.ndarray, pts: np.ndarray, radius: int, engine: Engi
 
 
 def close_depth(camera: Camera, engine: EngineConfig) -> float:
-    """ORB-SLAM's close-point depth ``th_depth * b`` with baseline ``b = bf / fx`` (TUM fr3: 60 * 40 / 535.4 ≈ 4.5 m;
-    ORB-SLAM3's 40 gives ≈ 3 m, see ``EngineConfig.th_depth``)."""
+    """ORB-SLAM's close-point depth ``th_depth * b`` with baseline ``b = bf / fx`` (40 * 40 / 535.4 ≈ 3 m)."""
     return engine.th_depth * camera.bf / camera.fx
 
 
