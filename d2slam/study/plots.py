@@ -1,5 +1,5 @@
-"""The study's figures (PNG, matplotlib figures outside pyplot, PNG by Agg): trajectories, ATE bars with spread, keypoint F1 per module, runtime
-breakdown."""
+"""The study's figures (PNG by Agg, drawn on matplotlib figures outside pyplot): trajectories, ATE bars with spread,
+keypoint F1 per module, runtime breakdown."""
 
 from __future__ import annotations
 
