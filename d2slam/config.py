@@ -68,6 +68,10 @@ class DynamicsConfig:
     gamma_max: float = 28.0
     # eq 10 (ours): belief given to a static keypoint the OIM turns dynamic (the paper only says "becomes dynamic").
     oim_belief: float = 0.9
+    # eq 10 (ours, measured): a keypoint whose own epipolar test passed this frame (matched, err <= alpha) is no OIM
+    # candidate: its direct evidence of being static is not overridden by its neighbours'. False = the paper's reading
+    # (every keypoint still static after eq 8). See interaction.oim_candidates for the measurements.
+    oim_skip_observed_static: bool = True
     # eq 4-5: fundamental matrix by RANSAC (OpenCV), seeded for determinism.
     f_ransac_threshold_px: float = 1.0
     f_ransac_confidence: float = 0.999

@@ -76,9 +76,10 @@ def test_no_bayes_belief_is_eq7_and_no_oim_has_no_oim():
     assert g.last.oim is None and "oim" not in g.last.predictions()
 
 
-def test_oim_flips_inert_object_next_to_person():
-    """A box pushed by a person: its keypoints are outside the mask, static per the prior, next to the person's
-    geometric-dynamic keypoints. d2slam flips them, no-oim does not."""
+def _box_next_to_person():
+    """A box pushed by a person: two keypoints just outside the mask, static per the prior, next to six of the
+    person's keypoints made geometric-dynamic. Returns (input, index of the first box keypoint, the moved person
+    keypoints that are matched)."""
     inp, _ = two_view_scene(4, n_persons=1)
     n = len(inp.kps)
     m = inp.masks[0]
@@ -104,14 +105,48 @@ def test_oim_flips_inert_object_next_to_person():
         if i in prev_of:
             inp.prev_kps[prev_of[i]] = kps[i] + [0.0, 15.0]
     inp.masks = inp.masks.copy()
+    return inp, n, near[[i in prev_of for i in near]]
+
+
+def test_oim_flips_inert_object_next_to_person():
+    """The box's keypoints (unmatched) are turned dynamic by d2slam, not by no-oim."""
+    inp, n, matched = _box_next_to_person()
     f = get_filter("d2slam")
     bel = f(inp)
     d = f.last
-    matched = near[[i in prev_of for i in near]]
     assert len(matched) >= 3 and d.geo_dynamic[matched].all()
     assert not d.geo_dynamic[n:].any() and (d.belief_bayes[n:] <= 0.5).all()  # static before the OIM
     assert d.oim[n:].all() and (bel[n:] > 0.5).all()
     assert (get_filter("no-oim")(inp)[n:] <= 0.5).all()
+
+
+def test_oim_leaves_keypoints_whose_own_epipolar_test_passed():
+    """oim_skip_observed_static (our measured deviation, DynamicsConfig): the same box, now matched to the previous
+    frame on its epipolar line (error ~0 <= alpha), keeps its own evidence and stays static; with the paper's
+    candidates (the switch off) the OIM still flips it."""
+    from d2slam.dynamics.geometric import geometric_module
+
+    inp, n, matched = _box_next_to_person()
+    box = inp.kps[n:].astype(np.float64)
+    m0 = len(inp.prev_kps)
+    inp.prev_kps = np.vstack([inp.prev_kps, box]).astype(np.float32)
+    inp.prev_kp_depth = np.concatenate([inp.prev_kp_depth, inp.kp_depth[n:]]).astype(np.float32)
+    inp.prev_belief = np.concatenate([inp.prev_belief, [0.0, 0.0]])
+    inp.matches = np.vstack([inp.matches, [[n, m0], [n + 1, m0 + 1]]])
+    alpha = np.ones(len(inp.kps))
+    for _ in range(3):  # the box's previous positions onto the epipolar lines of the F that RANSAC finds with them
+        F = geometric_module(inp.kps, inp.prev_kps, inp.matches, inp.prev_belief, alpha).F
+        line = np.c_[box, np.ones(len(box))] @ F  # l' = F^T p
+        off = (np.c_[inp.prev_kps[m0:], np.ones(len(box))] * line).sum(1) / np.linalg.norm(line[:, :2], axis=1)
+        inp.prev_kps[m0:] -= (off[:, None] * line[:, :2] / np.linalg.norm(line[:, :2], axis=1, keepdims=True))
+    f = get_filter("d2slam")
+    bel = f(inp)
+    d = f.last
+    assert d.geo_dynamic[matched].all()
+    assert d.observed[n:].all() and not d.geo_dynamic[n:].any() and np.nanmax(d.err[n:]) < 0.1
+    assert not d.oim[n:].any() and (bel[n:] <= 0.5).all()
+    paper = get_filter("d2slam", DynamicsConfig(oim_skip_observed_static=False))
+    assert (paper(inp)[n:] > 0.5).all() and paper.last.oim[n:].all()
 
 
 def test_bad_input_gives_clear_errors():

@@ -7,6 +7,7 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
     P_g, flag    = geometric module on the matches to frame t-1                              (eq 4-6, geometric.py)
     P            = eq 7 fusion; bel = eq 8 Bayesian update from bel(q) / the map point       (fusion.py)
     OIM          = static keypoints in a person's interaction zone near geometric-dynamic ones -> dynamic
+                   (candidates: not matched with err <= alpha this frame, our measured deviation)
                                                                                              (eq 9-10, interaction.py)
 
 Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``none`` -> None, the hook off):
@@ -37,7 +38,7 @@ from d2slam.dynamics import METHODS, MODES, NEEDS_MASKS, register_methods  # noq
 from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, fuse, prior_belief
 from d2slam.dynamics.geometric import geometric_module
-from d2slam.dynamics.interaction import mask_depths, oim_frame
+from d2slam.dynamics.interaction import mask_depths, oim_candidates, oim_frame
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.errors import D2SlamError
 from d2slam.slam.hook import FilterInput
@@ -195,8 +196,8 @@ class D2SlamFilter:
         if self.use_oim:
             # eq 10's centroid test first, on the static keypoints near a mask, then the zone test (eq 9) only where
             # it would flip: the same result as testing the zone first, with far fewer edge searches.
-            zone, oim = oim_frame(fm, kps, maps, z_n, sem.d, margin, bel <= cfg.dynamic_threshold, geo.dynamic,
-                                  cfg, ud)
+            cand = oim_candidates(bel, geo.observed, geo.dynamic, cfg)
+            zone, oim = oim_frame(fm, kps, maps, z_n, sem.d, margin, cand, geo.dynamic, cfg, ud)
             belief = np.where(oim, np.maximum(bel, cfg.oim_belief), bel)
         t["oim"] = (clock() - t6) * 1e3
         t["total"] = sum(t.values())
