@@ -337,8 +337,8 @@ class BaselineConfig:
     vocab_train_frames: int = 60
     vocab_train_stride: int = 6
     # ORB-SLAM3 run: camera fps written in the settings, repeats of the study (threads are not deterministic; 1: the
-    # three seeds already give three runs per scenario, and the default study must fit in 30 min; each repeat costs
-    # ~20 s per sequence, 6 s of it loading the vocabulary), subprocess time limits (vocabulary load + per frame).
+    # three seeds already give three runs per scenario, and each repeat costs ~20 s per sequence, 6 s of it loading
+    # the vocabulary, on a default study of about an hour), subprocess time limits (vocabulary load + per frame).
     orbslam3_fps: float = 30.0
     # ORB-SLAM3's own TUM setting (Stereo.ThDepth: close points within 40 b = 3 m; it triangulates the far ones),
     # not our engine's EngineConfig.th_depth.

@@ -58,7 +58,8 @@ def settings_yaml(camera, config: Config = DEFAULT) -> str:
     """ORB-SLAM3 1.0 settings (``File.version: "1.0"``) for an RGB-D camera: intrinsics and distortion, the
     virtual baseline ``Stereo.b = bf / fx`` (fr3: 40 / 535.4 = 0.0747 m), ``Stereo.ThDepth`` (ORB-SLAM3's TUM
     value 40: close points within ThDepth * b), ``RGBD.DepthMapFactor``, the ORB extractor (1000 features, 1.2, 8
-    levels, FAST 20/7). Images are given in RGB order (``Camera.RGB: 1``). The Viewer keys are required by ORB-SLAM3 even without a viewer."""
+    levels, FAST 20/7). Images are given in RGB order (``Camera.RGB: 1``). The Viewer keys are required by ORB-SLAM3
+    even without a viewer."""
     orb = config.orb
     k1, k2, p1, p2, k3 = (float(c) for c in camera.dist)
     lines = [
