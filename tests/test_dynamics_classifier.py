@@ -137,8 +137,9 @@ def test_oim_leaves_keypoints_whose_own_epipolar_test_passed():
     for _ in range(3):  # the box's previous positions onto the epipolar lines of the F that RANSAC finds with them
         F = geometric_module(inp.kps, inp.prev_kps, inp.matches, inp.prev_belief, alpha).F
         line = np.c_[box, np.ones(len(box))] @ F  # l' = F^T p
-        off = (np.c_[inp.prev_kps[m0:], np.ones(len(box))] * line).sum(1) / np.linalg.norm(line[:, :2], axis=1)
-        inp.prev_kps[m0:] -= (off[:, None] * line[:, :2] / np.linalg.norm(line[:, :2], axis=1, keepdims=True))
+        norm = np.linalg.norm(line[:, :2], axis=1, keepdims=True)
+        off = (np.c_[inp.prev_kps[m0:], np.ones(len(box))] * line).sum(1, keepdims=True) / norm  # signed distance
+        inp.prev_kps[m0:] -= off * line[:, :2] / norm
     f = get_filter("d2slam")
     bel = f(inp)
     d = f.last
