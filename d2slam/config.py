@@ -81,6 +81,28 @@ class DynamicsConfig:
     f_ransac_seed: int = 0
     # "ransac" (cv2.FM_RANSAC), "magsac" (cv2.USAC_MAGSAC) or "usac_accurate".
     f_ransac_method: str = "ransac"
+    # eq 5 (ours, RGB-D, measured): the pose test beside the epipolar error. The epipolar error cannot see motion
+    # along the epipolar line (an object carried away from a rotating camera). With depth, the previous 3-D point is
+    # moved by the relative pose (PnP-RANSAC on the static-believed matches) and compared with its match: dynamic when
+    # the reprojection error exceeds pose_reproj_px x 1.2^octave, or the depth residual
+    # |z_p - z_pred| / sqrt(sigma(z_p)^2 + sigma(z_pred)^2) exceeds pose_depth_sigmas; then P_g = max(P_g,
+    # p_pose_exceed). 0 turns a test off. See geometric.pose_residuals for the measurements.
+    pose_test: bool = True
+    pose_reproj_px: float = 4.0
+    pose_depth_sigmas: float = 2.0
+    # P(dynamic | a pose test exceeded) with equal priors, measured like p_g_exceed: 0.87-0.93 on dev seeds 3 / 4.
+    p_pose_exceed: float = 0.9
+    # Kinect axial depth noise sigma(z) = a + b (z - c)^2 metres (Nguyen et al. 2012; DESIGN.md section 3).
+    depth_sigma_a: float = 0.0012
+    depth_sigma_b: float = 0.0019
+    depth_sigma_c: float = 0.4
+    # Relative pose of the pose test: cv2.solvePnPRansac with SQPnP (seeded with f_ransac_seed; OpenCV re-estimates
+    # the pose on the inliers). Measured on the bench's scenes: 0.08 ms, within 0.2 mm / 0.004 deg of a further
+    # Levenberg-Marquardt refinement (cv2.solvePnPRefineLM), which would cost 0.5 ms more.
+    pnp_min_matches: int = 12
+    pnp_ransac_px: float = 2.0
+    pnp_iterations: int = 100
+    pnp_confidence: float = 0.99
     # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
     fixed_alpha: float = 0.7
     # Keypoint depth: median of valid pixels in a (2 r + 1)^2 patch.

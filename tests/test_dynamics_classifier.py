@@ -36,7 +36,7 @@ def test_full_method_on_toy_scene_and_module_metrics():
     final = ModuleMetrics().update(d.predictions(), truth).as_dict()["final"]
     assert final["recall"] >= 0.95 and final["precision"] >= 0.85
     assert d.f_found and d.f_static_only
-    assert set(d.predictions()) == {"semantic", "geometric", "fusion", "bayes", "oim", "final"}
+    assert set(d.predictions()) == {"semantic", "geometric", "pose", "fusion", "bayes", "oim", "final"}
     assert set(d.timings_ms) >= {"semantic", "geometric", "fusion", "bayes", "oim", "total"}
 
 

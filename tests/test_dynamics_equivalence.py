@@ -17,9 +17,9 @@ FIELDS = ("z", "belief", "p_s", "inside", "uncertain", "in_area", "err", "p_g", 
           "prior", "belief_bayes", "zone", "oim", "mask_depth")
 
 
-# The frozen modules implement eq 5 as printed (P_g = 1 above alpha) and the paper's OIM candidates: compare with
-# those settings.
-PAPER_EQ5 = DynamicsConfig(p_g_exceed=1.0, oim_skip_observed_static=False)
+# The frozen modules implement eq 5 as printed (P_g = 1 above alpha, no pose test) and the paper's OIM candidates:
+# compare with those settings.
+PAPER_EQ5 = DynamicsConfig(p_g_exceed=1.0, oim_skip_observed_static=False, pose_test=False)
 
 
 def _same(mode, inp):

@@ -154,3 +154,120 @@ def test_unknown_ransac_flavour_is_a_clear_error():
     p, prev, matches, truth, z = _two_view(rng)
     with pytest.raises(D2SlamError, match="f_ransac_method"):
         fundamental_matrix(prev, p, dataclasses.replace(CFG, f_ransac_method="lmeds?"))
+
+
+# ----------------------------------------------------------------------------------------- pose test (ours, RGB-D)
+K_TEST = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+
+
+def _two_view_rgbd(rng, n_static=300, n_obj=40):
+    """Camera moves sideways by 4 cm (horizontal epipolar lines). Object A (2 m) slides 10 cm sideways, along its
+    epipolar lines (about 25 px); object B (2 m) moves 15 cm away along its viewing rays (same pixels). Eq 5 sees
+    little of either; the reprojection error sees A, the depth residual sees B. Depth noise: 0.5 sigma(z) of the
+    config."""
+    Xs = np.column_stack([rng.uniform(-2, 2, n_static), rng.uniform(-1.5, 1.5, n_static),
+                          rng.uniform(1.5, 5, n_static)])
+    Xa = np.column_stack([rng.uniform(-0.4, 0.0, n_obj), rng.uniform(-0.5, 0.5, n_obj), rng.uniform(1.9, 2.1, n_obj)])
+    Xb = np.column_stack([rng.uniform(0.1, 0.5, n_obj), rng.uniform(-0.5, 0.5, n_obj), rng.uniform(1.9, 2.1, n_obj)])
+    X = np.vstack([Xs, Xa, Xb])
+    label = np.r_[np.zeros(n_static, int), np.ones(n_obj, int), np.full(n_obj, 2)]
+    X_now = X - np.array([0.04, 0.0, 0.0])
+    X_now[label == 1, 0] += 0.10
+    X_now[label == 2] *= (1.0 + 0.15 / X_now[label == 2, 2])[:, None]
+
+    def proj(P):
+        y = P @ K_TEST.T
+        return y[:, :2] / y[:, 2:]
+
+    def noisy_depth(z):
+        sigma = CFG.depth_sigma_a + CFG.depth_sigma_b * (z - CFG.depth_sigma_c) ** 2
+        return z + 0.5 * sigma * rng.normal(size=len(z))
+
+    q, p = proj(X) + rng.normal(0, 0.2, (len(X), 2)), proj(X_now) + rng.normal(0, 0.2, (len(X), 2))
+    perm = rng.permutation(len(X))
+    prev, z_prev = np.empty_like(q), np.empty(len(X))
+    prev[perm], z_prev[perm] = q, noisy_depth(X[:, 2])
+    matches = np.column_stack([np.arange(len(X)), perm])
+    return p, prev, matches, noisy_depth(X_now[:, 2]), z_prev, label
+
+
+def test_pose_test_sees_motion_along_the_epipolar_line_and_along_the_ray():
+    import dataclasses
+
+    rng = np.random.default_rng(5)
+    p, prev, matches, z, z_prev, label = _two_view_rgbd(rng)
+    a = np.full(len(p), 0.7)
+    b = np.full(len(prev), 0.5)
+    eq5 = geometric_module(p, prev, matches, b, a, CFG)  # no depths given: eq 5 alone
+    res = geometric_module(p, prev, matches, b, a, CFG, kp_depth=z, prev_kp_depth=z_prev, K=K_TEST)
+    # eq 5 barely sees either object: A slides 25 px along its lines, B stays on its pixels
+    assert eq5.pose_dynamic is None
+    assert np.median(eq5.err[label == 1]) < 2.0 and np.median(eq5.err[label == 2]) < 0.7
+    np.testing.assert_array_equal(res.err, eq5.err)  # the pose test adds to eq 5, it does not change it
+    assert res.pose_dynamic[label == 1].mean() >= 0.95 and res.pose_dynamic[label == 2].mean() >= 0.95
+    assert np.median(res.reproj_err[label == 1]) > 20 and np.median(res.reproj_err[label == 2]) < 1.0
+    assert np.median(np.abs(res.depth_err[label == 2])) > 10
+    assert res.pose_dynamic[label == 0].mean() <= 0.03 and np.median(res.reproj_err[label == 0]) < 0.5
+    assert (res.p_g[res.pose_dynamic] >= CFG.p_pose_exceed).all() and np.array_equal(
+        res.dynamic, eq5.dynamic | res.pose_dynamic)
+    # each half of the test alone
+    only_reproj = geometric_module(p, prev, matches, b, a, dataclasses.replace(CFG, pose_depth_sigmas=0.0),
+                                   kp_depth=z, prev_kp_depth=z_prev, K=K_TEST)
+    only_depth = geometric_module(p, prev, matches, b, a, dataclasses.replace(CFG, pose_reproj_px=0.0),
+                                  kp_depth=z, prev_kp_depth=z_prev, K=K_TEST)
+    assert only_reproj.pose_dynamic[label == 1].mean() >= 0.95 and only_reproj.pose_dynamic[label == 2].mean() <= 0.1
+    assert only_depth.pose_dynamic[label == 2].mean() >= 0.95
+    # the reprojection threshold is at each keypoint's detection scale: x 8 (32 px) lets object A's 25 px pass
+    coarse = geometric_module(p, prev, matches, b, a, dataclasses.replace(CFG, pose_depth_sigmas=0.0),
+                              kp_depth=z, prev_kp_depth=z_prev, K=K_TEST, scale=np.full(len(p), 8.0))
+    assert coarse.pose_dynamic[label == 1].mean() <= 0.05
+    # off in the config: eq 5 alone again
+    off = geometric_module(p, prev, matches, b, a, dataclasses.replace(CFG, pose_test=False), kp_depth=z,
+                           prev_kp_depth=z_prev, K=K_TEST)
+    assert off.pose_dynamic is None and np.array_equal(off.dynamic, eq5.dynamic)
+
+
+def test_relative_pose_recovers_the_motion_despite_outliers_and_is_deterministic():
+    import cv2
+
+    from d2slam.dynamics.geometric import back_project, relative_pose
+
+    rng = np.random.default_rng(3)
+    X = np.column_stack([rng.uniform(-2, 2, 200), rng.uniform(-1.5, 1.5, 200), rng.uniform(1.5, 5, 200)])
+    R, _ = cv2.Rodrigues(np.array([0.02, -0.01, 0.03]))
+    t = np.array([0.03, -0.01, 0.02])
+    Xc = X @ R.T + t
+    p = Xc[:, :2] / Xc[:, 2:] * 500.0 + [320, 240] + rng.normal(0, 0.2, (200, 2))
+    p[:40] += rng.uniform(10, 40, (40, 2))  # 20 % outliers
+    pose = relative_pose(X, p, K_TEST, CFG)
+    assert pose is not None
+    np.testing.assert_allclose(pose[0], R, atol=2e-3)
+    np.testing.assert_allclose(pose[1], t, atol=5e-3)
+    again = relative_pose(X, p, K_TEST, CFG)
+    np.testing.assert_array_equal(pose[0], again[0])
+    np.testing.assert_array_equal(pose[1], again[1])
+    # non-finite rows are dropped; fewer than pnp_min_matches usable points: no pose
+    Xn = X.copy()
+    Xn[: 200 - CFG.pnp_min_matches + 1] = np.nan
+    assert relative_pose(Xn, p, K_TEST, CFG) is None
+    assert relative_pose(X[:5], p[:5], K_TEST, CFG) is None
+    np.testing.assert_allclose(back_project(p[:1], np.array([2.0]), K_TEST)[0, 2], 2.0)
+
+
+def test_pose_test_without_usable_depth_leaves_eq5_alone_and_checks_sizes():
+    rng = np.random.default_rng(5)
+    p, prev, matches, z, z_prev, label = _two_view_rgbd(rng)
+    a, b = np.full(len(p), 0.7), np.full(len(prev), 0.5)
+    eq5 = geometric_module(p, prev, matches, b, a, CFG)
+    bad = np.where(np.arange(len(z_prev)) % 2 == 0, 0.0, np.nan)  # every previous depth invalid (0 or NaN)
+    res = geometric_module(p, prev, matches, b, a, CFG, kp_depth=z, prev_kp_depth=bad, K=K_TEST)
+    assert np.isnan(res.reproj_err).all() and np.isnan(res.depth_err).all() and not res.pose_dynamic.any()
+    np.testing.assert_array_equal(res.dynamic, eq5.dynamic)
+    np.testing.assert_array_equal(res.p_g, eq5.p_g)
+    # invalid current depths: the reprojection half still runs, the depth half is NaN there
+    z_bad = z.copy()
+    z_bad[label == 2] = np.inf
+    res = geometric_module(p, prev, matches, b, a, CFG, kp_depth=z_bad, prev_kp_depth=z_prev, K=K_TEST)
+    assert np.isnan(res.depth_err[label == 2]).all() and res.pose_dynamic[label == 1].mean() >= 0.95
+    with pytest.raises(D2SlamError, match="keypoint depths"):
+        geometric_module(p, prev, matches, b, a, CFG, kp_depth=z[:-1], prev_kp_depth=z_prev, K=K_TEST)

@@ -80,7 +80,7 @@ def test_recorder_matches_direct_module_metrics_and_is_strict_json():
         rec(i, inp.kps, bel, f.last)
         direct.update(f.last.predictions(), keypoint_truth(inp.kps, seq.dynamic_mask(i)))
     res = rec.result()
-    assert list(res["modules"]) == ["semantic", "geometric", "fusion", "bayes", "oim", "final"]
+    assert list(res["modules"]) == ["semantic", "geometric", "pose", "fusion", "bayes", "oim", "final"]
     assert res["frames"] == res["frames_with_diagnostics"] == 3 and res["keypoints"] == 900
     for name, m in direct.as_dict().items():
         assert res["modules"][name] == m  # no NaN here: identical numbers
@@ -178,7 +178,7 @@ def test_recorder_in_the_pipeline_on_a_synthetic_sequence(tmp_path):
     assert res["frames"] == result.frames == 5 and res["frames_with_diagnostics"] == 5
     assert res["keypoints"] == sum(n for n, _ in seen) > 50
     assert res["dynamic_keypoints"] == sum(d for _, d in seen) > 5
-    assert set(res["modules"]) == {"semantic", "geometric", "fusion", "bayes", "oim", "final"}
+    assert set(res["modules"]) == {"semantic", "geometric", "pose", "fusion", "bayes", "oim", "final"}
     # the semantic module sees the true masks: every keypoint inside the person (rounded pixel) is predicted dynamic
     assert res["modules"]["semantic"]["recall"] == 1.0
     json.dumps(res, allow_nan=False)

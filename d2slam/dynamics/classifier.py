@@ -5,6 +5,7 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
     z            = the engine's robust keypoint depth; beta, alpha, delta, gamma of it        (depth.py)
     P_S, zones   = semantic module on the person masks                                       (eq 1-2, semantic.py)
     P_g, flag    = geometric module on the matches to frame t-1                              (eq 4-6, geometric.py)
+                   + the pose test (ours, RGB-D: PnP pose, reprojection and depth residuals)
     P            = eq 7 fusion; bel = eq 8 Bayesian update from bel(q) / the map point       (fusion.py)
     OIM          = static keypoints in a person's interaction zone near geometric-dynamic ones -> dynamic
                    (candidates: not matched with err <= alpha this frame, our measured deviation)
@@ -14,7 +15,7 @@ Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``
 
 - ``d2slam``    the full method.
 - ``no-depth``  every depth-adaptive quantity at the midpoint of its range (beta 0.15, alpha 0.7 px, delta 29.5 px,
-                gamma 19 px), the OIM's depth tests dropped (plain centroid).
+                gamma 19 px), the OIM's depth tests dropped (plain centroid), no pose test.
 - ``no-oim``    without the Object Interaction Module.
 - ``no-bayes``  the eq 7 probability P used directly as the belief (no temporal filter, no prior).
 - ``semantic``  masks only, DynaSLAM-like: every keypoint inside a mask is dynamic (belief 1), every other 0.
@@ -59,7 +60,10 @@ class FrameDiagnostics:
     err: np.ndarray | None = None  # eq 5 (NaN unmatched)
     p_g: np.ndarray | None = None  # eq 6 (NaN unobserved)
     observed: np.ndarray | None = None  # matched with P_g defined
-    geo_dynamic: np.ndarray | None = None  # err > alpha
+    geo_dynamic: np.ndarray | None = None  # err > alpha, or the pose test's flag
+    reproj_err: np.ndarray | None = None  # pose test (ours): reprojection error (px), NaN where not tested
+    depth_err: np.ndarray | None = None  # pose test (ours): normalised depth residual, NaN where not tested
+    pose_dynamic: np.ndarray | None = None  # the pose test's flag
     fused: np.ndarray | None = None  # eq 7 P
     prior: np.ndarray | None = None  # eq 8 bel(q)
     belief_bayes: np.ndarray | None = None  # eq 8 bel before the OIM
@@ -73,13 +77,15 @@ class FrameDiagnostics:
 
     def predictions(self, threshold: float = 0.5) -> dict[str, np.ndarray]:
         """Boolean "dynamic" prediction of each module that ran: semantic (P_S > 0.5, i.e. inside a mask),
-        geometric (err > alpha), fusion (eq 7 P > 0.5), bayes (eq 8 belief > 0.5 before the OIM), oim (flipped by
-        the OIM), final (the hook's belief > 0.5)."""
+        geometric (err > alpha or the pose test), pose (the pose test alone), fusion (eq 7 P > 0.5), bayes (eq 8
+        belief > 0.5 before the OIM), oim (flipped by the OIM), final (the hook's belief > 0.5)."""
         out: dict[str, np.ndarray] = {}
         if self.p_s is not None:
             out["semantic"] = self.p_s > threshold
         if self.geo_dynamic is not None:
             out["geometric"] = self.geo_dynamic.copy()
+        if self.pose_dynamic is not None:
+            out["pose"] = self.pose_dynamic.copy()
         if self.fused is not None:
             out["fusion"] = self.fused > threshold
         if self.belief_bayes is not None:
@@ -164,7 +170,8 @@ class D2SlamFilter:
         ud = self.use_depth
         maps = dz.DepthMaps(z, cfg, ud)  # beta, alpha, delta, gamma of every keypoint, once
         # eq 5 threshold at each keypoint's detection scale (alpha(z) * 1.2^octave, see depth.octave_factor).
-        b, a = maps.beta, maps.alpha * dz.octave_factor(getattr(inp, "octave", None), n, cfg)
+        scale = dz.octave_factor(getattr(inp, "octave", None), n, cfg)
+        b, a = maps.beta, maps.alpha * scale
         t1 = clock()
         t["depth_maps"] = (t1 - t0) * 1e3
         # The masks seen from the keypoints (edges, pixel lookups, bounding-box distances), shared by the semantic
@@ -178,7 +185,11 @@ class D2SlamFilter:
         sem = semantic_module(fm, kps, b, margin, cfg)
         t3 = clock()
         t["semantic"] = (t3 - t2) * 1e3
-        geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg)
+        if ud and cfg.pose_test:
+            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg, kp_depth=z,
+                                   prev_kp_depth=inp.prev_kp_depth, K=inp.K, scale=scale)
+        else:
+            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg)
         t4 = clock()
         t["geometric"] = (t4 - t3) * 1e3
         p = fuse(sem.p_s, geo.p_g, geo.observed, sem.in_area, sem.uncertain, cfg)
@@ -204,7 +215,8 @@ class D2SlamFilter:
         self.last = FrameDiagnostics(
             inp.frame_index, mode, z, belief, p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
             in_area=sem.in_area, err=geo.err, p_g=geo.p_g, observed=geo.observed, geo_dynamic=geo.dynamic,
-            fused=p, prior=prior, belief_bayes=bel, zone=zone, oim=oim, mask_depth=z_n,
+            reproj_err=geo.reproj_err, depth_err=geo.depth_err, pose_dynamic=geo.pose_dynamic, fused=p, prior=prior,
+            belief_bayes=bel, zone=zone, oim=oim, mask_depth=z_n,
             f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static, timings_ms=t)
         return belief
 

@@ -101,6 +101,14 @@ def delta(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarr
     return np.where(ok, d, mid)
 
 
+def depth_sigma(z, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """sigma(z) = depth_sigma_a + depth_sigma_b (z - depth_sigma_c)^2 metres: the Kinect's axial depth noise (Nguyen et
+    al. 2012), the scale of the geometric module's depth-consistency test (ours, see ``geometric.depth_residual``).
+    NaN where the depth is invalid."""
+    z = np.asarray(z, dtype=np.float64)
+    return np.where(valid_depth(z), cfg.depth_sigma_a + cfg.depth_sigma_b * (z - cfg.depth_sigma_c) ** 2, np.nan)
+
+
 def uncertainty_width(b: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
     """eq 2 / fig 2: half-width (px) of the mask's uncertainty zone for slope ``b``: P_S stays within
     (1 - p, p) for |d| < ln(p / (1 - p)) / beta, p = ``uncertainty_prob`` (0.75 -> ln 3 / beta)."""

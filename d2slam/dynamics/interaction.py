@@ -3,7 +3,7 @@
 Interaction zone of person mask n (our reading of "related to the human depth", DESIGN.md): the pixels within
 ``zone_factor * delta(z_n)`` = 2 delta(z_n) px of the mask whose depth differs from the mask's median depth z_n by
 less than ``zone_depth`` = 1 m. For each keypoint p_i still static inside a zone, its neighbours are the keypoints
-p_id the geometric module marked dynamic (err > alpha, eq 5) with
+p_id the geometric module marked dynamic (err > alpha, eq 5, or our pose test) with
 
     ||p_i - p_id|| < delta(z_i)   and   Delta = |z_i - z_id| < rho = 0.7 m                             (eq 9)
     G(p_i) = sum w p_id / sum w,   w = (rho - Delta) / rho                                                (eq 10)
@@ -83,7 +83,8 @@ def interaction_zone(d: np.ndarray, z: np.ndarray, z_n: np.ndarray, cfg: Dynamic
 def oim_candidates(belief: np.ndarray, observed: np.ndarray, geo_dynamic: np.ndarray,
                    cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
     """eq 10: (N,) bool, the keypoints the OIM may turn dynamic: still static after eq 8 (belief <= 0.5) and, with
-    ``oim_skip_observed_static`` (ours, the default), not matched with an epipolar error <= alpha this frame.
+    ``oim_skip_observed_static`` (ours, the default), not matched with a passed geometric test this frame (matched
+    and not ``geo_dynamic``: epipolar error <= alpha and, with the pose test on, its residuals under threshold).
 
     Deviation, measured (synthetic dev seeds 3-5, 300 frames, ``d2slam``; the scripts are described in the note of
     issue 4, not in the repo): with the paper's candidates the OIM flipped about 4 static keypoints for each dynamic
@@ -107,8 +108,8 @@ def object_interaction(kps: np.ndarray, z: np.ndarray, candidate: np.ndarray, dy
     """eq 9-10: (flip (N,) bool, G (N, 2) centroid, NaN where p_i has no neighbour or is no candidate).
 
     ``candidate`` (N,) bool: static keypoints inside an interaction zone; ``dynamic`` (N,) bool: the geometric
-    module's flag err > alpha. ``maps`` (the frame's ``DepthMaps`` of ``z`` with the same ``use_depth``) and
-    ``finite`` (finite keypoint coordinates) are reused when given instead of being recomputed."""
+    module's flag (err > alpha, or the pose test). ``maps`` (the frame's ``DepthMaps`` of ``z`` with the same
+    ``use_depth``) and ``finite`` (finite keypoint coordinates) are reused when given instead of being recomputed."""
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     z = np.asarray(z, dtype=np.float64).reshape(-1)
     n = len(kps)
@@ -149,16 +150,16 @@ def object_interaction(kps: np.ndarray, z: np.ndarray, candidate: np.ndarray, dy
 
 
 def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray, d: np.ndarray, known: float,
-              static: np.ndarray, dynamic: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
+              candidates: np.ndarray, dynamic: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
               use_depth: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """eq 9-10 for one frame, reusing the semantic module's work: (zone (N,) bool, oim (N,) bool).
 
     ``fm`` the frame's ``FrameMasks`` (edges, trees, pixel lookups, bounding-box distances), ``maps`` its
     ``DepthMaps``, ``z_n`` the mask depths, ``d`` the semantic module's signed distances (exact within ``known`` px of
-    each mask), ``static`` the candidates (``oim_candidates``), ``dynamic`` the geometric flag err > alpha. Order of
-    the tests (same result as zone first, far fewer edge searches):
+    each mask), ``candidates`` the keypoints the OIM may flip (``oim_candidates``), ``dynamic`` the geometric module's
+    flag (err > alpha, or the pose test). Order of the tests (same result as zone first, far fewer edge searches):
 
-    1. candidates: static keypoints passing a necessary condition of the zone (within 2 delta(z_n) px of some mask's
+    1. candidates passing a necessary condition of the zone (within 2 delta(z_n) px of some mask's
        bounding box, a lower bound of the distance to the mask, and |z - z_n| < ``zone_depth``);
     2. eq 10's centroid test on them (``object_interaction``) -> the keypoints that would flip;
     3. the exact zone (eq 9, the test of ``interaction_zone``) on those rows only: distances beyond ``known`` are
@@ -186,7 +187,7 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
         if use_depth:
             ok &= near_depth[k]
         cand |= ok
-    cand &= finite & static
+    cand &= finite & candidates
     # 2. eq 10
     would_flip, _ = object_interaction(kps, z, cand, dynamic, cfg, use_depth, maps=maps, finite=finite)
     rows = np.flatnonzero(would_flip)

@@ -62,6 +62,8 @@ class Engine:
         self.bf = float(camera.bf)
         self.b = self.bf / camera.fx
         self.th_depth_m = close_depth(camera, self.cfg)
+        # new points of a keyframe: every untracked keypoint closer than this (see create_keyframe)
+        self.new_points_depth_m = max(self.th_depth_m, self.cfg.kf_new_points_depth)
         self.extractor = OrbExtractor(config.orb, config.engine, camera)
         self.scales = self.extractor.scales
         self.log_scale = np.log(config.orb.scale_factor)
@@ -624,8 +626,7 @@ class Engine:
         cand = cand[np.argsort(frame.depth[cand], kind="stable")]
         has = kf.mp[cand] >= 0
         count = np.cumsum(np.ones(len(cand), dtype=np.int64))
-        limit = max(self.th_depth_m, self.cfg.kf_new_points_depth)
-        stop = (frame.depth[cand] > limit) & (count > self.cfg.kf_new_points_min)
+        stop = (frame.depth[cand] > self.new_points_depth_m) & (count > self.cfg.kf_new_points_min)
         if stop.any():
             cand, has = cand[: np.argmax(stop)], has[: np.argmax(stop)]
         new = cand[~has & (frame.mp[cand] < 0)]

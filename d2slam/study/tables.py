@@ -478,8 +478,8 @@ def read_run_records(out) -> list[dict]:
 def module_metrics(records: list[dict]) -> pd.DataFrame:
     """Long table of the classifier's per-module keypoint metrics: one row per (run, module) with the run's
     scenario, sequence, twin, method, seed, frames and the module's tp/fp/fn/tn, precision, recall, f1,
-    static_precision (NaN where undefined). Modules in the pipeline's order (semantic, geometric, fusion, bayes,
-    oim, final); a method runs only some of them (``none``: only ``final``)."""
+    static_precision (NaN where undefined). Modules in the pipeline's order (semantic, geometric, pose, fusion,
+    bayes, oim, final); a method runs only some of them (``none``: only ``final``)."""
     cols = ["scenario", "sequence", "twin", "method", "seed", "frames", "module", "tp", "fp", "fn", "tn",
             *MODULE_METRICS]
     rows = []
