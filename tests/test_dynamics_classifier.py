@@ -188,12 +188,17 @@ def filter_inputs(draw):
     if depth_kind == "random":
         depth = rng.uniform(0.4, 5.0, (H, W)).astype(np.float32)
         kpd = rng.uniform(0.4, 5.0, n).astype(np.float32)
+        prev_kpd = rng.uniform(0.4, 5.0, m).astype(np.float32)
     elif depth_kind == "invalid":
         depth = np.zeros((H, W), np.float32)
         kpd = np.array([draw(depth_values) for _ in range(min(n, 3))] + [0.0] * (n - min(n, 3)), np.float32)
+        prev_kpd = np.zeros(m, np.float32)
     else:
         depth = rng.choice(np.array([0.0, np.nan, np.inf, 1.0, 3.0], np.float32), (H, W))
         kpd = rng.choice(np.array([0.0, np.nan, np.inf, -np.inf, 1.0, 3.0], np.float32), n)
+        prev_kpd = rng.choice(np.array([0.0, np.nan, np.inf, -np.inf, 1.0, 3.0], np.float32), m)
+    # intrinsics: identity (degenerate for the pose test's PnP) or a TUM-like camera
+    K = np.eye(3) if draw(st.booleans()) else np.array([[535.4, 0, 320.1], [0, 539.2, 247.6], [0, 0, 1.0]])
     k = min(n, m, draw(st.integers(0, 80)))
     matches = np.column_stack([rng.permutation(n)[:k], rng.permutation(m)[:k]]).astype(np.int64).reshape(-1, 2)
     if k and draw(st.booleans()):  # a consistent motion for some matches so that F exists
@@ -210,7 +215,7 @@ def filter_inputs(draw):
     prev_belief = rng.choice(np.array([0.0, 0.2, 0.5, 0.9, 1.0, np.nan]), m)
     mp = rng.choice(np.array([np.nan, 0.1, 0.8]), n)
     return FilterInput(frame_index=1, timestamp=0.0, gray=np.zeros((H, W), np.uint8), depth=depth,
-                       K=np.eye(3), kps=kps, kp_depth=kpd, prev_kps=prev, prev_kp_depth=np.zeros(m, np.float32),
+                       K=K, kps=kps, kp_depth=kpd, prev_kps=prev, prev_kp_depth=prev_kpd,
                        prev_belief=prev_belief, matches=matches, mappoint_belief=mp, masks=masks)
 
 
@@ -231,6 +236,11 @@ def test_property_probabilities_in_unit_interval(inp, mode):
             assert ((v >= 0) & (v <= 1)).all(), name
     for name, pred in d.predictions().items():
         assert pred.shape == (n,) and pred.dtype == bool, name
+    if d.pose_dynamic is not None:  # the pose test flags only observed keypoints, from finite residuals
+        assert not (d.pose_dynamic & ~d.observed).any()
+        r = d.reproj_err[np.isfinite(d.reproj_err)]
+        assert (r >= 0).all()
+        assert (np.isfinite(d.reproj_err) | np.isfinite(d.depth_err) | ~d.pose_dynamic).all()
     # a second frame fed with the first frame's output as its previous beliefs still works
     inp2 = FilterInput(**{**inp.__dict__, "prev_kps": inp.kps, "prev_belief": bel,
                           "prev_kp_depth": inp.kp_depth,

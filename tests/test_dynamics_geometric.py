@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import event, given, settings
+from hypothesis import strategies as st
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.geometric import (epipolar_error, fundamental_matrix, geometric_module,
@@ -271,3 +273,49 @@ def test_pose_test_without_usable_depth_leaves_eq5_alone_and_checks_sizes():
     assert np.isnan(res.depth_err[label == 2]).all() and res.pose_dynamic[label == 1].mean() >= 0.95
     with pytest.raises(D2SlamError, match="keypoint depths"):
         geometric_module(p, prev, matches, b, a, CFG, kp_depth=z[:-1], prev_kp_depth=z_prev, K=K_TEST)
+
+
+@settings(max_examples=80, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**31 - 1), n=st.sampled_from([200, 40, 13, 12, 11, 5, 0]),
+       outliers=st.sampled_from([0.2, 0.0, 0.6, 1.0]), bad_depth=st.sampled_from([0.1, 0.0, 0.5, 0.95, 1.0]),
+       identity_k=st.booleans())
+def test_property_pose_test_never_raises_and_stays_in_range(seed, n, outliers, bad_depth, identity_k):
+    """Random rigid motions, outlier matches and corrupted depths (0, NaN, +-inf, negative) in both frames: the
+    geometric module never raises, P_g stays in [0, 1] (NaN where unobserved), the pose test flags only observed
+    keypoints (the clean cases are the tests above)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    K = np.eye(3) if identity_k else K_TEST
+    X = np.column_stack([rng.uniform(-2, 2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(0.5, 5, n)])
+    R, _ = cv2.Rodrigues(rng.normal(0, 0.02, 3))
+    Xc = X @ R.T + rng.normal(0, 0.03, 3)
+
+    def proj(P):
+        y = P @ K.T
+        return y[:, :2] / y[:, 2:]
+
+    q, p = proj(X), proj(Xc) + rng.normal(0, 0.2 if not identity_k else 1e-4, (n, 2))
+    out = rng.random(n) < outliers
+    p[out] = rng.uniform(0, 640, (int(out.sum()), 2))
+    bad = np.array([0.0, np.nan, np.inf, -np.inf, -1.0])
+
+    def corrupt(z):
+        z = z.copy()
+        hit = rng.random(n) < bad_depth
+        z[hit] = rng.choice(bad, int(hit.sum()))
+        return z
+
+    z_prev, z = corrupt(X[:, 2]), corrupt(Xc[:, 2])
+    matches = np.column_stack([np.arange(n), np.arange(n)]).astype(np.int64).reshape(-1, 2)
+    res = geometric_module(p, q, matches, np.full(n, 0.2), np.full(n, 0.7), CFG, kp_depth=z, prev_kp_depth=z_prev,
+                           K=K)
+    finite = np.isfinite(res.p_g)
+    assert ((res.p_g[finite] >= 0) & (res.p_g[finite] <= 1)).all()
+    assert not (res.dynamic & ~res.observed).any()
+    event(f"pose found: {res.reproj_err is not None and bool(np.isfinite(res.reproj_err).any())}")
+    if res.pose_dynamic is not None:
+        assert res.pose_dynamic.shape == (n,) and not (res.pose_dynamic & ~res.observed).any()
+        assert (res.p_g[res.pose_dynamic] >= CFG.p_pose_exceed).all()
+        r = res.reproj_err[np.isfinite(res.reproj_err)]
+        assert (r >= 0).all()
