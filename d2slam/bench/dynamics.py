@@ -2,7 +2,10 @@
 matches and two person masks at 640x480).
 
 Inputs are seeded synthetic two-view scenes (``d2slam.dynamics.toy``: a moving camera, person-sized masks moving
-sideways, Kinect-range depth with holes); the classifier is called once per frame, each call timed module by module
+sideways, Kinect-range depth with holes), or with ``--sequence DIR`` the hook inputs the engine makes on the first
+``--sequence-frames`` frames of a real or synthetic sequence (run once with the ``d2slam`` filter and the masks a
+``d2slam run`` would read; the toy scenes' matches are cleaner than real ones, so RANSAC stops sooner there). The
+classifier is called once per frame, each call timed module by module
 (``FrameDiagnostics.timings_ms``, wall clock) and as a whole (wall clock and process CPU time of the call:
 the CPU time is the figure that stays meaningful when other processes load the machine). The robust keypoint depth
 (``depth.keypoint_depth``) runs on the engine's side (``FilterInput.kp_depth``) and is timed on its own line.
@@ -29,6 +32,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--warmup", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="OpenCV threads (cv2.setNumThreads)")
+    parser.add_argument("--sequence", default=None, metavar="DIR",
+                        help="time on the engine's hook inputs of a sequence (synthetic or TUM) instead of toy scenes")
+    parser.add_argument("--sequence-frames", type=int, default=60, help="frames of --sequence to record (default 60)")
 
 
 def _stats(values: list[float]) -> tuple[float, float, float]:
@@ -56,22 +62,59 @@ def _run_mode(mode: str, scenes, args) -> dict[str, list[float]]:
     return out
 
 
+def recorded_inputs(path: str, frames: int) -> list:
+    """The ``FilterInput`` of frames 1 .. ``frames``-1 of a sequence as the engine gives them to the ``d2slam`` filter
+    (default config, masks as ``d2slam run`` reads them: ``mask_sim`` on synthetic sequences, the ONNX segmenter on
+    TUM folders)."""
+    from pathlib import Path
+
+    from d2slam.config import DEFAULT
+    from d2slam.data import open_sequence
+    from d2slam.dynamics import get_filter
+    from d2slam.methods import get_method, mask_kind
+    from d2slam.segmentation import masks_for, stack_masks
+    from d2slam.slam.engine import Engine
+
+    seq = open_sequence(path)
+    kind = mask_kind(get_method("d2slam"), None, synthetic=(Path(path) / "scene.json").is_file())
+    shape = (seq.camera.height, seq.camera.width)
+    engine = Engine(seq.camera, DEFAULT, get_filter("d2slam", DEFAULT))
+    out = []
+    for i in range(min(frames, len(seq))):
+        f = seq[i]
+        engine.process(f.gray, f.depth, i, f.timestamp, masks=stack_masks(masks_for(seq, i, kind, DEFAULT), shape))
+        if i > 0:
+            out.append(engine.last_filter_input)
+    return out
+
+
 def run(args) -> int:
     from d2slam.dynamics import MODES
     from d2slam.dynamics.depth import keypoint_depth
     from d2slam.dynamics.toy import two_view_scene
 
     cv2.setNumThreads(args.threads)
-    scenes, truths = [], []
-    for s in range(args.scenes):
-        inp, truth = two_view_scene(args.seed + s, n_kps=args.keypoints, n_matches=args.matches,
+    if args.sequence:
+        scenes = recorded_inputs(args.sequence, args.sequence_frames)
+        if not scenes:
+            from d2slam.errors import D2SlamError
+
+            raise D2SlamError("--sequence needs at least 2 frames", path=args.sequence)
+        n_masks = [0 if inp.masks is None else len(inp.masks) for inp in scenes]
+        n_kps, n_matches = np.mean([len(inp.kps) for inp in scenes]), np.mean([len(inp.matches) for inp in scenes])
+        print(f"dynamics bench on {args.sequence}: hook inputs of frames 1-{len(scenes)} (mean {n_kps:.0f} "
+              f"keypoints, {n_matches:.0f} matches, {np.mean(n_masks):.1f} masks), {args.frames} timed frames after "
+              f"{args.warmup} warm-up, cv2 threads {args.threads}")
+    else:
+        scenes = []
+        for s in range(args.scenes):
+            inp, _ = two_view_scene(args.seed + s, n_kps=args.keypoints, n_matches=args.matches,
                                     n_persons=args.masks, frame_index=s + 1)
-        scenes.append(inp)
-        truths.append(truth)
-    n_person_px = np.mean([inp.masks.sum() / len(inp.masks) for inp in scenes]) if args.masks else 0
-    print(f"dynamics bench: {args.keypoints} keypoints, {args.matches} matches, {args.masks} masks "
-          f"(mean {n_person_px:.0f} px each), 640x480, {args.scenes} scenes, {args.frames} timed frames "
-          f"after {args.warmup} warm-up, cv2 threads {args.threads}")
+            scenes.append(inp)
+        n_person_px = np.mean([inp.masks.sum() / len(inp.masks) for inp in scenes]) if args.masks else 0
+        print(f"dynamics bench: {args.keypoints} keypoints, {args.matches} matches, {args.masks} masks "
+              f"(mean {n_person_px:.0f} px each), 640x480, {args.scenes} scenes, {args.frames} timed frames "
+              f"after {args.warmup} warm-up, cv2 threads {args.threads}")
     kd = []
     for i in range(args.frames):
         inp = scenes[i % len(scenes)]
