@@ -66,17 +66,15 @@ def recorded_inputs(path: str, frames: int) -> list:
     """The ``FilterInput`` of frames 1 .. ``frames``-1 of a sequence as the engine gives them to the ``d2slam`` filter
     (default config, masks as ``d2slam run`` reads them: ``mask_sim`` on synthetic sequences, the ONNX segmenter on
     TUM folders)."""
-    from pathlib import Path
-
     from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
+    from d2slam.data import SyntheticSequence, open_sequence
     from d2slam.dynamics import get_filter
     from d2slam.methods import get_method, mask_kind
     from d2slam.segmentation import masks_for, stack_masks
     from d2slam.slam.engine import Engine
 
     seq = open_sequence(path)
-    kind = mask_kind(get_method("d2slam"), None, synthetic=(Path(path) / "scene.json").is_file())
+    kind = mask_kind(get_method("d2slam"), None, synthetic=isinstance(seq, SyntheticSequence))
     shape = (seq.camera.height, seq.camera.width)
     engine = Engine(seq.camera, DEFAULT, get_filter("d2slam", DEFAULT))
     out = []

@@ -34,7 +34,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence, write_tum_trajectory
+    from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
     from d2slam.errors import D2SlamError
     from d2slam.eval.keypoints import keypoint_recorder
     from d2slam.methods import get_method, mask_kind
@@ -52,7 +52,7 @@ def run(args) -> int:
     config = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, ransac_seed=args.seed))
     seq = open_sequence(args.sequence, **({"camera": args.camera} if args.camera else {}))
     kfilter = method.factory(config)
-    masks_kind = mask_kind(method, args.masks, synthetic=(Path(args.sequence) / "scene.json").is_file())
+    masks_kind = mask_kind(method, args.masks, synthetic=isinstance(seq, SyntheticSequence))
     provider = None
     if masks_kind is not None:
         from d2slam.segmentation import masks_for, stack_masks
