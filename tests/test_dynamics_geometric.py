@@ -6,6 +6,7 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from d2slam.config import DynamicsConfig
+from d2slam.dynamics.depth import depth_sigma
 from d2slam.dynamics.geometric import (epipolar_error, fundamental_matrix, geometric_module,
                                        geometric_probability)
 from d2slam.errors import D2SlamError
@@ -13,6 +14,13 @@ from d2slam.errors import D2SlamError
 CFG = DynamicsConfig()
 # Pure translation along x with K = I: F = [t]_x, epipolar lines are horizontal (y = v of the previous point).
 F_X = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+K_TEST = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+
+
+def _project(P, K=K_TEST):
+    """Pixels of camera-frame points P (N, 3)."""
+    y = P @ K.T
+    return y[:, :2] / y[:, 2:]
 
 
 def test_epipolar_error_of_a_known_F():
@@ -77,20 +85,14 @@ def test_fewer_than_8_matches_gives_no_F():
 
 def _two_view(rng, n_static=300, n_dyn=60):
     """Camera moves sideways (horizontal epipolar lines); an object at 2 m moves up by 5 cm (about 13 px)."""
-    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
     Xs = np.column_stack([rng.uniform(-2, 2, n_static), rng.uniform(-1.5, 1.5, n_static), rng.uniform(1.5, 5, n_static)])
     Xd = np.column_stack([rng.uniform(-0.3, 0.3, n_dyn), rng.uniform(-0.5, 0.5, n_dyn), rng.uniform(1.9, 2.1, n_dyn)])
     X = np.vstack([Xs, Xd])
     t = np.array([0.04, 0.0, 0.01])
-
-    def proj(P):
-        y = P @ K.T
-        return y[:, :2] / y[:, 2:]
-
-    q = proj(X) + rng.normal(0, 0.2, (len(X), 2))
+    q = _project(X) + rng.normal(0, 0.2, (len(X), 2))
     X_now = X - t
     X_now[n_static:, 1] -= 0.05
-    p = proj(X_now) + rng.normal(0, 0.2, (len(X), 2))
+    p = _project(X_now) + rng.normal(0, 0.2, (len(X), 2))
     truth = np.r_[np.zeros(n_static, bool), np.ones(n_dyn, bool)]
     perm = rng.permutation(len(X))  # previous keypoints in another order
     prev = np.empty_like(q)
@@ -159,7 +161,6 @@ def test_unknown_ransac_flavour_is_a_clear_error():
 
 
 # ----------------------------------------------------------------------------------------- pose test (ours, RGB-D)
-K_TEST = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
 
 def _two_view_rgbd(rng, n_static=300, n_obj=40):
@@ -177,15 +178,10 @@ def _two_view_rgbd(rng, n_static=300, n_obj=40):
     X_now[label == 1, 0] += 0.10
     X_now[label == 2] *= (1.0 + 0.15 / X_now[label == 2, 2])[:, None]
 
-    def proj(P):
-        y = P @ K_TEST.T
-        return y[:, :2] / y[:, 2:]
-
     def noisy_depth(z):
-        sigma = CFG.depth_sigma_a + CFG.depth_sigma_b * (z - CFG.depth_sigma_c) ** 2
-        return z + 0.5 * sigma * rng.normal(size=len(z))
+        return z + 0.5 * depth_sigma(z, CFG) * rng.normal(size=len(z))
 
-    q, p = proj(X) + rng.normal(0, 0.2, (len(X), 2)), proj(X_now) + rng.normal(0, 0.2, (len(X), 2))
+    q, p = _project(X) + rng.normal(0, 0.2, (len(X), 2)), _project(X_now) + rng.normal(0, 0.2, (len(X), 2))
     perm = rng.permutation(len(X))
     prev, z_prev = np.empty_like(q), np.empty(len(X))
     prev[perm], z_prev[perm] = q, noisy_depth(X[:, 2])
@@ -239,7 +235,7 @@ def test_relative_pose_recovers_the_motion_despite_outliers_and_is_deterministic
     R, _ = cv2.Rodrigues(np.array([0.02, -0.01, 0.03]))
     t = np.array([0.03, -0.01, 0.02])
     Xc = X @ R.T + t
-    p = Xc[:, :2] / Xc[:, 2:] * 500.0 + [320, 240] + rng.normal(0, 0.2, (200, 2))
+    p = _project(Xc) + rng.normal(0, 0.2, (200, 2))
     p[:40] += rng.uniform(10, 40, (40, 2))  # 20 % outliers
     pose = relative_pose(X, p, K_TEST, CFG)
     assert pose is not None
@@ -290,12 +286,7 @@ def test_property_pose_test_never_raises_and_stays_in_range(seed, n, outliers, b
     X = np.column_stack([rng.uniform(-2, 2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(0.5, 5, n)])
     R, _ = cv2.Rodrigues(rng.normal(0, 0.02, 3))
     Xc = X @ R.T + rng.normal(0, 0.03, 3)
-
-    def proj(P):
-        y = P @ K.T
-        return y[:, :2] / y[:, 2:]
-
-    q, p = proj(X), proj(Xc) + rng.normal(0, 0.2 if not identity_k else 1e-4, (n, 2))
+    q, p = _project(X, K), _project(Xc, K) + rng.normal(0, 0.2 if not identity_k else 1e-4, (n, 2))
     out = rng.random(n) < outliers
     p[out] = rng.uniform(0, 640, (int(out.sum()), 2))
     bad = np.array([0.0, np.nan, np.inf, -np.inf, -1.0])
