@@ -19,7 +19,7 @@ FIELDS = ("z", "belief", "p_s", "inside", "uncertain", "in_area", "err", "p_g", 
 
 # The frozen modules implement eq 5 as printed (P_g = 1 above alpha, no pose test) and the paper's OIM candidates:
 # compare with those settings.
-PAPER_EQ5 = DynamicsConfig(p_g_exceed=1.0, oim_skip_observed_static=False, pose_test=False)
+PAPER_EQ5 = DynamicsConfig(p_g_exceed=1.0, oim_skip_observed_static=False, pose_test=False, sigma_at_scale=False)
 
 
 def _same(mode, inp):

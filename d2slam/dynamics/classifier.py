@@ -8,7 +8,8 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
                    + the pose test (ours, RGB-D: PnP pose, reprojection and depth residuals)
     P            = eq 7 fusion; bel = eq 8 Bayesian update from bel(q) / the map point       (fusion.py)
     OIM          = static keypoints in a person's interaction zone near geometric-dynamic ones -> dynamic
-                   (candidates: not matched with err <= alpha this frame, our measured deviation)
+                   (candidates: not observed static this frame, i.e. not matched with err <= alpha
+                   and passing the pose test; our measured deviation)
                                                                                              (eq 9-10, interaction.py)
 
 Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``none`` -> None, the hook off):
@@ -156,8 +157,9 @@ class D2SlamFilter:
             return belief
 
         if mode == "geometric":
-            a = cfg.fixed_alpha * dz.octave_factor(getattr(inp, "octave", None), n, cfg)  # at the detection scale
-            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg)
+            scale = dz.octave_factor(getattr(inp, "octave", None), n, cfg)
+            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, cfg.fixed_alpha * scale, cfg,
+                                   scale=scale)  # threshold and sigma at the detection scale
             belief = np.where(geo.observed, np.nan_to_num(geo.p_g), cfg.p_no_observation)
             t["geometric"] = (clock() - t0) * 1e3
             t["total"] = sum(t.values())
@@ -185,11 +187,10 @@ class D2SlamFilter:
         sem = semantic_module(fm, kps, b, margin, cfg)
         t3 = clock()
         t["semantic"] = (t3 - t2) * 1e3
-        if ud and cfg.pose_test:
-            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg, kp_depth=z,
-                                   prev_kp_depth=inp.prev_kp_depth, K=inp.K, scale=scale)
-        else:
-            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg)
+        pose = ud and cfg.pose_test  # the pose test needs the depths (off in no-depth)
+        geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg, scale=scale,
+                               kp_depth=z if pose else None, prev_kp_depth=inp.prev_kp_depth if pose else None,
+                               K=inp.K if pose else None)
         t4 = clock()
         t["geometric"] = (t4 - t3) * 1e3
         p = fuse(sem.p_s, geo.p_g, geo.observed, sem.in_area, sem.uncertain, cfg)

@@ -103,7 +103,7 @@ def delta(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarr
 
 def depth_sigma(z, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
     """sigma(z) = depth_sigma_a + depth_sigma_b (z - depth_sigma_c)^2 metres: the Kinect's axial depth noise (Nguyen et
-    al. 2012), the scale of the geometric module's depth-consistency test (ours, see ``geometric.depth_residual``).
+    al. 2012), the scale of the pose test's depth residual (ours, see ``geometric.pose_residuals``).
     NaN where the depth is invalid."""
     z = np.asarray(z, dtype=np.float64)
     return np.where(valid_depth(z), cfg.depth_sigma_a + cfg.depth_sigma_b * (z - cfg.depth_sigma_c) ** 2, np.nan)

@@ -17,7 +17,9 @@ the four walking scenarios (dev seed 3, 300 frames, d2slam): frames tracked 121 
 0.41 / 0.20 / 0.37 / 0.38 at about the same recall (0.87 / 0.76 / 0.90 / 0.86 -> 0.87 / 0.75 / 0.89 / 0.86).
 
 Eq 6 as printed is a Gaussian *density* of the error (largest at zero error); DESIGN.md reads it as a probability
-of being dynamic that is 0 at zero error and grows with the error, which is what eq 7 needs.
+of being dynamic that is 0 at zero error and grows with the error, which is what eq 7 needs. Like alpha, its sigma is
+taken at the keypoint's detection scale, sigma x 1.2^octave (``DynamicsConfig.sigma_at_scale``, measured there):
+otherwise a match below its scaled threshold could still get P_g > 0.5.
 
 F is estimated by RANSAC (``cv2.findFundamentalMat``, FM_RANSAC, seeded with ``cv2.setRNGSeed``) on the matches
 currently believed static (belief of the previous keypoint <= 0.5) when there are at least ``f_min_static_matches``
@@ -134,7 +136,7 @@ def back_project(px: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 def relative_pose(X: np.ndarray, p: np.ndarray, K: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
                   seed: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
-    """Depth test (ours): (R (3, 3), t (3,)) with p ~ K (R X + t), from 3-D points ``X`` (K, 3) of frame t-1 to their
+    """Pose test (ours): (R (3, 3), t (3,)) with p ~ K (R X + t), from 3-D points ``X`` (K, 3) of frame t-1 to their
     matched pixels ``p`` (K, 2) in frame t.
 
     ``cv2.solvePnPRansac`` with SQPnP (threshold ``pnp_ransac_px``, ``pnp_iterations``, ``pnp_confidence``; seeded
@@ -183,7 +185,7 @@ def pose_residuals(X: np.ndarray, p: np.ndarray, z: np.ndarray, R: np.ndarray, t
     On walking_rpy seed 4 a box carried away from the camera (frames 59-83, depth 2.1 -> 3.1 m) is matched with a
     median epipolar error of 0.5-1.0 px, and later slid sideways along its epipolar lines (frames 140-146: median
     epipolar error 0.7-0.8 px, reprojection error 5.6-6.2 px): eq 5 passes both, their map points enter the map and the
-    track drifts by 0.6 m. Reliability P(dynamic | flagged) with equal priors: 0.87-0.93 (``p_pose_exceed`` = 0.9)."""
+    track drifts by 0.6 m. Reliability P(dynamic | flagged) with equal priors: 0.82-0.90 (``p_pose_exceed`` = 0.9)."""
     X = np.asarray(X, dtype=np.float64).reshape(-1, 3)
     p = np.asarray(p, dtype=np.float64).reshape(-1, 2)
     z = np.asarray(z, dtype=np.float64).reshape(-1)
@@ -207,8 +209,10 @@ class GeometricResult:
     p_g: np.ndarray  # (N,) eq 6, NaN when unobserved
     observed: np.ndarray  # (N,) bool: matched, F found and finite error (P_g defined)
     dynamic: np.ndarray  # (N,) bool: err > alpha(z), or the pose test's flag (the flag the OIM uses)
-    reproj_err: np.ndarray | None = None  # (N,) pose test: reprojection error (px), NaN where not tested
-    depth_err: np.ndarray | None = None  # (N,) pose test: normalised depth residual, NaN where not tested
+    # The pose test's outputs: None when it is not asked for (no depths or K, or ``pose_test`` off); when asked for,
+    # arrays on every frame, NaN / False where it could not test (no F, no pose, unmatched keypoint).
+    reproj_err: np.ndarray | None = None  # (N,) reprojection error (px)
+    depth_err: np.ndarray | None = None  # (N,) normalised depth residual
     pose_dynamic: np.ndarray | None = None  # (N,) bool: the pose test's flag (observed keypoints only)
 
 
@@ -223,13 +227,24 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     (0.5, static since "dynamic" means > 0.5). With ``kp_depth`` (N,), ``prev_kp_depth`` (M,) and intrinsics ``K``
     given and ``cfg.pose_test`` on, the pose test (module docstring) runs on the matches that have eq 5's error, with
     the pose from the matches RANSAC used for F (those with a valid previous depth); ``scale`` (N,) or scalar is each
-    keypoint's detection scale 1.2^octave (``depth.octave_factor``) for its reprojection threshold."""
+    keypoint's detection scale 1.2^octave (``depth.octave_factor``), for eq 6's sigma and the reprojection
+    threshold."""
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     prev_kps = np.asarray(prev_kps, dtype=np.float64).reshape(-1, 2)
     n = len(kps)
     m = check_matches(matches, n, len(prev_kps))
+    pose_test = cfg.pose_test and K is not None and kp_depth is not None and prev_kp_depth is not None
+    if pose_test:
+        z_cur = np.asarray(kp_depth, dtype=np.float64).reshape(-1)
+        z_prev = np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1)
+        if len(z_cur) != n or len(z_prev) != len(prev_kps):
+            raise D2SlamError(f"keypoint depths ({len(z_cur)}, {len(z_prev)}) do not match the keypoints "
+                              f"({n}, {len(prev_kps)})")
     err = np.full(n, np.nan)
-    empty = GeometricResult(None, 0, False, err, np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool))
+    reproj_err, depth_err, pose_dyn = (np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool)) if pose_test else \
+        (None, None, None)
+    empty = GeometricResult(None, 0, False, err, np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool),
+                            reproj_err, depth_err, pose_dyn)
     if len(m) == 0:
         return empty
     p, q = kps[m[:, 0]], prev_kps[m[:, 1]]
@@ -250,26 +265,20 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
         return empty
     err[m[:, 0]] = epipolar_error(F, p, q)
     a = np.broadcast_to(np.asarray(a, dtype=np.float64), (n,))
-    p_g, dyn = geometric_probability(err, a, cfg.sigma, cfg.p_g_exceed)
+    scale = np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,))
+    p_g, dyn = geometric_probability(err, a, cfg.sigma * scale if cfg.sigma_at_scale else cfg.sigma, cfg.p_g_exceed)
     observed = np.isfinite(err)
-    reproj_err = depth_err = pose_dyn = None
-    if cfg.pose_test and K is not None and kp_depth is not None and prev_kp_depth is not None:
-        z_cur = np.asarray(kp_depth, dtype=np.float64).reshape(-1)
-        z_prev = np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1)
-        if len(z_cur) != n or len(z_prev) != len(prev_kps):
-            raise D2SlamError(f"keypoint depths ({len(z_cur)}, {len(z_prev)}) do not match the keypoints "
-                              f"({n}, {len(prev_kps)})")
+    if pose_test:
         zq = z_prev[m[:, 1]]
-        X = back_project(q, np.where(valid_depth(zq), zq, np.nan), K)
-        has = sel & valid_depth(zq)
-        pose = relative_pose(X[has], p[has], K, cfg, seed)
-        reproj_err, depth_err = np.full(n, np.nan), np.full(n, np.nan)
+        has_z = valid_depth(zq)
+        X = back_project(q, np.where(has_z, zq, np.nan), K)
+        pose = relative_pose(X[sel & has_z], p[sel & has_z], K, cfg, seed)
         if pose is not None:
             reproj_err[m[:, 0]], depth_err[m[:, 0]] = pose_residuals(X, p, z_cur[m[:, 0]], pose[0], pose[1], K, cfg)
         with np.errstate(invalid="ignore"):
             flag = np.zeros(n, dtype=bool)
             if cfg.pose_reproj_px > 0:
-                flag |= reproj_err > cfg.pose_reproj_px * np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,))
+                flag |= reproj_err > cfg.pose_reproj_px * scale
             if cfg.pose_depth_sigmas > 0:
                 flag |= np.abs(depth_err) > cfg.pose_depth_sigmas
         pose_dyn = observed & flag
