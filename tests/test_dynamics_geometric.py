@@ -83,6 +83,21 @@ def test_fewer_than_8_matches_gives_no_F():
     assert res.F is None and not res.observed.any() and np.isnan(res.p_g).all() and not res.dynamic.any()
 
 
+def test_no_F_gives_nan_pose_fields_when_the_pose_test_is_asked_for():
+    rng = np.random.default_rng(0)
+    kps = rng.uniform(0, 100, (10, 2))
+    z = np.full(10, 2.0)
+    few = np.column_stack([np.arange(7), np.arange(7)])
+    for matches in (few, np.zeros((0, 2), int)):  # fewer than 8 matches, no match at all
+        res = geometric_module(kps, kps, matches, np.full(10, 0.5), np.full(10, 0.7), CFG, kp_depth=z,
+                               prev_kp_depth=z, K=K_TEST)
+        assert res.F is None and res.reproj_err.shape == res.depth_err.shape == res.pose_dynamic.shape == (10,)
+        assert np.isnan(res.reproj_err).all() and np.isnan(res.depth_err).all() and not res.pose_dynamic.any()
+    # not asked for (no K or no depths): the fields stay None
+    res = geometric_module(kps, kps, few, np.full(10, 0.5), np.full(10, 0.7), CFG, kp_depth=z, prev_kp_depth=z)
+    assert res.reproj_err is None and res.pose_dynamic is None
+
+
 def _two_view(rng, n_static=300, n_dyn=60):
     """Camera moves sideways (horizontal epipolar lines); an object at 2 m moves up by 5 cm (about 13 px)."""
     Xs = np.column_stack([rng.uniform(-2, 2, n_static), rng.uniform(-1.5, 1.5, n_static), rng.uniform(1.5, 5, n_static)])
@@ -110,6 +125,32 @@ def test_two_view_moving_object_high_P_g_static_low():
     assert (res.p_g[truth] >= CFG.p_g_exceed).mean() >= 0.95
     assert res.dynamic[~truth].mean() <= 0.10  # 0.2 px noise in both views, F from RANSAC
     assert np.median(res.p_g[~truth]) < 0.1
+
+
+def test_eq6_sigma_at_the_detection_scale():
+    """P_g below the threshold reads the error at the keypoint's scale, like alpha: P_g(err, s) = P_g(err / s, 1), so a
+    match under its scaled threshold a s has P_g <= 1 - exp(-a^2 / 2 sigma^2) at every level (sigma_at_scale)."""
+    import dataclasses
+
+    rng = np.random.default_rng(1)
+    p, prev, matches, truth, z = _two_view(rng)
+    n = len(p)
+    scale = 1.2 ** rng.integers(0, 8, n).astype(float)
+    a = np.full(n, 0.9)
+    b = np.full(len(prev), 0.5)
+    res = geometric_module(p, prev, matches, b, a * scale, CFG, scale=scale)
+    below = res.observed & ~res.dynamic
+    assert below.sum() > 200
+    np.testing.assert_allclose(res.p_g[below], -np.expm1(-(res.err[below] / scale[below]) ** 2 / (2 * CFG.sigma ** 2)))
+    assert res.p_g[below].max() <= -np.expm1(-0.9 ** 2 / (2 * CFG.sigma ** 2)) + 1e-12  # 0.333 < 0.5
+    assert (res.p_g[res.dynamic] == CFG.p_g_exceed).all()
+    # the paper's unscaled sigma: the same errors, larger P_g at coarse levels (where a 1.5 px error passes)
+    paper = geometric_module(p, prev, matches, b, a * scale, dataclasses.replace(CFG, sigma_at_scale=False),
+                             scale=scale)
+    np.testing.assert_array_equal(paper.dynamic, res.dynamic)
+    np.testing.assert_allclose(paper.p_g[below], -np.expm1(-res.err[below] ** 2 / (2 * CFG.sigma ** 2)))
+    coarse = below & (scale > 1)
+    assert (paper.p_g[coarse] >= res.p_g[coarse]).all() and (paper.p_g[coarse] > res.p_g[coarse]).any()
 
 
 def test_static_believed_matches_first_and_determinism():
