@@ -176,3 +176,21 @@ def test_map_ordered_reports_each_result(tmp_path):
         seen = []
         out = map_ordered(abs, [-3, 1, -2], jobs=jobs, progress=False, on_result=lambda i, r: seen.append((i, r)))
         assert out == [3, 1, 2] and sorted(seen) == [(0, 3), (1, 1), (2, 2)]
+
+
+def test_code_text_ignores_comments_docstrings_and_layout_only():
+    """The run keys hash ``code_text``: a comment, docstring or layout change keeps a study resumable; any change in
+    what the code does (a constant, a name, a statement) changes the key."""
+    from d2slam.study.runner import code_text
+
+    base = 'x = 1\n\n\ndef f(a):\n    return a + x\n'
+    doc = ('"""Module doc."""\n# a comment\nx = 1  # one\n\n\ndef f(a):\n    """Adds x."""\n'
+           '    # the sum\n    return a + x\n')
+    assert code_text(doc) == code_text(base)
+    assert code_text('class C:\n    """Doc only."""\n') == code_text('class C:\n    pass\n')
+    changed = ['x = 2\n\n\ndef f(a):\n    return a + x\n',  # a constant
+               'x = 1\n\n\ndef f(a):\n    return a - x\n',  # an operator
+               'x = 1\n\n\ndef g(a):\n    return a + x\n',  # a name
+               'x = 1\n\n\ndef f(a):\n    y = "not a docstring"\n    return a + x\n']  # a statement
+    for src in changed:
+        assert code_text(src) != code_text(base)

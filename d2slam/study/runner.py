@@ -312,9 +312,26 @@ _ORBSLAM3_CODE = ("baselines", "data", "eval", "config.py", "study/runner.py")
 _RUN_PACKAGES = ("numpy", "scipy", "opencv-python-headless", "onnxruntime", "gtsam", "g2opy", "evo", "pyorbslam3")
 
 
+def code_text(source: str) -> str:
+    """What a Python file *does*, without its comments and docstrings: ``ast.dump`` of the parsed module with every
+    module, class and function docstring removed (``ast.dump`` leaves out line numbers, so layout does not count
+    either). Used for the run keys: a documentation fix keeps the committed study resumable."""
+    import ast
+
+    tree = ast.parse(source)
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
+                    and isinstance(first.value.value, str):
+                node.body = node.body[1:] or [ast.Pass()]
+    return ast.dump(tree)
+
+
 @lru_cache(maxsize=8)
 def source_digest(parts: tuple) -> str:
-    """sha256 (16 hex) of the package source files under ``parts`` (folders or files of ``d2slam/``)."""
+    """sha256 (16 hex) of the package source files under ``parts`` (folders or files of ``d2slam/``), each read as
+    ``code_text`` (comments, docstrings and layout do not count)."""
     import hashlib
 
     root = Path(__file__).resolve().parent.parent
@@ -325,7 +342,7 @@ def source_digest(parts: tuple) -> str:
         for f in files:
             if f.is_file():
                 h.update(str(f.relative_to(root)).encode())
-                h.update(f.read_bytes())
+                h.update(code_text(f.read_text(encoding="utf-8")).encode())
     return h.hexdigest()[:16]
 
 
