@@ -50,6 +50,14 @@ class DynamicsConfig:
     omega_reliable: float = 0.1
     # eq 7: probability when a keypoint has no observation (not matched, outside every mask area).
     p_no_observation: float = 0.5
+    # eq 7 (ours, measured): a keypoint with no observation (not matched) takes the mean P_g of its matched neighbours
+    # when that is larger than its eq 7 P: of its neighbour_k nearest matched keypoints, those within delta(z) px
+    # (eq 9's radius) and neighbour_depth metres, at least neighbour_min of them. False = the paper. See
+    # interaction.neighbour_p_g.
+    neighbour_p_g: bool = True
+    neighbour_k: int = 8
+    neighbour_depth: float = 0.15
+    neighbour_min: int = 2
     # eq 8: symmetric state-transition probability of the Bayesian filter and prior of new keypoints.
     transition: float = 0.1
     prior: float = 0.5
@@ -146,6 +154,13 @@ class EngineConfig:
     # then only decides which points are "close" (new map points, keyframe decision, keyframe culling). False: far
     # points (beyond th_depth * b) get monocular edges.
     stereo_far_points: bool = True
+    # Ours (measured): with a keypoint filter, each frame extracts OrbConfig.n_features plus as many keypoints as the
+    # filter flagged in the previous frame (at most refill_max x n_features), so tracking and mapping keep about
+    # n_features usable keypoints, as DynaSLAM's extraction outside the masks does. Without a filter (none, the static
+    # twins) nothing changes. Such runs extract every frame themselves (stored features have the fixed budget).
+    # See Engine.feature_budget for the measurements.
+    refill_filtered: bool = True
+    refill_max: float = 1.5
     depth_factor: float = 5000.0
     min_depth: float = 0.1
     max_depth: float = 8.0

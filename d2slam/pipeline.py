@@ -12,6 +12,8 @@ keyframe + local mapping).
 a :class:`~d2slam.slam.features.CachedFeatures` gives them instead of extracting: no image is read then, except the
 depth image when there is a keypoint filter (``sequence.depth_image(i)`` when the sequence has it, else the whole
 frame); ``extract`` and the fps count the extraction time stored with the features (``d2slam.slam.features``).
+Features are stored with the fixed budget ``OrbConfig.n_features``: a run whose budget follows its keypoint filter
+(``EngineConfig.refill_filtered``, ``Engine.feature_budget``) takes none (a clear error).
 """
 
 from __future__ import annotations
@@ -71,6 +73,10 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     recorder_f = features if isinstance(features, FeatureRecorder) else None
     if features is not None and cached is None and recorder_f is None:
         raise D2SlamError(f"features must be a FeatureRecorder or CachedFeatures, not {type(features).__name__}")
+    if features is not None and engine.refills:
+        raise D2SlamError("stored or recorded features need a fixed extraction budget; with "
+                          "EngineConfig.refill_filtered and a keypoint filter each frame's budget depends on the "
+                          "filter (run without features, or with refill_filtered=False)")
     if cached is not None:
         cached.check(sequence.timestamps[:n])
     # What is read per frame: the whole frame, the depth image only (stored features and a filter), or nothing.

@@ -109,15 +109,19 @@ def _box_next_to_person():
 
 
 def test_oim_flips_inert_object_next_to_person():
-    """The box's keypoints (unmatched) are turned dynamic by d2slam, not by no-oim."""
+    """The box's keypoints (unmatched) are turned dynamic by d2slam, not by no-oim. The neighbours' P_g (ours, eq 7)
+    is off here to see the OIM alone: the box's matched neighbours are the person's, so it would raise the box too."""
     inp, n, matched = _box_next_to_person()
-    f = get_filter("d2slam")
+    cfg = DynamicsConfig(neighbour_p_g=False)
+    f = get_filter("d2slam", cfg)
     bel = f(inp)
     d = f.last
     assert len(matched) >= 3 and d.geo_dynamic[matched].all()
     assert not d.geo_dynamic[n:].any() and (d.belief_bayes[n:] <= 0.5).all()  # static before the OIM
     assert d.oim[n:].all() and (bel[n:] > 0.5).all()
-    assert (get_filter("no-oim")(inp)[n:] <= 0.5).all()
+    assert (get_filter("no-oim", cfg)(inp)[n:] <= 0.5).all()
+    with_nb = get_filter("d2slam")
+    assert (with_nb(inp)[n:] > 0.5).all() and (with_nb.last.fused[n:] > 0.5).all()  # raised before the OIM
 
 
 def test_oim_leaves_keypoints_whose_own_epipolar_test_passed():

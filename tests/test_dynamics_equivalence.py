@@ -17,9 +17,11 @@ FIELDS = ("z", "belief", "p_s", "inside", "uncertain", "in_area", "err", "p_g", 
           "prior", "belief_bayes", "zone", "oim", "mask_depth")
 
 
-# The frozen modules implement eq 5 as printed (P_g = 1 above alpha, no pose test) and the paper's OIM candidates:
+# The frozen modules implement eq 5 as printed (P_g = 1 above alpha, no pose test), eq 7 as printed (no neighbours'
+# P_g for unmatched keypoints) and the paper's OIM candidates:
 # compare with those settings.
-PAPER_EQ5 = DynamicsConfig(p_g_exceed=1.0, oim_skip_observed_static=False, pose_test=False, sigma_at_scale=False)
+PAPER_EQ5 = DynamicsConfig(p_g_exceed=1.0, oim_skip_observed_static=False, pose_test=False, sigma_at_scale=False,
+                            neighbour_p_g=False)
 
 
 def _same(mode, inp):

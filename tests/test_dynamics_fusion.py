@@ -26,6 +26,27 @@ def test_eq7_four_cases():
     ])
 
 
+def test_eq7_neighbours_p_g_only_raises_unmatched_keypoints():
+    """Ours: a keypoint that is not matched gets max(P, p_nb); matched keypoints and NaN p_nb keep eq 7's P."""
+    p_s = np.array([0.8, 0.3, 0.8, 0.3, 0.3, 0.3])
+    p_g = np.array([np.nan, np.nan, np.nan, 0.2, np.nan, np.nan])
+    observed = np.array([False, False, False, True, False, False])
+    in_area = np.array([False, False, True, False, True, False])
+    uncertain = np.array([False, False, False, False, True, False])
+    p_nb = np.array([0.8, 0.3, 0.6, 0.9, 0.6, np.nan])
+    got = fuse(p_s, p_g, observed, in_area, uncertain, CFG, p_nb)
+    np.testing.assert_allclose(got, [
+        0.8,  # no observation: 0.5 -> the neighbours' 0.8
+        0.5,  # the neighbours' 0.3 is lower than 0.5: kept
+        0.8,  # not matched in the mask area: P_S 0.8 is higher
+        0.2,  # matched: its own P_g, whatever the neighbours
+        0.6,  # not matched in the uncertainty zone: P_S 0.3 -> 0.6
+        0.5,  # too few neighbours (NaN)
+    ])
+    np.testing.assert_array_equal(fuse(p_s, p_g, observed, in_area, uncertain, CFG),
+                                  fuse(p_s, p_g, observed, in_area, uncertain, CFG, np.full(6, np.nan)))
+
+
 def test_eq8_two_steps_by_hand():
     b1 = bayes_update(np.array([0.5]), np.array([0.8]), CFG)[0]
     assert b1 == pytest.approx(0.8)  # b- = 0.5 -> 0.8 * 0.5 / (0.8 * 0.5 + 0.2 * 0.5)

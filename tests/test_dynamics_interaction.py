@@ -1,10 +1,13 @@
 """Object Interaction Module (eq 9-10): neighbours, weighted centroid, zone, mask depth."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from d2slam.config import DynamicsConfig
-from d2slam.dynamics.interaction import interaction_zone, mask_depths, object_interaction
+from d2slam.dynamics.depth import DepthMaps
+from d2slam.dynamics.interaction import interaction_zone, mask_depths, neighbour_p_g, object_interaction
 
 CFG = DynamicsConfig()
 
@@ -89,3 +92,44 @@ def test_mask_depths_strided_median_close_to_full():
     depth[:] = 0
     assert np.isnan(mask_depths(depth, masks[:1])).all()  # no valid depth
     assert mask_depths(depth, None).shape == (0,)
+
+
+def test_neighbour_p_g_by_hand():
+    """Unmatched keypoint 0 at 2 m (delta = 40 px): matched neighbours 1 and 2 count (P_g 0.7, 0.9); 3 is 0.5 m
+    deeper, 4 is 45 px away, 5 is unmatched: mean 0.8. Matched keypoints and invalid depths get NaN."""
+    kps = np.array([[100, 100], [105, 100], [100, 130], [103, 100], [145, 100], [101, 101], [300, 300], [301, 300]],
+                   float)
+    z = np.array([2.0, 2.05, 2.1, 2.5, 2.0, 2.0, 0.0, 2.0])
+    observed = np.array([False, True, True, True, True, False, False, True])
+    p_g = np.array([np.nan, 0.7, 0.9, 0.0, 0.0, np.nan, np.nan, 0.9])
+    got = neighbour_p_g(kps, DepthMaps(z, CFG), observed, p_g, CFG)
+    assert got[0] == pytest.approx(0.8)
+    assert np.isnan(got[[1, 2, 3, 4, 7]]).all()  # matched
+    assert np.isnan(got[6])  # invalid depth
+    assert got[5] == pytest.approx(0.8)  # the same two neighbours (4 is 44 px away)
+    few = neighbour_p_g(kps, DepthMaps(z, CFG), observed, p_g, dataclasses.replace(CFG, neighbour_min=3))
+    assert np.isnan(few).all()
+
+
+def test_neighbour_p_g_equals_a_plain_loop():
+    rng = np.random.default_rng(4)
+    n = 400
+    kps = rng.uniform(0, 200, (n, 2))
+    z = rng.choice([1.0, 2.0, 3.5], n) + rng.normal(0, 0.06, n)  # three surfaces, some neighbours too far in depth
+    z[rng.random(n) < 0.1] = 0.0
+    observed = rng.random(n) < 0.5
+    p_g = np.where(observed, rng.random(n), np.nan)
+    maps = DepthMaps(z, CFG)
+    got = neighbour_p_g(kps, maps, observed, p_g, CFG)
+    want = np.full(n, np.nan)
+    for i in range(n):
+        if observed[i] or z[i] <= 0:
+            continue
+        d = np.hypot(*(kps - kps[i]).T)
+        cand = np.flatnonzero(observed & (z > 0))
+        near = cand[np.argsort(d[cand], kind="stable")[:CFG.neighbour_k]]  # the k nearest matched keypoints
+        nb = near[(d[near] < maps.delta[i]) & (np.abs(z[near] - z[i]) < CFG.neighbour_depth)]
+        if len(nb) >= CFG.neighbour_min:
+            want[i] = p_g[nb].mean()
+    np.testing.assert_allclose(got, want)
+    assert 20 < np.isfinite(got).sum() < (~observed).sum()  # both outcomes are exercised

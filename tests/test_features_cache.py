@@ -4,6 +4,8 @@ is what the reading run reports; bad or mismatched files give clear errors, and 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -18,6 +20,8 @@ from d2slam.slam.features import CachedFeatures, FeatureRecorder
 from d2slam.study.sequences import ensure_sequence
 
 FRAMES = 40
+# Stored features have the fixed budget: the runs that read them with a filter turn the refill off.
+FIXED = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, refill_filtered=False))
 
 
 @pytest.fixture(scope="module")
@@ -25,21 +29,21 @@ def seq():
     return open_sequence(ensure_sequence("sitting_static", 101, FRAMES, False))
 
 
-def _run(seq, method, features=None):
-    kfilter = get_method(method).factory(DEFAULT)
+def _run(seq, method, features=None, config=FIXED):
+    kfilter = get_method(method).factory(config)
     provider = None
     if kfilter is not None:
         shape = (seq.camera.height, seq.camera.width)
 
         def provider(i):
-            return stack_masks(masks_for(seq, i, "sim", DEFAULT), shape)
+            return stack_masks(masks_for(seq, i, "sim", config), shape)
 
     beliefs = []
 
     def rec(i, kps, bel, diag):
         beliefs.append(None if bel is None else bel.copy())
 
-    res = run_sequence(seq, DEFAULT, keypoint_filter=kfilter, mask_provider=provider, recorder=rec,
+    res = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=rec,
                        progress=False, features=features)
     return res, beliefs
 
@@ -107,7 +111,7 @@ def test_mismatched_and_corrupt_files(seq, saved, tmp_path):
 def test_what_each_run_still_reads(seq, saved):
     path, *_ = saved
     frame0 = CachedFeatures(path).frame(0)
-    eng = Engine(seq.camera, DEFAULT, get_method("d2slam").factory(DEFAULT))
+    eng = Engine(seq.camera, FIXED, get_method("d2slam").factory(FIXED))
     with pytest.raises(D2SlamError, match="needs the depth image"):
         eng.process(None, None, 0, float(seq.timestamps[0]), features=frame0)
     with pytest.raises(D2SlamError, match="images are needed"):
@@ -157,3 +161,51 @@ def test_study_replaces_a_corrupt_cache_file(seq, tmp_path):
     features.save(save_to)
     features, save_to = _features(seq, seq.root, DEFAULT, options)
     assert isinstance(features, CF) and save_to is None
+
+
+def test_refilling_runs_take_no_stored_features(seq, saved):
+    """With ``refill_filtered`` (the default) and a filter, each frame's budget follows the filter: stored or
+    recorded features are refused with a clear error, by the pipeline and by the engine; without a filter they serve."""
+    path, *_ = saved
+    for features in (CachedFeatures(path), FeatureRecorder()):
+        with pytest.raises(D2SlamError, match="fixed extraction budget"):
+            _run(seq, "d2slam", features, config=DEFAULT)
+    eng = Engine(seq.camera, DEFAULT, get_method("d2slam").factory(DEFAULT))
+    with pytest.raises(D2SlamError, match="fixed budget"):
+        eng.process(None, seq[0].depth, 0, float(seq.timestamps[0]), features=CachedFeatures(path).frame(0))
+    res, _ = _run(seq, "none", CachedFeatures(path), config=DEFAULT)
+    assert res.tracked == FRAMES
+
+
+def test_refill_budget_follows_the_filter(seq):
+    """``Engine.feature_budget``: n_features plus the keypoints the filter flagged in the last frame, capped at
+    refill_max x n_features; n_features without a filter or with the refill off."""
+    from d2slam.slam.frame import Frame
+
+    class Flags:  # flags a fixed number of keypoints per frame
+        def __init__(self, k):
+            self.k = k
+
+        def __call__(self, inp):
+            b = np.zeros(len(inp.kps))
+            b[:self.k] = 1.0
+            return b
+
+        def reset(self):
+            pass
+
+    n = DEFAULT.orb.n_features
+    for k, want in ((0, n), (137, n + 137), (900, int(DEFAULT.engine.refill_max * n))):
+        eng = Engine(seq.camera, DEFAULT, Flags(k))
+        assert eng.feature_budget() == n  # before the first frame
+        f = seq[0]
+        eng.process(f.gray, f.depth, 0, f.timestamp)
+        assert int(eng.last.dynamic.sum()) == min(k, eng.last.n)
+        assert eng.feature_budget() == want
+        f = seq[1]
+        eng.process(f.gray, f.depth, 1, f.timestamp)
+        assert eng.last.n > n if k else eng.last.n <= n  # the second frame extracted more
+    assert Engine(seq.camera, FIXED, Flags(137)).refills is False
+    eng = Engine(seq.camera, DEFAULT)
+    assert not eng.refills and eng.feature_budget() == n
+    assert isinstance(eng.extractor(seq[0].gray, seq[0].depth), Frame)

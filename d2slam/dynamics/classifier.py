@@ -6,7 +6,8 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
     P_S, zones   = semantic module on the person masks                                       (eq 1-2, semantic.py)
     P_g, flag    = geometric module on the matches to frame t-1                              (eq 4-6, geometric.py)
                    + the pose test (ours, RGB-D: PnP pose, reprojection and depth residuals)
-    P            = eq 7 fusion; bel = eq 8 Bayesian update from bel(q) / the map point       (fusion.py)
+    P            = eq 7 fusion (+ ours: an unmatched keypoint takes its matched neighbours' P_g
+                   when larger); bel = eq 8 Bayesian update from bel(q) / the map point       (fusion.py)
     OIM          = static keypoints in a person's interaction zone near geometric-dynamic ones -> dynamic
                    (candidates: not observed static this frame, i.e. not matched with err <= alpha
                    and passing the pose test; our measured deviation)
@@ -16,7 +17,8 @@ Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``
 
 - ``d2slam``    the full method.
 - ``no-depth``  every depth-adaptive quantity at the midpoint of its range (beta 0.15, alpha 0.7 px, delta 29.5 px,
-                gamma 19 px), the OIM's depth tests dropped (plain centroid), no pose test.
+                gamma 19 px), the OIM's depth tests dropped (plain centroid), no pose test and no neighbours' P_g
+                for unmatched keypoints (both need depth).
 - ``no-oim``    without the Object Interaction Module.
 - ``no-bayes``  the eq 7 probability P used directly as the belief (no temporal filter, no prior).
 - ``semantic``  masks only, DynaSLAM-like: every keypoint inside a mask is dynamic (belief 1), every other 0.
@@ -40,7 +42,7 @@ from d2slam.dynamics import METHODS, MODES, NEEDS_MASKS, register_methods  # noq
 from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, fuse, prior_belief
 from d2slam.dynamics.geometric import geometric_module
-from d2slam.dynamics.interaction import mask_depths, oim_candidates, oim_frame
+from d2slam.dynamics.interaction import mask_depths, neighbour_p_g, oim_candidates, oim_frame
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.errors import D2SlamError
 from d2slam.slam.hook import FilterInput
@@ -193,7 +195,10 @@ class D2SlamFilter:
                                K=inp.K if pose else None)
         t4 = clock()
         t["geometric"] = (t4 - t3) * 1e3
-        p = fuse(sem.p_s, geo.p_g, geo.observed, sem.in_area, sem.uncertain, cfg)
+        p_nb = None  # ours: an unmatched keypoint's matched neighbours (skipped inside masks, where P_S > 0.5)
+        if ud and cfg.neighbour_p_g:
+            p_nb = neighbour_p_g(kps, maps, geo.observed, geo.p_g, cfg, skip=sem.inside)
+        p = fuse(sem.p_s, geo.p_g, geo.observed, sem.in_area, sem.uncertain, cfg, p_nb)
         t5 = clock()
         t["fusion"] = (t5 - t4) * 1e3
         prior = None

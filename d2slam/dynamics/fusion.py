@@ -13,6 +13,9 @@ Eq 8, binary state (dynamic / static), prior bel(q) of the keypoint's predecesso
     bel = P b- / (P b- + (1 - P)(1 - b-))                       update, P = likelihood of "dynamic" (eta normalises)
 
 bel > 0.5 -> dynamic.
+
+Ours (measured, ``DynamicsConfig.neighbour_p_g``): a keypoint that is not matched takes max(P, P_nb), P_nb the mean
+P_g of its matched neighbours at the same depth (``interaction.neighbour_p_g``), where it has enough of them.
 """
 
 from __future__ import annotations
@@ -26,20 +29,26 @@ _DEFAULT = DynamicsConfig()
 
 
 def fuse(p_s: np.ndarray, p_g: np.ndarray, observed: np.ndarray, in_area: np.ndarray, uncertain: np.ndarray,
-         cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+         cfg: DynamicsConfig = _DEFAULT, p_nb: np.ndarray | None = None) -> np.ndarray:
     """eq 7: the moving probability P of each keypoint from P_S, P_g and the four cases above.
 
     ``observed`` = matched with P_g defined (a keypoint whose match has no F is "not matched"); ``in_area`` = inside
     a mask or in its uncertainty zone; ``uncertain`` selects w = ``omega_uncertain`` (0.5), else ``omega_reliable``
-    (0.1). NaN P_S/P_g never leak: each case reads only the terms it uses."""
+    (0.1). NaN P_S/P_g never leak: each case reads only the terms it uses. ``p_nb`` (ours, optional): the neighbours'
+    P_g of each keypoint (NaN where it has too few); a keypoint that is not matched gets max(P, p_nb)."""
     p_s = np.nan_to_num(np.asarray(p_s, dtype=np.float64), nan=0.0)
     p_g = np.nan_to_num(np.asarray(p_g, dtype=np.float64), nan=0.0)
     observed = np.asarray(observed, dtype=bool)
     in_area = np.asarray(in_area, dtype=bool)
     w = np.where(np.asarray(uncertain, dtype=bool), cfg.omega_uncertain, cfg.omega_reliable)
-    return np.where(in_area,
-                    np.where(observed, w * p_g + (1.0 - w) * p_s, p_s),
-                    np.where(observed, p_g, cfg.p_no_observation))
+    p = np.where(in_area,
+                 np.where(observed, w * p_g + (1.0 - w) * p_s, p_s),
+                 np.where(observed, p_g, cfg.p_no_observation))
+    if p_nb is not None:
+        p_nb = np.asarray(p_nb, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            p = np.where(~observed & (p_nb > p), p_nb, p)  # NaN p_nb compares False
+    return p
 
 
 def prior_belief(n: int, matches: np.ndarray, prev_belief: np.ndarray, mappoint_belief: np.ndarray | None,

@@ -57,21 +57,23 @@ class Frame:
         return self.belief > 0.5
 
 
-def level_quotas(orb: OrbConfig) -> np.ndarray:
-    """ORB-SLAM's features per level: geometric with ratio 1/scale, summing to ``n_features``."""
+def level_quotas(orb: OrbConfig, n_features: int | None = None) -> np.ndarray:
+    """ORB-SLAM's features per level: geometric with ratio 1/scale, summing to ``n_features`` (default
+    ``orb.n_features``)."""
+    n = orb.n_features if n_features is None else int(n_features)
     f = 1.0 / orb.scale_factor
-    n0 = orb.n_features * (1 - f) / (1 - f ** orb.n_levels)
+    n0 = n * (1 - f) / (1 - f ** orb.n_levels)
     q = np.round(n0 * f ** np.arange(orb.n_levels)).astype(int)
-    q[-1] = max(orb.n_features - q[:-1].sum(), 0)
+    q[-1] = max(n - q[:-1].sum(), 0)
     return q
 
 
 def bucket_select(pts: np.ndarray, level: np.ndarray, response: np.ndarray, orb: OrbConfig,
-                  width: int, height: int) -> np.ndarray:
+                  width: int, height: int, n_features: int | None = None) -> np.ndarray:
     """Indices of the kept corners: per level, round-robin over grid cells by decreasing response (vectorised)."""
     if len(pts) == 0:
         return np.zeros(0, dtype=np.int64)
-    quotas = level_quotas(orb)
+    quotas = level_quotas(orb, n_features)
     cell = orb.cell_size * orb.scale_factor ** level.astype(np.float64)
     ncols = np.ceil(width / cell).astype(np.int64)
     cx = np.minimum((pts[:, 0] / cell).astype(np.int64), ncols - 1)
@@ -112,18 +114,24 @@ class OrbExtractor:
         self.inv_level_sigma2 = 1.0 / self.scales ** 2
         self.th_depth_m = close_depth(camera, engine)
 
-    def detect(self, gray: np.ndarray):
+    def detect(self, gray: np.ndarray, n_features: int):
+        n_detect = int(n_features * self.cfg.oversample)
+        for orb in (self._orb_high, self._orb_low):
+            orb.setMaxFeatures(n_detect)
         kps = self._orb_high.detect(gray, None)
-        if len(kps) < self.cfg.n_features:
+        if len(kps) < n_features:
             kps = self._orb_low.detect(gray, None)
         return kps
 
-    def __call__(self, gray: np.ndarray, depth: np.ndarray, index: int = 0, timestamp: float = 0.0) -> Frame:
+    def __call__(self, gray: np.ndarray, depth: np.ndarray, index: int = 0, timestamp: float = 0.0,
+                 n_features: int | None = None) -> Frame:
         h, w = gray.shape[:2]
-        kps = self.detect(gray)
+        n_features = self.cfg.n_features if n_features is None else int(n_features)
+        kps = self.detect(gray, n_features)
         if kps:
             attrs = np.array([(k.pt[0], k.pt[1], k.response, k.octave) for k in kps], dtype=np.float64)
-            keep = bucket_select(attrs[:, :2], attrs[:, 3].astype(np.int64), attrs[:, 2], self.cfg, w, h)
+            keep = bucket_select(attrs[:, :2], attrs[:, 3].astype(np.int64), attrs[:, 2], self.cfg, w, h,
+                                 n_features)
             kps = [kps[i] for i in keep]
         desc = None
         if kps:
