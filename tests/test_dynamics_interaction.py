@@ -7,7 +7,8 @@ import pytest
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps
-from d2slam.dynamics.interaction import interaction_zone, mask_depths, neighbour_p_g, object_interaction
+from d2slam.dynamics.interaction import (MatchedPoints, interaction_zone, mask_depths, neighbour_p_g,
+                                         object_interaction, oim_candidates)
 
 CFG = DynamicsConfig()
 
@@ -133,3 +134,77 @@ def test_neighbour_p_g_equals_a_plain_loop():
             want[i] = p_g[nb].mean()
     np.testing.assert_allclose(got, want)
     assert 20 < np.isfinite(got).sum() < (~observed).sum()  # both outcomes are exercised
+
+
+@pytest.mark.parametrize("use_depth", [True, False])
+def test_object_interaction_equals_a_plain_loop_with_and_without_the_shared_tree(use_depth):
+    """eq 9-10 by a loop over the candidates, against the vectorised function with its own tree and with the frame's
+    ``MatchedPoints`` tree (the one ``neighbour_p_g`` uses): the same flips and centroids."""
+    rng = np.random.default_rng(9)
+    n = 500
+    kps = rng.uniform(0, 250, (n, 2))
+    z = rng.choice([1.0, 2.0, 3.5], n) + rng.normal(0, 0.2, n)
+    z[rng.random(n) < 0.08] = np.nan
+    kps[rng.random(n) < 0.02] = np.inf
+    observed = rng.random(n) < 0.7
+    dyn = observed & (rng.random(n) < 0.4)  # the geometric flag only marks matched keypoints
+    cand = ~dyn & (rng.random(n) < 0.6)
+    maps = DepthMaps(z, CFG, use_depth)
+    finite = np.isfinite(kps).all(axis=1)
+    shared = MatchedPoints(kps, observed, finite, maps.valid if use_depth else None)
+    flip_own, g_own = object_interaction(kps, z, cand, dyn, CFG, use_depth, maps=maps)
+    flip_sh, g_sh = object_interaction(kps, z, cand, dyn, CFG, use_depth, maps=maps, matched=shared)
+    np.testing.assert_array_equal(flip_own, flip_sh)
+    np.testing.assert_allclose(g_own, g_sh, rtol=1e-12)
+    ok = finite & (maps.valid if use_depth else True)
+    want = np.zeros(n, bool)
+    for i in np.flatnonzero(cand & ok):
+        j = np.flatnonzero(dyn & ok)
+        j = j[(np.hypot(*(kps[j] - kps[i]).T) < maps.delta[i]) & (j != i)]
+        if use_depth:
+            j = j[np.abs(z[j] - z[i]) < CFG.rho]
+            w = (CFG.rho - np.abs(z[j] - z[i])) / CFG.rho
+        else:
+            w = np.ones(len(j))
+        if w.sum() > 0:
+            g = (w[:, None] * kps[j]).sum(axis=0) / w.sum()
+            np.testing.assert_allclose(g_sh[i], g, rtol=1e-9)
+            want[i] = np.hypot(*(kps[i] - g)) < maps.gamma[i]
+    np.testing.assert_array_equal(flip_sh, want)
+    assert 10 < want.sum() < (cand & ok).sum()  # both outcomes are exercised
+
+
+def test_neighbour_p_g_with_the_shared_tree_equals_its_own():
+    rng = np.random.default_rng(5)
+    n = 300
+    kps = rng.uniform(0, 150, (n, 2))
+    z = 2.0 + rng.normal(0, 0.08, n)
+    observed = rng.random(n) < 0.6
+    p_g = np.where(observed, rng.random(n), np.nan)
+    maps = DepthMaps(z, CFG)
+    shared = MatchedPoints(kps, observed, np.ones(n, bool), maps.valid)
+    own = neighbour_p_g(kps, maps, observed, p_g, CFG)
+    np.testing.assert_array_equal(own, neighbour_p_g(kps, maps, observed, p_g, CFG, matched=shared))
+    assert np.isfinite(own).sum() > 50
+
+
+def test_oim_candidates_skip_neighbour_static_only_when_asked():
+    belief = np.array([0.2, 0.2, 0.2, 0.2, 0.8])
+    observed = np.array([False, False, False, True, False])
+    geo_dynamic = np.zeros(5, bool)
+    p_nb = np.array([0.3, 0.7, np.nan, np.nan, 0.1])  # static neighbours, dynamic ones, too few
+    base = oim_candidates(belief, observed, geo_dynamic, CFG, p_nb)
+    np.testing.assert_array_equal(base, [True, True, True, False, False])  # the default ignores p_nb
+    strict = oim_candidates(belief, observed, geo_dynamic, dataclasses.replace(CFG, oim_skip_neighbour_static=True),
+                            p_nb)
+    np.testing.assert_array_equal(strict, [False, True, True, False, False])
+
+
+def test_mask_median_equals_numpy_median():
+    from d2slam.dynamics.interaction import _median
+
+    rng = np.random.default_rng(1)
+    for n in [1, 2, 3, 4, 7, 10, 501, 1000]:
+        for vals in (rng.uniform(0.5, 4.5, n).astype(np.float32), rng.uniform(0.5, 4.5, n),
+                     rng.integers(30000, 65535, n).astype(np.uint16)):  # a uint16 sum of two would overflow
+            assert _median(vals) == float(np.median(vals))

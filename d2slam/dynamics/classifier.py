@@ -42,7 +42,7 @@ from d2slam.dynamics import METHODS, MODES, NEEDS_MASKS, register_methods  # noq
 from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, fuse, prior_belief
 from d2slam.dynamics.geometric import geometric_module
-from d2slam.dynamics.interaction import mask_depths, neighbour_p_g, oim_candidates, oim_frame
+from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_g, oim_candidates, oim_frame
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.errors import D2SlamError
 from d2slam.slam.hook import FilterInput
@@ -195,9 +195,12 @@ class D2SlamFilter:
                                K=inp.K if pose else None)
         t4 = clock()
         t["geometric"] = (t4 - t3) * 1e3
+        # The matched keypoints and their k-d tree, shared by the neighbours' P_g and the OIM (eq 9's dynamic
+        # neighbours are matched keypoints); the tree is built on first use.
+        matched = MatchedPoints(kps, geo.observed, fm.kp.finite, maps.valid if ud else None)
         p_nb = None  # ours: an unmatched keypoint's matched neighbours (skipped inside masks, where P_S > 0.5)
         if ud and cfg.neighbour_p_g:
-            p_nb = neighbour_p_g(kps, maps, geo.observed, geo.p_g, cfg, skip=sem.inside)
+            p_nb = neighbour_p_g(kps, maps, geo.observed, geo.p_g, cfg, skip=sem.inside, matched=matched)
         p = fuse(sem.p_s, geo.p_g, geo.observed, sem.in_area, sem.uncertain, cfg, p_nb)
         t5 = clock()
         t["fusion"] = (t5 - t4) * 1e3
@@ -213,8 +216,8 @@ class D2SlamFilter:
         if self.use_oim:
             # eq 10's centroid test first, on the static keypoints near a mask, then the zone test (eq 9) only where
             # it would flip: the same result as testing the zone first, with far fewer edge searches.
-            cand = oim_candidates(bel, geo.observed, geo.dynamic, cfg)
-            zone, oim = oim_frame(fm, kps, maps, z_n, sem.d, margin, cand, geo.dynamic, cfg, ud)
+            cand = oim_candidates(bel, geo.observed, geo.dynamic, cfg, p_nb)
+            zone, oim = oim_frame(fm, kps, maps, z_n, sem.d, margin, cand, geo.dynamic, cfg, ud, matched)
             belief = np.where(oim, np.maximum(bel, cfg.oim_belief), bel)
         t["oim"] = (clock() - t6) * 1e3
         t["total"] = sum(t.values())

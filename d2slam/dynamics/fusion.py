@@ -36,8 +36,10 @@ def fuse(p_s: np.ndarray, p_g: np.ndarray, observed: np.ndarray, in_area: np.nda
     a mask or in its uncertainty zone; ``uncertain`` selects w = ``omega_uncertain`` (0.5), else ``omega_reliable``
     (0.1). NaN P_S/P_g never leak: each case reads only the terms it uses. ``p_nb`` (ours, optional): the neighbours'
     P_g of each keypoint (NaN where it has too few); a keypoint that is not matched gets max(P, p_nb)."""
-    p_s = np.nan_to_num(np.asarray(p_s, dtype=np.float64), nan=0.0)
-    p_g = np.nan_to_num(np.asarray(p_g, dtype=np.float64), nan=0.0)
+    p_s = np.asarray(p_s, dtype=np.float64)
+    p_s = np.where(np.isnan(p_s), 0.0, p_s)
+    p_g = np.asarray(p_g, dtype=np.float64)
+    p_g = np.where(np.isnan(p_g), 0.0, p_g)
     observed = np.asarray(observed, dtype=bool)
     in_area = np.asarray(in_area, dtype=bool)
     w = np.where(np.asarray(uncertain, dtype=bool), cfg.omega_uncertain, cfg.omega_reliable)

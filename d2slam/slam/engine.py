@@ -42,6 +42,12 @@ class TrackResult:
         return self.state == OK
 
 
+def refills(config: Config, keypoint_filter: KeypointFilter | None) -> bool:
+    """Whether a run's extraction budget depends on its filter's output (``EngineConfig.refill_filtered`` and a
+    filter): such a run extracts every frame itself and cannot use stored features (see ``Engine.feature_budget``)."""
+    return bool(config.engine.refill_filtered and keypoint_filter is not None)
+
+
 def _inv(T: np.ndarray) -> np.ndarray:
     R, t = T[:3, :3], T[:3, 3]
     out = np.eye(4)
@@ -152,8 +158,8 @@ class Engine:
 
     @property
     def refills(self) -> bool:
-        """Whether each frame's extraction budget depends on the filter's output (``refill_filtered`` and a filter)."""
-        return bool(self.cfg.refill_filtered and self.filter is not None)
+        """Whether each frame's extraction budget depends on the filter's output (``refills`` of this engine)."""
+        return refills(self.config, self.filter)
 
     def feature_budget(self) -> int:
         """Keypoints to extract from the next frame: ``n_features``, plus (``refills``) as many as the hook flagged in

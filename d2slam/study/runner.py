@@ -122,6 +122,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     from d2slam.eval.trajectory import aligned_estimate, evaluate
     from d2slam.methods import get_method, mask_kind
     from d2slam.pipeline import run_sequence
+    from d2slam.slam.engine import refills
 
     config = _config(spec, options)
     row = out["row"]
@@ -145,7 +146,8 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
             return stack_masks(masks_for(seq, i, kind, config), shape)
 
     recorder = keypoint_recorder(seq)
-    features, save_to = _features(seq, path, config, options) if not _refills(config, kfilter) else (None, None)
+    # A run whose extraction budget follows its filter extracts every frame itself: stored features have the fixed one.
+    features, save_to = _features(seq, path, config, options) if not refills(config, kfilter) else (None, None)
     result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=recorder,
                           progress=False, features=features)
     if save_to is not None:
@@ -201,12 +203,6 @@ def features_path(seq, path: Path, config, options: dict) -> Path:
     key = _digest(ident)
     root = Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
     return root / f"{Path(path).resolve().name}_n{len(seq)}-{key}.npz"
-
-
-def _refills(config, kfilter) -> bool:
-    """A run whose extraction budget follows its filter (``EngineConfig.refill_filtered``) extracts every frame
-    itself: the stored features have the fixed budget."""
-    return bool(config.engine.refill_filtered and kfilter is not None)
 
 
 def _features(seq, path: Path, config, options: dict):
