@@ -100,8 +100,8 @@ class Engine:
             raise D2SlamError(f"frame {index}: the images are needed (no precomputed features)")
         if features is not None and self.refills:
             raise D2SlamError(f"frame {index}: stored features have the fixed budget of {self.orb.n_features} "
-                              "keypoints; with refill_filtered and a keypoint filter the engine extracts every frame itself "
-                              "(EngineConfig.refill_filtered=False to use stored features)")
+                              "keypoints; with refill_filtered and a keypoint filter the engine extracts every frame "
+                              "itself (EngineConfig.refill_filtered=False to use stored features)")
         if self.filter is not None and depth is None:
             raise D2SlamError(f"frame {index}: the keypoint filter needs the depth image")
         if gray is not None and depth is not None and depth.shape != gray.shape:
