@@ -6,6 +6,7 @@ behind the engine's keypoint-filter hook.
 - ``geometric``: eq 4-6, RANSAC fundamental matrix, epipolar error, P_g
 - ``fusion``: eq 7 (four cases) and eq 8 (Bayesian filter)
 - ``interaction``: eq 9-10, the Object Interaction Module
+- ``flow``: ours, sub-pixel correspondences for eq 4-6 by LK flow (the ``d2slam-flow`` mode)
 - ``classifier``: ``D2SlamFilter`` / ``get_filter(method, config)`` with the ablation modes; ``register_methods``
   puts them in the run-method registry (``d2slam.methods``)
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 # The ablation modes (see classifier.py) with the help text of ``d2slam run --method``; ``needs_masks`` per mode.
 MODE_HELP = {
     "d2slam": "full D2SLAM: semantic + geometric + Bayesian fusion + object interaction (eq 1-10)",
+    "d2slam-flow": "ours: d2slam with sub-pixel LK flow correspondences for eq 5 (DynamicsConfig.flow)",
     "no-depth": "D2SLAM with every depth-adaptive quantity at its midpoint and no OIM depth test",
     "no-oim": "D2SLAM without the object interaction module (eq 9-10)",
     "no-bayes": "D2SLAM with the eq 7 probability used directly (no eq 8 filter)",

@@ -16,6 +16,9 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
 Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``none`` -> None, the hook off):
 
 - ``d2slam``    the full method.
+- ``d2slam-flow`` ours: the full method with sub-pixel correspondences for eq 5 by LK flow (``flow.py``; also
+                ``DynamicsConfig.flow`` in the other full-method modes). Needs the grey images (``FilterInput.gray``
+                and ``prev_gray``): without them (first frame, stored features) the frame runs as ``d2slam``.
 - ``no-depth``  every depth-adaptive quantity at the midpoint of its range (beta 0.15, alpha 0.7 px, delta 29.5 px,
                 gamma 19 px), the OIM's depth tests dropped (plain centroid), no pose test and no neighbours' P_g
                 for unmatched keypoints (both need depth).
@@ -41,7 +44,8 @@ from d2slam.config import Config, DynamicsConfig
 from d2slam.dynamics import METHODS, MODES, NEEDS_MASKS, register_methods  # noqa: F401 (names defined there, light)
 from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, fuse, prior_belief
-from d2slam.dynamics.geometric import geometric_module
+from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_matches, restrict_to_area
+from d2slam.dynamics.geometric import check_matches, geometric_module
 from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_g, oim_candidates, oim_frame
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.errors import D2SlamError
@@ -132,8 +136,11 @@ class D2SlamFilter:
         self.cfg: DynamicsConfig = config.dynamics if isinstance(config, Config) else config
         self.mode = mode
         self.use_depth = mode != "no-depth"
-        self.use_oim = mode in ("d2slam", "no-depth", "no-bayes")
-        self.use_bayes = mode in ("d2slam", "no-depth", "no-oim")
+        self.use_oim = mode in ("d2slam", "d2slam-flow", "no-depth", "no-bayes")
+        self.use_bayes = mode in ("d2slam", "d2slam-flow", "no-depth", "no-oim")
+        self.use_flow = self.cfg.flow or mode == "d2slam-flow"
+        if self.use_flow:
+            check_flow_area(self.cfg.flow_area)
         self.last: FrameDiagnostics | None = None
 
     def reset(self) -> None:
@@ -190,9 +197,21 @@ class D2SlamFilter:
         t3 = clock()
         t["semantic"] = (t3 - t2) * 1e3
         pose = ud and cfg.pose_test  # the pose test needs the depths (off in no-depth)
-        geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, a, cfg, scale=scale,
-                               kp_depth=z if pose else None, prev_kp_depth=inp.prev_kp_depth if pose else None,
-                               K=inp.K if pose else None)
+        prev_kps, prev_z, prev_bel, matches, fit = inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, inp.matches, None
+        if self.use_flow and inp.gray is not None and getattr(inp, "prev_gray", None) is not None and n:
+            # ours: sub-pixel correspondences by LK flow (flow.py); alpha and sigma unscaled where the flow tracked
+            m0 = check_matches(matches, n, len(prev_kps))
+            q = restrict_to_area(flow_correspondences(inp.gray, inp.prev_gray, kps, prev_kps, m0, cfg), sem.in_area,
+                                 m0, cfg.flow_area)
+            prev_kps, prev_z, prev_bel, matches, fit, tracked = flow_matches(q, prev_kps, prev_z, prev_bel, matches)
+            scale = np.where(tracked, 1.0, scale)
+            a = maps.alpha * scale
+            t3b = clock()
+            t["flow"] = (t3b - t3) * 1e3
+            t3 = t3b
+        geo = geometric_module(kps, prev_kps, matches, prev_bel, a, cfg, scale=scale,
+                               kp_depth=z if pose else None, prev_kp_depth=prev_z if pose else None,
+                               K=inp.K if pose else None, fit=fit)
         t4 = clock()
         t["geometric"] = (t4 - t3) * 1e3
         # The matched keypoints and their k-d tree, shared by the neighbours' P_g and the OIM (eq 9's dynamic

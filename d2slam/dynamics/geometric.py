@@ -219,7 +219,8 @@ class GeometricResult:
 def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray, prev_belief: np.ndarray,
                      a: np.ndarray, cfg: DynamicsConfig = _DEFAULT, seed: int | None = None,
                      kp_depth: np.ndarray | None = None, prev_kp_depth: np.ndarray | None = None,
-                     K: np.ndarray | None = None, scale: np.ndarray | float = 1.0) -> GeometricResult:
+                     K: np.ndarray | None = None, scale: np.ndarray | float = 1.0,
+                     fit: np.ndarray | None = None) -> GeometricResult:
     """eq 4-6 for the current keypoints ``kps`` (N, 2) given ``matches`` (K, 2) to ``prev_kps`` (M, 2).
 
     ``a`` (N,) is the threshold of each current keypoint (alpha(z_p), or ``fixed_alpha`` for the `geometric`
@@ -228,7 +229,7 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     given and ``cfg.pose_test`` on, the pose test (module docstring) runs on the matches that have eq 5's error, with
     the pose from the matches RANSAC used for F (those with a valid previous depth); ``scale`` (N,) or scalar is each
     keypoint's detection scale 1.2^octave (``depth.octave_factor``), for eq 6's sigma and the reprojection
-    threshold."""
+    threshold. ``fit`` (K,) bool: the matches F may be fitted on (default all; ``flow.flow_matches``)."""
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     prev_kps = np.asarray(prev_kps, dtype=np.float64).reshape(-1, 2)
     n = len(kps)
@@ -249,16 +250,20 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
         return empty
     p, q = kps[m[:, 0]], prev_kps[m[:, 1]]
     ok = np.isfinite(p[:, 0]) & np.isfinite(p[:, 1]) & np.isfinite(q[:, 0]) & np.isfinite(q[:, 1])
+    fit = np.ones(len(m), dtype=bool) if fit is None else np.asarray(fit, dtype=bool).reshape(-1)
+    if len(fit) != len(m):
+        raise D2SlamError(f"fit has {len(fit)} entries for {len(m)} matches")
     if not ok.all():
-        m, p, q = m[ok], p[ok], q[ok]
+        m, p, q, fit = m[ok], p[ok], q[ok], fit[ok]
     pb = np.asarray(prev_belief, dtype=np.float64).reshape(-1)
     if len(pb) != len(prev_kps):
         raise D2SlamError(f"prev_belief has {len(pb)} entries for {len(prev_kps)} previous keypoints")
     bel_q = pb[m[:, 1]]
     with np.errstate(invalid="ignore"):
         static = np.where(np.isnan(bel_q), cfg.prior, bel_q) <= cfg.dynamic_threshold  # NaN belief = the prior
+    static &= fit
     used_static = int(static.sum()) >= cfg.f_min_static_matches
-    sel = static if used_static else np.ones(len(m), dtype=bool)
+    sel = static if used_static else fit
     F, _ = fundamental_matrix(q[sel], p[sel], cfg, seed)
     if F is None:
         empty.n_used, empty.used_static = int(sel.sum()), used_static

@@ -79,6 +79,7 @@ class Engine:
         self.map = Map()
         self.state = NOT_INITIALIZED
         self.last: Frame | None = None  # last processed frame (tracked or not)
+        self.last_gray: np.ndarray | None = None  # its grey image (None when it came as stored features)
         self.last_tracked: Frame | None = None
         self.velocity: np.ndarray | None = None
         self.ref_kf: KeyFrame | None = None
@@ -148,7 +149,7 @@ class Engine:
                 self.state = LOST
             self.velocity = None
             frame.Tcw = None
-        self.last = frame
+        self.last, self.last_gray = frame, gray
         t4 = time.perf_counter()
         state = OK if ok else (NOT_INITIALIZED if self.state == NOT_INITIALIZED else LOST)
         n_in = int(((frame.mp >= 0) & ~frame.outlier).sum()) if ok else 0
@@ -198,7 +199,8 @@ class Engine:
         inp = FilterInput(frame_index=frame.index, timestamp=frame.timestamp, gray=gray, depth=depth, K=self.K,
                           kps=frame.kps.astype(np.float32), kp_depth=frame.depth.astype(np.float32),
                           prev_kps=prev_kps, prev_kp_depth=prev_depth, prev_belief=np.asarray(prev_belief),
-                          matches=matches, mappoint_belief=mp_belief, masks=masks, octave=frame.octave)
+                          matches=matches, mappoint_belief=mp_belief, masks=masks, octave=frame.octave,
+                          prev_gray=self.last_gray if prev is not None else None)
         belief = np.asarray(self.filter(inp), dtype=np.float64)
         if belief.shape != (n,) or not np.all(np.isfinite(belief)) or belief.min(initial=0) < 0 or \
                 belief.max(initial=0) > 1:

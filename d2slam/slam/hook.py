@@ -32,6 +32,9 @@ class FilterInput:
     # (N,) int pyramid level (ORB octave) of each current keypoint, or None when the engine does not give it. Used by
     # the geometric module to express alpha(z) at the keypoint's detection scale (DynamicsConfig.alpha_octave_scale).
     octave: np.ndarray | None = None
+    # (H, W) uint8 grey image of the previous frame, None on the first frame or when it came as stored features. Used
+    # by the optional flow correspondences of the geometric module (DynamicsConfig.flow, d2slam.dynamics.flow).
+    prev_gray: np.ndarray | None = None
 
 
 class KeypointFilter(Protocol):

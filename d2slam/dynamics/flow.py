@@ -1,0 +1,114 @@
+"""Sub-pixel correspondences for eq 4-6 by pyramidal Lucas-Kanade flow (ours, measured; ``DynamicsConfig.flow``).
+
+    q_i = LK(I_t -> I_{t-1}) of keypoint p_i, started at its match q_j (or at p_i when unmatched)
+    q_i kept when LK(I_{t-1} -> I_t) of q_i, started at q_i + p_i - q_j, returns within flow_fb_px of p_i
+                                                                                     (forward-backward check)
+
+Eq 5 measures the distance of p to the epipolar line of its correspondence q. With ORB matches both p and q are FAST
+corners at integer positions of their pyramid levels, so even a correct static match is off by about a pixel, which is
+alpha's own size: on synthetic walking_xyz dev seed 3 (300 frames, d2slam, RANSAC F), 37 % of matched static keypoints
+exceed alpha(z) x 1.2^octave (78 % of dynamic ones), median static error 0.66 px. Tracked by LK (11 x 11 window, three
+pyramid levels) the correspondence of the same p is sub-pixel: 8 % of static keypoints exceed the unscaled alpha(z)
+(73 % of dynamic ones), median static error 0.10 px; walking_rpy dev seed 4 gives 35 / 72 % -> 6 / 63 %. LK also finds
+a correspondence for keypoints the descriptor matching missed (on walking_xyz dev seed 3, 91 % of the unmatched
+static ones outside the masks track, and 6 % of those exceed alpha), which is where most of the missed dynamic
+keypoints are (issue 4's note).
+
+The cost is the flow itself, about 5-10 ms per frame for 1500 keypoints on one core (both directions), so it is
+an extension beside the paper's module, not part of the 3 ms budget of the paper's modules.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from d2slam.config import DynamicsConfig
+from d2slam.errors import D2SlamError
+
+_DEFAULT = DynamicsConfig()
+FLOW_AREAS = ("all", "matched", "outside")  # DynamicsConfig.flow_area
+
+
+def check_flow_area(area: str) -> str:
+    if area not in FLOW_AREAS:
+        raise D2SlamError(f"unknown flow_area {area!r}; choose one of {', '.join(FLOW_AREAS)}")
+    return area
+
+
+def restrict_to_area(q: np.ndarray, in_area: np.ndarray, matches: np.ndarray, area: str) -> np.ndarray:
+    """``q`` (N, 2) with NaN where ``DynamicsConfig.flow_area`` leaves a keypoint to its ORB match: "all" keeps
+    every track; "matched" drops the unmatched keypoints in a mask area (``in_area``, eq 7's inside or uncertain);
+    "outside" drops every keypoint in a mask area."""
+    if check_flow_area(area) == "all":
+        return q
+    drop = np.asarray(in_area, dtype=bool).copy()
+    if area == "matched":
+        drop[np.asarray(matches, dtype=np.int64).reshape(-1, 2)[:, 0]] = False
+    q = q.copy()
+    q[drop] = np.nan
+    return q
+
+
+def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarray, prev_kps: np.ndarray,
+                         matches: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """(N, 2) position in ``prev_gray`` of each current keypoint ``kps`` (N, 2) of ``gray``, NaN where the flow
+    failed (LK status, forward-backward check, non-finite keypoint). ``matches`` (K, 2) rows (current, previous)
+    start the matched keypoints at their match in ``prev_kps``; the others start at their own position."""
+    gray, prev_gray = np.asarray(gray), np.asarray(prev_gray)
+    if gray.shape != prev_gray.shape or gray.ndim != 2:
+        raise D2SlamError(f"flow needs two grey images of one size, got {gray.shape} and {prev_gray.shape}")
+    kps = np.asarray(kps, dtype=np.float32).reshape(-1, 2)
+    n = len(kps)
+    q = np.full((n, 2), np.nan)
+    finite = np.isfinite(kps).all(axis=1)
+    if not finite.any():
+        return q
+    start = kps.copy()
+    m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
+    if len(m):
+        start[m[:, 0]] = np.asarray(prev_kps, dtype=np.float32).reshape(-1, 2)[m[:, 1]]
+    start[~np.isfinite(start).all(axis=1)] = kps[~np.isfinite(start).all(axis=1)]
+    idx = np.flatnonzero(finite)
+    p0 = kps[idx].reshape(-1, 1, 2)
+    win = (int(cfg.flow_window), int(cfg.flow_window))
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, int(cfg.flow_iterations), float(cfg.flow_epsilon))
+    q1, s1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, start[idx].reshape(-1, 1, 2).copy(), winSize=win,
+                                         maxLevel=int(cfg.flow_levels), criteria=crit,
+                                         flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    # backward, started at the forward track moved back by the start's offset (the match's motion, reversed)
+    back = (q1.reshape(-1, 2) + (kps[idx] - start[idx])).reshape(-1, 1, 2)
+    p1, s2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, q1, back, winSize=win, maxLevel=int(cfg.flow_levels),
+                                         criteria=crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    q1, p1 = q1.reshape(-1, 2), p1.reshape(-1, 2)
+    ok = (s1.reshape(-1) == 1) & (s2.reshape(-1) == 1) & np.isfinite(q1).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        ok &= np.hypot(*(p1 - kps[idx]).T) <= cfg.flow_fb_px
+    q[idx[ok]] = q1[ok]
+    return q
+
+
+def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray, prev_belief: np.ndarray,
+                 matches: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The geometric module's inputs with the flow's correspondences ``q`` (N, 2) (``flow_correspondences``).
+
+    A matched keypoint that tracked takes its tracked position in place of its match's (the previous keypoint keeps
+    its belief and depth). An unmatched keypoint that tracked becomes a match to a new previous point at its tracked
+    position, with no belief (NaN), no depth (0: no pose test) and not used to fit F (``fit`` False).
+    Returns (prev_kps, prev_kp_depth, prev_belief, matches, fit (K',) bool, tracked (N,) bool)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    prev_kps = np.asarray(prev_kps, dtype=np.float64).reshape(-1, 2).copy()
+    m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
+    tracked = np.isfinite(q).all(axis=1)
+    refine = m[tracked[m[:, 0]]]
+    prev_kps[refine[:, 1]] = q[refine[:, 0]]
+    is_matched = np.zeros(len(q), dtype=bool)
+    is_matched[m[:, 0]] = True
+    new = np.flatnonzero(tracked & ~is_matched)
+    n_prev = len(prev_kps)
+    prev_kps = np.concatenate([prev_kps, q[new]])
+    prev_depth = np.concatenate([np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1), np.zeros(len(new))])
+    prev_belief = np.concatenate([np.asarray(prev_belief, dtype=np.float64).reshape(-1), np.full(len(new), np.nan)])
+    matches = np.concatenate([m, np.stack([new, n_prev + np.arange(len(new))], axis=1)])
+    fit = np.arange(len(matches)) < len(m)
+    return prev_kps, prev_depth, prev_belief, matches, fit, tracked

@@ -1,0 +1,228 @@
+"""Sub-pixel LK correspondences for eq 4-6 (d2slam.dynamics.flow) and the ``d2slam-flow`` mode."""
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from d2slam.config import DynamicsConfig
+from d2slam.dynamics import get_filter
+from d2slam.dynamics.flow import flow_correspondences, flow_matches
+from d2slam.dynamics.geometric import geometric_module
+from d2slam.dynamics.toy import K_FR3
+from d2slam.errors import D2SlamError
+from d2slam.slam.hook import FilterInput
+
+H, W = 240, 320
+BOX = (slice(80, 160), slice(200, 280))  # rows, cols of the moving object in the current image
+
+
+def texture(seed: int, shape=(H, W)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = cv2.GaussianBlur(rng.uniform(0, 255, shape).astype(np.float32), (0, 0), 1.6)
+    return cv2.normalize(t, None, 0, 255, cv2.NORM_MINMAX)
+
+
+def image_pair(seed: int = 0, box_motion: float = 3.0):
+    """Previous and current grey images of a camera moving along x: the correspondence in the previous image of
+    current pixel (u, v) is (u - d(u, v), v), d a smooth, non-planar disparity of 1-3 px (horizontal epipolar lines),
+    except inside BOX, an object that moved down by ``box_motion`` px: there it is (u, v - box_motion)."""
+    prev = texture(seed)
+    vv, uu = np.mgrid[0:H, 0:W].astype(np.float32)
+    d = (2.0 + np.sin(uu / 23.0) * np.cos(vv / 17.0)).astype(np.float32)
+    mx, my = uu - d, vv.copy()
+    mx[BOX], my[BOX] = uu[BOX], vv[BOX] - box_motion
+    cur = cv2.remap(prev, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    return prev.astype(np.uint8), cur.astype(np.uint8), mx, my
+
+
+def grid_keypoints(step: int = 12, border: int = 16) -> np.ndarray:
+    v, u = np.mgrid[border:H - border:step, border:W - border:step]
+    return np.stack([u.ravel(), v.ravel()], 1).astype(np.float32) + 0.37
+
+
+def in_box(kps: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    return (kps[:, 1] >= BOX[0].start - margin) & (kps[:, 1] < BOX[0].stop + margin) & \
+        (kps[:, 0] >= BOX[1].start - margin) & (kps[:, 0] < BOX[1].stop + margin)
+
+
+def test_flow_finds_the_sub_pixel_correspondence():
+    prev, cur, mx, my = image_pair(0)
+    kps = grid_keypoints()
+    q = flow_correspondences(cur, prev, kps, np.zeros((0, 2)), np.zeros((0, 2), np.int64))
+    assert q.shape == kps.shape
+    pix = np.rint(kps).astype(int)
+    true = np.stack([mx[pix[:, 1], pix[:, 0]] + (kps[:, 0] - pix[:, 0]),
+                     my[pix[:, 1], pix[:, 0]] + (kps[:, 1] - pix[:, 1])], 1)
+    clean = ~in_box(kps, margin=12)  # away from the object's border (the window straddles two motions there)
+    ok = np.isfinite(q).all(axis=1)
+    assert ok[clean].mean() > 0.95
+    err = np.hypot(*(q - true)[clean & ok].T)
+    assert np.median(err) < 0.05 and np.quantile(err, 0.95) < 0.2
+    inside = in_box(kps, margin=-12) & ok
+    assert inside.sum() > 10 and np.abs(q[inside, 1] - (kps[inside, 1] - 3.0)).max() < 0.2
+
+
+def test_flow_starts_matched_keypoints_at_their_match_and_rejects_failures():
+    prev, cur, mx, my = image_pair(1, box_motion=0.0)
+    kps = grid_keypoints()
+    # a large camera-like jump is beyond a 3x3-window, no-pyramid search from the keypoint itself, but not from a
+    # match that lies near the right place
+    cfg = DynamicsConfig(flow_window=5, flow_levels=0)
+    big = np.roll(prev, 9, axis=1)  # the previous image moved right by 9 px: p corresponds to (u - d + 9, v)
+    pix = np.rint(kps).astype(int)
+    true = np.stack([mx[pix[:, 1], pix[:, 0]] + (kps[:, 0] - pix[:, 0]) + 9.0, kps[:, 1]], 1)
+    free = flow_correspondences(cur, big, kps, np.zeros((0, 2)), np.zeros((0, 2), np.int64), cfg)
+    prev_kps = true + np.random.default_rng(0).uniform(-1, 1, true.shape)  # ORB-like matches, about a pixel off
+    m = np.stack([np.arange(len(kps)), np.arange(len(kps))], 1)
+    guided = flow_correspondences(cur, big, kps, prev_kps, m, cfg)
+    valid = (true[:, 0] > 14) & (true[:, 0] < W - 8)
+    good = lambda q: (np.hypot(*(q - true).T) < 0.2)[valid].mean()  # noqa: E731 (NaN compares False)
+    assert good(guided) > 0.9 > 0.3 > good(free)
+    # an unrelated previous image: the forward-backward check rejects most tracks
+    other = flow_correspondences(cur, texture(99).astype(np.uint8), kps, np.zeros((0, 2)), np.zeros((0, 2), np.int64))
+    assert np.isnan(other[:, 0]).mean() > 0.7
+
+
+def test_flow_bad_input():
+    prev, cur, _, _ = image_pair(2)
+    kps = np.array([[np.nan, 3.0], [np.inf, 5.0], [50.0, 60.0]], np.float32)
+    q = flow_correspondences(cur, prev, kps, np.zeros((0, 2)), np.zeros((0, 2), np.int64))
+    assert np.isnan(q[:2]).all() and np.isfinite(q[2]).all()
+    assert flow_correspondences(cur, prev, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2), np.int64)).shape == \
+        (0, 2)
+    with pytest.raises(D2SlamError, match="one size"):
+        flow_correspondences(cur, prev[:, :-1], kps, np.zeros((0, 2)), np.zeros((0, 2), np.int64))
+
+
+def test_flow_matches():
+    q = np.array([[1.0, 1.0], [np.nan, np.nan], [3.0, 3.0], [4.0, 4.0]])
+    prev_kps = np.array([[10.0, 10.0], [11.0, 11.0], [12.0, 12.0]])
+    matches = np.array([[0, 2], [1, 0]])
+    pk, pz, pb, m, fit, tracked = flow_matches(q, prev_kps, np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.9]),
+                                               matches)
+    np.testing.assert_array_equal(tracked, [True, False, True, True])
+    np.testing.assert_array_equal(pk[:3], [[10, 10], [11, 11], [1, 1]])  # matched 0 refined, matched 1 kept
+    np.testing.assert_array_equal(pk[3:], [[3, 3], [4, 4]])  # unmatched, tracked: new previous points
+    np.testing.assert_array_equal(pz, [1, 2, 3, 0, 0])
+    np.testing.assert_array_equal(pb[:3], [0.1, 0.2, 0.9]) and np.isnan(pb[3:]).all()
+    np.testing.assert_array_equal(m, [[0, 2], [1, 0], [2, 3], [3, 4]])
+    np.testing.assert_array_equal(fit, [True, True, False, False])
+    assert np.isnan(pb[3:]).all()
+
+
+def test_geometric_fits_f_only_on_fit_matches():
+    rng = np.random.default_rng(3)
+    kps = rng.uniform([0, 0], [W, H], (60, 2))
+    prev = kps - [2.0, 0.0] + rng.normal(0, 0.05, (60, 2))
+    prev[40:] += rng.uniform(-30, 30, (20, 2))  # gross outliers
+    m = np.stack([np.arange(60), np.arange(60)], 1)
+    fit = np.arange(60) < 40
+    a = np.full(60, 0.7)
+    geo = geometric_module(kps, prev, m, np.zeros(60), a, DynamicsConfig(f_min_static_matches=10), fit=fit)
+    assert geo.n_used == 40 and geo.observed.all() and geo.dynamic[40:].mean() > 0.8
+    with pytest.raises(D2SlamError, match="fit"):
+        geometric_module(kps, prev, m, np.zeros(60), a, fit=fit[:5])
+
+
+def flow_scene(seed: int = 0, with_images: bool = True):
+    """Hook input: keypoints on a grid, ORB-like matches (each coordinate off by up to 0.7 px) for 60 % of them."""
+    prev, cur, mx, my = image_pair(seed)
+    kps = grid_keypoints()
+    n = len(kps)
+    pix = np.rint(kps).astype(int)
+    true = np.stack([mx[pix[:, 1], pix[:, 0]] + (kps[:, 0] - pix[:, 0]),
+                     my[pix[:, 1], pix[:, 0]] + (kps[:, 1] - pix[:, 1])], 1)
+    rng = np.random.default_rng(seed)
+    cur_idx = np.sort(rng.choice(n, int(0.6 * n), replace=False))
+    prev_kps = (true + rng.uniform(-0.7, 0.7, true.shape)).astype(np.float32)  # ORB-like: off by up to a pixel
+    depth = np.full((H, W), 2.0, np.float32)
+    inp = FilterInput(frame_index=1, timestamp=1 / 30, gray=cur if with_images else None, depth=depth,
+                      K=K_FR3.copy(), kps=kps, kp_depth=np.full(n, 2.0, np.float32), prev_kps=prev_kps,
+                      prev_kp_depth=np.full(n, 2.0, np.float32), prev_belief=np.full(n, 0.2),
+                      matches=np.stack([cur_idx, cur_idx], 1).astype(np.int64), mappoint_belief=np.full(n, np.nan),
+                      masks=np.zeros((0, H, W), bool), prev_gray=prev if with_images else None)
+    return inp, in_box(kps), cur_idx
+
+
+def test_d2slam_flow_observes_unmatched_keypoints_and_sharpens_eq5():
+    inp, moving, matched_idx = flow_scene(0)
+    matched = np.zeros(len(inp.kps), bool)
+    matched[matched_idx] = True
+    plain = get_filter("d2slam")
+    plain(inp)
+    flow = get_filter("d2slam-flow")
+    flow(inp)
+    dp, dfl = plain.last, flow.last
+    assert "flow" in dfl.timings_ms and "flow" not in dp.timings_ms
+    assert not dp.observed[~matched].any()  # without flow, unmatched keypoints have no eq 5 observation
+    assert dfl.observed[~matched].mean() > 0.9  # with flow nearly all are observed
+    clean = ~in_box(inp.kps, margin=12)
+    static = clean & ~moving
+    # eq 5's error of static keypoints: ORB-like integer matches about a pixel, tracked ones a small fraction
+    assert np.nanmedian(dfl.err[static]) < 0.1 < np.nanmedian(dp.err[static & matched])
+    assert dfl.geo_dynamic[static & dfl.observed].mean() < 0.05
+    inner = in_box(inp.kps, margin=-12)
+    assert dfl.geo_dynamic[inner & ~matched].mean() > 0.9  # unmatched moving keypoints caught by the flow
+    # the same with DynamicsConfig.flow in the d2slam mode
+    np.testing.assert_array_equal(get_filter("d2slam", DynamicsConfig(flow=True))(inp), flow(inp))
+
+
+def test_d2slam_flow_without_images_runs_as_d2slam():
+    inp, _, _ = flow_scene(1, with_images=False)
+    np.testing.assert_array_equal(get_filter("d2slam-flow")(inp), get_filter("d2slam")(inp))
+    inp2 = FilterInput(**{**flow_scene(1)[0].__dict__, "prev_gray": None})  # first frame: no previous image
+    np.testing.assert_array_equal(get_filter("d2slam-flow")(inp2), get_filter("d2slam")(inp2))
+
+
+def test_flow_area_option():
+    """flow_area: "all" tracks unmatched keypoints in a mask area too, "matched" only refines matched ones there,
+    "outside" leaves the mask area to the ORB matches."""
+    inp, moving, matched_idx = flow_scene(2)
+    masks = np.zeros((1, H, W), bool)
+    masks[0][BOX] = True
+    inp = FilterInput(**{**inp.__dict__, "masks": masks})
+    matched = np.zeros(len(inp.kps), bool)
+    matched[matched_idx] = True
+    obs = {}
+    for area in ("all", "matched", "outside"):
+        f = get_filter("d2slam-flow", DynamicsConfig(flow_area=area))
+        f(inp)
+        obs[area] = f.last.observed
+        area_kp = f.last.in_area
+    assert obs["all"][area_kp & ~matched].mean() > 0.8
+    assert not obs["matched"][area_kp & ~matched].any() and not obs["outside"][area_kp & ~matched].any()
+    assert obs["matched"][~area_kp & ~matched].mean() > 0.8
+
+
+@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.sampled_from([0, 1, 9, 60]), k=st.sampled_from([0, 5, 40]),
+       same=st.booleans(), flat=st.booleans())
+def test_property_flow_mode_on_random_images(seed, n, k, same, flat):
+    rng = np.random.default_rng(seed)
+    h, w = 48, 64
+    prev = np.zeros((h, w), np.uint8) if flat else rng.integers(0, 256, (h, w), dtype=np.uint8)
+    cur = prev.copy() if same else rng.integers(0, 256, (h, w), dtype=np.uint8)
+    kps = rng.uniform([-5, -5], [w + 5, h + 5], (n, 2)).astype(np.float32)  # some outside the image
+    if n:
+        kps[0] = np.nan
+    prev_kps = rng.uniform([0, 0], [w, h], (n, 2)).astype(np.float32)
+    kk = min(k, n)
+    m = np.stack([rng.permutation(n)[:kk], rng.permutation(n)[:kk]], 1).astype(np.int64).reshape(-1, 2)
+    inp = FilterInput(frame_index=1, timestamp=0.0, gray=cur, depth=rng.uniform(0.5, 4, (h, w)).astype(np.float32),
+                      K=K_FR3.copy(), kps=kps, kp_depth=rng.uniform(0.5, 4, n).astype(np.float32), prev_kps=prev_kps,
+                      prev_kp_depth=rng.uniform(0.5, 4, n).astype(np.float32),
+                      prev_belief=rng.choice([0.1, 0.5, 0.9, np.nan], n), matches=m,
+                      mappoint_belief=np.full(n, np.nan), masks=(rng.random((1, h, w)) < 0.3), prev_gray=prev)
+    f = get_filter("d2slam-flow")
+    bel = f(inp)
+    assert bel.shape == (n,) and np.isfinite(bel).all() and ((bel >= 0) & (bel <= 1)).all()
+    v = f.last.p_g[np.isfinite(f.last.p_g)]
+    assert ((v >= 0) & (v <= 1)).all()
+
+
+def test_unknown_flow_area_is_a_clear_error():
+    with pytest.raises(D2SlamError, match="flow_area"):
+        get_filter("d2slam-flow", DynamicsConfig(flow_area="inside"))
+    get_filter("d2slam", DynamicsConfig(flow_area="inside"))  # unused without flow
