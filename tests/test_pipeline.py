@@ -87,6 +87,32 @@ def test_run_command_records_keypoint_truth_on_synthetic(synth_dir, tmp_path):
     assert kp["frames_with_diagnostics"] == 6
 
 
+def test_d2slam_flow_runs_the_flow_through_the_engine(synth_dir, tmp_path):
+    """--method d2slam-flow: the engine hands the previous grey image to the hook, the flow runs on every frame after
+    the first, and two runs give the same trajectory."""
+    from d2slam.config import DEFAULT
+    from d2slam.dynamics import get_filter as dyn_filter
+    from d2slam.segmentation import masks_for, stack_masks
+
+    seq = open_sequence(synth_dir)
+    shape = (seq.camera.height, seq.camera.width)
+    flows = []
+
+    def record(i, kps, bel, diag):
+        flows.append(diag.timings_ms.get("flow"))
+
+    res = run_sequence(seq, DEFAULT, keypoint_filter=dyn_filter("d2slam-flow", DEFAULT), recorder=record,
+                       progress=False, mask_provider=lambda i: stack_masks(masks_for(seq, i, "sim", DEFAULT), shape))
+    assert res.tracked == 6 and flows[0] is None and all(f is not None and f > 0 for f in flows[1:])
+    trajs = []
+    for k in range(2):
+        out, js = tmp_path / f"t{k}.txt", tmp_path / f"r{k}.json"
+        assert main(["run", str(synth_dir), "--method", "d2slam-flow", "--out", str(out), "--metrics-json", str(js),
+                     "--quiet"]) == 0
+        trajs.append(out.read_text())
+    assert trajs[0] == trajs[1] and json.loads(js.read_text())["method"] == "d2slam-flow"
+
+
 def test_oracle_is_the_keypoint_truth(synth_dir, tmp_path, capsys):
     """--method oracle runs on the truth masks (persons, moved objects while they move) and its labels are the
     keypoint truth: F1 1 by construction; it refuses other masks and real data."""

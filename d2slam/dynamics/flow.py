@@ -6,16 +6,19 @@
 
 Eq 5 measures the distance of p to the epipolar line of its correspondence q. With ORB matches both p and q are FAST
 corners at integer positions of their pyramid levels, so even a correct static match is off by about a pixel, which is
-alpha's own size: on synthetic walking_xyz dev seed 3 (300 frames, d2slam, RANSAC F), 37 % of matched static keypoints
-exceed alpha(z) x 1.2^octave (78 % of dynamic ones), median static error 0.66 px. Tracked by LK (11 x 11 window, three
-pyramid levels) the correspondence of the same p is sub-pixel: 8 % of static keypoints exceed the unscaled alpha(z)
-(73 % of dynamic ones), median static error 0.10 px; walking_rpy dev seed 4 gives 35 / 72 % -> 6 / 63 %. LK also finds
-a correspondence for keypoints the descriptor matching missed (on walking_xyz dev seed 3, 91 % of the unmatched
-static ones outside the masks track, and 6 % of those exceed alpha), which is where most of the missed dynamic
-keypoints are (issue 4's note).
+alpha's own size. Measured on the hook inputs of a `d2slam` run (synthetic walking_xyz dev seed 3, 300 frames, each
+variant with its own RANSAC F; LK with a 21 x 21 window, three levels, 30 iterations, the backward track
+from scratch, forward-backward 0.5 px):
+37 % of matched static keypoints exceed alpha(z) x 1.2^octave with the ORB match (78 % of dynamic ones), median static
+error 0.66 px; with the tracked position 8 % exceed the unscaled alpha(z) (73 % of dynamic ones), median 0.10 px.
+walking_rpy dev seed 4: 35 / 72 % -> 6 / 63 %. LK also finds a correspondence for keypoints the descriptor matching
+missed: on walking_xyz dev seed 3, for 91 % of the unmatched static keypoints outside the mask areas (6 % of those
+exceed alpha) and for 51 % of the missed dynamic ones there (62 % of those exceed alpha), which is where most of the
+missed dynamic keypoints are (issue 4's note). Notebook 03 shows the default settings (11 x 11 window, 10
+iterations) on a short sequence.
 
-The cost is the flow itself, about 5-10 ms per frame for 1500 keypoints on one core (both directions), so it is
-an extension beside the paper's module, not part of the 3 ms budget of the paper's modules.
+The cost is the flow itself, several milliseconds per frame (``d2slam bench dynamics --sequence DIR --method
+d2slam-flow`` prints it apart), so it is an extension beside the paper's modules, outside their 3 ms budget.
 """
 
 from __future__ import annotations
