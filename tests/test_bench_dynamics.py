@@ -24,6 +24,7 @@ def test_recorded_inputs_are_the_engines_hook_inputs(walking):
     # the previous frame's grey image, for the flow of d2slam-flow
     assert all(inp.prev_gray is not None and inp.prev_gray.shape == inp.gray.shape for inp in inps)
     assert all(a.gray is b.prev_gray for a, b in zip(inps, inps[1:]))
+    assert all(a.depth is b.prev_depth for a, b in zip(inps, inps[1:]))
 
 
 def test_bench_dynamics_on_a_sequence_and_on_toy_scenes(walking, capsys):

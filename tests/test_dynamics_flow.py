@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics import get_filter
-from d2slam.dynamics.flow import flow_correspondences, flow_matches
+from d2slam.dynamics.depth import keypoint_depth
+from d2slam.dynamics.flow import flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import geometric_module
 from d2slam.dynamics.toy import K_FR3
 from d2slam.errors import D2SlamError
@@ -112,6 +113,45 @@ def test_flow_matches():
     assert np.isnan(pb[3:]).all()
 
 
+def test_flow_matches_new_depth():
+    """The new matches take the previous depth image's robust depth at their tracked position (pose test), unless
+    flow_new_depth is off or no image is given; the matched ones keep their previous keypoint's depth."""
+    q = np.array([[1.0, 1.0], [np.nan, np.nan], [30.2, 20.3], [40.6, 10.1]])
+    prev_kps = np.array([[10.0, 10.0], [11.0, 11.0], [12.0, 12.0]])
+    matches = np.array([[0, 2], [1, 0]])
+    depth = np.random.default_rng(0).uniform(0.5, 4.0, (H, W)).astype(np.float32)
+    depth[20, 30] = 0.0  # an invalid pixel (the centre of the 3 x 3 patch) is ignored
+    args = (q, prev_kps, np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.9]), matches)
+    pz = flow_matches(*args, prev_depth=depth)[1]
+    np.testing.assert_array_equal(pz[:3], [1, 2, 3])
+    np.testing.assert_array_equal(pz[3:], keypoint_depth(depth, q[2:]))
+    assert np.all(pz[3:] > 0) and pz[3] == np.median(np.delete(depth[19:22, 29:32].ravel(), 4))
+    np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, cfg=DynamicsConfig(flow_new_depth=False))[1],
+                                  [1, 2, 3, 0, 0])
+    np.testing.assert_array_equal(flow_matches(*args)[1], [1, 2, 3, 0, 0])
+
+
+def test_flow_keypoints_choose_what_is_tracked():
+    """flow_keypoints per flow_area; leaving keypoints out of the flow does not change the others' tracks (the
+    classifier tracks only the keypoints it uses)."""
+    in_area = np.array([True, True, False, False])
+    m = np.array([[0, 5], [2, 6]])
+    np.testing.assert_array_equal(flow_keypoints(in_area, m, "all"), [True] * 4)
+    np.testing.assert_array_equal(flow_keypoints(in_area, m, "matched"), [True, False, True, True])
+    np.testing.assert_array_equal(flow_keypoints(in_area, m, "outside"), [False, False, True, True])
+    with pytest.raises(D2SlamError, match="flow_area"):
+        flow_keypoints(in_area, m, "inside")
+    prev, cur, _, _ = image_pair(4)
+    kps = grid_keypoints()
+    prev_kps = kps - [2.0, 0.0]
+    mm = np.stack([np.arange(0, len(kps), 3)] * 2, 1)
+    track = np.random.default_rng(1).random(len(kps)) < 0.5
+    full = flow_correspondences(cur, prev, kps, prev_kps, mm)
+    part = flow_correspondences(cur, prev, kps, prev_kps, mm, track=track)
+    np.testing.assert_array_equal(part[track], full[track])
+    assert np.isnan(part[~track]).all() and np.isfinite(full[~track]).mean() > 0.9
+
+
 def test_geometric_fits_f_only_on_fit_matches():
     rng = np.random.default_rng(3)
     kps = rng.uniform([0, 0], [W, H], (60, 2))
@@ -167,6 +207,22 @@ def test_d2slam_flow_observes_unmatched_keypoints_and_sharpens_eq5():
     assert dfl.geo_dynamic[inner & ~matched].mean() > 0.9  # unmatched moving keypoints caught by the flow
     # the same with DynamicsConfig.flow in the d2slam mode
     np.testing.assert_array_equal(get_filter("d2slam", DynamicsConfig(flow=True))(inp), flow(inp))
+
+
+def test_d2slam_flow_pose_test_on_new_matches():
+    """With the previous depth image the flow's new matches (unmatched keypoints that tracked) get the pose test
+    (finite reprojection error); without it, or with flow_new_depth off, eq 5 alone."""
+    inp, _, matched_idx = flow_scene(3)
+    new = np.ones(len(inp.kps), bool)
+    new[matched_idx] = False
+    with_depth = FilterInput(**{**inp.__dict__, "prev_depth": np.full((H, W), 2.0, np.float32)})
+    f = get_filter("d2slam-flow")
+    f(with_depth)
+    assert f.last.observed[new].mean() > 0.9 and np.isfinite(f.last.reproj_err[new & f.last.observed]).all()
+    for cfg, x in ((DynamicsConfig(), inp), (DynamicsConfig(flow_new_depth=False), with_depth)):
+        g = get_filter("d2slam-flow", cfg)
+        g(x)
+        assert g.last.observed[new].mean() > 0.9 and np.isnan(g.last.reproj_err[new]).all()
 
 
 def test_d2slam_flow_without_images_runs_as_d2slam():

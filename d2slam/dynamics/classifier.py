@@ -44,7 +44,7 @@ from d2slam.config import Config, DynamicsConfig
 from d2slam.dynamics import METHODS, MODES, NEEDS_MASKS, register_methods  # noqa: F401 (names defined there, light)
 from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, fuse, prior_belief
-from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_matches, restrict_to_area
+from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import check_matches, geometric_module
 from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_g, oim_candidates, oim_frame
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
@@ -201,9 +201,10 @@ class D2SlamFilter:
         if self.use_flow and inp.gray is not None and getattr(inp, "prev_gray", None) is not None and n:
             # ours: sub-pixel correspondences by LK flow (flow.py); alpha and sigma unscaled where the flow tracked
             m0 = check_matches(matches, n, len(prev_kps))
-            q = restrict_to_area(flow_correspondences(inp.gray, inp.prev_gray, kps, prev_kps, m0, cfg), sem.in_area,
-                                 m0, cfg.flow_area)
-            prev_kps, prev_z, prev_bel, matches, fit, tracked = flow_matches(q, prev_kps, prev_z, prev_bel, matches)
+            q = flow_correspondences(inp.gray, inp.prev_gray, kps, prev_kps, m0, cfg,
+                                     track=flow_keypoints(sem.in_area, m0, cfg.flow_area))
+            prev_kps, prev_z, prev_bel, matches, fit, tracked = flow_matches(
+                q, prev_kps, prev_z, prev_bel, m0, getattr(inp, "prev_depth", None), cfg)
             scale = np.where(tracked, 1.0, scale)
             a = maps.alpha * scale
             t3b = clock()

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from d2slam.config import DynamicsConfig
+from d2slam.dynamics.depth import keypoint_depth
 from d2slam.errors import D2SlamError
 
 _DEFAULT = DynamicsConfig()
@@ -40,25 +41,26 @@ def check_flow_area(area: str) -> str:
     return area
 
 
-def restrict_to_area(q: np.ndarray, in_area: np.ndarray, matches: np.ndarray, area: str) -> np.ndarray:
-    """``q`` (N, 2) with NaN where ``DynamicsConfig.flow_area`` leaves a keypoint to its ORB match: "all" keeps
-    every track; "matched" drops the unmatched keypoints in a mask area (``in_area``, eq 7's inside or uncertain);
-    "outside" drops every keypoint in a mask area."""
+def flow_keypoints(in_area: np.ndarray, matches: np.ndarray, area: str) -> np.ndarray:
+    """(N,) bool: the keypoints the flow tracks under ``DynamicsConfig.flow_area``; the others keep their ORB match.
+    "all" tracks every keypoint; "matched" skips the unmatched keypoints in a mask area (``in_area``, eq 7's inside
+    or uncertain); "outside" skips every keypoint in a mask area."""
+    track = ~np.asarray(in_area, dtype=bool)
     if check_flow_area(area) == "all":
-        return q
-    drop = np.asarray(in_area, dtype=bool).copy()
-    if area == "matched":
-        drop[np.asarray(matches, dtype=np.int64).reshape(-1, 2)[:, 0]] = False
-    q = q.copy()
-    q[drop] = np.nan
-    return q
+        track[:] = True
+    elif area == "matched":
+        track[np.asarray(matches, dtype=np.int64).reshape(-1, 2)[:, 0]] = True
+    return track
 
 
 def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarray, prev_kps: np.ndarray,
-                         matches: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+                         matches: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
+                         track: np.ndarray | None = None) -> np.ndarray:
     """(N, 2) position in ``prev_gray`` of each current keypoint ``kps`` (N, 2) of ``gray``, NaN where the flow
-    failed (LK status, forward-backward check, non-finite keypoint). ``matches`` (K, 2) rows (current, previous)
-    start the matched keypoints at their match in ``prev_kps``; the others start at their own position."""
+    failed (LK status, forward-backward check, non-finite keypoint) or was not asked for (``track`` (N,) bool, default
+    all; ``flow_keypoints``). ``matches`` (K, 2) rows (current, previous) start the matched keypoints at their match
+    in ``prev_kps``; the others start at their own position. LK tracks each point on its own, so leaving keypoints
+    out does not change the others' tracks."""
     gray, prev_gray = np.asarray(gray), np.asarray(prev_gray)
     if gray.shape != prev_gray.shape or gray.ndim != 2:
         raise D2SlamError(f"flow needs two grey images of one size, got {gray.shape} and {prev_gray.shape}")
@@ -66,13 +68,16 @@ def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarra
     n = len(kps)
     q = np.full((n, 2), np.nan)
     finite = np.isfinite(kps).all(axis=1)
+    if track is not None:
+        finite &= np.asarray(track, dtype=bool).reshape(-1)
     if not finite.any():
         return q
     start = kps.copy()
     m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
     if len(m):
         start[m[:, 0]] = np.asarray(prev_kps, dtype=np.float32).reshape(-1, 2)[m[:, 1]]
-    start[~np.isfinite(start).all(axis=1)] = kps[~np.isfinite(start).all(axis=1)]
+    bad_start = ~np.isfinite(start).all(axis=1)
+    start[bad_start] = kps[bad_start]
     idx = np.flatnonzero(finite)
     p0 = kps[idx].reshape(-1, 1, 2)
     win = (int(cfg.flow_window), int(cfg.flow_window))
@@ -93,12 +98,16 @@ def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarra
 
 
 def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray, prev_belief: np.ndarray,
-                 matches: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The geometric module's inputs with the flow's correspondences ``q`` (N, 2) (``flow_correspondences``).
+                 matches: np.ndarray, prev_depth: np.ndarray | None = None, cfg: DynamicsConfig = _DEFAULT
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The geometric module's inputs with the flow's correspondences ``q`` (N, 2) (``flow_correspondences``) and the
+    validated ``matches`` (K, 2) (``geometric.check_matches``).
 
     A matched keypoint that tracked takes its tracked position in place of its match's (the previous keypoint keeps
     its belief and depth). An unmatched keypoint that tracked becomes a match to a new previous point at its tracked
-    position, with no belief (NaN), no depth (0: no pose test) and not used to fit F (``fit`` False).
+    position, with no belief (NaN) and not used to fit F (``fit`` False). Its depth is the robust depth of the
+    previous depth image ``prev_depth`` (H, W) at the tracked position (``depth.keypoint_depth``), so the pose test
+    runs on it, when ``cfg.flow_new_depth`` is on and the image is given; 0 (no pose test) otherwise.
     Returns (prev_kps, prev_kp_depth, prev_belief, matches, fit (K',) bool, tracked (N,) bool)."""
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     prev_kps = np.asarray(prev_kps, dtype=np.float64).reshape(-1, 2).copy()
@@ -110,9 +119,11 @@ def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray,
     is_matched[m[:, 0]] = True
     new = np.flatnonzero(tracked & ~is_matched)
     n_prev = len(prev_kps)
+    new_z = keypoint_depth(prev_depth, q[new], cfg=cfg) if prev_depth is not None and cfg.flow_new_depth else \
+        np.zeros(len(new))
     prev_kps = np.concatenate([prev_kps, q[new]])
-    prev_depth = np.concatenate([np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1), np.zeros(len(new))])
+    prev_depth_kp = np.concatenate([np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1), new_z])
     prev_belief = np.concatenate([np.asarray(prev_belief, dtype=np.float64).reshape(-1), np.full(len(new), np.nan)])
     matches = np.concatenate([m, np.stack([new, n_prev + np.arange(len(new))], axis=1)])
     fit = np.arange(len(matches)) < len(m)
-    return prev_kps, prev_depth, prev_belief, matches, fit, tracked
+    return prev_kps, prev_depth_kp, prev_belief, matches, fit, tracked

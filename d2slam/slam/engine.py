@@ -80,6 +80,7 @@ class Engine:
         self.state = NOT_INITIALIZED
         self.last: Frame | None = None  # last processed frame (tracked or not)
         self.last_gray: np.ndarray | None = None  # its grey image (None when it came as stored features)
+        self.last_depth: np.ndarray | None = None  # its depth image (None when none was given)
         self.last_tracked: Frame | None = None
         self.velocity: np.ndarray | None = None
         self.ref_kf: KeyFrame | None = None
@@ -149,7 +150,7 @@ class Engine:
                 self.state = LOST
             self.velocity = None
             frame.Tcw = None
-        self.last, self.last_gray = frame, gray
+        self.last, self.last_gray, self.last_depth = frame, gray, depth
         t4 = time.perf_counter()
         state = OK if ok else (NOT_INITIALIZED if self.state == NOT_INITIALIZED else LOST)
         n_in = int(((frame.mp >= 0) & ~frame.outlier).sum()) if ok else 0
@@ -200,7 +201,8 @@ class Engine:
                           kps=frame.kps.astype(np.float32), kp_depth=frame.depth.astype(np.float32),
                           prev_kps=prev_kps, prev_kp_depth=prev_depth, prev_belief=np.asarray(prev_belief),
                           matches=matches, mappoint_belief=mp_belief, masks=masks, octave=frame.octave,
-                          prev_gray=self.last_gray if prev is not None else None)
+                          prev_gray=self.last_gray if prev is not None else None,
+                          prev_depth=self.last_depth if prev is not None else None)
         belief = np.asarray(self.filter(inp), dtype=np.float64)
         if belief.shape != (n,) or not np.all(np.isfinite(belief)) or belief.min(initial=0) < 0 or \
                 belief.max(initial=0) > 1:
