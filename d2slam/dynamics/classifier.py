@@ -19,6 +19,8 @@ Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``
 - ``d2slam-flow`` ours: the full method with sub-pixel correspondences for eq 5 by LK flow (``flow.py``; also
                 ``DynamicsConfig.flow`` in the other full-method modes). Needs the grey images (``FilterInput.gray``
                 and ``prev_gray``): without them (first frame, stored features) the frame runs as ``d2slam``.
+                The flow's new matches take their depth from the previous depth image (``FilterInput.prev_depth``,
+                ``DynamicsConfig.flow_new_depth``), so the pose test runs on them.
 - ``no-depth``  every depth-adaptive quantity at the midpoint of its range (beta 0.15, alpha 0.7 px, delta 29.5 px,
                 gamma 19 px), the OIM's depth tests dropped (plain centroid), no pose test and no neighbours' P_g
                 for unmatched keypoints (both need depth).
