@@ -270,7 +270,8 @@ def test_property_flow_mode_on_random_images(seed, n, k, same, flat):
                       K=K_FR3.copy(), kps=kps, kp_depth=rng.uniform(0.5, 4, n).astype(np.float32), prev_kps=prev_kps,
                       prev_kp_depth=rng.uniform(0.5, 4, n).astype(np.float32),
                       prev_belief=rng.choice([0.1, 0.5, 0.9, np.nan], n), matches=m,
-                      mappoint_belief=np.full(n, np.nan), masks=(rng.random((1, h, w)) < 0.3), prev_gray=prev)
+                      mappoint_belief=np.full(n, np.nan), masks=(rng.random((1, h, w)) < 0.3), prev_gray=prev,
+                      prev_depth=rng.choice(np.array([0.0, np.nan, np.inf, -1.0, 0.8, 2.5, 6.0], np.float32), (h, w)))
     f = get_filter("d2slam-flow")
     bel = f(inp)
     assert bel.shape == (n,) and np.isfinite(bel).all() and ((bel >= 0) & (bel <= 1)).all()
