@@ -24,9 +24,11 @@ previous depth image's robust depth at q_i (``flow_new_depth``) the RGB-D pose t
 on development seeds 3-5 (300 frames, the five scenarios): recall and static precision up on all 15 runs, walking_rpy
 seed 4 8.2 -> 5.1 mm ATE (``DynamicsConfig.flow_new_depth``).
 
-The cost is the flow itself: 12.0 ms median per frame on the engine's hook inputs of walking_xyz dev seed 3 (about
-1480 keypoints, both directions, one core; ``d2slam bench dynamics --sequence DIR --method d2slam-flow`` prints it
-apart), so it is an extension beside the paper's modules, outside their 3 ms budget.
+The cost is the flow itself: 8.8-10.2 ms median per frame (four runs) on the engine's hook inputs of walking_xyz dev
+seed 3 (about 1490 keypoints, both directions, one core; ``d2slam bench dynamics --sequence DIR --method
+d2slam-flow`` prints it apart). It tracks only the keypoints ``flow_area`` uses; tracking all of them and dropping
+some afterwards gave the same output in 13.0-18.7 ms, alternating on the same machine. So it is an extension beside
+the paper's modules, outside their 3 ms budget.
 """
 
 from __future__ import annotations
