@@ -35,8 +35,8 @@ class FilterInput:
     # (H, W) uint8 grey image of the previous frame, None on the first frame or when it came as stored features. Used
     # by the optional flow correspondences of the geometric module (DynamicsConfig.flow, d2slam.dynamics.flow).
     prev_gray: np.ndarray | None = None
-    # (H, W) depth image (metres) of the previous frame, None when ``prev_gray`` is: the depth of the flow's new
-    # matches for the pose test (DynamicsConfig.flow_new_depth).
+    # (H, W) depth image (metres) of the previous frame, None on the first frame: the depth of the flow's new matches
+    # for the pose test (DynamicsConfig.flow_new_depth; the flow itself needs ``prev_gray``).
     prev_depth: np.ndarray | None = None
 
 
