@@ -95,6 +95,8 @@ def test_flow_bad_input():
         (0, 2)
     with pytest.raises(D2SlamError, match="one size"):
         flow_correspondences(cur, prev[:, :-1], kps, np.zeros((0, 2)), np.zeros((0, 2), np.int64))
+    with pytest.raises(D2SlamError, match="2 entries for 3 keypoints"):
+        flow_correspondences(cur, prev, kps, np.zeros((0, 2)), np.zeros((0, 2), np.int64), track=[True, False])
 
 
 def test_flow_matches():
@@ -129,6 +131,13 @@ def test_flow_matches_new_depth():
     np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, cfg=DynamicsConfig(flow_new_depth=False))[1],
                                   [1, 2, 3, 0, 0])
     np.testing.assert_array_equal(flow_matches(*args)[1], [1, 2, 3, 0, 0])
+    np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, shape=(H, W))[1], pz)
+    # a previous depth image of another size than the grey images, or not 2-D: a clear error, not 0 depths
+    for bad in (depth[:, :-1], depth[None]):
+        with pytest.raises(D2SlamError, match="must be one size"):
+            flow_matches(*args, prev_depth=bad, shape=(H, W))
+    with pytest.raises(D2SlamError, match="must be one size"):
+        flow_matches(*args, prev_depth=depth[None])
 
 
 def test_flow_keypoints_choose_what_is_tracked():
@@ -223,6 +232,9 @@ def test_d2slam_flow_pose_test_on_new_matches():
         g = get_filter("d2slam-flow", cfg)
         g(x)
         assert g.last.observed[new].mean() > 0.9 and np.isnan(g.last.reproj_err[new]).all()
+    small = FilterInput(**{**inp.__dict__, "prev_depth": np.full((H // 2, W // 2), 2.0, np.float32)})
+    with pytest.raises(D2SlamError, match="must be one size"):
+        get_filter("d2slam-flow")(small)
 
 
 def test_d2slam_flow_without_images_runs_as_d2slam():

@@ -127,6 +127,51 @@ def test_oracle_is_the_keypoint_truth(synth_dir, tmp_path, capsys):
     assert "always uses the 'truth' masks" in capsys.readouterr().err
 
 
+@pytest.fixture(scope="module")
+def synth_twin_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("synth") / "wx_twin"
+    assert main(["synth", "walking_xyz", "--out", str(d), "--frames", "6", "--seed", "0", "--workers", "1",
+                 "--static-twin"]) == 0
+    return d
+
+
+def test_masks_from_another_sequence_the_occluded_twin(synth_dir, synth_twin_dir, tmp_path, capsys):
+    """--masks-from: the oracle on the static twin with its dynamic sequence's truth (the occluded twin) flags the
+    keypoints inside the silhouettes, which are static in the twin (its own truth is empty); the masks' sequence must
+    be at the run's frames; a method without masks refuses the option."""
+    from d2slam.segmentation import mask_source
+
+    out, js = tmp_path / "traj.txt", tmp_path / "run.json"
+    assert main(["run", str(synth_twin_dir), "--method", "oracle", "--out", str(out), "--metrics-json", str(js),
+                 "--quiet"]) == 0
+    alone = json.loads(js.read_text())["keypoints"]["modules"]["final"]
+    assert alone["tp"] == alone["fp"] == 0  # the twin's own truth: nothing moves, nothing flagged
+    assert main(["run", str(synth_twin_dir), "--method", "oracle", "--masks-from", str(synth_dir), "--out", str(out),
+                 "--metrics-json", str(js), "--quiet"]) == 0
+    rec = json.loads(js.read_text())
+    assert rec["masks_from"] == str(synth_dir) and rec["tracked"] == 6
+    assert rec["keypoints"]["modules"]["final"]["fp"] > 0  # the silhouettes' keypoints are flagged
+    assert main(["run", str(synth_twin_dir), "--method", "none", "--masks-from", str(synth_dir), "--out",
+                 str(out)]) == 2
+    assert "reads no masks" in capsys.readouterr().err
+    twin, dyn = open_sequence(synth_twin_dir), open_sequence(synth_dir)
+    assert mask_source(twin, None) is twin and mask_source(twin, dyn) is dyn
+
+    class Shifted:  # the same sequence with one timestamp moved, or one frame short
+        def __init__(self, ts, root):
+            self.timestamps, self.root = ts, root
+
+        def __len__(self):
+            return len(self.timestamps)
+
+    ts = np.array(dyn.timestamps, dtype=np.float64)
+    ts[3] += 0.01
+    with pytest.raises(D2SlamError, match="frame 3 is at"):
+        mask_source(twin, Shifted(ts, synth_dir))
+    with pytest.raises(D2SlamError, match="has 5 frames, the run's 6"):
+        mask_source(twin, Shifted(ts[:5], synth_dir))
+
+
 def test_truth_masks_are_the_dynamic_truth(synth_dir):
     from d2slam.data import open_sequence
     from d2slam.eval.keypoints import OracleFilter

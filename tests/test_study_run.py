@@ -118,6 +118,23 @@ def test_cli_dry_run_tables_only_and_bad_args(serial, tmp_path, capsys):
     assert (tmp_path / "tables.md").read_text() == (serial.out / "tables.md").read_text()  # same manifest
 
 
+def test_oracle_on_a_twin_is_the_occluded_twin():
+    """The oracle is a default twin method, and on a twin it reads the dynamic sibling's truth: the keypoints inside
+    the people's silhouettes are flagged (false positives against the twin's own truth, where nothing moves)."""
+    from d2slam.study.grid import TWIN_METHODS, expand_grid
+    from d2slam.study.runner import execute_run, run_options
+
+    assert TWIN_METHODS == ("none", "d2slam", "oracle")
+    twins = [s.method for s in expand_grid(["sitting_static"], ["none", "oracle", "semantic"], [101], FRAMES) if s.twin]
+    assert twins == ["none", "oracle"]
+    ensure_sequence("sitting_static", 101, FRAMES, False)
+    ensure_sequence("sitting_static", 101, FRAMES, True)
+    out = execute_run(RunSpec("sitting_static", "oracle", 101, FRAMES, True), run_options())
+    assert out["row"]["status"] == "ok", out["row"]["error"]
+    final = out["keypoints"]["modules"]["final"]
+    assert final["fp"] > 0 and final["tp"] == 0 and out["row"]["frames_tracked"] == FRAMES
+
+
 def test_runspec_roundtrip():
     s = RunSpec("walking_rpy", "d2slam", 102, 300, True)
     assert RunSpec(**s.to_dict()) == s and s.run_id == "walking_rpy_twin_s102_n300_d2slam"

@@ -20,6 +20,9 @@ def register(sub) -> None:
                    help="person masks given to the filter (default: sim on synthetic sequences, onnx otherwise, "
                    "when the method needs masks; never computed for --method none unless asked). truth: the "
                    "synthetic dynamic truth (persons and moving objects), what --method oracle always uses")
+    p.add_argument("--masks-from", metavar="SEQUENCE_DIR", default=None,
+                   help="read the masks from this sequence instead (same frames and timestamps), e.g. --method "
+                   "oracle on a static twin with its dynamic sequence: the occluded twin of the study")
     p.add_argument("--camera", metavar="fr1|fr2|fr3", default=None,
                    help="camera of a TUM folder whose name does not say (synthetic sequences carry their own)")
     p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
@@ -42,8 +45,8 @@ def run(args) -> int:
 
     method = get_method(args.method)
     if method.runner is not None:  # not a keypoint filter of our engine (orbslam3): its own command
-        if args.masks is not None:
-            raise D2SlamError(f"--masks does not apply to --method {args.method}")
+        if args.masks is not None or args.masks_from is not None:
+            raise D2SlamError(f"--masks and --masks-from do not apply to --method {args.method}")
         return method.runner(args)
 
     out = Path(args.out)
@@ -54,13 +57,16 @@ def run(args) -> int:
     kfilter = method.factory(config)
     masks_kind = mask_kind(method, args.masks, synthetic=isinstance(seq, SyntheticSequence))
     provider = None
+    if args.masks_from is not None and masks_kind is None:
+        raise D2SlamError(f"--masks-from: --method {args.method} reads no masks")
     if masks_kind is not None:
-        from d2slam.segmentation import masks_for, stack_masks
+        from d2slam.segmentation import mask_source, masks_for, stack_masks
 
         shape = (seq.camera.height, seq.camera.width)
+        src = seq if args.masks_from is None else mask_source(seq, open_sequence(args.masks_from))
 
         def provider(i):
-            return stack_masks(masks_for(seq, i, masks_kind, config), shape)
+            return stack_masks(masks_for(src, i, masks_kind, config), shape)
 
     rec = keypoint_recorder(seq)  # keypoint truth (synthetic sequences only; None on TUM folders)
     result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=rec,
@@ -70,6 +76,7 @@ def run(args) -> int:
     else:
         write_tum_trajectory(out, result.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
+              **({"masks_from": str(src.root)} if args.masks_from is not None else {}),
               "seed": args.seed, "config_hash": config.hash(), **result.summary(),
               "trajectory": str(out)}
     if rec is not None:

@@ -29,7 +29,8 @@ def register(sub) -> None:
     p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help=f"frames per sequence (default "
                    f"{DEFAULT_FRAMES}; >= 40 so that 1-second RPE pairs exist; on TUM data: first N frames, 0 = all)")
     p.add_argument("--twin-methods", nargs="*", default=list(TWIN_METHODS), metavar="METHOD",
-                   help="methods also run on each static twin (default: none d2slam; give none of them to skip)")
+                   help="methods also run on each static twin (default: none d2slam oracle; oracle there reads the "
+                   "dynamic sequence's truth: the occluded twin; give none of them to skip)")
     p.add_argument("--jobs", "-j", type=int, default=min(2, os.cpu_count() or 1),
                    help="local worker processes (joblib/loky, single-threaded BLAS and OpenCV each; 1 = serial in "
                    "this process; default min(2, cores)). The numbers do not depend on it")

@@ -206,7 +206,7 @@ class D2SlamFilter:
             q = flow_correspondences(inp.gray, inp.prev_gray, kps, prev_kps, m0, cfg,
                                      track=flow_keypoints(sem.in_area, m0, cfg.flow_area))
             prev_kps, prev_z, prev_bel, matches, fit, tracked = flow_matches(
-                q, prev_kps, prev_z, prev_bel, m0, getattr(inp, "prev_depth", None), cfg)
+                q, prev_kps, prev_z, prev_bel, m0, getattr(inp, "prev_depth", None), cfg, shape=np.shape(inp.gray))
             scale = np.where(tracked, 1.0, scale)
             a = maps.alpha * scale
             t3b = clock()

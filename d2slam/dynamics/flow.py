@@ -76,10 +76,13 @@ def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarra
     kps = np.asarray(kps, dtype=np.float32).reshape(-1, 2)
     n = len(kps)
     q = np.full((n, 2), np.nan)
-    finite = np.isfinite(kps).all(axis=1)
+    use = np.isfinite(kps).all(axis=1)  # the keypoints to track
     if track is not None:
-        finite &= np.asarray(track, dtype=bool).reshape(-1)
-    if not finite.any():
+        track = np.asarray(track, dtype=bool).reshape(-1)
+        if len(track) != n:
+            raise D2SlamError(f"flow: track has {len(track)} entries for {n} keypoints")
+        use &= track
+    if not use.any():
         return q
     start = kps.copy()
     m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
@@ -87,7 +90,7 @@ def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarra
         start[m[:, 0]] = np.asarray(prev_kps, dtype=np.float32).reshape(-1, 2)[m[:, 1]]
     bad_start = ~np.isfinite(start).all(axis=1)
     start[bad_start] = kps[bad_start]
-    idx = np.flatnonzero(finite)
+    idx = np.flatnonzero(use)
     p0 = kps[idx].reshape(-1, 1, 2)
     win = (int(cfg.flow_window), int(cfg.flow_window))
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, int(cfg.flow_iterations), float(cfg.flow_epsilon))
@@ -107,7 +110,8 @@ def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarra
 
 
 def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray, prev_belief: np.ndarray,
-                 matches: np.ndarray, prev_depth: np.ndarray | None = None, cfg: DynamicsConfig = _DEFAULT
+                 matches: np.ndarray, prev_depth: np.ndarray | None = None, cfg: DynamicsConfig = _DEFAULT,
+                 shape: tuple[int, int] | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The geometric module's inputs with the flow's correspondences ``q`` (N, 2) (``flow_correspondences``) and the
     validated ``matches`` (K, 2) (``geometric.check_matches``).
@@ -116,9 +120,15 @@ def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray,
     its belief and depth). An unmatched keypoint that tracked becomes a match to a new previous point at its tracked
     position, with no belief (NaN) and not used to fit F (``fit`` False). Its depth is the robust depth of the
     previous depth image ``prev_depth`` (H, W) at the tracked position (``depth.keypoint_depth``), so the pose test
-    runs on it, when ``cfg.flow_new_depth`` is on and the image is given; 0 (no pose test) otherwise.
+    runs on it, when ``cfg.flow_new_depth`` is on and the image is given; 0 (no pose test) otherwise. ``shape`` is
+    the grey images' (H, W): a ``prev_depth`` of another size (or not 2-D) is a clear error, not silent 0 depths.
     Returns (prev_kps, prev_kp_depth, prev_belief, matches, fit (K',) bool, tracked (N,) bool)."""
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    if prev_depth is not None:
+        prev_depth = np.asarray(prev_depth)
+        if prev_depth.ndim != 2 or (shape is not None and prev_depth.shape != tuple(shape)):
+            raise D2SlamError(f"the previous depth image has shape {prev_depth.shape}, the grey images "
+                              f"{tuple(shape) if shape is not None else '(a 2-D image)'}; they must be one size")
     prev_kps = np.asarray(prev_kps, dtype=np.float64).reshape(-1, 2).copy()
     m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
     tracked = np.isfinite(q).all(axis=1)

@@ -22,7 +22,7 @@ from d2slam.segmentation.cache import CachedSegmenter
 KINDS = ("onnx", "sim", "gt", "truth")
 
 __all__ = ["KINDS", "PersonInstance", "Segmenter", "stack_masks", "CachedSegmenter", "get_segmenter", "masks_for",
-           "segmentation_config"]
+           "segmentation_config", "mask_source"]
 
 
 def segmentation_config(config: Config | SegmentationConfig | None = None) -> SegmentationConfig:
@@ -75,3 +75,25 @@ def masks_for(sequence, index: int, kind: str = "onnx", config: Config | Segment
             _CACHED.pop(next(iter(_CACHED)))
         cached = _CACHED[key] = CachedSegmenter(seg, sequence)
     return cached.instances(index)
+
+
+def mask_source(sequence, masks_from):
+    """The sequence whose masks a run on ``sequence`` reads: ``sequence`` itself, or ``masks_from`` (``d2slam run
+    --masks-from``; the study's ``oracle`` on a static twin reads its dynamic sibling's truth, the *occluded twin*),
+    which must have the same frames: as many, at the same timestamps (a clear error otherwise, not masks of other
+    frames)."""
+    import numpy as np
+
+    if masks_from is None or masks_from is sequence:
+        return sequence
+    n, m = len(sequence), len(masks_from)
+    if m < n:
+        raise D2SlamError(f"the masks' sequence has {m} frames, the run's {n}",
+                          path=getattr(masks_from, "root", None))
+    ts = np.asarray(sequence.timestamps[:n], dtype=np.float64)
+    other = np.asarray(masks_from.timestamps[:n], dtype=np.float64)
+    if not np.allclose(ts, other, rtol=0.0, atol=1e-6):
+        k = int(np.flatnonzero(~np.isclose(ts, other, rtol=0.0, atol=1e-6))[0])
+        raise D2SlamError(f"the masks' sequence is not at the run's frames: frame {k} is at {other[k]:.6f} s there "
+                          f"and at {ts[k]:.6f} s here", path=getattr(masks_from, "root", None))
+    return masks_from

@@ -27,8 +27,10 @@ BASELINE = "none"  # the engine with the hook off: our in-engine stand-in for OR
 ORBSLAM3 = "orbslam3"  # the real ORB-SLAM3 (not deterministic: repeated, median and spread)
 FULL = "d2slam"
 ORACLE = "oracle"  # the keypoint truth as the filter: the ceiling of every method (synthetic data only)
-# Methods also run on the static twins: the engine's own floor ("none") and the full method.
-TWIN_METHODS = (BASELINE, FULL)
+# Methods also run on the static twins: the engine's own floor ("none"), the full method, and the oracle, which on a
+# twin reads its dynamic sibling's truth (study.runner): the occluded twin, the people's and moving objects'
+# silhouettes cut out of a scene where nothing moves, i.e. what occlusion alone costs the engine.
+TWIN_METHODS = (BASELINE, FULL, ORACLE)
 
 
 @dataclass(frozen=True, order=False)

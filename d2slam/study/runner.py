@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from d2slam.errors import D2SlamError
-from d2slam.study.grid import LABELS, ORBSLAM3, RunSpec
+from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, RunSpec
 
 ENGINE_STAGES = ("load", "segment", "extract", "filter", "track", "local_ba")
 
@@ -136,14 +136,20 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     kfilter = method.factory(config)
     provider = None
     if method.needs_masks:
-        from d2slam.segmentation import masks_for, stack_masks
+        from d2slam.segmentation import mask_source, masks_for, stack_masks
 
         # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
         kind = mask_kind(method, None if method.masks else options.get("masks"), synthetic=spec.source == "synth")
         shape = (seq.camera.height, seq.camera.width)
+        src = seq
+        if spec.twin and spec.method == ORACLE:
+            # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
+            # the people and moving objects are cut out of a scene where nothing moves
+            src = mask_source(seq, open_sequence(_sequence_path(spec.source, spec.scenario, spec.seed, spec.frames,
+                                                                False, options)))
 
         def provider(i):
-            return stack_masks(masks_for(seq, i, kind, config), shape)
+            return stack_masks(masks_for(src, i, kind, config), shape)
 
     recorder = keypoint_recorder(seq)
     # A run whose extraction budget follows its filter extracts every frame itself: stored features have the fixed one.
