@@ -148,6 +148,26 @@ def test_twin_ratio_targets_fail_visibly():
     assert "| 2.50x |" in T.twin_markdown(df) and "| no | yes |" in T.twin_markdown(df)
 
 
+def test_occluded_twin_tables():
+    """The oracle's twin runs (the occluded twin) give the occlusion's own ratio to the twin and a table of each
+    method over the occluded twin, with the per-seed ratios; without them, neither appears."""
+    df = _runs()
+    assert "occluded" not in T.tables_markdown(df, ["none", "d2slam", "semantic"]).lower()
+    assert not np.isfinite(T.twin_ratios(df)["occluded"]).any()
+    occ = df[(df["twin"] == 1) & (df["method"] == "none")].copy()
+    occ["method"] = "oracle"
+    occ["ate_rmse_m"] = [0.25, 0.25, 0.5]  # median 0.25 over the twin's 0.2
+    df = pd.concat([df, occ], ignore_index=True)
+    tr = T.twin_ratios(df)
+    assert tr.loc[0, "twin_oracle_ate_m"] == 0.25 and tr.loc[0, "occluded"] == pytest.approx(1.25)
+    assert "| occluded twin / twin |" in T.twin_markdown(df) and "| 1.25x |" in T.twin_markdown(df)
+    md = T.occluded_markdown(df, ["none", "d2slam", "semantic"])
+    # d2slam: median 0.1 / 0.25 = 0.40x; per seed 0.1/0.25, 0.1/0.25, 0.4/0.5 -> [0.40, 0.80]; semantic: one seed failed
+    assert "| w/xyz | 0.2500 | 8.00x [4.00, 8.00] | 0.40x [0.40, 0.80] | 3.00x [2.00, 2.00] |" in md
+    full = T.tables_markdown(df, ["none", "d2slam", "semantic"])
+    assert "## ATE relative to the occluded twin" in full and "is the occluded twin" in full
+
+
 def test_runs_csv_schema_and_roundtrip(tmp_path):
     df = T.sort_runs(_runs().sample(frac=1.0, random_state=0), ["none", "d2slam", "semantic"])
     assert df["method"].tolist()[:3] == ["none", "d2slam", "semantic"] and df["seed"].tolist()[:3] == [101] * 3

@@ -257,20 +257,32 @@ def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: lis
 def twin_ratios(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFrame:
     """ATE of each method on the dynamic sequence divided by the engine's (``none``) ATE on its static twin
     (medians over seeds), per scenario; NaN where either is missing. Issue 4's targets: ``d2slam`` <= 1.2,
-    ``none`` >= 5 on the walking scenarios."""
+    ``none`` >= 5 on the walking scenarios. ``twin_oracle_ate_m`` is the occluded twin's ATE (``oracle`` on the
+    twin: the dynamic sequence's silhouettes cut out, nothing moving) and ``occluded`` its ratio to the twin: what
+    occlusion alone costs the engine."""
     ms = [m for m in (methods or _methods(df))]
     out = []
     for s in _scenarios(df):
-        twin = df[(df["scenario"] == s) & (df["twin"] == 1) & (df["method"] == BASELINE)]["ate_rmse_m"]
-        t = _nanmedian(twin)
-        row = {"scenario": s, "sequence": LABELS.get(s, s), "twin_none_ate_m": t,
-               "twin_d2slam_ate_m": _nanmedian(df[(df["scenario"] == s) & (df["twin"] == 1)
-                                                  & (df["method"] == FULL)]["ate_rmse_m"])}
+        def twin_ate(m):
+            return _nanmedian(df[(df["scenario"] == s) & (df["twin"] == 1) & (df["method"] == m)]["ate_rmse_m"])
+
+        t = twin_ate(BASELINE)
+        row = {"scenario": s, "sequence": LABELS.get(s, s), "twin_none_ate_m": t, "twin_d2slam_ate_m": twin_ate(FULL),
+               "twin_oracle_ate_m": twin_ate(ORACLE)}
+        row["occluded"] = _ratio(row["twin_oracle_ate_m"], t)
         for m in ms:
-            a = _nanmedian(df[(df["scenario"] == s) & (df["twin"] == 0) & (df["method"] == m)]["ate_rmse_m"])
-            row[m] = a / t if math.isfinite(a) and math.isfinite(t) and t > 0 else np.nan
+            row[m] = _ratio(_nanmedian(df[(df["scenario"] == s) & (df["twin"] == 0) & (df["method"] == m)]
+                                       ["ate_rmse_m"]), t)
         out.append(row)
     return pd.DataFrame(out)
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if math.isfinite(a) and math.isfinite(b) and b > 0 else np.nan
+
+
+def _has_occluded(df: pd.DataFrame) -> bool:
+    return bool(np.isfinite(df[(df["twin"] == 1) & (df["method"] == ORACLE)]["ate_rmse_m"].astype(np.float64)).any())
 
 
 def twin_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
@@ -278,10 +290,13 @@ def twin_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
     tr = twin_ratios(df, ms)
     if tr.empty or not np.isfinite(tr["twin_none_ate_m"]).any():
         return "_No static-twin run with metrics (run the study with the `none` method on synthetic data)._"
+    occ = _has_occluded(df)
     rows = []
     for _, r in tr.iterrows():
         cells = [r["sequence"], _num(r["twin_none_ate_m"], 4) + _flag(df, r["scenario"], BASELINE, 1),
                  _num(r["twin_d2slam_ate_m"], 4) + _flag(df, r["scenario"], FULL, 1)]
+        if occ:
+            cells.append(_num(r["occluded"], 2, "x") + _flag(df, r["scenario"], ORACLE, 1))
         cells += [_num(r[m], 2, "x") + (_flag(df, r["scenario"], m) if math.isfinite(r[m]) else "") for m in ms]
         walking = r["scenario"].startswith("walking")
         full = r.get(FULL, np.nan)
@@ -290,8 +305,38 @@ def twin_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
         cells.append("n/a" if not walking or not math.isfinite(none) else ("yes" if none >= 5.0 else "no"))
         rows.append(cells)
     header = (["fr3 (synthetic)", "twin ATE `none` (m)", "twin ATE `d2slam` (m)"]
+              + (["occluded twin / twin"] if occ else [])
               + [f"`{m}` / twin" for m in ms] + ["`d2slam` <= 1.2x twin", "`none` >= 5x twin (walking)"])
     return _md(header, rows)
+
+
+OCCLUDED_NOTE = ("The occluded twin is `oracle` run on the static twin with the dynamic sequence's truth as its "
+                 "masks: the keypoints inside the people's (and moving objects') silhouettes are dropped and the "
+                 "extraction budget refilled as in any filtered run, but nothing moves. Its ATE over the twin's is "
+                 "what occlusion alone costs the engine; a method's ATE over the occluded twin's is what the moving "
+                 "people cost beyond that (classification, silhouette corners, keyframes).")
+
+
+def occluded_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
+    """Per scenario: the occluded twin's ATE (median over seeds) and each method's ATE on the dynamic sequence
+    divided by it, with each method's per-seed (paired) ratios in brackets."""
+    ms = [m for m in (methods or _methods(df))]
+    rows = []
+    for s in _scenarios(df):
+        occ = df[(df["scenario"] == s) & (df["twin"] == 1) & (df["method"] == ORACLE)]
+        o = _nanmedian(occ["ate_rmse_m"])
+        cells = [LABELS.get(s, s), _num(o, 4) + _flag(df, s, ORACLE, 1)]
+        per_seed = dict(zip(occ["seed"].astype(int), occ["ate_rmse_m"].astype(np.float64)))
+        for m in ms:
+            d = df[(df["scenario"] == s) & (df["twin"] == 0) & (df["method"] == m)]
+            cell = _num(_ratio(_nanmedian(d["ate_rmse_m"]), o), 2, "x")
+            pairs = [_ratio(float(a), per_seed.get(int(k), np.nan)) for k, a in zip(d["seed"], d["ate_rmse_m"])]
+            pairs = [p for p in pairs if math.isfinite(p)]
+            if len(pairs) > 1:
+                cell += f" [{min(pairs):.2f}, {max(pairs):.2f}]"
+            cells.append(cell + (_flag(df, s, m) if cell != "n/a" else ""))
+        rows.append(cells)
+    return _md(["fr3 (synthetic)", "occluded twin ATE `oracle` (m)"] + [f"`{m}` / occluded twin" for m in ms], rows)
 
 
 def _num(v, nd: int, suffix: str = "") -> str:
@@ -347,7 +392,8 @@ def failures_markdown(df: pd.DataFrame) -> str:
 ORACLE_NOTE = ("`oracle` is not a method but a ceiling: our engine with the keypoint truth as its filter (every "
                "keypoint on a person, or on an object while it moves, is dynamic; its F1 is 1 by construction). What "
                "separates a method from `oracle` is its classification; what separates `oracle` from the static twin "
-               "is the engine with people in view (occlusion, fewer usable static keypoints).")
+               "is the engine with people in view: occlusion (the occluded twin measures it alone) and the moving "
+               "people's silhouettes.")
 
 
 def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest: dict | None = None) -> str:
@@ -385,11 +431,18 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
         out += ["", f"### Table {n}c: {title} ({unit}), absolute: median [min, max] over seeds", "",
                 absolute_markdown(df, metric, 0, methods)]
     if (df["twin"] == 1).any():
-        out += ["", "## Static twins: ATE (m), absolute", "", absolute_markdown(df, "ate_rmse_m", 1, methods)]
+        out += ["", "## Static twins: ATE (m), absolute", ""]
+        if _has_occluded(df):
+            out += ["`oracle` on a static twin is the occluded twin (see below).", ""]
+        out.append(absolute_markdown(df, "ate_rmse_m", 1, methods))
     out += ["", "## ATE relative to the engine's ATE on the static twin", "",
             "Median ATE of each method on the dynamic sequence / median ATE of `none` on its static twin (same "
             "camera path, no people). Targets (issue 4): `d2slam` <= 1.2x; `none` >= 5x on the walking scenarios.",
             "", twin_markdown(df, [m for m in methods])]
+    if _has_occluded(df):
+        out += ["", "## ATE relative to the occluded twin", "", OCCLUDED_NOTE, "",
+                "Median ATE of each method on the dynamic sequence / median ATE of the occluded twin; in brackets "
+                "the range of the per-seed ratios.", "", occluded_markdown(df, [m for m in methods])]
     out += ["", "## Frames tracked (%), median over seeds", "",
             "ATE and RPE are computed on the tracked frames only (the TUM convention); a method that loses track "
             "early can show a small error over a short trajectory: read the errors with this table.", "",
