@@ -319,21 +319,21 @@ OCCLUDED_NOTE = ("The occluded twin is `oracle` run on the static twin with the 
 
 def occluded_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
     """Per scenario: the occluded twin's ATE (median over seeds) and each method's ATE on the dynamic sequence
-    divided by it, with each method's per-seed (paired) ratios in brackets."""
+    divided by it, with each method's per-seed (paired, ``metric_matrix``) ratios in brackets."""
     ms = [m for m in (methods or _methods(df))]
+    dyn, twin = metric_matrix(df, "ate_rmse_m", 0), metric_matrix(df, "ate_rmse_m", 1)
     rows = []
     for s in _scenarios(df):
-        occ = df[(df["scenario"] == s) & (df["twin"] == 1) & (df["method"] == ORACLE)]
-        o = _nanmedian(occ["ate_rmse_m"])
+        occ = twin.loc[s, ORACLE] if ORACLE in twin.columns and s in twin.index else pd.Series(dtype=np.float64)
+        o = _nanmedian(occ)
         cells = [LABELS.get(s, s), _num(o, 4) + _flag(df, s, ORACLE, 1)]
-        per_seed = dict(zip(occ["seed"].astype(int), occ["ate_rmse_m"].astype(np.float64)))
         for m in ms:
-            d = df[(df["scenario"] == s) & (df["twin"] == 0) & (df["method"] == m)]
-            cell = _num(_ratio(_nanmedian(d["ate_rmse_m"]), o), 2, "x")
-            pairs = [_ratio(float(a), per_seed.get(int(k), np.nan)) for k, a in zip(d["seed"], d["ate_rmse_m"])]
-            pairs = [p for p in pairs if math.isfinite(p)]
+            ours = dyn.loc[s, m] if m in dyn.columns and s in dyn.index else pd.Series(dtype=np.float64)
+            cell = _num(_ratio(_nanmedian(ours), o), 2, "x")
+            pairs = (ours / occ).to_numpy(np.float64)  # aligned on the seed
+            pairs = pairs[np.isfinite(pairs)]
             if len(pairs) > 1:
-                cell += f" [{min(pairs):.2f}, {max(pairs):.2f}]"
+                cell += f" [{pairs.min():.2f}, {pairs.max():.2f}]"
             cells.append(cell + (_flag(df, s, m) if cell != "n/a" else ""))
         rows.append(cells)
     return _md(["fr3 (synthetic)", "occluded twin ATE `oracle` (m)"] + [f"`{m}` / occluded twin" for m in ms], rows)
@@ -430,16 +430,17 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
                     improvement_markdown(df, metric, ORBSLAM3, methods)]
         out += ["", f"### Table {n}c: {title} ({unit}), absolute: median [min, max] over seeds", "",
                 absolute_markdown(df, metric, 0, methods)]
+    occluded = _has_occluded(df)
     if (df["twin"] == 1).any():
         out += ["", "## Static twins: ATE (m), absolute", ""]
-        if _has_occluded(df):
+        if occluded:
             out += ["`oracle` on a static twin is the occluded twin (see below).", ""]
         out.append(absolute_markdown(df, "ate_rmse_m", 1, methods))
     out += ["", "## ATE relative to the engine's ATE on the static twin", "",
             "Median ATE of each method on the dynamic sequence / median ATE of `none` on its static twin (same "
             "camera path, no people). Targets (issue 4): `d2slam` <= 1.2x; `none` >= 5x on the walking scenarios.",
             "", twin_markdown(df, [m for m in methods])]
-    if _has_occluded(df):
+    if occluded:
         out += ["", "## ATE relative to the occluded twin", "", OCCLUDED_NOTE, "",
                 "Median ATE of each method on the dynamic sequence / median ATE of the occluded twin; in brackets "
                 "the range of the per-seed ratios.", "", occluded_markdown(df, [m for m in methods])]
