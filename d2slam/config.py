@@ -150,6 +150,20 @@ class DynamicsConfig:
     # outside walking_rpy 36.2 -> 35.1 mm, walking_rpy 8.0 / 8.2 / 3.5 -> 8.0 / 5.1 / 3.3 mm: an object carried along
     # its epipolar lines no longer passes eq 5 as static.
     flow_new_depth: bool = True
+    # eq 7 (ours, measured, with the flow only: on in `d2slam-flow`, off in `d2slam`): a keypoint that nothing
+    # observed (not matched, the flow did not track it) and that lies outside every mask but within flow_edge_band px
+    # of one (eq 1's signed distance d in (-band, 0)) gets P = max(P, flow_edge_p) (fusion.edge_band). Eq 7 gives it
+    # P = P_S < 0.5, so it stayed static. These are person pixels the masks missed (boundary errors of the simulated
+    # and real masks) or background at a person's silhouette, where a moving edge breaks the descriptor: on the
+    # `oracle` (walking_static dev seed 3, 100 frames) only 11 % of the truly static keypoints within 8 px of a
+    # silhouette were matched (64-66 % in the static twin), so they spend the feature budget without helping
+    # tracking. Measured on d2slam-flow against 0 (dev seeds 3-5, 300 frames, all 12 walking runs): recall
+    # 0.922-0.971 -> 0.957-0.980, static precision 0.988-0.993 -> 0.992-0.996 (both up on all 12), both keypoint
+    # targets met on 12 of 12 runs (5 of 12 at 0), precision down 0.01-0.03; ATE summed 46.4 -> 48.8 mm (+5 %, of
+    # which +1.75 mm on walking_rpy seed 4); sitting_static recall +0.02 to +0.04. 3 px: targets on 3 of 6 runs;
+    # 10 px: 6 of 6 but ATE +7 % (6 runs of w/static, w/xyz seeds 3-4, w/half, w/rpy seed 3). 0 turns it off.
+    flow_edge_band: float = 6.0
+    flow_edge_p: float = 0.9
     # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
     fixed_alpha: float = 0.7
     # Keypoint depth: median of valid pixels in a (2 r + 1)^2 patch.

@@ -18,10 +18,10 @@ FIELDS = ("z", "belief", "p_s", "inside", "uncertain", "in_area", "err", "p_g", 
 
 
 # The frozen modules implement eq 5 as printed (P_g = 1 above alpha, no pose test), eq 7 as printed (no neighbours'
-# P_g for unmatched keypoints) and the paper's OIM candidates:
+# P_g for unmatched keypoints, no edge band with the flow) and the paper's OIM candidates:
 # compare with those settings.
 PAPER_EQ5 = DynamicsConfig(p_g_exceed=1.0, oim_skip_observed_static=False, pose_test=False, sigma_at_scale=False,
-                            neighbour_p_g=False)
+                            neighbour_p_g=False, flow_edge_band=0.0)
 
 
 def _same(mode, inp):

@@ -5,12 +5,14 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from scipy import ndimage
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics import get_filter
 from d2slam.dynamics.depth import keypoint_depth
 from d2slam.dynamics.flow import flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import geometric_module
+from d2slam.dynamics.semantic import signed_distances
 from d2slam.dynamics.toy import K_FR3
 from d2slam.errors import D2SlamError
 from d2slam.slam.hook import FilterInput
@@ -238,10 +240,73 @@ def test_d2slam_flow_pose_test_on_new_matches():
 
 
 def test_d2slam_flow_without_images_runs_as_d2slam():
+    """Without images nothing is tracked: d2slam plus the edge band (no mask here, so exactly d2slam), and exactly
+    d2slam with a mask once the band is off."""
     inp, _, _ = flow_scene(1, with_images=False)
     np.testing.assert_array_equal(get_filter("d2slam-flow")(inp), get_filter("d2slam")(inp))
     inp2 = FilterInput(**{**flow_scene(1)[0].__dict__, "prev_gray": None})  # first frame: no previous image
     np.testing.assert_array_equal(get_filter("d2slam-flow")(inp2), get_filter("d2slam")(inp2))
+    masks = np.zeros((1, H, W), bool)
+    masks[0][BOX] = True
+    inp3 = FilterInput(**{**inp2.__dict__, "masks": masks})
+    no_band = DynamicsConfig(flow_edge_band=0.0)
+    np.testing.assert_array_equal(get_filter("d2slam-flow", no_band)(inp3), get_filter("d2slam")(inp3))
+    f = get_filter("d2slam-flow")
+    f(inp3)
+    assert f.last.edge.any() and not f.last.observed[f.last.edge].any()
+
+
+def box_scene(seed: int = 2):
+    inp, _, matched_idx = flow_scene(seed)
+    masks = np.zeros((1, H, W), bool)
+    masks[0][BOX] = True
+    matched = np.zeros(len(inp.kps), bool)
+    matched[matched_idx] = True
+    # the mask's outside distance at each keypoint's pixel (scipy's exact Euclidean distance transform)
+    pix = np.rint(inp.kps).astype(int)
+    outside = ndimage.distance_transform_edt(~masks[0])[pix[:, 1], pix[:, 0]]
+    return FilterInput(**{**inp.__dict__, "masks": masks}), matched, outside
+
+
+def test_edge_band_flags_unobserved_keypoints_just_outside_the_mask():
+    """Ours (DynamicsConfig.flow_edge_band): an unobserved keypoint within the band outside the mask gets
+    P = max(P, flow_edge_p) before eq 8; matched ones, farther ones and those inside keep eq 7's P; d2slam has no band."""
+    inp, matched, outside = box_scene()
+    band = DynamicsConfig().flow_edge_band
+    near = (outside > 0) & (outside < band)
+    f = get_filter("d2slam-flow")
+    f(inp)
+    d = f.last
+    assert near.sum() >= 20 and (near & matched).any() and (near & ~matched).any()
+    # just outside the box is the mask's uncertainty zone: the flow ("outside") leaves it to the ORB matches
+    np.testing.assert_array_equal(d.observed[near], matched[near])
+    np.testing.assert_array_equal(d.edge, near & ~matched)
+    assert (d.fused[d.edge] >= 0.9).all() and (d.belief[d.edge] > 0.5).all()
+    assert d.predictions()["edge"].sum() == d.edge.sum()
+    # the same frame without the band: every other keypoint's P is unchanged, the band's ones were below 0.5
+    g = get_filter("d2slam-flow", DynamicsConfig(flow_edge_band=0.0))
+    g(inp)
+    assert not g.last.edge.any()
+    np.testing.assert_array_equal(g.last.fused[~d.edge], d.fused[~d.edge])
+    assert (g.last.fused[d.edge] < 0.5).all()
+    # a wider band reaches the next ring of keypoints, 12 px further out, beyond the uncertainty zone: there the flow
+    # observes nearly all of them, so they are not flagged
+    w = get_filter("d2slam-flow", DynamicsConfig(flow_edge_band=20.0))
+    w(inp)
+    ring = (outside >= band) & (outside < 20)
+    np.testing.assert_array_equal(w.last.edge, (outside > 0) & (outside < 20) & ~w.last.observed)
+    assert ring.sum() >= 20 and w.last.observed[ring].mean() > 0.9 and (w.last.edge & ~near).sum() < 0.1 * ring.sum()
+    p = get_filter("d2slam")
+    p(inp)
+    assert p.last.edge is None and "edge" not in p.last.predictions()
+
+
+def test_edge_band_bad_settings_are_clear_errors():
+    for cfg, what in ((DynamicsConfig(flow_edge_p=1.5), "flow_edge_p"),
+                      (DynamicsConfig(flow_edge_band=float("nan")), "flow_edge_band")):
+        with pytest.raises(D2SlamError, match=what):
+            get_filter("d2slam-flow", cfg)
+        get_filter("d2slam", cfg)  # unused without flow
 
 
 def test_flow_area_option():
@@ -289,6 +354,13 @@ def test_property_flow_mode_on_random_images(seed, n, k, same, flat):
     assert bel.shape == (n,) and np.isfinite(bel).all() and ((bel >= 0) & (bel <= 1)).all()
     v = f.last.p_g[np.isfinite(f.last.p_g)]
     assert ((v >= 0) & (v <= 1)).all()
+    # the edge band: exactly the unobserved keypoints within flow_edge_band outside the mask (eq 1 searched without
+    # a margin), their P raised to at least flow_edge_p
+    d_max = signed_distances(inp.masks, kps).max(axis=1) if n else np.zeros(0)
+    with np.errstate(invalid="ignore"):
+        want = ~f.last.observed & (d_max < 0) & (d_max > -f.cfg.flow_edge_band)
+    np.testing.assert_array_equal(f.last.edge, want)
+    assert (f.last.fused[want] >= f.cfg.flow_edge_p).all() and ((f.last.fused >= 0) & (f.last.fused <= 1)).all()
 
 
 def test_unknown_flow_area_is_a_clear_error():

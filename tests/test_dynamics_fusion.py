@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from d2slam.config import DynamicsConfig
-from d2slam.dynamics.fusion import bayes_update, fuse, predict, prior_belief
+from d2slam.dynamics.fusion import bayes_update, check_edge_band, edge_band, fuse, predict, prior_belief
+from d2slam.errors import D2SlamError
 
 CFG = DynamicsConfig()
 
@@ -45,6 +46,34 @@ def test_eq7_neighbours_p_g_only_raises_unmatched_keypoints():
     ])
     np.testing.assert_array_equal(fuse(p_s, p_g, observed, in_area, uncertain, CFG),
                                   fuse(p_s, p_g, observed, in_area, uncertain, CFG, np.full(6, np.nan)))
+
+
+def test_edge_band_by_hand():
+    """Ours (flow_edge_band): unobserved keypoints with eq 1's d_max in (-band, 0) get max(P, p_edge)."""
+    p = np.array([0.3, 0.3, 0.3, 0.3, 0.95, 0.8, 0.5, 0.5, 0.2])
+    d_max = np.array([-3.0, -6.0, -8.0, -3.0, -1.0, 2.0, -np.inf, np.nan, -0.5])
+    observed = np.array([False, False, False, True, False, False, False, False, False])
+    got, edge = edge_band(p, d_max, observed, 6.0, 0.9)
+    np.testing.assert_array_equal(edge, [True, False, False, False, True, False, False, False, True])
+    np.testing.assert_allclose(got, [
+        0.9,  # unobserved, 3 px outside: raised
+        0.3,  # exactly at the band's width: kept (open interval)
+        0.3,  # farther out
+        0.3,  # observed: eq 7's P stands
+        0.95,  # already above p_edge: max keeps it
+        0.8,  # inside the mask (d > 0): eq 7's P_S
+        0.5,  # no masks (-inf)
+        0.5,  # non-finite keypoint (NaN)
+        0.9,  # half a pixel outside
+    ])
+    same, none = edge_band(p, d_max, observed, 0.0, 0.9)
+    np.testing.assert_array_equal(same, p)
+    assert not none.any()
+    check_edge_band(6.0, 0.9)
+    with pytest.raises(D2SlamError, match="flow_edge_p"):
+        check_edge_band(6.0, -0.1)
+    with pytest.raises(D2SlamError, match="flow_edge_band"):
+        check_edge_band(np.inf, 0.9)
 
 
 def test_eq8_two_steps_by_hand():

@@ -7,7 +7,8 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
     P_g, flag    = geometric module on the matches to frame t-1                              (eq 4-6, geometric.py)
                    + the pose test (ours, RGB-D: PnP pose, reprojection and depth residuals)
     P            = eq 7 fusion (+ ours: an unmatched keypoint takes its matched neighbours' P_g
-                   when larger); bel = eq 8 Bayesian update from bel(q) / the map point       (fusion.py)
+                   when larger; with the flow, an unobserved one just outside a mask is raised to
+                   flow_edge_p); bel = eq 8 Bayesian update from bel(q) / the map point       (fusion.py)
     OIM          = static keypoints in a person's interaction zone near geometric-dynamic ones -> dynamic
                    (candidates: not observed static this frame, i.e. not matched with err <= alpha
                    and passing the pose test; our measured deviation)
@@ -18,9 +19,12 @@ Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``
 - ``d2slam``    the full method.
 - ``d2slam-flow`` ours: the full method with sub-pixel correspondences for eq 5 by LK flow (``flow.py``; also
                 ``DynamicsConfig.flow`` in the other full-method modes). Needs the grey images (``FilterInput.gray``
-                and ``prev_gray``): without them (first frame, stored features) the frame runs as ``d2slam``.
+                and ``prev_gray``): without them (first frame, stored features) the frame runs as ``d2slam`` plus
+                the edge band.
                 The flow's new matches take their depth from the previous depth image (``FilterInput.prev_depth``,
-                ``DynamicsConfig.flow_new_depth``), so the pose test runs on them.
+                ``DynamicsConfig.flow_new_depth``), so the pose test runs on them. A keypoint that neither the
+                matches nor the flow observed, within ``flow_edge_band`` px outside a mask, is raised to
+                ``flow_edge_p`` (``fusion.edge_band``; also on frames without images, where nothing is tracked).
 - ``no-depth``  every depth-adaptive quantity at the midpoint of its range (beta 0.15, alpha 0.7 px, delta 29.5 px,
                 gamma 19 px), the OIM's depth tests dropped (plain centroid), no pose test and no neighbours' P_g
                 for unmatched keypoints (both need depth).
@@ -45,7 +49,7 @@ import numpy as np
 from d2slam.config import Config, DynamicsConfig
 from d2slam.dynamics import METHODS, MODES, NEEDS_MASKS, register_methods  # noqa: F401 (names defined there, light)
 from d2slam.dynamics import depth as dz
-from d2slam.dynamics.fusion import bayes_update, fuse, prior_belief
+from d2slam.dynamics.fusion import bayes_update, check_edge_band, edge_band, fuse, prior_belief
 from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import check_matches, geometric_module
 from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_g, oim_candidates, oim_frame
@@ -73,6 +77,7 @@ class FrameDiagnostics:
     reproj_err: np.ndarray | None = None  # pose test (ours): reprojection error (px), NaN where not tested
     depth_err: np.ndarray | None = None  # pose test (ours): normalised depth residual, NaN where not tested
     pose_dynamic: np.ndarray | None = None  # the pose test's flag
+    edge: np.ndarray | None = None  # ours, with the flow: unobserved just outside a mask, P raised (fusion.edge_band)
     fused: np.ndarray | None = None  # eq 7 P
     prior: np.ndarray | None = None  # eq 8 bel(q)
     belief_bayes: np.ndarray | None = None  # eq 8 bel before the OIM
@@ -86,7 +91,8 @@ class FrameDiagnostics:
 
     def predictions(self, threshold: float = 0.5) -> dict[str, np.ndarray]:
         """Boolean "dynamic" prediction of each module that ran: semantic (P_S > 0.5, i.e. inside a mask),
-        geometric (err > alpha or the pose test), pose (the pose test alone), fusion (eq 7 P > 0.5), bayes (eq 8
+        geometric (err > alpha or the pose test), pose (the pose test alone), edge (flagged by
+        ``fusion.edge_band``, with the flow), fusion (eq 7 P > 0.5), bayes (eq 8
         belief > 0.5 before the OIM), oim (flipped by the OIM), final (the hook's belief > 0.5)."""
         out: dict[str, np.ndarray] = {}
         if self.p_s is not None:
@@ -95,6 +101,8 @@ class FrameDiagnostics:
             out["geometric"] = self.geo_dynamic.copy()
         if self.pose_dynamic is not None:
             out["pose"] = self.pose_dynamic.copy()
+        if self.edge is not None:
+            out["edge"] = self.edge.copy()
         if self.fused is not None:
             out["fusion"] = self.fused > threshold
         if self.belief_bayes is not None:
@@ -143,6 +151,7 @@ class D2SlamFilter:
         self.use_flow = self.cfg.flow or mode == "d2slam-flow"
         if self.use_flow:
             check_flow_area(self.cfg.flow_area)
+            check_edge_band(self.cfg.flow_edge_band, self.cfg.flow_edge_p)
         self.last: FrameDiagnostics | None = None
 
     def reset(self) -> None:
@@ -195,7 +204,9 @@ class D2SlamFilter:
         z_n = mask_depths(inp.depth, fm, cfg) if self.use_oim else np.full(len(fm.edges), np.nan)
         t2 = clock()
         t["mask_edges_depth"] = (t2 - t1) * 1e3
-        sem = semantic_module(fm, kps, b, margin, cfg)
+        # With the flow, eq 1 is exact at least as far as the edge band (fusion.edge_band reads d_max within it).
+        band = cfg.flow_edge_band if self.use_flow else 0.0
+        sem = semantic_module(fm, kps, b, max(margin, band), cfg)
         t3 = clock()
         t["semantic"] = (t3 - t2) * 1e3
         pose = ud and cfg.pose_test  # the pose test needs the depths (off in no-depth)
@@ -224,6 +235,9 @@ class D2SlamFilter:
         if ud and cfg.neighbour_p_g:
             p_nb = neighbour_p_g(kps, maps, geo.observed, geo.p_g, cfg, skip=sem.inside, matched=matched)
         p = fuse(sem.p_s, geo.p_g, geo.observed, sem.in_area, sem.uncertain, cfg, p_nb)
+        edge = None
+        if self.use_flow:  # ours: unobserved keypoints just outside a mask (fusion.edge_band)
+            p, edge = edge_band(p, sem.d_max, geo.observed, cfg.flow_edge_band, cfg.flow_edge_p)
         t5 = clock()
         t["fusion"] = (t5 - t4) * 1e3
         prior = None
@@ -246,7 +260,8 @@ class D2SlamFilter:
         self.last = FrameDiagnostics(
             inp.frame_index, mode, z, belief, p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
             in_area=sem.in_area, err=geo.err, p_g=geo.p_g, observed=geo.observed, geo_dynamic=geo.dynamic,
-            reproj_err=geo.reproj_err, depth_err=geo.depth_err, pose_dynamic=geo.pose_dynamic, fused=p, prior=prior,
+            reproj_err=geo.reproj_err, depth_err=geo.depth_err, pose_dynamic=geo.pose_dynamic, edge=edge, fused=p,
+            prior=prior,
             belief_bayes=bel, zone=zone, oim=oim, mask_depth=z_n,
             f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static, timings_ms=t)
         return belief

@@ -16,6 +16,10 @@ bel > 0.5 -> dynamic.
 
 Ours (measured, ``DynamicsConfig.neighbour_p_g``): a keypoint that is not matched takes max(P, P_nb), P_nb the mean
 P_g of its matched neighbours at the same depth (``interaction.neighbour_p_g``), where it has enough of them.
+
+Ours (measured, ``DynamicsConfig.flow_edge_band``, with the flow only): a keypoint nothing observed, just outside a
+mask (eq 1's signed distance in (-band, 0)), takes max(P, ``flow_edge_p``) (``edge_band``); eq 7 leaves it at
+P_S < 0.5, static.
 """
 
 from __future__ import annotations
@@ -51,6 +55,29 @@ def fuse(p_s: np.ndarray, p_g: np.ndarray, observed: np.ndarray, in_area: np.nda
         with np.errstate(invalid="ignore"):
             p = np.where(~observed & (p_nb > p), p_nb, p)  # NaN p_nb compares False
     return p
+
+
+def check_edge_band(band: float, p_edge: float) -> None:
+    """A clear error for a ``flow_edge_band`` that is not a finite number of px, or a ``flow_edge_p`` outside [0, 1]."""
+    if not np.isfinite(band):
+        raise D2SlamError(f"flow_edge_band must be a finite width in px (0 turns it off), got {band!r}")
+    if not 0.0 <= p_edge <= 1.0:
+        raise D2SlamError(f"flow_edge_p must be a probability in [0, 1], got {p_edge!r}")
+
+
+def edge_band(p: np.ndarray, d_max: np.ndarray, observed: np.ndarray, band: float, p_edge: float) -> tuple[
+        np.ndarray, np.ndarray]:
+    """eq 7, ours (``DynamicsConfig.flow_edge_band``): ``(P', edge)``, where ``edge`` marks the keypoints that are not
+    ``observed`` and lie outside every mask within ``band`` px of one (``d_max``, eq 1's largest signed distance, in
+    (-band, 0)), and ``P' = max(P, p_edge)`` there, P elsewhere. ``band <= 0`` flags nothing. ``d_max`` is -inf for a
+    keypoint without masks or with non-finite coordinates, NaN compares False: neither is flagged."""
+    p = np.asarray(p, dtype=np.float64)
+    d_max = np.asarray(d_max, dtype=np.float64)
+    if band <= 0:
+        return p, np.zeros(p.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        edge = ~np.asarray(observed, dtype=bool) & (d_max < 0) & (d_max > -float(band))
+    return np.where(edge, np.maximum(p, p_edge), p), edge
 
 
 def prior_belief(n: int, matches: np.ndarray, prev_belief: np.ndarray, mappoint_belief: np.ndarray | None,
