@@ -270,7 +270,8 @@ def box_scene(seed: int = 2):
 
 def test_edge_band_flags_unobserved_keypoints_just_outside_the_mask():
     """Ours (DynamicsConfig.flow_edge_band): an unobserved keypoint within the band outside the mask gets
-    P = max(P, flow_edge_p) before eq 8; matched ones, farther ones and those inside keep eq 7's P; d2slam has no band."""
+    P = max(P, flow_edge_p) before eq 8; matched ones, farther ones and those inside keep eq 7's P; d2slam has no
+    band."""
     inp, matched, outside = box_scene()
     band = DynamicsConfig().flow_edge_band
     near = (outside > 0) & (outside < band)

@@ -142,9 +142,9 @@ class KeypointRecorder:
     Called once per frame as ``recorder(index, kps (N, 2), beliefs (N,) or None, diagnostics)``: the truth of each
     keypoint is ``keypoint_truth(kps, sequence.dynamic_mask(index))``; the predictions are the diagnostics'
     ``predictions()`` (``FrameDiagnostics``: semantic, geometric, pose, edge, fusion, bayes, oim, final - whichever
-    modules the mode ran) when the diagnostics belong to this frame (same ``frame_index`` and keypoint count), otherwise only
-    ``final`` from the beliefs (belief > ``threshold``; no beliefs, i.e. method ``none``: every keypoint static).
-    ``sequence`` must have ``dynamic_mask(i)`` (``d2slam.data.SyntheticSequence``); anything else is a D2SlamError.
+    modules the mode ran) when the diagnostics belong to this frame (same ``frame_index`` and keypoint count),
+    otherwise only ``final`` from the beliefs (belief > ``threshold``; no beliefs, i.e. method ``none``: every
+    keypoint static). ``sequence`` must have ``dynamic_mask(i)`` (``d2slam.data.SyntheticSequence``); anything else is a D2SlamError.
     """
 
     def __init__(self, sequence, threshold: float = 0.5):
