@@ -144,7 +144,8 @@ class KeypointRecorder:
     ``predictions()`` (``FrameDiagnostics``: semantic, geometric, pose, edge, fusion, bayes, oim, final - whichever
     modules the mode ran) when the diagnostics belong to this frame (same ``frame_index`` and keypoint count),
     otherwise only ``final`` from the beliefs (belief > ``threshold``; no beliefs, i.e. method ``none``: every
-    keypoint static). ``sequence`` must have ``dynamic_mask(i)`` (``d2slam.data.SyntheticSequence``); anything else is a D2SlamError.
+    keypoint static). ``sequence`` must have ``dynamic_mask(i)`` (``d2slam.data.SyntheticSequence``); anything else
+    is a D2SlamError.
     """
 
     def __init__(self, sequence, threshold: float = 0.5):
