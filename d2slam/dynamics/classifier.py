@@ -261,8 +261,7 @@ class D2SlamFilter:
             inp.frame_index, mode, z, belief, p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
             in_area=sem.in_area, err=geo.err, p_g=geo.p_g, observed=geo.observed, geo_dynamic=geo.dynamic,
             reproj_err=geo.reproj_err, depth_err=geo.depth_err, pose_dynamic=geo.pose_dynamic, edge=edge, fused=p,
-            prior=prior,
-            belief_bayes=bel, zone=zone, oim=oim, mask_depth=z_n,
+            prior=prior, belief_bayes=bel, zone=zone, oim=oim, mask_depth=z_n,
             f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static, timings_ms=t)
         return belief
 
