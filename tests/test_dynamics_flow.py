@@ -257,6 +257,8 @@ def test_d2slam_flow_without_images_runs_as_d2slam():
 
 
 def box_scene(seed: int = 2):
+    """``flow_scene`` with one person mask on BOX: (hook input, matched (N,) bool, each keypoint's distance outside
+    the mask in px, 0 inside)."""
     inp, _, matched_idx = flow_scene(seed)
     masks = np.zeros((1, H, W), bool)
     masks[0][BOX] = True
@@ -313,12 +315,7 @@ def test_edge_band_bad_settings_are_clear_errors():
 def test_flow_area_option():
     """flow_area: "all" tracks unmatched keypoints in a mask area too, "matched" only refines matched ones there,
     "outside" leaves the mask area to the ORB matches."""
-    inp, moving, matched_idx = flow_scene(2)
-    masks = np.zeros((1, H, W), bool)
-    masks[0][BOX] = True
-    inp = FilterInput(**{**inp.__dict__, "masks": masks})
-    matched = np.zeros(len(inp.kps), bool)
-    matched[matched_idx] = True
+    inp, matched, _ = box_scene(2)
     obs = {}
     for area in ("all", "matched", "outside"):
         f = get_filter("d2slam-flow", DynamicsConfig(flow_area=area))
