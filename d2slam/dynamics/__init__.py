@@ -19,7 +19,8 @@ from __future__ import annotations
 # The ablation modes (see classifier.py) with the help text of ``d2slam run --method``; ``needs_masks`` per mode.
 MODE_HELP = {
     "d2slam": "full D2SLAM: semantic + geometric + Bayesian fusion + object interaction (eq 1-10)",
-    "d2slam-flow": "ours: d2slam with sub-pixel LK flow correspondences for eq 5 (DynamicsConfig.flow)",
+    "d2slam-flow": ("ours: d2slam with sub-pixel LK flow correspondences for eq 5 and the edge band "
+                    "(DynamicsConfig.flow, flow_edge_band)"),
     "no-depth": "D2SLAM with every depth-adaptive quantity at its midpoint and no OIM depth test",
     "no-oim": "D2SLAM without the object interaction module (eq 9-10)",
     "no-bayes": "D2SLAM with the eq 7 probability used directly (no eq 8 filter)",

@@ -69,12 +69,11 @@ def edge_band(p: np.ndarray, d_max: np.ndarray, observed: np.ndarray, band: floa
         np.ndarray, np.ndarray]:
     """eq 7, ours (``DynamicsConfig.flow_edge_band``): ``(P', edge)``, where ``edge`` marks the keypoints that are not
     ``observed`` and lie outside every mask within ``band`` px of one (``d_max``, eq 1's largest signed distance, in
-    (-band, 0)), and ``P' = max(P, p_edge)`` there, P elsewhere. ``band <= 0`` flags nothing. ``d_max`` is -inf for a
-    keypoint without masks or with non-finite coordinates, NaN compares False: neither is flagged."""
+    (-band, 0)), and ``P' = max(P, p_edge)`` there, P elsewhere. ``band <= 0`` flags nothing (the interval is empty).
+    ``d_max`` is -inf for a keypoint without masks or with non-finite coordinates, NaN compares False: neither is
+    flagged."""
     p = np.asarray(p, dtype=np.float64)
     d_max = np.asarray(d_max, dtype=np.float64)
-    if band <= 0:
-        return p, np.zeros(p.shape, dtype=bool)
     with np.errstate(invalid="ignore"):
         edge = ~np.asarray(observed, dtype=bool) & (d_max < 0) & (d_max > -float(band))
     return np.where(edge, np.maximum(p, p_edge), p), edge
