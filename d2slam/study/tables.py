@@ -310,6 +310,83 @@ def twin_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
     return _md(header, rows)
 
 
+# Issue 4's targets, checked run by run in ``targets_markdown``: the full method's ATE at most TARGET_ATE_TWIN x the
+# engine's ATE on the static twin; `none` at least TARGET_NONE_TWIN x on the walking scenarios; dynamic-keypoint recall
+# at least TARGET_RECALL at a static precision of at least TARGET_STATIC_PRECISION.
+TARGET_ATE_TWIN = 1.2
+TARGET_NONE_TWIN = 5.0
+TARGET_RECALL = 0.95
+TARGET_STATIC_PRECISION = 0.98
+TARGET_METHODS = (BASELINE, FULL, "d2slam-flow", ORACLE)
+
+
+def target_checks(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFrame:
+    """Issue 4's targets run by run: one row per dynamic run (scenario, method, seed) with its ATE over the same seed's
+    static twin (``none``), recall, static precision, and whether each target holds: ``ate_ok`` (<= TARGET_ATE_TWIN,
+    or for ``none`` on a walking scenario >= TARGET_NONE_TWIN, the other way round; NaN elsewhere) and ``kp_ok``
+    (recall and static precision both at their targets; NaN without keypoint metrics, and for ``none``, which classifies
+    nothing). A missing value never counts as met."""
+    ms = [m for m in (methods or TARGET_METHODS) if m in set(df["method"])]
+    twin = df[(df["twin"] == 1) & (df["method"] == BASELINE)].set_index(["scenario", "seed"])["ate_rmse_m"]
+    out = []
+    for s in _scenarios(df[df["twin"] == 0]):
+        walking = s.startswith("walking")
+        for m in ms:
+            g = df[(df["twin"] == 0) & (df["scenario"] == s) & (df["method"] == m)].sort_values("seed")
+            for _, r in g.iterrows():
+                t = twin.get((s, r["seed"]), np.nan)
+                ratio = _ratio(float(r["ate_rmse_m"]), float(t))
+                if m == BASELINE:
+                    ate_ok = (ratio >= TARGET_NONE_TWIN) if walking and math.isfinite(ratio) else np.nan
+                    if walking and not math.isfinite(ratio):
+                        ate_ok = False
+                else:
+                    ate_ok = bool(ratio <= TARGET_ATE_TWIN) if math.isfinite(ratio) else False
+                rec, sp = float(r.get("kp_recall", np.nan)), float(r.get("kp_static_precision", np.nan))
+                if m == BASELINE:  # no filter: nothing classified (its keypoint columns count every keypoint static)
+                    rec = sp = np.nan
+                has_kp = math.isfinite(rec) or math.isfinite(sp)
+                kp_ok = bool(rec >= TARGET_RECALL and sp >= TARGET_STATIC_PRECISION) if has_kp else np.nan
+                out.append({"scenario": s, "sequence": LABELS.get(s, s), "method": m, "seed": int(r["seed"]),
+                            "ate_over_twin": ratio, "ate_ok": ate_ok, "recall": rec, "static_precision": sp,
+                            "kp_ok": kp_ok})
+    return pd.DataFrame(out, columns=["scenario", "sequence", "method", "seed", "ate_over_twin", "ate_ok", "recall",
+                                      "static_precision", "kp_ok"])
+
+
+def _met(flags: pd.Series) -> str:
+    v = [f for f in flags if isinstance(f, (bool, np.bool_))]
+    return f"{sum(bool(f) for f in v)} of {len(v)}" if v else "n/a"
+
+
+def _per_seed(values, nd: int, suffix: str = "") -> str:
+    return " / ".join(_num(float(v), nd, suffix) for v in values) or "n/a"
+
+
+def targets_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
+    """Issue 4's targets per scenario and method: the per-seed values (seeds ascending) and on how many runs each
+    target holds (``target_checks``)."""
+    tc = target_checks(df, methods)
+    if tc.empty or not np.isfinite(tc["ate_over_twin"].astype(np.float64)).any():
+        return "_No dynamic run with a static twin (run the study on synthetic data with `none`)._"
+    rows = []
+    for (s, m), g in tc.groupby(["scenario", "method"], sort=False):
+        walking = s.startswith("walking")
+        if m == BASELINE:
+            ate_target = f">= {TARGET_NONE_TWIN:g}x: " + _met(g["ate_ok"]) if walking else "n/a"
+        else:
+            ate_target = f"<= {TARGET_ATE_TWIN:g}x: " + _met(g["ate_ok"])
+        kp = g[[isinstance(f, (bool, np.bool_)) for f in g["kp_ok"]]]
+        rows.append([g["sequence"].iloc[0], f"`{m}`", _per_seed(g["ate_over_twin"], 2, "x"), ate_target,
+                     _per_seed(kp["recall"], 3) if len(kp) else "n/a",
+                     _per_seed(kp["static_precision"], 3) if len(kp) else "n/a", _met(g["kp_ok"])])
+    seeds = ", ".join(str(x) for x in sorted(set(tc["seed"])))
+    header = ["fr3 (synthetic)", "method", f"ATE / twin (seeds {seeds})", "ATE target: runs met",
+              "recall", "static precision",
+              f"recall >= {TARGET_RECALL:g} at static precision >= {TARGET_STATIC_PRECISION:g}: runs met"]
+    return _md(header, rows)
+
+
 OCCLUDED_NOTE = ("The occluded twin is `oracle` run on the static twin with the dynamic sequence's truth as its "
                  "masks: the keypoints inside the people's (and moving objects') silhouettes are dropped and the "
                  "extraction budget refilled as in any filtered run, but nothing moves. Its ATE over the twin's is "
@@ -440,6 +517,10 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
             "Median ATE of each method on the dynamic sequence / median ATE of `none` on its static twin (same "
             "camera path, no people). Targets (issue 4): `d2slam` <= 1.2x; `none` >= 5x on the walking scenarios.",
             "", twin_markdown(df, [m for m in methods])]
+    out += ["", "## Targets of issue 4, run by run", "",
+            "Each dynamic run's ATE over the ATE of `none` on the same seed's static twin, its dynamic-keypoint recall "
+            "and static precision, and on how many runs each target holds (`target_checks`).", "",
+            targets_markdown(df, [m for m in TARGET_METHODS if m in methods])]
     if occluded:
         out += ["", "## ATE relative to the occluded twin", "", OCCLUDED_NOTE, "",
                 "Median ATE of each method on the dynamic sequence / median ATE of the occluded twin; in brackets "
