@@ -140,14 +140,27 @@ def test_runspec_roundtrip():
     assert RunSpec(**s.to_dict()) == s and s.run_id == "walking_rpy_twin_s102_n300_d2slam"
 
 
-def test_resume_reuses_matching_runs_only(serial, tmp_path):
+def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
+    import d2slam.study.manifest as manifest
     from d2slam.study.core import load_run
-    from d2slam.study.runner import run_key, run_options
+    from d2slam.study.runner import _ENGINE_CODE, _ORBSLAM3_CODE, run_key, run_options, source_digest
 
     out = tmp_path / "resumed"
     shutil.copytree(serial.out, out)
+    import d2slam.study.core as core
+
+    # a commit made while the study runs: the checkout reads "b" once the runs have started (here: reused)
+    started = []
+    real_load = core.load_run
+    monkeypatch.setattr(core, "load_run", lambda *a: started.append(1) or real_load(*a))
+    monkeypatch.setattr(manifest, "git_info", lambda: {"commit": ("b" if started else "a") * 40, "dirty": bool(started)})
     res = run_study(out, progress=False, plots=False, resume=True, **GRID)
+    assert started
     assert res.manifest["grid"]["reused_runs"] == ["sitting_static_s101_n40_d2slam", "sitting_static_s101_n40_none"]
+    # the manifest records the checkout and the run keys' code digests as they were when the study started
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["git"] == {"commit": "a" * 40, "dirty": False}
+    assert m["code"] == {"engine": source_digest(_ENGINE_CODE), "orbslam3": source_digest(_ORBSLAM3_CODE)}
     pd.testing.assert_frame_equal(res.runs, serial.runs, check_exact=True)  # timings too: nothing re-ran
     spec = RunSpec("sitting_static", "none", 101, FRAMES)
     key = run_key(spec, run_options())

@@ -52,6 +52,9 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     from d2slam.study import grid as G
     from d2slam.study.sequences import generator_version
 
+    from d2slam.study.manifest import build_manifest, code_info, git_info
+
+    checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
     if specs is None:
         specs = expand_grid(scenarios or G.SCENARIOS, methods, seeds or G.DEFAULT_SEEDS,
@@ -111,10 +114,8 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
             "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
             "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options["orbslam3_repeats"],
             "masks": masks, "reused_runs": sorted(reused)}
-    from d2slam.study.manifest import build_manifest
-
     manifest = build_manifest(config, grid, ex, generator_version(),
-                              {"sequences_s": round(t_seq, 2), "runs_s": round(t_runs, 2)})
+                              {"sequences_s": round(t_seq, 2), "runs_s": round(t_runs, 2)}, git=checkout, code=code)
     # the finished runs are on disk already (saved as they finished, or read from there by --resume)
     res = write_results(out, specs, results, method_order, manifest, plots=plots, saved=set(by_id))
     manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)

@@ -58,9 +58,22 @@ def machine_info() -> dict:
             "threads": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}}
 
 
-def build_manifest(config, grid: dict, executor: dict, generator_version: str, timing: dict | None = None) -> dict:
+def code_info() -> dict:
+    """The source digests that key the runs (``d2slam.study.runner.source_digest``: comments and docstrings left out):
+    ``engine`` for the engine's runs, ``orbslam3`` for ORB-SLAM3's. Two studies with the same digests ran the same
+    code, whatever their commits."""
+    from d2slam.study.runner import _ENGINE_CODE, _ORBSLAM3_CODE, source_digest
+
+    return {"engine": source_digest(_ENGINE_CODE), "orbslam3": source_digest(_ORBSLAM3_CODE)}
+
+
+def build_manifest(config, grid: dict, executor: dict, generator_version: str, timing: dict | None = None,
+                   git: dict | None = None, code: dict | None = None) -> dict:
+    """The study's manifest. ``git`` and ``code`` are taken when the study starts (``run_study``): a commit made
+    while it runs must not be recorded as the code that ran. Default: now."""
     import d2slam
 
-    return {"d2slam_version": d2slam.__version__, "git": git_info(), "config_hash": config.hash(),
+    return {"d2slam_version": d2slam.__version__, "git": git if git is not None else git_info(),
+            "code": code if code is not None else code_info(), "config_hash": config.hash(),
             "generator_version": generator_version, "grid": grid, "executor": executor,
             "packages": package_versions(), "machine": machine_info(), "timing": timing or {}}
