@@ -141,14 +141,13 @@ def test_runspec_roundtrip():
 
 
 def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
+    import d2slam.study.core as core
     import d2slam.study.manifest as manifest
     from d2slam.study.core import load_run
     from d2slam.study.runner import _ENGINE_CODE, _ORBSLAM3_CODE, run_key, run_options, source_digest
 
     out = tmp_path / "resumed"
     shutil.copytree(serial.out, out)
-    import d2slam.study.core as core
-
     # a commit made while the study runs: the checkout reads "b" once the runs have started (here: reused)
     started = []
     real_load = core.load_run

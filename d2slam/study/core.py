@@ -50,9 +50,8 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
     from d2slam.config import DEFAULT
     from d2slam.study import grid as G
-    from d2slam.study.sequences import generator_version
-
     from d2slam.study.manifest import build_manifest, code_info, git_info
+    from d2slam.study.sequences import generator_version
 
     checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
