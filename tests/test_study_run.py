@@ -152,7 +152,8 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     started = []
     real_load = core.load_run
     monkeypatch.setattr(core, "load_run", lambda *a: started.append(1) or real_load(*a))
-    monkeypatch.setattr(manifest, "git_info", lambda: {"commit": ("b" if started else "a") * 40, "dirty": bool(started)})
+    monkeypatch.setattr(manifest, "git_info",
+                        lambda: {"commit": ("b" if started else "a") * 40, "dirty": bool(started)})
     res = run_study(out, progress=False, plots=False, resume=True, **GRID)
     assert started
     assert res.manifest["grid"]["reused_runs"] == ["sitting_static_s101_n40_d2slam", "sitting_static_s101_n40_none"]
