@@ -246,9 +246,7 @@ def test_d2slam_flow_without_images_runs_as_d2slam():
     np.testing.assert_array_equal(get_filter("d2slam-flow")(inp), get_filter("d2slam")(inp))
     inp2 = FilterInput(**{**flow_scene(1)[0].__dict__, "prev_gray": None})  # first frame: no previous image
     np.testing.assert_array_equal(get_filter("d2slam-flow")(inp2), get_filter("d2slam")(inp2))
-    masks = np.zeros((1, H, W), bool)
-    masks[0][BOX] = True
-    inp3 = FilterInput(**{**inp2.__dict__, "masks": masks})
+    inp3 = FilterInput(**{**box_scene(1)[0].__dict__, "prev_gray": None})  # the same frame with the BOX mask
     no_band = DynamicsConfig(flow_edge_band=0.0)
     np.testing.assert_array_equal(get_filter("d2slam-flow", no_band)(inp3), get_filter("d2slam")(inp3))
     f = get_filter("d2slam-flow")

@@ -338,13 +338,12 @@ def target_checks(df: pd.DataFrame, methods: list[str] | None = None) -> pd.Data
                 t = twin.get((s, r["seed"]), np.nan)
                 ratio = _ratio(float(r["ate_rmse_m"]), float(t))
                 # NaN compares False: a run without a ratio (failed, or no twin) misses its target
-                if m == BASELINE:
+                if m == BASELINE:  # no filter: nothing classified (its keypoint columns count every keypoint static)
                     ate_ok = bool(ratio >= TARGET_NONE_TWIN) if walking else np.nan
+                    rec = sp = np.nan
                 else:
                     ate_ok = bool(ratio <= TARGET_ATE_TWIN)
-                rec, sp = float(r.get("kp_recall", np.nan)), float(r.get("kp_static_precision", np.nan))
-                if m == BASELINE:  # no filter: nothing classified (its keypoint columns count every keypoint static)
-                    rec = sp = np.nan
+                    rec, sp = float(r.get("kp_recall", np.nan)), float(r.get("kp_static_precision", np.nan))
                 has_kp = math.isfinite(rec) or math.isfinite(sp)
                 kp_ok = bool(rec >= TARGET_RECALL and sp >= TARGET_STATIC_PRECISION) if has_kp else np.nan
                 out.append({"scenario": s, "sequence": LABELS.get(s, s), "method": m, "seed": int(r["seed"]),
@@ -355,8 +354,9 @@ def target_checks(df: pd.DataFrame, methods: list[str] | None = None) -> pd.Data
 
 
 def _met(flags: pd.Series) -> str:
-    v = [f for f in flags if isinstance(f, (bool, np.bool_))]
-    return f"{sum(bool(f) for f in v)} of {len(v)}" if v else "n/a"
+    """'k of n' over the runs a target applies to (``target_checks``: True / False; NaN where it does not apply)."""
+    v = flags.dropna()
+    return f"{int(v.astype(bool).sum())} of {len(v)}" if len(v) else "n/a"
 
 
 def _per_seed(values, nd: int, suffix: str = "") -> str:
@@ -376,7 +376,7 @@ def targets_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
             ate_target = f">= {TARGET_NONE_TWIN:g}x: " + _met(g["ate_ok"]) if walking else "n/a"
         else:
             ate_target = f"<= {TARGET_ATE_TWIN:g}x: " + _met(g["ate_ok"])
-        kp = g[[isinstance(f, (bool, np.bool_)) for f in g["kp_ok"]]]
+        kp = g[g["kp_ok"].notna()]
         rows.append([g["sequence"].iloc[0], f"`{m}`", _per_seed(g["ate_over_twin"], 2, "x"), ate_target,
                      _per_seed(kp["recall"], 3) if len(kp) else "n/a",
                      _per_seed(kp["static_precision"], 3) if len(kp) else "n/a", _met(g["kp_ok"])])
