@@ -243,6 +243,16 @@ class EngineConfig:
     search_radius_last_frame: float = 15.0  # ORB-SLAM3 RGB-D (non-stereo sensor): th = 15
     search_radius_local_map: float = 3.0  # ORB-SLAM3 RGB-D: th = 3
     search_radius_relocalisation: float = 10.0
+    search_radius_after_relocalisation: float = 5.0  # local-map search radius on the frame after a relocalisation
+    # Local-map search radius factor by viewing angle (ORB-SLAM RadiusByViewingCos): frontal (cos above this) or not.
+    local_map_frontal_cos: float = 0.998
+    local_map_radius_frontal: float = 2.5
+    local_map_radius_oblique: float = 4.0
+    # ORB-SLAM isInFrustum: the point's distance within [0.8 dmin, 1.2 dmax], viewing angle within 60 deg.
+    frustum_dmin_factor: float = 0.8
+    frustum_dmax_factor: float = 1.2
+    frustum_view_cos: float = 0.5
+    rotation_histogram_bins: int = 30  # ORB-SLAM HISTO_LENGTH: orientation-consistency histogram
     candidates_per_point: int = 8  # k nearest keypoints of each allowed pyramid level per projected point (k-d trees)
     check_orientation: bool = True
     # Initialisation (ORB-SLAM StereoInitialization): keypoints with valid depth needed for the first keyframe.
@@ -258,6 +268,11 @@ class EngineConfig:
     kf_close_tracked: int = 100
     kf_close_untracked: int = 70
     kf_min_inliers: int = 15
+    kf_weak_ratio: float = 0.25  # c1c: tracking weak when the inliers fall below this share of the reference's points
+    # The reference keyframe's points counted by the decision: those with at least this many observations (2 while
+    # the map has at most two keyframes).
+    kf_ref_min_obs: int = 3
+    kf_ref_min_obs_first: int = 2
     kf_new_points_min: int = 100  # CreateNewKeyFrame: close points added until at least this many (maxPoint)
     # ... and all closer than this (m) as well (ours): ORB-SLAM3 gets its far points by triangulating keypoints between
     # keyframes (CreateNewMapPoints), which our engine does not do; its keyframes make points from depth up to the
@@ -280,11 +295,14 @@ class EngineConfig:
     covisibility_min_shared: int = 15
     mappoint_found_ratio: float = 0.25
     mappoint_min_obs: int = 3  # ORB-SLAM cnThObs (RGB-D): weighted observations (stereo counts 2)
+    mappoint_cull_age: int = 2  # ... checked once a point is this many keyframes old
+    mappoint_recent_age: int = 3  # points stay on the recent list (MapPointCulling) for this many keyframes
     keyframe_redundancy: float = 0.9
     keyframe_redundant_obs: int = 3
     # Tracking the local map: keyframes sharing points with the frame (at most this many) + their covisibles.
     local_map_max_keyframes: int = 80
     local_map_neighbours: int = 10
+    local_map_neighbour_sources: int = 3  # ... covisibles of the best this many keyframes
     # Relocalisation (no DBoW2): descriptor matching against the most recent keyframes, then PnP RANSAC.
     relocalisation_candidates: int = 10
     # ... of which the best by descriptor votes get the PnP attempt (Engine._relocalisation_shortlist).

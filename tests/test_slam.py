@@ -122,7 +122,7 @@ def test_rotation_consistency_and_uniqueness():
     a = rng.uniform(0, 360, 100)
     b = np.mod(a - 30 + rng.normal(0, 1, 100), 360)  # consistent rotation of 30 deg
     b[:10] = rng.uniform(0, 360, 10)  # inconsistent
-    ok = rotation_consistent(a, b)
+    ok = rotation_consistent(a, b, 30)
     assert ok[10:].mean() > 0.95 and ok[:10].mean() < 0.6
     keep = unique_by_target(np.arange(4), np.array([5, 5, 6, 5]), np.array([3.0, 1.0, 2.0, 4.0]))
     np.testing.assert_array_equal(keep, [False, True, True, False])
@@ -233,7 +233,7 @@ def test_textureless_and_invalid_depth_frames_are_lost(room):
     r = eng.process(frames[5][0], np.zeros_like(frames[5][1]), 5, ts[5])
     assert r.tracked and r.n_inliers > 50 and np.all(eng.last.ur == -1)
     r = eng.process(*blank, 6, ts[6])
-    assert r.state == "lost" and eng.velocity is None
+    assert r.state == "lost" and eng.tracker.velocity is None
     r = eng.process(*frames[7], 7, ts[7])  # relocalisation from the map
     assert r.tracked and r.how == "relocalisation"
     idx = eng.trajectory()[0]
@@ -403,7 +403,7 @@ def test_keyframe_points_from_depth_up_to_the_kinect_range(room, new_points_dept
     mid, far = free[::2], free[1::2]
     f.depth[mid], f.depth[far] = 3.5, 5.0  # between 2.99 m and 4.5 m / beyond both
     assert len(mid) > 10
-    kf = eng.create_keyframe(f)
+    kf = eng.tracker.create_keyframe(f)
     made = kf.mp >= 0
     assert not made[far].any()
     if new_points_depth == 4.5:

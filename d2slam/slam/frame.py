@@ -11,6 +11,7 @@ the level's ORB-SLAM quota ``n_l ∝ scale^-l`` is filled. Only the kept corners
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -49,6 +50,13 @@ class Frame:
     @property
     def n(self) -> int:
         return len(self.kps)
+
+    @cached_property
+    def kp_index(self):
+        """Spatial index of the keypoints for searches by projection (built on first use)."""
+        from d2slam.slam.matching import KeypointIndex
+
+        return KeypointIndex(self.kps, self.octave)
 
     @property
     def dynamic(self) -> np.ndarray:

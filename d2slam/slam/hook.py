@@ -13,6 +13,13 @@ from typing import Protocol
 
 import numpy as np
 
+from d2slam.config import EngineConfig
+from d2slam.errors import D2SlamError
+from d2slam.slam.frame import Frame
+from d2slam.slam.map import Map
+from d2slam.slam.matching import rotation_consistent, search_by_projection, unique_by_target, window_cross_match
+from d2slam.slam.projection import EPS_Z, Projector
+
 
 @dataclass
 class FilterInput:
@@ -46,3 +53,116 @@ class KeypointFilter(Protocol):
     def __call__(self, inp: FilterInput) -> np.ndarray: ...
 
     def reset(self) -> None: ...
+
+
+class FilterHook:
+    """Calls a keypoint filter on each frame: frame-to-frame matches of all keypoints, the previous frame's
+    keypoints, beliefs and images, the beliefs of the map points the matches lead to; writes ``frame.belief``.
+    ``last_input`` is the last ``FilterInput`` (for notebooks and benchmarks)."""
+
+    def __init__(self, keypoint_filter: KeypointFilter, proj: Projector, cfg: EngineConfig):
+        self.filter = keypoint_filter
+        self.proj = proj
+        self.cfg = cfg
+        self.last_input: FilterInput | None = None
+
+    def reset(self) -> None:
+        self.filter.reset()
+        self.last_input = None
+
+    def __call__(self, frame: Frame, gray, depth, masks, prev: Frame | None, prev_gray, prev_depth, map_: Map,
+                 velocity: np.ndarray | None, prev_tracked: bool) -> None:
+        """``prev``: the last processed frame (None on the first), with its images; ``velocity``: the motion model's
+        prediction T_frame_prev, usable for guided matching when ``prev_tracked`` (``prev`` is the last tracked
+        frame)."""
+        n = frame.n
+        if prev is None or prev.n == 0 or n == 0:
+            matches = np.zeros((0, 2), dtype=np.int64)
+            prev_kps, prev_kp_depth = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+            prev_belief = np.zeros(0)
+        else:
+            matches = self.matches(frame, prev, velocity if prev_tracked else None)
+            prev_kps, prev_kp_depth = prev.kps.astype(np.float32), prev.depth.astype(np.float32)
+            prev_belief = prev.belief if prev.belief is not None else np.full(prev.n, 0.5)
+        mp_belief = np.full(n, np.nan)
+        if len(matches) and prev is not None:
+            pm = prev.mp[matches[:, 1]]
+            has = pm >= 0
+            alive = np.zeros(len(pm), dtype=bool)
+            alive[has] = map_.points.alive[pm[has]]
+            mp_belief[matches[alive, 0]] = map_.points.belief[pm[alive]]
+        inp = FilterInput(frame_index=frame.index, timestamp=frame.timestamp, gray=gray, depth=depth, K=self.proj.K,
+                          kps=frame.kps.astype(np.float32), kp_depth=frame.depth.astype(np.float32),
+                          prev_kps=prev_kps, prev_kp_depth=prev_kp_depth, prev_belief=np.asarray(prev_belief),
+                          matches=matches, mappoint_belief=mp_belief, masks=masks, octave=frame.octave,
+                          prev_gray=prev_gray if prev is not None else None,
+                          prev_depth=prev_depth if prev is not None else None)
+        belief = np.asarray(self.filter(inp), dtype=np.float64)
+        if belief.shape != (n,) or not np.all(np.isfinite(belief)) or belief.min(initial=0) < 0 or \
+                belief.max(initial=0) > 1:
+            raise D2SlamError(f"frame {frame.index}: the keypoint filter returned beliefs of shape {belief.shape} "
+                              f"(expected ({n},) finite values in [0, 1])")
+        frame.belief = belief
+        self.last_input = inp
+
+    def matches(self, frame: Frame, prev: Frame, velocity: np.ndarray | None) -> np.ndarray:
+        """(K, 2) one-to-one matches (keypoint of ``frame``, keypoint of ``prev``) given to the filter.
+
+        Guided (ORB-SLAM ``SearchByProjection`` applied to keypoints instead of map points): when ``prev`` was tracked
+        and the constant-velocity model predicts the frame's pose (``velocity``), every previous keypoint is moved by
+        that motion (back-projected with its depth; at infinity, i.e. rotated only, without depth) and searched
+        within ``filter_match_radius`` x scale on its level +-1: best Hamming <= ``desc_th_high`` with the ratio test
+        and the orientation check. The unguided mutual-nearest matching within ``filter_match_window`` is the
+        fallback (first frames, after a loss, or fewer than ``filter_guided_min_matches`` guided matches)."""
+        cfg = self.cfg
+        if cfg.filter_match_guided and velocity is not None and prev.Tcw is not None and prev.n and frame.n:
+            m = self.guided_matches(frame, prev, velocity)
+            if len(m) >= cfg.filter_guided_min_matches:
+                return m
+        return window_cross_match(frame.kps, frame.desc, prev.kps, prev.desc, cfg.filter_match_window,
+                                  cfg.desc_th_high)
+
+    def guided_matches(self, frame: Frame, prev: Frame, V: np.ndarray) -> np.ndarray:
+        cfg, proj = self.cfg, self.proj
+        z = prev.depth.astype(np.float64)
+        has = z > 0
+        K = proj.K
+        rays = np.c_[(prev.kps[:, 0] - K[0, 2]) / K[0, 0], (prev.kps[:, 1] - K[1, 2]) / K[1, 1], np.ones(prev.n)]
+        X = rays * np.where(has, z, 1.0)[:, None]
+        Xn = X @ V[:3, :3].T + np.where(has[:, None], V[:3, 3], 0.0)
+        zn = Xn[:, 2]
+        zs = np.where(zn > EPS_Z, zn, EPS_Z)
+        u = K[0, 0] * Xn[:, 0] / zs + K[0, 2]
+        v = K[1, 1] * Xn[:, 1] / zs + K[1, 2]
+        sel = np.flatnonzero((zn > EPS_Z) & proj.in_image(u, v))
+        if len(sel) == 0:
+            return np.zeros((0, 2), dtype=np.int64)
+        uv = np.c_[u[sel], v[sel]]
+        octv = prev.octave[sel]
+        radius = cfg.filter_match_radius * proj.scales[octv]
+        ur_proj = np.where(has[sel], u[sel] - proj.bf / zs[sel], np.nan)  # NaN: no depth, no u_R check
+        available = (frame.mp < 0) & ~frame.dynamic
+        best, d1, d2, l1, l2 = search_by_projection(frame, uv, ur_proj, radius, octv - 1, octv + 1, prev.desc[sel],
+                                                    available, cfg.candidates_per_point)
+        ok = (best >= 0) & (d1 <= cfg.desc_th_high) & ~((l1 == l2) & (d1 > cfg.filter_match_nn_ratio * d2))
+        cur, pv, dist = best[ok], sel[ok], d1[ok]
+        keep = unique_by_target(pv, cur, dist.astype(np.float64))
+        cur, pv = cur[keep], pv[keep]
+        if cfg.check_orientation and len(cur):
+            rot = rotation_consistent(prev.angle[pv], frame.angle[cur], cfg.rotation_histogram_bins)
+            cur, pv = cur[rot], pv[rot]
+        out = np.stack([cur, pv], axis=1).astype(np.int64)
+        return out[np.argsort(out[:, 0], kind="stable")]
+
+
+def update_point_beliefs(map_: Map, frame: Frame, threshold: float) -> None:
+    """Map points take the belief of the keypoint that observes them; above ``threshold`` they are culled."""
+    if frame.belief is None:
+        return
+    sel = np.flatnonzero(frame.mp >= 0)
+    pts = frame.mp[sel]
+    map_.points.belief[pts] = frame.belief[sel]
+    bad = frame.belief[sel] > threshold
+    if bad.any():
+        map_.cull_points(np.unique(pts[bad]))
+        frame.mp[sel[bad]] = -1

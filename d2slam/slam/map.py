@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -56,6 +57,13 @@ class KeyFrame:
     mp: np.ndarray  # (N,) map point ids, -1 none
     bad: bool = False
     dynamic: np.ndarray | None = None  # (N,) bool: the hook's verdict when the keyframe was made (None: no filter)
+
+    @cached_property
+    def kp_index(self):
+        """Spatial index of the keypoints for searches by projection (built on first use)."""
+        from d2slam.slam.matching import KeypointIndex
+
+        return KeypointIndex(self.kps, self.octave)
 
     @property
     def center(self) -> np.ndarray:
@@ -189,6 +197,13 @@ class Map:
         counts = np.bincount(self.obs.kf[rows], minlength=len(self.keyframes))
         counts[kf_id] = 0
         return counts
+
+    def covisible(self, kf_id: int, n: int, min_shared: int) -> list[int]:
+        """The (at most ``n``) good keyframes sharing the most points with ``kf_id``, at least ``min_shared`` each,
+        best first (ties: lower id first)."""
+        w = self.covisibility(kf_id)
+        order = np.argsort(-w, kind="stable")[:n]
+        return [int(k) for k in order if w[k] >= min_shared and not self.keyframes[k].bad]
 
     def keyframe_counts(self, pt_ids: np.ndarray) -> np.ndarray:
         """(n_keyframes,) number of the given points each keyframe observes."""

@@ -9,8 +9,6 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-HISTO_LENGTH = 30
-
 
 def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise Hamming distance between (..., 32) uint8 descriptors (broadcasting)."""
@@ -18,15 +16,15 @@ def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.bitwise_count(x).sum(axis=-1, dtype=np.int64)
 
 
-def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray) -> np.ndarray:
-    """ORB-SLAM's orientation check: keep matches whose angle difference falls in the three most populated of 30
-    histogram bins (the 2nd and 3rd only if they hold at least 10 % of the 1st)."""
+def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray, bins: int) -> np.ndarray:
+    """ORB-SLAM's orientation check: keep matches whose angle difference falls in the three most populated of
+    ``bins`` histogram bins (ORB-SLAM: 30; the 2nd and 3rd only if they hold at least 10 % of the 1st)."""
     n = len(angle_a)
     if n == 0:
         return np.zeros(0, dtype=bool)
     rot = np.mod(np.asarray(angle_a, np.float64) - np.asarray(angle_b, np.float64), 360.0)
-    bins = np.minimum((rot * (HISTO_LENGTH / 360.0)).astype(np.int64), HISTO_LENGTH - 1)
-    counts = np.bincount(bins, minlength=HISTO_LENGTH)
+    idx = np.minimum((rot * (bins / 360.0)).astype(np.int64), bins - 1)
+    counts = np.bincount(idx, minlength=bins)
     order = np.argsort(-counts, kind="stable")[:3]
     top = counts[order]
     keep_bins = [order[0]]
@@ -34,7 +32,7 @@ def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray) -> np.ndarray:
         keep_bins.append(order[1])
         if top[2] >= 0.1 * top[0]:
             keep_bins.append(order[2])
-    return np.isin(bins, keep_bins)
+    return np.isin(idx, keep_bins)
 
 
 class KeypointIndex:
@@ -128,6 +126,22 @@ def search_candidates(index: KeypointIndex, uv: np.ndarray, radius: np.ndarray, 
         second_level = np.full(q, -1)
     best_level = np.where(best_idx >= 0, kp_octave[np.maximum(best_idx, 0)], -1)
     return best_idx, best_dist, second_dist, best_level, second_level
+
+
+def search_by_projection(target, uv: np.ndarray, ur_proj: np.ndarray, radius: np.ndarray, lo: np.ndarray,
+                         hi: np.ndarray, desc: np.ndarray, available: np.ndarray, k: int):
+    """ORB-SLAM ``SearchByProjection``'s candidate search, shared by every projection search: best and second-best
+    keypoint of ``target`` (a frame: ``kps``, ``octave``, ``desc``, ``ur``, ``kp_index``) for each projected point
+    ``uv`` with descriptor ``desc``: candidates within ``radius`` on levels [lo, hi], ``available``, and consistent
+    in ``u_R`` (no check where the projected ``ur_proj`` is NaN: a point without depth). Returns what
+    :func:`search_candidates` returns."""
+    index = target.kp_index
+    cand, _ = index.candidates(uv, radius, k, lo, hi)
+    safe = np.minimum(cand, max(len(target.kps) - 1, 0))
+    stereo_ok = np.isnan(ur_proj)[:, None] | (target.ur[safe] < 0) | \
+        (np.abs(ur_proj[:, None] - target.ur[safe]) < radius[:, None])
+    return search_candidates(index, uv, radius, desc, target.desc, target.octave, lo, hi, available, k,
+                             extra_ok=stereo_ok, cand=cand)
 
 
 def unique_by_target(query: np.ndarray, target: np.ndarray, dist: np.ndarray) -> np.ndarray:

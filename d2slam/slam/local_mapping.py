@@ -1,0 +1,190 @@
+"""Local mapping (ORB-SLAM3 ``LocalMapping``) for a new keyframe, run synchronously (deterministic): culling of
+recent points, the observation part of SearchInNeighbors, local bundle adjustment, keyframe culling."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from d2slam.config import Config
+from d2slam.slam.map import KeyFrame, Map
+from d2slam.slam.matching import search_candidates, unique_by_target
+from d2slam.slam.optimizer import local_bundle_adjustment, stereo_chi2
+from d2slam.slam.projection import Projector
+
+
+class LocalMapper:
+    def __init__(self, map_: Map, proj: Projector, config: Config):
+        self.map = map_
+        self.proj = proj
+        self.cfg = config.engine
+
+    def process(self, kf: KeyFrame) -> list[int]:
+        """Map the new keyframe ``kf``; returns the keyframes culled as redundant."""
+        self.map_point_culling(kf)
+        if self.cfg.fuse_neighbours:
+            self.search_in_neighbors(kf)
+        self.local_bundle_adjustment(kf)
+        return self.keyframe_culling(kf)
+
+    def covisible(self, kf_id: int, n: int) -> list[int]:
+        return self.map.covisible(kf_id, n, self.cfg.covisibility_min_shared)
+
+    def map_point_culling(self, kf: KeyFrame) -> None:
+        """ORB-SLAM MapPointCulling over the recently created points: found in too few of the frames that should
+        have seen them, or too few observations once ``mappoint_cull_age`` keyframes old; points leave the recent
+        list at ``mappoint_recent_age`` keyframes."""
+        cfg = self.cfg
+        P = self.map.points
+        r = self.map.recent_points
+        r = r[P.alive[r]]
+        ratio = P.found[r] / np.maximum(P.visible[r], 1)
+        age = kf.id - P.first_kf[r]
+        bad = (ratio < cfg.mappoint_found_ratio) | ((age >= cfg.mappoint_cull_age) & (P.nobs[r] <= cfg.mappoint_min_obs))
+        self.map.cull_points(r[bad])
+        self.map.recent_points = r[~bad & (age < cfg.mappoint_recent_age)]
+
+    def search_in_neighbors(self, kf: KeyFrame) -> None:
+        """ORB-SLAM SearchInNeighbors (observation part): the new keyframe's points are searched in its covisible
+        keyframes and their neighbours, and those keyframes' points in the new keyframe, so that points seen but not
+        tracked gain observations (and survive MapPointCulling); a keypoint that already has another point merges the
+        two (``fuse_into``). Off by default (``fuse_neighbours = 0``, see ``EngineConfig``)."""
+        first = self.covisible(kf.id, self.cfg.fuse_neighbours)
+        targets = list(first)
+        for k in first:
+            targets += [c for c in self.covisible(k, self.cfg.fuse_second_neighbours) if c != kf.id]
+        targets = list(dict.fromkeys(targets))
+        if not targets:
+            return
+        th = self.cfg.fuse_radius
+        own = kf.mp[kf.mp >= 0]
+        for k in targets:
+            self.fuse_into(self.map.keyframes[k], own, th)
+        pts = np.concatenate([self.map.keyframes[k].mp for k in targets])
+        self.fuse_into(kf, pts[pts >= 0], th)
+
+    def fuse_into(self, kf: KeyFrame, pids: np.ndarray, th: float) -> int:
+        """ORB-SLAM ORBmatcher::Fuse(pKF, points), observation part, vectorised: points not yet seen by ``kf`` are
+        projected into it (depth, frustum, scale range, viewing angle), their predicted level gives the radius
+        ``th`` x scale and the levels [level - 1, level]; a free, static keypoint whose reprojection (with u_R when it
+        has depth) passes the chi-square test and whose Hamming distance is <= TH_LOW becomes an observation, one
+        point per keypoint. Returns the number of observations added."""
+        cfg, proj = self.cfg, self.proj
+        P = self.map.points
+        pids = np.unique(pids)
+        pids = pids[P.alive[pids] & (P.belief[pids] <= cfg.mappoint_belief_threshold)]
+        seen = np.zeros(P.n, dtype=bool)
+        seen[kf.mp[kf.mp >= 0]] = True
+        pids = pids[~seen[pids]]
+        if len(pids) == 0 or len(kf.kps) == 0:
+            return 0
+        pids, u, v, z, level, _ = proj.in_frustum(P, kf.Tcw, pids)
+        if len(pids) == 0:
+            return 0
+        radius = th * proj.scales[level]
+        uv = np.c_[u, v]
+        k = cfg.candidates_per_point
+        index = kf.kp_index
+        cand, _ = index.candidates(uv, radius, k, level - 1, level)
+        safe = np.minimum(cand, len(kf.kps) - 1)
+        ex = u[:, None] - kf.kps[safe, 0]
+        ey = v[:, None] - kf.kps[safe, 1]
+        stereo = kf.ur[safe] >= 0
+        er = (u - proj.bf / z)[:, None] - kf.ur[safe]
+        e2 = stereo_chi2(ex, ey, er, stereo, kf.inv_sigma2[safe], cfg.disparity_sigma_px)
+        chi_ok = e2 <= np.where(stereo, cfg.chi2_stereo, cfg.chi2_mono)
+        usable = np.ones(len(kf.kps), dtype=bool) if kf.dynamic is None else ~kf.dynamic
+        best, d1, _, _, _ = search_candidates(index, uv, radius, P.desc[pids], kf.desc, kf.octave, level - 1, level,
+                                              usable, k, extra_ok=chi_ok, cand=cand)
+        sel = (best >= 0) & (d1 <= cfg.desc_th_low)
+        kp, pid, d = best[sel], pids[sel], d1[sel].astype(np.float64)
+        keep = unique_by_target(pid, kp, d)
+        kp, pid = kp[keep], pid[keep]
+        there = kf.mp[kp]
+        free = there < 0
+        self.map.add_observations(kf, kp[free], pid[free])
+        # The keypoint already has a point: the two are one (ORB-SLAM keeps the one with more observations).
+        a, b = pid[~free], there[~free]
+        b_wins = P.nobs[b] > P.nobs[a]
+        self.map.replace_points(np.r_[a[b_wins], b[~b_wins]], np.r_[b[b_wins], a[~b_wins]])
+        return len(kp)
+
+    def local_bundle_adjustment(self, kf: KeyFrame) -> None:
+        """ORB-SLAM3 LocalBundleAdjustment: the new keyframe and its best covisibles are optimised with all the
+        points they see; other keyframes observing those points are fixed, at most ``local_ba_max_fixed`` of them
+        (those with most observations of the local points; the others' observations are left out). Outlier
+        observations are erased."""
+        cfg, M = self.cfg, self.map
+        local = [kf.id] + self.covisible(kf.id, cfg.local_ba_window)
+        P = M.points
+        pmask = np.zeros(P.n, dtype=bool)
+        for k in local:
+            m = M.keyframes[k].mp
+            pmask[m[m >= 0]] = True
+        pmask &= P.view("alive") & (P.view("belief") <= cfg.mappoint_belief_threshold)
+        rows = M.observation_rows(pmask)
+        if len(rows) == 0:
+            return
+        obs_kf = M.obs.kf[rows]
+        cams = np.unique(obs_kf)
+        cams = cams[[not M.keyframes[c].bad for c in cams]]
+        is_local = np.isin(cams, local)
+        pos = np.minimum(np.searchsorted(cams, obs_kf), len(cams) - 1)
+        n_obs = np.bincount(pos[cams[pos] == obs_kf], minlength=len(cams))
+        outside = np.flatnonzero(~is_local)
+        if len(outside) > cfg.local_ba_max_fixed:
+            drop = outside[np.argsort(-n_obs[outside], kind="stable")[cfg.local_ba_max_fixed:]]
+            cams = np.delete(cams, drop)
+            is_local = np.isin(cams, local)
+        fixed = ~is_local | (cams == 0)
+        if fixed.all():
+            return
+        keep = np.isin(obs_kf, cams)
+        rows, obs_kf = rows[keep], obs_kf[keep]
+        cam_of = np.full(len(M.keyframes), -1)
+        cam_of[cams] = np.arange(len(cams))
+        pts, pinv = np.unique(M.obs.pt[rows], return_inverse=True)
+        kp = M.obs.kp[rows]
+        uv = np.zeros((len(rows), 2))
+        ur = np.zeros(len(rows))
+        inv_s2 = np.zeros(len(rows))
+        for c in cams:
+            s = obs_kf == c
+            k = M.keyframes[c]
+            uv[s], ur[s], inv_s2[s] = k.kps[kp[s]], k.ur[kp[s]], k.inv_sigma2[kp[s]]
+        poses = np.stack([M.keyframes[c].Tcw for c in cams])
+        new_poses, new_X, outlier = local_bundle_adjustment(poses, fixed, P.pos[pts], cam_of[obs_kf], pinv, uv, ur,
+                                                            inv_s2, self.proj.K, self.proj.bf, cfg)
+        for i, c in enumerate(cams):
+            if not fixed[i]:
+                M.keyframes[c].Tcw = new_poses[i]
+        P.pos[pts] = new_X
+        M.erase_observations(rows[outlier])
+
+    def keyframe_culling(self, kf: KeyFrame) -> list[int]:
+        """ORB-SLAM KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by
+        >= ``keyframe_redundant_obs`` other keyframes at the same or a finer scale is redundant (the first keyframe
+        is never culled). Returns the culled keyframes."""
+        cfg, M = self.cfg, self.map
+        P = M.points
+        culled = []
+        for k in self.covisible(kf.id, 10 ** 6):
+            if k == 0 or k == kf.id:
+                continue
+            K_ = M.keyframes[k]
+            sel = np.flatnonzero((K_.mp >= 0) & (K_.depth > 0) & (K_.depth < self.proj.th_depth_m))
+            sel = sel[P.alive[K_.mp[sel]]]
+            if len(sel) == 0:
+                continue
+            pts = K_.mp[sel]
+            cand = P.nobs[pts] > cfg.keyframe_redundant_obs
+            oct_here = np.full(P.n, -1)
+            oct_here[pts[cand]] = K_.octave[sel[cand]]
+            rows = M.observation_rows(oct_here >= 0)
+            rows = rows[M.obs.kf[rows] != k]
+            ok = M.obs.octave[rows] <= oct_here[M.obs.pt[rows]] + 1
+            cnt = np.bincount(M.obs.pt[rows][ok], minlength=P.n)
+            redundant = int((cnt[pts] >= cfg.keyframe_redundant_obs).sum())
+            if redundant > cfg.keyframe_redundancy * len(sel):
+                M.set_keyframe_bad(k)
+                culled.append(k)
+        return culled
