@@ -253,7 +253,7 @@ class EngineConfig:
     frustum_dmax_factor: float = 1.2
     frustum_view_cos: float = 0.5
     rotation_histogram_bins: int = 30  # ORB-SLAM HISTO_LENGTH: orientation-consistency histogram
-    candidates_per_point: int = 8  # k nearest keypoints of each allowed pyramid level per projected point (k-d trees)
+    search_grid_cell: float = 10.0  # keypoint grid cell (px) of searches by projection (ORB-SLAM: 64 x 48 cells)
     check_orientation: bool = True
     # Initialisation (ORB-SLAM StereoInitialization): keypoints with valid depth needed for the first keyframe.
     init_min_keypoints: int = 500
@@ -285,6 +285,9 @@ class EngineConfig:
     kf_new_points_depth: float = 4.5
     # Local mapping.
     local_ba_iterations: int = 10
+    # Both optimisations: "lm" (compiled Levenberg-Marquardt, d2slam.slam.lm) or "g2o" (the g2opy wheel, same
+    # model; its graph is built edge by edge from Python, several times slower).
+    optimizer: str = "lm"
     # SearchInNeighbors (observation part, no point merging): the new keyframe and its best covisibles (+ their
     # neighbours) exchange points by projection (radius th x scale, chi-square test, Hamming <= desc_th_low).
     fuse_neighbours: int = 0  # 0 = off; 10 = ORB-SLAM. Measured off: see Engine.search_in_neighbors

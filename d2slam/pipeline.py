@@ -3,10 +3,11 @@
     result = run_sequence(open_sequence(path), keypoint_filter=None, mask_provider=None)
     result.trajectory  # tracked frames only (T_world_camera), result.tracked / result.lost, result.fps
 
-Stages timed per frame: ``load`` (waiting for the images; the next frame is read by one prefetch thread while
-the current one is processed), ``segment`` (the mask provider, when there is one), ``extract``
-(ORB + depth), ``filter`` (frame-to-frame matches + the hook), ``track`` (all tracking steps), ``local_ba`` (new
-keyframe + local mapping).
+Stages timed per frame: ``load`` (waiting for the images; the next two frames are read by one prefetch thread
+while the current one is processed), ``segment`` (the mask provider, when there is one), ``extract`` (ORB + depth;
+the next frame's extraction runs in the engine's worker thread while this one is tracked, so it overlaps the
+other stages and the stages add up to more than the wall time), ``filter`` (frame-to-frame matches + the hook),
+``track`` (all tracking steps), ``local_ba`` (new keyframe + local mapping).
 
 ``features``: a :class:`~d2slam.slam.features.FeatureRecorder` keeps every frame's extracted features (to save them),
 a :class:`~d2slam.slam.features.CachedFeatures` gives them instead of extracting: no image is read then, except the
@@ -93,18 +94,30 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     t_start = time.perf_counter()
     bar = tqdm(range(n), desc=desc or f"run {getattr(sequence, 'name', '')}", unit="frame",
                disable=None if progress is None else not progress)
-    # Frame i+1 is read (PNG decoding releases the GIL) while frame i is processed: one reader thread, results
-    # identical to reading in order; ``load`` is the time spent waiting for the frame.
+    # Frames are read one and two ahead by a reader thread (PNG decoding releases the GIL), and the engine extracts
+    # frame i+1 in its worker while it tracks frame i (``Engine.process(upcoming=...)``): results identical to doing
+    # it all in order; ``load`` is the time spent waiting for the images.
     pool = ThreadPoolExecutor(max_workers=1) if prefetch and reader is not None and n > 1 else None
-    pending = pool.submit(reader, 0) if pool else None
+    pending: dict = {}
+
+    def fetch(j: int) -> None:
+        if pool is not None and j < n and j not in pending:
+            pending[j] = pool.submit(reader, j)
+
+    fetch(0)
+    fetch(1)
     for i in bar:
         t0 = time.perf_counter()
         if pool:
-            frame = pending.result()
-            if i + 1 < n:
-                pending = pool.submit(reader, i + 1)
+            frame = pending.pop(i).result()
+            fetch(i + 2)
+            upcoming = None
+            if cached is None and i + 1 < n:
+                nxt = pending[i + 1].result()
+                upcoming = (nxt.gray, nxt.depth, i + 1, nxt.timestamp)
         else:
             frame = reader(i) if reader is not None else None
+            upcoming = None
         t1 = time.perf_counter()
         masks = mask_provider(i) if mask_provider is not None else None
         t2 = time.perf_counter()
@@ -115,7 +128,7 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
             extract_adjust += stored - res.timings["extract"]
             res.timings["extract"] = stored
         else:
-            res = engine.process(frame.gray, frame.depth, i, frame.timestamp, masks=masks)
+            res = engine.process(frame.gray, frame.depth, i, frame.timestamp, masks=masks, upcoming=upcoming)
             if recorder_f is not None:
                 recorder_f.add(engine.last, res.timings["extract"])
         totals["load"] += t1 - t0
@@ -134,6 +147,7 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
             bar.set_postfix(tracked=sum(s == "ok" for s in states), kfs=keyframes)
     if pool:
         pool.shutdown()
+    engine.close()
     total = time.perf_counter() - t_start + extract_adjust
     _, ts, poses = engine.trajectory()
     tracked = int(sum(s == "ok" for s in states))

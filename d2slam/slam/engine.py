@@ -4,7 +4,10 @@ synchronously for determinism. The engine knows nothing of dynamics except the h
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+
+import time
 
 import cv2
 import numpy as np
@@ -56,9 +59,12 @@ class Engine:
         self.proj = Projector(camera, config)
         self.extractor = OrbExtractor(config.orb, config.engine, camera)
         self.hook = FilterHook(keypoint_filter, self.proj, self.cfg) if keypoint_filter is not None else None
+        self._worker: ThreadPoolExecutor | None = None  # extracts the upcoming frame while this one is tracked
+        self._upcoming: tuple[int, Future] | None = None
         self.reset()
 
     def reset(self) -> None:
+        self._drop_upcoming()
         self.map = Map()
         self.tracker = Tracker(self.map, self.proj, self.config)
         self.mapper = LocalMapper(self.map, self.proj, self.config)
@@ -76,22 +82,35 @@ class Engine:
 
     # ================================================================== per frame
     def process(self, gray: np.ndarray | None, depth: np.ndarray | None, index: int, timestamp: float,
-                masks: np.ndarray | None = None, features: Frame | None = None) -> TrackResult:
+                masks: np.ndarray | None = None, features: Frame | None = None, upcoming=None) -> TrackResult:
         """Track one frame. ``features``: the frame's features extracted earlier by an extractor with this engine's
-        settings (``d2slam.slam.features``); then no image is needed, except the depth by a keypoint filter."""
-        if gray is not None and gray.ndim == 3:
-            gray = cv2.cvtColor(gray, cv2.COLOR_RGB2GRAY)
+        settings (``d2slam.slam.features``); then no image is needed, except the depth by a keypoint filter.
+
+        ``upcoming``: the next frame's ``(gray, depth, index, timestamp)``. Its extraction starts in a worker thread
+        as soon as this frame's filter has run (the filter decides its budget, ``feature_budget``) and overlaps this
+        frame's tracking and mapping; the next call takes it if its index matches. The result is the same as
+        extracting in order (the extractor is a function of the images and the budget). The ``extract`` timing is
+        then the extraction's own time in the worker, which overlaps the other stages."""
+        gray = self._gray(gray)
         self._check_input(gray, depth, index, features)
         timer = StageTimer(*STAGES)
         tracker = self.tracker
-        with timer("extract"):
-            frame = features if features is not None else \
-                self.extractor(gray, depth, index, timestamp, self.feature_budget())
+        if features is not None:
+            frame = features
+        elif self._upcoming is not None and self._upcoming[0] == index:
+            frame, timer.seconds["extract"] = self._upcoming[1].result()
+            self._upcoming = None
+        else:
+            self._drop_upcoming()
+            with timer("extract"):
+                frame = self.extractor(gray, depth, index, timestamp, self.feature_budget())
         with timer("filter"):
             if self.hook is not None:
                 prev = self.last
                 self.hook(frame, gray, depth, masks, prev, self.last_gray, self.last_depth, self.map,
                           tracker.velocity, prev is not None and prev is tracker.last_tracked)
+        if upcoming is not None and features is None:
+            self._extract_upcoming(frame, *upcoming)
         with timer("track"):
             ok, how = tracker.track(frame)
             if ok:
@@ -113,6 +132,36 @@ class Engine:
         n_in = int(((frame.mp >= 0) & ~frame.outlier).sum()) if ok else 0
         return TrackResult(index, timestamp, state, how, frame.n, n_in, keyframe, timer.seconds)
 
+    @staticmethod
+    def _gray(image: np.ndarray | None) -> np.ndarray | None:
+        return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image is not None and image.ndim == 3 else image
+
+    def _extract_upcoming(self, frame: Frame, gray, depth, index: int, timestamp: float) -> None:
+        """Start extracting the next frame with the budget this frame's filter output gives."""
+        budget = self.feature_budget(frame)
+        gray = self._gray(gray)
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="d2slam-extract")
+
+        def job():
+            t0 = time.perf_counter()
+            out = self.extractor(gray, depth, index, timestamp, budget)
+            return out, time.perf_counter() - t0
+
+        self._upcoming = (int(index), self._worker.submit(job))
+
+    def _drop_upcoming(self) -> None:
+        if self._upcoming is not None:
+            self._upcoming[1].result()  # never two extractions at once (the extractor's ORB objects are shared)
+            self._upcoming = None
+
+    def close(self) -> None:
+        """Stop the extraction worker (an engine that is garbage-collected stops it too)."""
+        self._drop_upcoming()
+        if self._worker is not None:
+            self._worker.shutdown()
+            self._worker = None
+
     def _check_input(self, gray, depth, index: int, features) -> None:
         if features is None and (gray is None or depth is None):
             raise D2SlamError(f"frame {index}: the images are needed (no precomputed features)")
@@ -130,13 +179,13 @@ class Engine:
         """Whether each frame's extraction budget depends on the filter's output (``refills`` of this engine)."""
         return refills(self.config, self.filter)
 
-    def feature_budget(self) -> int:
+    def feature_budget(self, last: Frame | None = None) -> int:
         """Keypoints to extract from the next frame: ``n_features``, plus (``refills``) as many as the hook flagged in
         the last frame, at most ``refill_max`` x ``n_features``. The flagged keypoints take no part in tracking or
         mapping, so the frame keeps about ``n_features`` usable ones, like a run without people (the static twin),
         or DynaSLAM, which extracts outside its masks (measured: ``docs/deviations.md``)."""
         n = self.orb.n_features
-        last = self.last
+        last = self.last if last is None else last
         if not self.refills or last is None or last.belief is None:
             return n
         return int(min(n + int(last.dynamic.sum()), self.cfg.refill_max * n))

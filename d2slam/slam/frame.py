@@ -11,7 +11,6 @@ the level's ORB-SLAM quota ``n_l ∝ scale^-l`` is filled. Only the kept corners
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import cv2
 import numpy as np
@@ -39,6 +38,7 @@ class Frame:
     belief: np.ndarray | None = None  # (N,) dynamic belief from the hook (None: no filter)
     Tcw: np.ndarray | None = None
     ref_kf: int = -1
+    grids: dict = field(default_factory=dict, repr=False)  # cell size -> KeypointGrid (see grid)
 
     def __post_init__(self):
         n = len(self.kps)
@@ -51,12 +51,13 @@ class Frame:
     def n(self) -> int:
         return len(self.kps)
 
-    @cached_property
-    def kp_index(self):
-        """Spatial index of the keypoints for searches by projection (built on first use)."""
-        from d2slam.slam.matching import KeypointIndex
+    def grid(self, cell: float):
+        """The keypoints bucketed in ``cell``-pixel cells for searches by projection (built once per cell size)."""
+        from d2slam.slam.matching import KeypointGrid
 
-        return KeypointIndex(self.kps, self.octave)
+        if cell not in self.grids:
+            self.grids[cell] = KeypointGrid(self.kps, self.octave, self.ur, self.desc, cell)
+        return self.grids[cell]
 
     @property
     def dynamic(self) -> np.ndarray:

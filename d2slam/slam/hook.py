@@ -142,8 +142,8 @@ class FilterHook:
         radius = cfg.filter_match_radius * proj.scales[octv]
         ur_proj = np.where(has[sel], u[sel] - proj.bf / zs[sel], np.nan)  # NaN: no depth, no u_R check
         available = (frame.mp < 0) & ~frame.dynamic
-        best, d1, d2, l1, l2 = search_by_projection(frame, uv, ur_proj, radius, octv - 1, octv + 1, prev.desc[sel],
-                                                    available, cfg.candidates_per_point)
+        best, d1, d2, l1, l2 = search_by_projection(frame.grid(cfg.search_grid_cell), uv, ur_proj, radius, octv - 1,
+                                                    octv + 1, prev.desc[sel], available)
         ok = (best >= 0) & (d1 <= cfg.desc_th_high) & ~((l1 == l2) & (d1 > cfg.filter_match_nn_ratio * d2))
         cur, pv, dist = best[ok], sel[ok], d1[ok]
         keep = unique_by_target(pv, cur, dist.astype(np.float64))

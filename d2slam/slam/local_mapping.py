@@ -7,8 +7,8 @@ import numpy as np
 
 from d2slam.config import Config
 from d2slam.slam.map import KeyFrame, Map
-from d2slam.slam.matching import search_candidates, unique_by_target
-from d2slam.slam.optimizer import local_bundle_adjustment, stereo_chi2
+from d2slam.slam.matching import CHECK_CHI2, search_by_projection, unique_by_target
+from d2slam.slam.optimizer import local_bundle_adjustment
 from d2slam.slam.projection import Projector
 
 
@@ -80,21 +80,11 @@ class LocalMapper:
         pids, u, v, z, level, _ = proj.in_frustum(P, kf.Tcw, pids)
         if len(pids) == 0:
             return 0
-        radius = th * proj.scales[level]
-        uv = np.c_[u, v]
-        k = cfg.candidates_per_point
-        index = kf.kp_index
-        cand, _ = index.candidates(uv, radius, k, level - 1, level)
-        safe = np.minimum(cand, len(kf.kps) - 1)
-        ex = u[:, None] - kf.kps[safe, 0]
-        ey = v[:, None] - kf.kps[safe, 1]
-        stereo = kf.ur[safe] >= 0
-        er = (u - proj.bf / z)[:, None] - kf.ur[safe]
-        e2 = stereo_chi2(ex, ey, er, stereo, kf.inv_sigma2[safe], cfg.disparity_sigma_px)
-        chi_ok = e2 <= np.where(stereo, cfg.chi2_stereo, cfg.chi2_mono)
         usable = np.ones(len(kf.kps), dtype=bool) if kf.dynamic is None else ~kf.dynamic
-        best, d1, _, _, _ = search_candidates(index, uv, radius, P.desc[pids], kf.desc, kf.octave, level - 1, level,
-                                              usable, k, extra_ok=chi_ok, cand=cand)
+        best, d1, _, _, _ = search_by_projection(kf.grid(cfg.search_grid_cell), np.c_[u, v], u - proj.bf / z,
+                                                 th * proj.scales[level], level - 1, level, P.desc[pids], usable,
+                                                 CHECK_CHI2, kf.inv_sigma2, cfg.disparity_sigma_px, cfg.chi2_mono,
+                                                 cfg.chi2_stereo)
         sel = (best >= 0) & (d1 <= cfg.desc_th_low)
         kp, pid, d = best[sel], pids[sel], d1[sel].astype(np.float64)
         keep = unique_by_target(pid, kp, d)

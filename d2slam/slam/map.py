@@ -4,8 +4,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from functools import cached_property
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -57,13 +56,15 @@ class KeyFrame:
     mp: np.ndarray  # (N,) map point ids, -1 none
     bad: bool = False
     dynamic: np.ndarray | None = None  # (N,) bool: the hook's verdict when the keyframe was made (None: no filter)
+    grids: dict = field(default_factory=dict, repr=False)  # cell size -> KeypointGrid (see grid)
 
-    @cached_property
-    def kp_index(self):
-        """Spatial index of the keypoints for searches by projection (built on first use)."""
-        from d2slam.slam.matching import KeypointIndex
+    def grid(self, cell: float):
+        """The keypoints bucketed in ``cell``-pixel cells for searches by projection (built once per cell size)."""
+        from d2slam.slam.matching import KeypointGrid
 
-        return KeypointIndex(self.kps, self.octave)
+        if cell not in self.grids:
+            self.grids[cell] = KeypointGrid(self.kps, self.octave, self.ur, self.desc, cell)
+        return self.grids[cell]
 
     @property
     def center(self) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""Descriptor matching, vectorised: Hamming distance by XOR + popcount on uint8 descriptors, search by projection
-with a k-d tree of keypoints (fixed-size candidate sets, no Python loop over points), ORB-SLAM's ratio test and
+"""Descriptor matching: Hamming distance by XOR + popcount, search by projection over a grid of keypoints (a
+compiled kernel: one pass over the candidates of every projected point), ORB-SLAM's ratio test and
 rotation-consistency histogram, and OpenCV brute-force matching for reference-keyframe tracking, relocalisation and
 the filter's frame-to-frame matches."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
+from numba import njit
 
 
 def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -35,113 +35,116 @@ def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray, bins: int) -> 
     return np.isin(idx, keep_bins)
 
 
-class KeypointIndex:
-    """k-d trees over a frame's keypoints, one per pyramid level, queried with per-query radii and level windows
-    (ORB-SLAM's ``GetFeaturesInArea(u, v, r, minLevel, maxLevel)``, vectorised per level: the k nearest keypoints
-    *of each allowed level*, so crowded other levels never push the right candidate out of the set)."""
+class KeypointGrid:
+    """A frame's keypoints bucketed in square cells of ``cell`` pixels (ORB-SLAM's ``mGrid``), for
+    ``GetFeaturesInArea``-style searches: cell ``(row, col)`` holds ``order[start[row * cols + col]:start[... + 1]]``.
+    Descriptors are kept as (N, 4) uint64 words for the compiled Hamming distance."""
 
-    def __init__(self, kps: np.ndarray, octave: np.ndarray | None = None):
-        self.n = len(kps)
-        self.tree = cKDTree(kps) if self.n else None
-        self.levels: list[tuple[int, np.ndarray, cKDTree]] = []
-        if self.n and octave is not None:
-            for lv in np.unique(octave):
-                members = np.flatnonzero(octave == lv)
-                self.levels.append((int(lv), members, cKDTree(kps[members])))
-
-    def candidates(self, uv: np.ndarray, radius: np.ndarray, k: int, lo: np.ndarray | None = None,
-                   hi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(Q, K) candidate indices (``n`` = none) and their distances for queries ``uv`` within ``radius``; with
-        level windows ``lo``/``hi`` (and per-level trees) the k nearest of every level in the window."""
-        q = len(uv)
-        if self.n == 0 or q == 0:
-            return np.full((q, k), self.n, dtype=np.int64), np.full((q, k), np.inf)
-        rmax = float(np.max(radius))
-        if lo is None or not self.levels:
-            kk = min(k, self.n)
-            dist, idx = self.tree.query(uv, k=kk, distance_upper_bound=rmax)
-            if kk == 1:
-                dist, idx = dist[:, None], idx[:, None]
-            bad = dist > radius[:, None]
-            return np.where(bad, self.n, idx), dist
-        blocks_i, blocks_d = [], []
-        for lv, members, tree in self.levels:
-            sel = np.flatnonzero((lo <= lv) & (hi >= lv))
-            if len(sel) == 0:
-                continue
-            kk = min(k, len(members))
-            dist, idx = tree.query(uv[sel], k=kk, distance_upper_bound=rmax)
-            if kk == 1:
-                dist, idx = dist[:, None], idx[:, None]
-            ok = dist <= radius[sel, None]
-            gi = np.full((q, kk), self.n, dtype=np.int64)
-            gd = np.full((q, kk), np.inf)
-            gi[sel] = np.where(ok, members[np.minimum(idx, len(members) - 1)], self.n)
-            gd[sel] = np.where(ok, dist, np.inf)
-            blocks_i.append(gi)
-            blocks_d.append(gd)
-        if not blocks_i:
-            return np.full((q, 1), self.n, dtype=np.int64), np.full((q, 1), np.inf)
-        idx, dist = np.concatenate(blocks_i, axis=1), np.concatenate(blocks_d, axis=1)
-        keep = (idx < self.n).any(axis=0)  # drop all-empty columns
-        if not keep.any():
-            keep[0] = True
-        return idx[:, keep], dist[:, keep]
+    def __init__(self, kps: np.ndarray, octave: np.ndarray, ur: np.ndarray, desc: np.ndarray, cell: float):
+        self.cell = float(cell)
+        n = len(kps)
+        self.kps = np.ascontiguousarray(kps, dtype=np.float64).reshape(n, 2)
+        self.octave = np.ascontiguousarray(octave, dtype=np.int64)
+        self.ur = np.ascontiguousarray(ur, dtype=np.float64)
+        self.desc = np.ascontiguousarray(desc, dtype=np.uint8).reshape(n, 32).view(np.uint64)
+        cx = np.floor(self.kps[:, 0] / self.cell).astype(np.int64) if n else np.zeros(0, np.int64)
+        cy = np.floor(self.kps[:, 1] / self.cell).astype(np.int64) if n else np.zeros(0, np.int64)
+        self.col0, self.row0 = (int(cx.min()), int(cy.min())) if n else (0, 0)
+        self.cols = int(cx.max()) - self.col0 + 1 if n else 1
+        self.rows = int(cy.max()) - self.row0 + 1 if n else 1
+        cid = (cy - self.row0) * self.cols + (cx - self.col0)
+        self.order = np.argsort(cid, kind="stable").astype(np.int64)
+        self.start = np.searchsorted(cid[self.order], np.arange(self.rows * self.cols + 1)).astype(np.int64)
 
 
-def search_candidates(index: KeypointIndex, uv: np.ndarray, radius: np.ndarray, q_desc: np.ndarray,
-                      kp_desc: np.ndarray, kp_octave: np.ndarray, min_level: np.ndarray, max_level: np.ndarray,
-                      available: np.ndarray, k: int, extra_ok: np.ndarray | None = None,
-                      cand: np.ndarray | None = None):
-    """Best and second-best candidate per query: returns (best_idx (-1 none), best_dist, second_dist,
-    best_level, second_level). ``available`` (N,) bool masks keypoints that may be matched; ``extra_ok`` (Q, k)
-    optional additional per-candidate test (e.g. the virtual-right coordinate check); ``cand`` precomputed
-    ``index.candidates(uv, radius, k)[0]``."""
-    q = len(uv)
-    idx = index.candidates(uv, radius, k)[0] if cand is None else cand
-    n = index.n
-    valid = idx < n
-    safe = np.where(valid, idx, 0)
-    if n:
-        lvl = kp_octave[safe]
-        valid &= available[safe] & (lvl >= min_level[:, None]) & (lvl <= max_level[:, None])
-    if extra_ok is not None:
-        valid &= extra_ok
-    if q == 0 or n == 0:
-        empty = np.full(q, -1, dtype=np.int64)
-        return empty, np.full(q, 1 << 20), np.full(q, 1 << 20), empty, empty
-    d = hamming(kp_desc[safe], q_desc[:, None, :])
-    d = np.where(valid, d, 1 << 20)
-    order = np.argsort(d, axis=1, kind="stable")
-    rows = np.arange(q)
-    b1 = order[:, 0]
-    best_dist = d[rows, b1]
-    best_idx = np.where(best_dist < (1 << 20), idx[rows, b1], -1)
-    if d.shape[1] > 1:
-        b2 = order[:, 1]
-        second_dist = d[rows, b2]
-        second_level = np.where(second_dist < (1 << 20), kp_octave[safe[rows, b2]], -1)
-    else:
-        second_dist = np.full(q, 1 << 20)
-        second_level = np.full(q, -1)
-    best_level = np.where(best_idx >= 0, kp_octave[np.maximum(best_idx, 0)], -1)
+CHECK_DISPARITY, CHECK_CHI2 = 0, 1
+
+
+@njit(cache=True, nogil=True)
+def _popcount64(x):
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return (x * np.uint64(0x0101010101010101)) >> np.uint64(56)
+
+
+@njit(cache=True, nogil=True)
+def _search_grid(cell, col0, row0, cols, rows, order, start, kps, octave, ur, desc, inv_sigma2, available,
+                 uv, radius, lo, hi, ur_proj, qdesc, check, disparity_sigma, chi2_mono, chi2_stereo):
+    q = uv.shape[0]
+    best_idx = np.full(q, -1, np.int64)
+    best_dist = np.full(q, 1 << 20, np.int64)
+    second_dist = np.full(q, 1 << 20, np.int64)
+    best_level = np.full(q, -1, np.int64)
+    second_level = np.full(q, -1, np.int64)
+    for i in range(q):
+        u, v, r = uv[i, 0], uv[i, 1], radius[i]
+        c_lo = max(int(np.floor((u - r) / cell)) - col0, 0)
+        c_hi = min(int(np.floor((u + r) / cell)) - col0, cols - 1)
+        r_lo = max(int(np.floor((v - r) / cell)) - row0, 0)
+        r_hi = min(int(np.floor((v + r) / cell)) - row0, rows - 1)
+        b1, d1, d2, l1, l2 = -1, 1 << 20, 1 << 20, -1, -1
+        for row in range(r_lo, r_hi + 1):
+            for col in range(c_lo, c_hi + 1):
+                c = row * cols + col
+                for j in range(start[c], start[c + 1]):
+                    k = order[j]
+                    lv = octave[k]
+                    if lv < lo[i] or lv > hi[i] or not available[k]:
+                        continue
+                    dx = u - kps[k, 0]
+                    dy = v - kps[k, 1]
+                    if dx * dx + dy * dy > r * r:
+                        continue
+                    if check == 0:  # the projected u_R agrees with the keypoint's (where both exist)
+                        if not np.isnan(ur_proj[i]) and ur[k] >= 0 and abs(ur_proj[i] - ur[k]) >= r:
+                            continue
+                    else:  # reprojection chi-square test (stereo where the keypoint has u_R)
+                        e2 = (dx * dx + dy * dy) * inv_sigma2[k]
+                        if ur[k] >= 0:
+                            dur = ur_proj[i] - ur[k]
+                            if disparity_sigma > 0:
+                                e2 += (dx - dur) ** 2 / disparity_sigma ** 2
+                            else:
+                                e2 += dur * dur * inv_sigma2[k]
+                            if e2 > chi2_stereo:
+                                continue
+                        elif e2 > chi2_mono:
+                            continue
+                    d = 0
+                    for w in range(4):
+                        d += _popcount64(desc[k, w] ^ qdesc[i, w])
+                    if d < d1:
+                        d2, l2 = d1, l1
+                        b1, d1, l1 = k, d, lv
+                    elif d < d2:
+                        d2, l2 = d, lv
+        best_idx[i], best_dist[i], second_dist[i], best_level[i], second_level[i] = b1, d1, d2, l1, l2
     return best_idx, best_dist, second_dist, best_level, second_level
 
 
-def search_by_projection(target, uv: np.ndarray, ur_proj: np.ndarray, radius: np.ndarray, lo: np.ndarray,
-                         hi: np.ndarray, desc: np.ndarray, available: np.ndarray, k: int):
-    """ORB-SLAM ``SearchByProjection``'s candidate search, shared by every projection search: best and second-best
-    keypoint of ``target`` (a frame: ``kps``, ``octave``, ``desc``, ``ur``, ``kp_index``) for each projected point
-    ``uv`` with descriptor ``desc``: candidates within ``radius`` on levels [lo, hi], ``available``, and consistent
-    in ``u_R`` (no check where the projected ``ur_proj`` is NaN: a point without depth). Returns what
-    :func:`search_candidates` returns."""
-    index = target.kp_index
-    cand, _ = index.candidates(uv, radius, k, lo, hi)
-    safe = np.minimum(cand, max(len(target.kps) - 1, 0))
-    stereo_ok = np.isnan(ur_proj)[:, None] | (target.ur[safe] < 0) | \
-        (np.abs(ur_proj[:, None] - target.ur[safe]) < radius[:, None])
-    return search_candidates(index, uv, radius, desc, target.desc, target.octave, lo, hi, available, k,
-                             extra_ok=stereo_ok, cand=cand)
+def search_by_projection(grid: KeypointGrid, uv: np.ndarray, ur_proj: np.ndarray, radius: np.ndarray,
+                         lo: np.ndarray, hi: np.ndarray, desc: np.ndarray, available: np.ndarray,
+                         check: int = CHECK_DISPARITY, inv_sigma2: np.ndarray | None = None,
+                         disparity_sigma: float = 0.0, chi2_mono: float = 0.0, chi2_stereo: float = 0.0):
+    """ORB-SLAM ``SearchByProjection``'s search, shared by every projection search: for each projected point ``uv``
+    (descriptor ``desc``) the best and second-best ``available`` keypoint of ``grid`` within ``radius`` pixels on
+    the levels [lo, hi] by Hamming distance (ties: the keypoint met first, cells row by row). Each candidate must
+    also pass ``check``: ``CHECK_DISPARITY`` the projected ``u_R`` within ``radius`` of the keypoint's (skipped
+    where ``ur_proj`` is NaN or the keypoint has no ``u_R``), or ``CHECK_CHI2`` the reprojection chi-square test
+    of ``optimizer.stereo_chi2`` with the keypoints' ``inv_sigma2``. Returns (best index (-1 none), best distance,
+    second distance, best level, second level); distances without a candidate are 2^20."""
+    q = len(uv)
+    f64 = np.float64
+    if inv_sigma2 is None:
+        inv_sigma2 = np.ones(len(grid.kps))
+    qdesc = np.ascontiguousarray(desc, dtype=np.uint8).reshape(q, 32).view(np.uint64)
+    return _search_grid(grid.cell, grid.col0, grid.row0, grid.cols, grid.rows, grid.order, grid.start, grid.kps,
+                        grid.octave, grid.ur, grid.desc, np.ascontiguousarray(inv_sigma2, dtype=f64),
+                        np.ascontiguousarray(available, dtype=np.bool_), np.ascontiguousarray(uv, dtype=f64).reshape(q, 2),
+                        np.ascontiguousarray(radius, dtype=f64), np.ascontiguousarray(lo, dtype=np.int64),
+                        np.ascontiguousarray(hi, dtype=np.int64), np.ascontiguousarray(ur_proj, dtype=f64), qdesc,
+                        int(check), float(disparity_sigma), float(chi2_mono), float(chi2_stereo))
 
 
 def unique_by_target(query: np.ndarray, target: np.ndarray, dist: np.ndarray) -> np.ndarray:

@@ -1,8 +1,9 @@
-"""Graph optimisation with g2o (the ``g2opy`` wheel): ORB-SLAM's motion-only BA and local BA, with ORB-SLAM's own
+"""ORB-SLAM's motion-only BA and local BA with its edge model (mono ``(u, v)`` and RGB-D stereo ``(u, v, u_R)``
+observations, Huber kernels at sqrt(chi2 95 %), Levenberg-Marquardt), by default with the compiled kernels of
+:mod:`d2slam.slam.lm`, or (``EngineConfig.optimizer = "g2o"``) with g2o (the ``g2opy`` wheel) and ORB-SLAM's own
 edge types (``EdgeSE3ProjectXYZOnlyPose`` mono, ``EdgeStereoSE3ProjectXYZ`` stereo (the binding of the pose-only
-stereo edge does not expose its intrinsics, so a fixed point vertex stands in for ``Xw``), ``EdgeSE3ProjectXYZ``),
-Huber kernels at sqrt(chi2 95 %), Levenberg-Marquardt from g2o. Why g2o and not gtsam: see
-``d2slam bench engine --compare-optimisers`` (same local-BA problem, both libraries).
+stereo edge does not expose its intrinsics, so a fixed point vertex stands in for ``Xw``), ``EdgeSE3ProjectXYZ``).
+``d2slam bench engine --compare-optimisers`` runs the same local-BA problem through both and gtsam.
 
 Residual checks between outlier rounds are computed in numpy on all edges at once (no per-edge Python calls).
 """
@@ -13,6 +14,7 @@ import g2opy as g2o
 import numpy as np
 
 from d2slam.config import EngineConfig
+from d2slam.slam import lm
 
 
 def _se3(Tcw: np.ndarray) -> "g2o.SE3Quat":
@@ -94,8 +96,8 @@ def stereo_chi2(du, dv, dur, stereo, inv_sigma2, disparity_sigma: float = 0.0):
     return e2 + np.where(stereo, extra, 0.0)
 
 
-def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
-                      K: np.ndarray, bf: float, cfg: EngineConfig) -> tuple[np.ndarray, np.ndarray]:
+def _pose_optimization_g2o(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
+                           K: np.ndarray, bf: float, cfg: EngineConfig) -> tuple[np.ndarray, np.ndarray]:
     """Motion-only BA (ORB-SLAM ``PoseOptimization``): returns the optimised ``Tcw`` and the inlier mask.
 
     ``pose_opt_rounds`` rounds of ``pose_opt_iterations`` LM iterations; after each round every edge is classified
@@ -170,9 +172,9 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     return T, inlier
 
 
-def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray, obs_cam: np.ndarray,
-                            obs_pt: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
-                            K: np.ndarray, bf: float, cfg: EngineConfig, iterations: int | None = None):
+def _local_bundle_adjustment_g2o(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray, obs_cam: np.ndarray,
+                                 obs_pt: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
+                                 K: np.ndarray, bf: float, cfg: EngineConfig, iterations: int | None = None):
     """Local BA (ORB-SLAM3 ``LocalBundleAdjustment``): keyframe poses ``poses`` (C, 4, 4) ``Tcw`` (``fixed`` (C,)
     bool held constant) and points ``X`` (P, 3) refined together over observations (obs_cam, obs_pt, uv, ur,
     inv_sigma2), Huber kernels, Schur complement on the points. Returns (poses, X, outlier (O,) bool): outliers
@@ -214,16 +216,104 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
         e.fx, e.fy, e.cx, e.cy = fx, fy, cx, cy
         opt.add_edge(e)
     opt.initialize_optimization(0)
-    opt.optimize(cfg.local_ba_iterations if iterations is None else iterations)
+    opt.optimize(iterations)
     new_poses = np.stack([_mat(v.estimate()) for v in vposes]) if C else poses.copy()
     new_X = np.stack([np.asarray(v.estimate(), dtype=np.float64) for v in vpts]) if P else X.copy()
+    return new_poses, new_X
+
+
+def _ba_outliers(poses, X, obs_cam, obs_pt, uv, ur, inv_sigma2, K, bf, cfg: EngineConfig) -> np.ndarray:
+    """Observations above the chi2 thresholds or behind their camera (ORB-SLAM erases them after local BA)."""
     outlier = np.zeros(len(obs_cam), dtype=bool)
-    for c in range(C):
+    stereo = ur >= 0
+    for c in range(len(poses)):
         sel = obs_cam == c
         if not sel.any():
             continue
-        chi2, front = reprojection_chi2(new_poses[c], new_X[obs_pt[sel]], uv[sel], ur[sel], inv_sigma2[sel], K, bf,
+        chi2, front = reprojection_chi2(poses[c], X[obs_pt[sel]], uv[sel], ur[sel], inv_sigma2[sel], K, bf,
                                         cfg.disparity_sigma_px)
         th = np.where(stereo[sel], cfg.chi2_stereo, cfg.chi2_mono)
         outlier[sel] = (chi2 > th) | ~front
-    return new_poses, new_X, outlier
+    return outlier
+
+
+def edge_information(inv_sigma2: np.ndarray, stereo: np.ndarray, disparity_sigma: float) -> np.ndarray:
+    """(M, 3, 3) information per observation: ``I2 inv_sigma2`` in the top-left block of a mono edge,
+    ``stereo_information`` for a stereo one."""
+    m = len(inv_sigma2)
+    info = np.zeros((m, 3, 3))
+    idx = np.arange(3)
+    info[:, idx, idx] = inv_sigma2[:, None]
+    info[~stereo, 2, 2] = 0.0
+    if disparity_sigma > 0:
+        w = 1.0 / disparity_sigma ** 2
+        info[stereo, 0, 0] += w
+        info[stereo, 0, 2] = info[stereo, 2, 0] = -w
+        info[stereo, 2, 2] = w
+    return info
+
+
+def _edges(uv, ur, inv_sigma2, cfg: EngineConfig, disparity_sigma: float):
+    stereo = ur >= 0
+    meas = np.ascontiguousarray(np.column_stack([uv, ur]), dtype=np.float64)
+    delta = np.where(stereo, np.sqrt(cfg.chi2_stereo), np.sqrt(cfg.chi2_mono))
+    return meas, stereo, edge_information(np.asarray(inv_sigma2, np.float64), stereo, disparity_sigma), delta
+
+
+def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
+                      K: np.ndarray, bf: float, cfg: EngineConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Motion-only BA (ORB-SLAM ``PoseOptimization``): returns the optimised ``Tcw`` and the inlier mask.
+
+    ``pose_opt_rounds`` rounds of ``pose_opt_iterations`` LM iterations; after each round every edge is classified
+    (chi2 against 5.991 mono / 7.815 stereo), outliers are left out of the next round and may come back; the robust
+    kernel is dropped after the third round, as in ORB-SLAM. Each round stops early when the relative chi2
+    decrease falls below ``pose_opt_gain_threshold``. The first ``pose_opt_coarse_rounds`` rounds use ORB-SLAM's
+    isotropic information (a wide basin from a coarse initial pose). Each round continues from the last estimate
+    (ORB-SLAM restarts from the initial pose: same fixed point, fewer iterations). ``EngineConfig.optimizer``:
+    the compiled kernels of ``d2slam.slam.lm`` or g2o."""
+    if cfg.optimizer == "g2o":
+        return _pose_optimization_g2o(Tcw, X, uv, ur, inv_sigma2, K, bf, cfg)
+    m = len(X)
+    if m < 3:
+        return Tcw.copy(), np.zeros(m, dtype=bool)
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    coarse = cfg.disparity_sigma_px > 0 and cfg.pose_opt_coarse_rounds > 0
+    meas, stereo, info_fine, delta = _edges(uv, ur, inv_sigma2, cfg, cfg.disparity_sigma_px)
+    info_coarse = edge_information(np.asarray(inv_sigma2, np.float64), stereo, 0.0) if coarse else info_fine
+    th = np.where(stereo, cfg.chi2_stereo, cfg.chi2_mono)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    inlier = np.ones(m, dtype=bool)
+    T = np.ascontiguousarray(Tcw, dtype=np.float64)
+    robust = True
+    for it in range(cfg.pose_opt_rounds):
+        rough = coarse and it < cfg.pose_opt_coarse_rounds
+        T = lm.pose_lm(T, X, meas, stereo, info_coarse if rough else info_fine, inlier, delta, fx, fy, cx, cy,
+                       float(bf), robust, cfg.pose_opt_iterations, cfg.pose_opt_gain_threshold)
+        chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf, 0.0 if rough else cfg.disparity_sigma_px)
+        inlier = (chi2 <= th) & front
+        if it == 2:
+            robust = False
+        if inlier.sum() < 10:
+            break
+    return T, inlier
+
+
+def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray, obs_cam: np.ndarray,
+                            obs_pt: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
+                            K: np.ndarray, bf: float, cfg: EngineConfig, iterations: int | None = None):
+    """Local BA (ORB-SLAM3 ``LocalBundleAdjustment``): keyframe poses ``poses`` (C, 4, 4) ``Tcw`` (``fixed`` (C,)
+    bool held constant) and points ``X`` (P, 3) refined together over observations (obs_cam, obs_pt, uv, ur,
+    inv_sigma2), Huber kernels, Schur complement on the points. Returns (poses, X, outlier (O,) bool): outliers
+    are observations above the chi2 thresholds or behind the camera after optimisation (ORB-SLAM erases them).
+    ``EngineConfig.optimizer``: the compiled kernels of ``d2slam.slam.lm`` or g2o."""
+    n_it = cfg.local_ba_iterations if iterations is None else iterations
+    if cfg.optimizer == "g2o":
+        new_poses, new_X = _local_bundle_adjustment_g2o(poses, fixed, X, obs_cam, obs_pt, uv, ur, inv_sigma2, K, bf,
+                                                        cfg, n_it)
+    else:
+        meas, stereo, info, delta = _edges(uv, ur, inv_sigma2, cfg, cfg.disparity_sigma_px)
+        new_poses, new_X = lm.local_ba_lm(np.ascontiguousarray(poses, dtype=np.float64), np.asarray(fixed, bool),
+                                          np.ascontiguousarray(X, dtype=np.float64),
+                                          np.asarray(obs_cam, np.int64), np.asarray(obs_pt, np.int64), meas, stereo,
+                                          info, delta, K[0, 0], K[1, 1], K[0, 2], K[1, 2], float(bf), n_it)
+    return new_poses, new_X, _ba_outliers(new_poses, new_X, obs_cam, obs_pt, uv, ur, inv_sigma2, K, bf, cfg)

@@ -146,7 +146,8 @@ class Tracker:
     def search_projected(self, frame: Frame, uv, ur_proj, radius, lo, hi, desc):
         """Best and second-best free, static keypoint of ``frame`` per projected point (``search_by_projection``)."""
         available = (frame.mp < 0) & ~frame.dynamic  # dynamic keypoints take no match (as if never extracted)
-        return search_by_projection(frame, uv, ur_proj, radius, lo, hi, desc, available, self.cfg.candidates_per_point)
+        return search_by_projection(frame.grid(self.cfg.search_grid_cell), uv, ur_proj, radius, lo, hi, desc,
+                                    available)
 
     def search_last_frame(self, frame: Frame, last: Frame, th: float) -> int:
         """ORB-SLAM ``SearchByProjection(CurrentFrame, LastFrame)``: the last frame's points projected with the
