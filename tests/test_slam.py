@@ -189,6 +189,39 @@ def test_local_ba_reduces_error_and_keeps_fixed_poses(sigma_d):
     assert outl.mean() < 0.05
 
 
+@pytest.mark.parametrize("sigma_d", [0.0, 0.057])
+def test_compiled_lm_matches_g2o(sigma_d):
+    """The compiled Levenberg-Marquardt (``optimizer = "lm"``) and g2o solve the same problems to the same poses,
+    points and outliers: motion-only BA with gross outliers (its rounds, Huber, coarse information) and a local BA
+    with fixed keyframes."""
+    from d2slam.bench.engine import local_ba_problem
+
+    rng = np.random.default_rng(5)
+    X, T, uv, ur = _points_problem(rng)
+    uv[:30] += rng.choice([-1, 1], (30, 2)) * rng.uniform(20, 60, (30, 2))
+    s2 = rng.choice([1.0, 1 / 1.44, 1 / 2.07], len(X))
+    T0 = T.copy()
+    T0[:3, 3] += [0.03, -0.02, 0.05]
+    out = {}
+    p = local_ba_problem(seed=1, n_cams=6, n_points=300)
+    for name in ("lm", "g2o"):
+        cfg = dataclasses.replace(EngineConfig(), optimizer=name, disparity_sigma_px=sigma_d)
+        pose = pose_optimization(T0, X, uv, ur, s2, K, BF, cfg)
+        ba = local_bundle_adjustment(p["start"], p["fixed"], p["X0"], p["cams"], p["pts"], p["uv"], p["ur"],
+                                     np.ones(len(p["cams"])), p["K"], p["bf"], cfg)
+        out[name] = pose, ba
+    (T_lm, inl_lm), (P_lm, X_lm, o_lm) = out["lm"]
+    (T_g, inl_g), (P_g, X_g, o_g) = out["g2o"]
+    np.testing.assert_allclose(T_lm, T_g, atol=1e-7)
+    np.testing.assert_array_equal(inl_lm, inl_g)
+    np.testing.assert_allclose(P_lm, P_g, atol=1e-7)
+    np.testing.assert_allclose(X_lm, X_g, atol=1e-6)
+    np.testing.assert_array_equal(o_lm, o_g)
+    assert inl_lm[:30].sum() == 0 and np.abs(P_lm[2:, :3, 3] - p["Tcw"][2:, :3, 3]).max() < 0.02
+    for R in [T_lm[:3, :3]] + [P[:3, :3] for P in P_lm]:  # rotations stay on SO(3), as g2o's unit quaternions
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+
+
 def test_stereo_information_is_position_plus_disparity():
     """r^T I r = (r_u^2 + r_v^2) / s^2 + (r_u - r_uR)^2 / sigma_d^2, positive definite; sigma_d 0 is ORB-SLAM's
     I / s^2; stereo_chi2 computes the same, and ignores r_uR on monocular observations."""

@@ -24,6 +24,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--compare-optimisers", action="store_true",
                         help="only compare g2o and gtsam on one local-BA problem")
     parser.add_argument("--json", metavar="PATH", help="also write the rows as JSON")
+    parser.add_argument("--against", choices=("orbslam3",), help="side by side on one sequence: the real ORB-SLAM3, "
+                        "then our engine (--methods), one after the other; prints ms/frame and the ratios")
+    parser.add_argument("sequence", nargs="?", metavar="SEQ", help="--against: a TUM or synthetic sequence folder "
+                        "(default: the cached synthetic walking_xyz of --seed and --frames, with its static twin)")
+    parser.add_argument("--twin", metavar="SEQ", help="--against: the static twin of SEQ, run with `none` too (the "
+                        "`none` <= 2x its twin target); default: the cached twin when SEQ is the default")
+    parser.add_argument("--methods", nargs="+", default=["none", "d2slam"], help="--against: our methods to run")
+    parser.add_argument("--repeats", type=int, default=3, help="--against: ORB-SLAM3 runs (median [min, max])")
 
 
 # ---------------------------------------------------------------------------------------------- accuracy / speed
@@ -64,6 +72,8 @@ def _fmt(row: dict) -> str:
 def run(args) -> int:
     if args.compare_optimisers:
         return compare_optimisers(args)
+    if args.against:
+        return against_orbslam3(args)
     from d2slam.config import DEFAULT
 
     print(f"d2slam bench engine: seed {args.seed}, {args.frames} frames, --method none, "
@@ -227,3 +237,93 @@ def compare_optimisers(args) -> int:
               f"{1e3 * np.median(pt_err):10.2f}")
     print("(median of 3 runs; g2o 'build' is the graph construction alone, 'optimise' the rest of the call)")
     return 0
+
+
+# ---------------------------------------------------------------------------------------------- against ORB-SLAM3
+def _engine_run(seq, method: str, out) -> dict:
+    """``d2slam run SEQ --method METHOD`` in a child process (as a user runs it); its run JSON."""
+    import subprocess
+    import sys
+
+    traj, js = out / f"{method}.txt", out / f"{method}.json"
+    js.unlink(missing_ok=True)
+    proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
+                           "--metrics-json", str(js), "--quiet"], capture_output=True, text=True)
+    if proc.returncode != 0 or not js.is_file():
+        tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
+        return {"method": method, "status": "failed", "message": tail}
+    return {**json.loads(js.read_text()), "status": "ok"}
+
+
+def engine_ms_per_frame(run: dict) -> float:
+    """Our engine's wall milliseconds per frame without image loading (the run's wall time includes its waits for
+    the reader thread): comparable with ORB-SLAM3's time in ``TrackRGBD``, which gets decoded images too."""
+    return 1000.0 / run["fps"] - run["stage_ms"].get("load", 0.0)
+
+
+def against_orbslam3(args) -> int:
+    """The real ORB-SLAM3 and our engine one after the other on the same sequence (and ``none`` on its twin)."""
+    import tempfile
+    from pathlib import Path
+
+    from d2slam.baselines.orbslam3 import run_orbslam3
+    from d2slam.errors import D2SlamError
+    from d2slam.study.sequences import ensure_sequence
+
+    if args.sequence:
+        seq = Path(args.sequence)
+        if not seq.is_dir():
+            raise D2SlamError(f"no sequence folder {seq}")
+        twin = Path(args.twin) if args.twin else None
+    else:
+        seq = ensure_sequence("walking_xyz", args.seed, args.frames, False)
+        twin = Path(args.twin) if args.twin else ensure_sequence("walking_xyz", args.seed, args.frames, True)
+    if twin is not None and not twin.is_dir():
+        raise D2SlamError(f"no twin sequence folder {twin}")
+    out = Path(tempfile.mkdtemp(prefix="d2slam_bench_engine_"))
+    orb = run_orbslam3(seq, out / "orbslam3.txt", out / "orbslam3.json", repeats=args.repeats, progress=False)
+    rows = [("orbslam3", orb)]
+    for method in args.methods:
+        rows.append((method, _engine_run(seq, method, out)))
+    if twin is not None:
+        (out / "twin").mkdir()
+        rows.append(("none (twin)", _engine_run(twin, "none", out / "twin")))
+    ref = orb.get("ms_per_frame") if orb.get("frames") else None
+    print(f"d2slam bench engine --against orbslam3: {seq}" + (f"\n  static twin: {twin}" if twin else ""))
+    print(f"ORB-SLAM3: {args.repeats} run(s), ms/frame = mean time in TrackRGBD (median over runs; its local mapping "
+          "runs in a second thread); ours: wall ms/frame without image loading (extraction of the next frame "
+          "overlaps tracking)")
+    print(f"{'run':14} {'status':8} {'tracked':>9} {'KFs':>5} {'points':>7} {'ATE m':>8} {'ms/frame':>9} {'ratio':>6}  "
+          "stages (ms/frame)")
+    none_ms = twin_ms = None
+    for name, r in rows:
+        metrics = r.get("metrics") or {}
+        ate = metrics.get("ate_rmse_m")
+        if name == "orbslam3":
+            ms = r.get("ms_per_frame")
+            stages = ""
+        elif r.get("status") == "ok":
+            ms = engine_ms_per_frame(r)
+            stages = " ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items() if k != "load")
+        else:
+            ms, stages = None, r.get("message", "")
+        if name == "none":
+            none_ms = ms
+        if name == "none (twin)":
+            twin_ms = ms
+        ratio = f"{ms / ref:6.2f}" if ms and ref else "     -"
+        tracked = f"{r.get('tracked', 0)}/{r.get('frames', r.get('frames_expected', 0))}"
+        ate_s = f"{ate:8.4f}" if isinstance(ate, (int, float)) else "       -"
+        ms_s = f"{ms:9.1f}" if ms else "        -"
+        print(f"{name:14} {str(r.get('status')):8} {tracked:>9} {str(r.get('keyframes', '-')):>5} "
+              f"{str(r.get('map_points', '-')):>7} {ate_s} {ms_s} {ratio}  {stages}")
+    if none_ms and twin_ms:
+        print(f"none on the sequence / none on its static twin: {none_ms / twin_ms:.2f}x")
+    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}; runs and trajectories in {out}")
+    return 0
+
+
+def _loadavg() -> tuple:
+    import os
+
+    return os.getloadavg()

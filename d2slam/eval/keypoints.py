@@ -11,6 +11,7 @@ Undefined ratios (no predicted or no true dynamic keypoint at all) are NaN, neve
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -159,11 +160,23 @@ class KeypointRecorder:
         self.keypoints = 0
         self.dynamic_keypoints = 0
         self.frames_with_diagnostics = 0
+        self._reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="d2slam-truth")
+        self._next: tuple[int, Future] | None = None
+
+    def _truth_mask(self, index: int) -> np.ndarray:
+        """The frame's dynamic mask; the next frame's is read meanwhile in a thread (frames come in order)."""
+        if self._next is not None and self._next[0] == index:
+            mask = self._next[1].result()
+        else:
+            mask = self.sequence.dynamic_mask(index)
+        self._next = (index + 1, self._reader.submit(self.sequence.dynamic_mask, index + 1)) \
+            if index + 1 < len(self.sequence) else None
+        return mask
 
     def __call__(self, index: int, kps: np.ndarray, beliefs: np.ndarray | None, diagnostics=None) -> None:
         kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
         n = len(kps)
-        truth = keypoint_truth(kps, self.sequence.dynamic_mask(index))
+        truth = keypoint_truth(kps, self._truth_mask(index))
         preds = None
         if diagnostics is not None and getattr(diagnostics, "frame_index", None) == index \
                 and len(getattr(diagnostics, "belief", ())) == n:

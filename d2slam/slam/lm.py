@@ -3,7 +3,8 @@
 ``EdgeStereoSE3ProjectXYZ``) and the same algorithm as g2o's ``OptimizationAlgorithmLevenberg``:
 
 - error ``e = measurement - project(Tcw X)``, with ``project = (fx x/z + cx, fy y/z + cy[, u - bf/z])``;
-- pose update ``Tcw <- exp(xi) Tcw``, ``xi = (omega, upsilon)`` (g2o ``SE3Quat::exp``), point update ``X <- X + dx``;
+- pose update ``Tcw <- exp(xi) Tcw``, ``xi = (omega, upsilon)`` (g2o ``SE3Quat::exp``), the rotation kept on SO(3)
+  (``update_pose``), point update ``X <- X + dx``;
 - Huber kernel: weight ``rho'(chi2) = min(1, delta / sqrt(chi2))`` on the information, robust chi2
   ``2 delta sqrt(chi2) - delta^2`` above ``delta^2``;
 - Levenberg-Marquardt: ``lambda_0 = 1e-5 max diag(H)``; a step is kept when the robust chi2 falls
@@ -44,6 +45,19 @@ def se3_exp(xi):
     T[:3, :3] = R
     T[:3, 3] = V @ xi[3:]
     return T
+
+
+@njit(cache=True, nogil=True)
+def update_pose(xi, T):
+    """``exp(xi) T`` with its rotation projected back onto SO(3) (the nearest rotation, by SVD), as g2o's
+    ``SE3Quat`` keeps a unit quaternion: without it rounding and the small-angle ``exp`` leave the rotation slightly
+    non-orthonormal, and the constant-velocity model (``T_i T_{i-1}^-1``, inverted as a rigid transform) compounds
+    that from frame to frame."""
+    Tn = se3_exp(xi) @ T
+    U, _, Vt = np.linalg.svd(Tn[:3, :3])
+    R = U @ Vt
+    Tn[:3, :3] = R
+    return Tn
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -161,7 +175,7 @@ def pose_lm(T0, X, meas, stereo, info, active, delta, fx, fy, cx, cy, bf, robust
         trials, rho = 0, 0.0
         while True:
             dx = np.linalg.solve(H + lam * np.eye(6), b)
-            Tn = se3_exp(dx) @ T
+            Tn = update_pose(dx, T)
             new_chi = pose_chi2(Tn, X, meas, stereo, info, active, delta, fx, fy, cx, cy, bf, robust)
             rho = (chi - new_chi) / (dx @ (lam * dx + b) + 1e-3)
             trials += 1
@@ -315,7 +329,7 @@ def local_ba_lm(poses0, fixed, X0, obs_cam, obs_pt, meas, stereo, info, delta, f
             for c in range(C):
                 f = free[c]
                 if f >= 0:
-                    new_poses[c] = se3_exp(dc[6 * f:6 * f + 6]) @ poses[c]
+                    new_poses[c] = update_pose(dc[6 * f:6 * f + 6], poses[c])
             new_X = X + dxp
             new_chi = ba_chi2(new_poses, new_X, obs_cam, obs_pt, meas, stereo, info, delta, fx, fy, cx, cy, bf)
             scale = 1e-3

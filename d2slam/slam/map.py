@@ -199,6 +199,14 @@ class Map:
         counts[kf_id] = 0
         return counts
 
+    def points_of(self, kf_ids) -> np.ndarray:
+        """Sorted ids of the points the keyframes ``kf_ids`` observe (a mask over the points, no sort)."""
+        mask = np.zeros(self.points.n, dtype=bool)
+        for k in kf_ids:
+            m = self.keyframes[k].mp
+            mask[m[m >= 0]] = True
+        return np.flatnonzero(mask)
+
     def covisible(self, kf_id: int, n: int, min_shared: int) -> list[int]:
         """The (at most ``n``) good keyframes sharing the most points with ``kf_id``, at least ``min_shared`` each,
         best first (ties: lower id first)."""

@@ -58,8 +58,7 @@ def relocalise(tracker: Tracker, frame: Frame) -> bool:
             continue
         tracker.discard_outliers(frame)
         if n_good < cfg.relocalisation_min_inliers:
-            pts = kf.mp[kf.mp >= 0]
-            tracker.search_local_points(frame, np.unique(pts), cfg.search_radius_relocalisation)
+            tracker.search_local_points(frame, map_.points_of([kf.id]), cfg.search_radius_relocalisation)
             n_good = tracker.optimize_pose(frame)
             tracker.discard_outliers(frame)
         if n_good >= cfg.relocalisation_min_inliers:

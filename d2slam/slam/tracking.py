@@ -271,8 +271,7 @@ class Tracker:
         cfg = self.cfg
         local = self.local_keyframes(frame)
         if local:
-            pts = np.concatenate([self.map.keyframes[k].mp for k in local])
-            pts = np.unique(pts[pts >= 0])
+            pts = self.map.points_of(local)
             th = cfg.search_radius_local_map
             if frame.index - self.last_reloc_frame < 2:
                 th = cfg.search_radius_after_relocalisation
