@@ -285,6 +285,10 @@ class EngineConfig:
     kf_new_points_depth: float = 4.5
     # Local mapping.
     local_ba_iterations: int = 10
+    # True: a keyframe's local BA and keyframe culling run at the next frame that makes no keyframe, and are skipped
+    # when that frame makes one (ORB-SLAM3's local mapping runs beside tracking and skips them while another keyframe
+    # waits in its queue, aborting a running BA when one arrives). False: right after the keyframe, every time.
+    ba_when_idle: bool = True
     # Both optimisations: "lm" (compiled Levenberg-Marquardt, d2slam.slam.lm) or "g2o" (the g2opy wheel, same
     # model; its graph is built edge by edge from Python, several times slower).
     optimizer: str = "lm"

@@ -160,17 +160,24 @@ class KeypointRecorder:
         self.keypoints = 0
         self.dynamic_keypoints = 0
         self.frames_with_diagnostics = 0
-        self._reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="d2slam-truth")
+        self._reader: ThreadPoolExecutor | None = None
         self._next: tuple[int, Future] | None = None
 
     def _truth_mask(self, index: int) -> np.ndarray:
-        """The frame's dynamic mask; the next frame's is read meanwhile in a thread (frames come in order)."""
+        """The frame's dynamic mask; the next frame's is read meanwhile in a thread (frames come in order; only for
+        a sequence with a length)."""
         if self._next is not None and self._next[0] == index:
             mask = self._next[1].result()
         else:
             mask = self.sequence.dynamic_mask(index)
-        self._next = (index + 1, self._reader.submit(self.sequence.dynamic_mask, index + 1)) \
-            if index + 1 < len(self.sequence) else None
+        if index + 1 < len(self.sequence) if hasattr(self.sequence, "__len__") else False:
+            if self._reader is None:
+                self._reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="d2slam-truth")
+            self._next = (index + 1, self._reader.submit(self.sequence.dynamic_mask, index + 1))
+        elif self._reader is not None:  # the last frame: the thread is not needed any more
+            self._next = None
+            self._reader.shutdown(wait=False)
+            self._reader = None
         return mask
 
     def __call__(self, index: int, kps: np.ndarray, beliefs: np.ndarray | None, diagnostics=None) -> None:

@@ -115,13 +115,16 @@ class Engine:
             ok, how = tracker.track(frame)
             if ok:
                 update_point_beliefs(self.map, frame, self.cfg.mappoint_belief_threshold)
-        keyframe = ok and how == "init"
-        if ok and how != "init" and tracker.need_new_keyframe(frame):
-            with timer("local_ba"):
+        keyframe = ok and how != "init" and tracker.need_new_keyframe(frame)
+        with timer("local_ba"):
+            if keyframe:
                 kf = tracker.create_keyframe(frame)
-                if tracker.ref_kf.id in self.mapper.process(kf):
-                    tracker.ref_kf = kf
-            keyframe = True
+                culled = self.mapper.insert(kf)
+            else:
+                kf, culled = self.mapper.idle()
+            if kf is not None and tracker.ref_kf.id in culled:
+                tracker.ref_kf = kf
+        keyframe = keyframe or (ok and how == "init")
         with timer("track"):
             tracker.finish(frame, ok)
             if ok:
@@ -193,7 +196,11 @@ class Engine:
     # ================================================================== results
     def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(frame indices, timestamps, poses T_world_camera) of the tracked frames, each frame's pose taken relative
-        to its reference keyframe's final (bundle-adjusted) pose, as ORB-SLAM's SaveTrajectoryTUM."""
+        to its reference keyframe's final (bundle-adjusted) pose, as ORB-SLAM's SaveTrajectoryTUM. Pending local
+        mapping runs first (as ORB-SLAM3 empties its queue before saving): call it once the frames are done."""
+        kf, culled = self.mapper.idle()
+        if kf is not None and self.tracker.ref_kf is not None and self.tracker.ref_kf.id in culled:
+            self.tracker.ref_kf = kf
         idx = np.array(sorted(self.frame_refs), dtype=np.int64)
         poses = np.zeros((len(idx), 4, 4))
         for i, f in enumerate(idx):

@@ -17,12 +17,28 @@ class LocalMapper:
         self.map = map_
         self.proj = proj
         self.cfg = config.engine
+        self.pending: KeyFrame | None = None  # keyframe whose local BA and culling wait for an idle frame
 
-    def process(self, kf: KeyFrame) -> list[int]:
-        """Map the new keyframe ``kf``; returns the keyframes culled as redundant."""
+    def insert(self, kf: KeyFrame) -> list[int]:
+        """Map the new keyframe ``kf``: recent points culled, neighbours searched, then (``EngineConfig.ba_when_idle``)
+        its local BA and keyframe culling wait for ``idle`` (a waiting keyframe's are dropped, as ORB-SLAM3's local
+        mapping skips them when the next keyframe is already queued), or run now. Returns the keyframes culled."""
+        self.pending = None
         self.map_point_culling(kf)
         if self.cfg.fuse_neighbours:
             self.search_in_neighbors(kf)
+        if self.cfg.ba_when_idle:
+            self.pending = kf
+            return []
+        return self.optimise(kf)
+
+    def idle(self) -> tuple[KeyFrame | None, list[int]]:
+        """A frame without a new keyframe: the pending keyframe's local BA and keyframe culling run. Returns (that
+        keyframe or None, the keyframes culled)."""
+        kf, self.pending = self.pending, None
+        return (kf, self.optimise(kf)) if kf is not None else (None, [])
+
+    def optimise(self, kf: KeyFrame) -> list[int]:
         self.local_bundle_adjustment(kf)
         return self.keyframe_culling(kf)
 
