@@ -17,6 +17,7 @@ COMMANDS = [
     "segment",
     "vocab",
     "download",
+    "assets",
     "run",
     "eval",
     "study",

@@ -15,7 +15,7 @@ import pytest
 from d2slam.cli import main
 from d2slam.config import Config, SegmentationConfig
 from d2slam.errors import D2SlamError
-from d2slam.paths import shared_dir
+from d2slam.assets import asset_path, tum_frames
 from d2slam.segmentation import CachedSegmenter, get_segmenter, masks_for
 from d2slam.segmentation.base import PersonInstance
 from d2slam.segmentation.cache import RgbListSequence, load_instances, segmenter_key, sequence_key
@@ -130,11 +130,11 @@ def test_sequence_identity(tmp_path, seq):
 
 
 def test_real_segmenter_key_has_model_hash_and_mask_config():
-    models = shared_dir() / "models"
-    a = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx")
-    b = get_segmenter("onnx", model=models / "yolov8n-seg_deq_256x320.onnx")
-    c = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx", config=SegmentationConfig(nms_iou=0.5))
-    d = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx",
+    m384, m256 = asset_path("models/yolov8n-seg_deq_384x512.onnx"), asset_path("models/yolov8n-seg_deq_256x320.onnx")
+    a = get_segmenter("onnx", model=m384)
+    b = get_segmenter("onnx", model=m256)
+    c = get_segmenter("onnx", model=m384, config=SegmentationConfig(nms_iou=0.5))
+    d = get_segmenter("onnx", model=m384,
                       config=SegmentationConfig(intra_op_threads=1))
     assert a.identity()["model_sha256"] == a.sha256
     assert len({segmenter_key(s) for s in (a, b, c)}) == 3
@@ -276,7 +276,7 @@ def test_segment_command_fills_the_cache_once(tmp_path, capsys):
     """`d2slam segment SEQUENCE_DIR` with the real model on two real frames; the second run segments nothing."""
     root = tmp_path / "real_seq"
     (root / "rgb").mkdir(parents=True)
-    frames = sorted((shared_dir() / "images" / "tum_fr3").glob("*.png"))[:2]
+    frames = tum_frames()[:2]
     lines = []
     for i, src in enumerate(frames):
         shutil.copyfile(src, root / "rgb" / f"{100 + i}.000000.png")
