@@ -456,6 +456,13 @@ class DataConfig:
     rotation_tolerance: float = 1e-5
     # `d2slam download`: connect/read timeout (s) so an unreachable server fails fast.
     download_timeout: float = 10.0
+    # Depth-scale check of `d2slam run`: the median valid depth (m) of the first depth_check_frames frames must lie in
+    # depth_median_range (an indoor RGB-D scene; a depth factor off by 5x, e.g. millimetres read with TUM's 5000,
+    # moves it out); otherwise a warning names the factor that would bring it in.
+    depth_check_frames: int = 5
+    depth_median_range: tuple[float, float] = (0.7, 10.0)
+    # Depth factors the warning suggests: millimetres, TUM's 1/5000 m, metres.
+    depth_factor_candidates: tuple[float, ...] = (1000.0, 5000.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -495,3 +502,45 @@ class Config:
 
 
 DEFAULT = Config()
+
+
+def with_overrides(base: Config, overrides: dict[str, Any]) -> Config:
+    """``base`` with the fields of ``overrides`` (``{section: {field: value}}``, any subset) replaced; lists become
+    tuples where the field is a tuple. Unknown sections or fields raise ``ValueError``."""
+    if not isinstance(overrides, dict) or not all(isinstance(v, dict) for v in overrides.values()):
+        raise ValueError("expected sections of fields, e.g. {dynamics: {z_far: 5.0}}")
+    data = base.to_dict()
+    for name, fields in overrides.items():
+        if name not in data:
+            raise ValueError(f"unknown config section {name!r}; sections: {', '.join(data)}")
+        for key, value in fields.items():
+            if key not in data[name]:
+                raise ValueError(f"unknown {name} config field {key!r}")
+            old = getattr(getattr(base, name), key)
+            data[name][key] = tuple(value) if isinstance(old, tuple) and isinstance(value, list) else value
+    return Config.from_dict(data)
+
+
+def load_config_file(path, base: Config = DEFAULT) -> tuple[Config, dict[str, Any]]:
+    """``base`` overridden by a YAML file of ``section: {field: value}`` (``--config FILE.yaml``); returns the config
+    and the overrides as read. A bad file is a ``D2SlamError`` naming it."""
+    from pathlib import Path
+
+    import yaml
+
+    from d2slam.errors import D2SlamError
+
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise D2SlamError("config file not found", path=path)
+    try:
+        overrides = yaml.safe_load(path.read_text()) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise D2SlamError(f"cannot read the config file: {getattr(exc, 'problem', None) or exc}", path=path,
+                          line=mark.line + 1 if mark is not None else None) from None
+    try:
+        config = with_overrides(base, overrides)
+    except (TypeError, ValueError) as exc:
+        raise D2SlamError(f"bad config file: {exc}", path=path) from None
+    return config, overrides
