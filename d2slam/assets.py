@@ -12,6 +12,7 @@ result has the same sha256 as the shared files). Files already found (shared fol
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +20,7 @@ from pathlib import Path
 from d2slam.errors import D2SlamError
 from d2slam.paths import cache_dir, shared_dir
 
+_log = logging.getLogger(__name__)
 MIRROR_ENV = "D2SLAM_ASSETS_MIRROR"
 UPSTREAM = "https://raw.githubusercontent.com/"
 _DASHCAM = "udaypartha/dashcam/7a2d55819df7f17222042203db878a3d23d3aaa5/"
@@ -118,7 +120,7 @@ def _install(tmp: Path, dest: Path, sha256: str, source: str) -> None:
     os.replace(tmp, dest)
 
 
-def fetch_assets(timeout: float | None = None, echo=print) -> list[Path]:
+def fetch_assets(timeout: float | None = None, echo=_log.info) -> list[Path]:
     """Download every missing file of :data:`DOWNLOADS` into the cache, verify it, and derive the missing float
     models of :data:`DERIVED`. Returns the files written (empty when everything was found)."""
     from d2slam.data.download import CONNECT_TIMEOUT, download_urls

@@ -162,7 +162,7 @@ class DynamicsConfig:
     # targets met on 12 of 12 runs (5 of 12 at 0), precision down 0.01-0.03; ATE summed 46.4 -> 48.8 mm (+5 %, of
     # which +1.75 mm on walking_rpy seed 4); sitting_static recall +0.02 to +0.04. 3 px: targets on 3 of 6 runs;
     # 10 px: 6 of 6 but ATE +7 % (6 runs of w/static, w/xyz seeds 3-4, w/half, w/rpy seed 3). 0 turns it off.
-    # The study (seeds 101-103, against the previous study without it): recall +0.012 to +0.028 and static precision
+    # The study (seeds 101-103, with against without it): recall +0.012 to +0.028 and static precision
     # +0.003 to +0.007 on all 12 walking runs, both keypoint targets on 12 of 12 (10 without), precision -0.010 to
     # -0.029; walking ATE summed 47.8 -> 47.3 mm (-0.7 to +1.0 mm per run); sitting_static recall +0.015 to +0.033.
     flow_edge_band: float = 6.0

@@ -29,7 +29,7 @@ def run(args) -> int:
         return 0
     if args.timeout is not None and not args.timeout > 0:
         raise D2SlamError("--timeout must be positive")
-    written = A.fetch_assets(timeout=args.timeout)
+    written = A.fetch_assets(timeout=args.timeout, echo=print)
     print(f"assets: {len(written)} fetched or derived into {A.assets_cache()}" if written
           else "assets: all found, nothing to fetch")
     return 0

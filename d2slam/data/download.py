@@ -26,6 +26,7 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -53,6 +54,7 @@ CONNECT_TIMEOUT = DEFAULT.data.download_timeout
 #: Automatic resumed retries of a transfer that breaks off after data started to flow.
 TRANSFER_RETRIES = 3
 CHUNK = 1 << 20
+_log = logging.getLogger(__name__)
 MIRROR_ENV = "D2SLAM_TUM_MIRROR"
 RECORD_FILE = "tum_archives.json"
 EXPECTED_FILES = ("rgb.txt", "depth.txt", "groundtruth.txt")
@@ -314,8 +316,8 @@ def _manual_hint(info: SequenceInfo, urls: list[str], dest: Path) -> str:
             f"--base-url to a server that mirrors the TUM layout.")
 
 
-def download_urls(urls: list[str], part: Path, timeout: float = CONNECT_TIMEOUT, log=print, what: str = "file",
-                  hint: str = "") -> tuple[str, int]:
+def download_urls(urls: list[str], part: Path, timeout: float = CONNECT_TIMEOUT, log=_log.info,
+                  what: str = "file", hint: str = "") -> tuple[str, int]:
     """Download the first of ``urls`` that works into ``part`` (resuming, retried on interruption); returns
     (url used, bytes). Raises D2SlamError naming every failure, with ``hint`` (how to get the file otherwise)."""
     failures: list[str] = []
@@ -368,7 +370,7 @@ def _check_known(info: SequenceInfo, archive: Path, sha: str, size: int) -> dict
 
 def download_sequence(name: str, dest: str | Path, base_url: str | None = None, archive: str | Path | None = None,
                       keep_archive: bool = False, force: bool = False, timeout: float = CONNECT_TIMEOUT,
-                      log=print) -> Path:
+                      log=_log.info) -> Path:
     """Download (or take ``archive``), verify and extract sequence ``name`` into ``dest``; returns the sequence
     folder (``dest/rgbd_dataset_freiburgN_NAME``). See the module docstring for every check."""
     from d2slam.data.tum import TumSequence
