@@ -372,9 +372,8 @@ class SynthConfig:
     # Texture resolution (texels per metre) of the room and of people / objects.
     room_texels_per_m: float = 220.0
     body_texels_per_m: float = 420.0
-    # People: walking speed (m/s), step frequency (Hz), arm / leg swing amplitude (rad).
+    # People: walking speed (m/s), arm / leg swing amplitude (rad).
     walk_speed: tuple[float, float] = (0.8, 1.15)
-    step_freq: float = 0.9
     arm_swing: float = 0.55
     leg_swing: float = 0.5
     # People's clothes, calibrated with `d2slam bench realism` so that the fraction of engine ORB keypoints on people

@@ -71,15 +71,24 @@ def test_fetch_downloads_verifies_derives_and_is_idempotent(fresh, mirror, real_
     assert seg.model_path == cache / "models/yolov8n-seg_deq_384x512.onnx"
 
 
-def test_shared_folder_comes_first_and_nothing_is_fetched(monkeypatch, tmp_path, mirror, real_shared):
-    monkeypatch.setenv("D2SLAM_SHARED", str(real_shared))
-    monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path / "cache"))
+def test_shared_folder_comes_first_and_nothing_is_fetched(monkeypatch, tmp_path, mirror):
+    shared = tmp_path / "shared"  # a shared folder holding every asset (links to wherever this checkout found them)
+    for rel in A.ALL_ASSETS:
+        (shared / rel).parent.mkdir(parents=True, exist_ok=True)
+        (shared / rel).symlink_to(A.asset_path(rel))
+    cache = tmp_path / "cache"
+    (cache / "assets" / "models").mkdir(parents=True)
+    (cache / "assets" / A.INT8_MODEL).write_bytes(b"a stale copy the shared folder takes precedence over")
+    monkeypatch.setenv("D2SLAM_SHARED", str(shared))
+    monkeypatch.setenv("D2SLAM_CACHE", str(cache))
     monkeypatch.setenv(A.MIRROR_ENV, mirror.url)
     n_requests = len(mirror.requests)
     assert A.fetch_assets(echo=lambda *_: None) == []
     assert len(mirror.requests) == n_requests
-    assert A.find(A.INT8_MODEL) == real_shared / A.INT8_MODEL
-    assert [p.parent for p in A.tum_frames()] == [real_shared / A.TUM_FRAMES_DIR] * 5
+    assert A.find(A.INT8_MODEL) == shared / A.INT8_MODEL
+    assert [p.parent for p in A.tum_frames()] == [shared / A.TUM_FRAMES_DIR] * 5
+    (shared / A.INT8_MODEL).unlink()  # not in the shared folder: the cache
+    assert A.find(A.INT8_MODEL) == cache / "assets" / A.INT8_MODEL
 
 
 def test_derived_float_model_masks_match_the_int8_model(tmp_path):

@@ -24,6 +24,13 @@ from d2slam.segmentation.sim import LabelSegmenter, instances_from_labels
 H, W = 24, 32
 
 
+@pytest.fixture(scope="module")
+def real_assets():
+    """The models and frames, found before each test moves the cache (module scope: set up before the autouse one)."""
+    return {"m384": asset_path("models/yolov8n-seg_deq_384x512.onnx"),
+            "m256": asset_path("models/yolov8n-seg_deq_256x320.onnx"), "frames": tum_frames()}
+
+
 @pytest.fixture(autouse=True)
 def _cache_in_tmp(tmp_path, monkeypatch):
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path / "cache"))
@@ -129,8 +136,8 @@ def test_sequence_identity(tmp_path, seq):
     assert sequence_key(RgbListSequence(seq.root)) != key
 
 
-def test_real_segmenter_key_has_model_hash_and_mask_config():
-    m384, m256 = asset_path("models/yolov8n-seg_deq_384x512.onnx"), asset_path("models/yolov8n-seg_deq_256x320.onnx")
+def test_real_segmenter_key_has_model_hash_and_mask_config(real_assets):
+    m384, m256 = real_assets["m384"], real_assets["m256"]
     a = get_segmenter("onnx", model=m384)
     b = get_segmenter("onnx", model=m256)
     c = get_segmenter("onnx", model=m384, config=SegmentationConfig(nms_iou=0.5))
@@ -272,11 +279,12 @@ def test_rgb_list_bad_input(tmp_path):
         RgbListSequence(root)
 
 
-def test_segment_command_fills_the_cache_once(tmp_path, capsys):
+def test_segment_command_fills_the_cache_once(tmp_path, capsys, real_assets, monkeypatch):
     """`d2slam segment SEQUENCE_DIR` with the real model on two real frames; the second run segments nothing."""
     root = tmp_path / "real_seq"
     (root / "rgb").mkdir(parents=True)
-    frames = tum_frames()[:2]
+    frames = real_assets["frames"][:2]
+    monkeypatch.setenv("D2SLAM_SEG_MODEL", str(real_assets["m384"]))  # the default model, wherever it was found
     lines = []
     for i, src in enumerate(frames):
         shutil.copyfile(src, root / "rgb" / f"{100 + i}.000000.png")

@@ -47,10 +47,9 @@ def run(args) -> int:
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
     from d2slam.data.tum import depth_scale_warning
     from d2slam.errors import D2SlamError
-    from d2slam.eval.keypoints import keypoint_recorder
-    from d2slam.methods import get_method, mask_kind
+    from d2slam.methods import get_method, run_method
     from d2slam.outputs import check_output_file
-    from d2slam.pipeline import run_sequence
+    from d2slam.pipeline import STAGES
 
     method = get_method(args.method)
     out = check_output_file(args.out, "--out")
@@ -76,37 +75,24 @@ def run(args) -> int:
     warning = depth_scale_warning(seq, config)
     if warning:
         print(f"d2slam: warning: {warning}", file=sys.stderr)
-    kfilter = method.factory(config)
-    masks_kind = mask_kind(method, args.masks, synthetic=synthetic)
-    provider = None
-    if args.masks_from is not None and masks_kind is None:
-        raise D2SlamError(f"--masks-from: --method {args.method} reads no masks")
-    if masks_kind is not None:
-        from d2slam.segmentation import mask_source, masks_for, stack_masks
-
-        shape = (seq.camera.height, seq.camera.width)
-        src = seq if args.masks_from is None else mask_source(seq, open_sequence(args.masks_from))
-
-        def provider(i):
-            return stack_masks(masks_for(src, i, masks_kind, config), shape)
-
-    rec = keypoint_recorder(seq)  # keypoint truth (synthetic sequences only; None on TUM folders)
-    result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=rec,
-                          progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
+    mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
+    run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
+                     progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
+    result, masks_kind = run.result, run.masks
     if result.tracked == 0:
         write_tum_trajectory(out, result.trajectory, header=f"d2slam run {args.method}: no frame tracked")
     else:
         write_tum_trajectory(out, result.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
-              **({"masks_from": str(src.root)} if args.masks_from is not None else {}),
+              **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
               "seed": args.seed, "config_hash": config.hash(),
               "camera": {**dataclasses.asdict(seq.camera),
                          "source": camera_source or ("scene.json" if synthetic else args.camera or "folder name")},
               **({"config_file": str(Path(args.config).resolve()), "config_overrides": overrides,
                   "config": config.to_dict()} if args.config else {}),
               **result.summary(), "trajectory": str(out)}
-    if rec is not None:
-        record["keypoints"] = rec.result()
+    if run.keypoints is not None:
+        record["keypoints"] = run.keypoints
     gt = seq.groundtruth
     if gt is None:
         record["metrics_error"] = "no ATE/RPE: the sequence has no groundtruth.txt"
@@ -123,7 +109,7 @@ def run(args) -> int:
     if result.frames < listed:
         record["frames_note"] = (f"{result.frames} of the {listed} frames of rgb.txt were run: the others have no "
                                  f"depth image within {seq.max_dt:g} s (depth.txt lists {seq.n_depth})")
-    for k in ("load", "extract", "filter", "track", "local_ba", "segment"):
+    for k in STAGES:
         if k in result.stage_ms:
             record[f"{k}_ms"] = round(result.stage_ms[k], 3)
     if args.metrics_json:

@@ -234,12 +234,6 @@ class FrameMasks:
         return out
 
 
-def keypoint_pixels(kps: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(pu, pv, finite): keypoints rounded to the nearest pixel and clipped to the image; non-finite ones -> (0, 0)."""
-    kp = KeypointPixels(kps, shape)
-    return kp.pu, kp.pv, kp.finite
-
-
 def signed_distances(masks: np.ndarray | list[MaskEdges] | None, kps: np.ndarray,
                      margin: float | np.ndarray = np.inf) -> np.ndarray:
     """eq 1: (N, n) signed distance (px) of each keypoint to the edge of each mask, + inside, - outside.
