@@ -21,6 +21,7 @@ COMMANDS = [
     "run",
     "eval",
     "study",
+    "docs",
 ]
 
 

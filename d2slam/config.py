@@ -217,7 +217,7 @@ class EngineConfig:
     # (optimizer.stereo_information). A Kinect's depth noise grows as sigma_z = k z^2 (k = 1.425e-3 / m, Khoshelham
     # & Elberink 2012), i.e. a constant disparity error bf * k = 0.057 px at bf = 40 (the synthetic sensor's: 0.06-0.08
     # px over 1-3 m); ORB-SLAM's 1 px x scale lets points slide in depth and local BA drag keyframes with them.
-    # Measured (rpy static twins, dev seeds 3-8, `none`): RPE 1.09-1.97 cm -> 0.62-1.01 cm; see the README.
+    # Measured (rpy static twins, dev seeds 3-8, `none`): RPE 1.09-1.97 cm -> 0.62-1.01 cm; see docs/deviations.md.
     disparity_sigma_px: float = 0.057
     # ... in motion-only BA, the first rounds use ORB-SLAM's information all the same (wide basin from a coarse pose).
     pose_opt_coarse_rounds: int = 1

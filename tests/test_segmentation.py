@@ -1,4 +1,5 @@
-"""The ONNX person segmenter on the five real TUM frames (shared folder or cache, ``d2slam.assets``), its decoder, and its bad inputs."""
+"""The ONNX person segmenter on the five real TUM frames (shared folder or cache, ``d2slam.assets``), its decoder,
+and its bad inputs."""
 
 from __future__ import annotations
 

@@ -48,5 +48,5 @@ def run(args) -> int:
     runs = study.runs[[c for c in cols if c in study.runs.columns]].astype({"frames_tracked": "Int64", "twin": bool})
     with pd.option_context("display.width", 160, "display.max_columns", 20):
         print(runs.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
-    print(f"\nTables: {study.out / 'tables.md'}; the full study: `d2slam study --out results/` (see README).")
+    print(f"\nTables: {study.out / 'tables.md'}; the full study: `d2slam study --out results/` (see docs/results.md).")
     return 0
