@@ -12,7 +12,7 @@ export OMP_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export PYTHONHASHSEED := 0
 
-.PHONY: demo test install clean-venv
+.PHONY: demo test install assets clean-venv
 
 install: $(STAMP)
 
@@ -23,10 +23,15 @@ $(STAMP): environment.txt pyproject.toml
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@touch $(STAMP)
 
-demo: $(STAMP)
+# The segmentation models and the five real TUM frames: found in $$D2SLAM_SHARED (default ../shared) or the cache,
+# else fetched from pinned URLs (sha256-checked); does nothing when everything is found.
+assets: $(STAMP)
+	$(VENV)/bin/d2slam assets fetch
+
+demo: assets
 	$(VENV)/bin/d2slam demo
 
-test: $(STAMP)
+test: assets
 	$(PY) -m pytest -q tests notebooks --nbval-lax --nbval-sanitize-with notebooks/sanitize.cfg -p no:cacheprovider
 
 clean-venv:

@@ -17,9 +17,11 @@ COMMANDS = [
     "segment",
     "vocab",
     "download",
+    "assets",
     "run",
     "eval",
     "study",
+    "docs",
 ]
 
 

@@ -30,27 +30,24 @@ class DynamicsConfig:
     # eq 5: alpha(z) = alpha_max - (alpha_max - alpha_min) s(z) pixels, inversely proportional to depth.
     alpha_min: float = 0.5
     alpha_max: float = 0.9
-    # eq 5 (ours, measured): alpha is expressed at the keypoint's detection scale, alpha(z) * alpha_octave_scale^octave
+    # eq 5 (ours): alpha is expressed at the keypoint's detection scale, alpha(z) * alpha_octave_scale^octave
     # (ORB-SLAM's per-level sigma; = OrbConfig.scale_factor). 1.0 or no octaves from the engine = the paper as printed.
     alpha_octave_scale: float = 1.2
     # eq 6: sigma of the epipolar-error model, P_g = 1 - exp(-de^2 / (2 sigma^2)) (our reading).
     sigma: float = 1.0
-    # eq 6 (ours, measured): sigma at the keypoint's detection scale too, sigma x 1.2^octave, like alpha (False = the
-    # paper). With alpha scaled and sigma not, a level-3 match 1.5 px off passed eq 5 yet got P_g = 0.68 > 0.5. On
-    # synthetic dev seeds 3-5 (15 runs, d2slam): keypoint precision -0.002 to +0.027 (up on 13 runs; F1 up on 12,
-    # within 0.003 on the 3 sitting ones), recall -0.015 to -0.001, static precision within 0.003.
+    # eq 6 (ours): sigma at the keypoint's detection scale too, sigma x 1.2^octave, like alpha (False = the paper), so
+    # that a coarse-level match within its scaled alpha does not get P_g > 0.5. Measured: docs/deviations.md.
     sigma_at_scale: bool = True
-    # eq 5 (ours, measured): P_g of a keypoint whose error exceeds alpha; the paper: 1 (certainly dynamic). 0.7 is the
-    # measured reliability of the test, P(dynamic | err > alpha) with equal priors = r_dyn / (r_dyn + r_static): on
-    # synthetic dev seed 3 (d2slam, 150 frames) 76 % of matched dynamic and 35 % of matched static keypoints exceed
-    # alpha on walking_xyz (0.68), 62 % and 23 % on walking_static (0.73). See geometric.geometric_probability.
+    # eq 5 (ours): P_g of a keypoint whose error exceeds alpha; the paper: 1 (certainly dynamic). 0.7 is the measured
+    # reliability of the test, P(dynamic | err > alpha) with equal priors = r_dyn / (r_dyn + r_static)
+    # (docs/deviations.md). See geometric.geometric_probability.
     p_g_exceed: float = 0.7
     # eq 7: weight of the geometric term, in the mask's uncertainty zone / in the reliable area.
     omega_uncertain: float = 0.5
     omega_reliable: float = 0.1
     # eq 7: probability when a keypoint has no observation (not matched, outside every mask area).
     p_no_observation: float = 0.5
-    # eq 7 (ours, measured): a keypoint with no observation (not matched) takes the mean P_g of its matched neighbours
+    # eq 7 (ours): a keypoint with no observation (not matched) takes the mean P_g of its matched neighbours
     # when that is larger than its eq 7 P: of its neighbour_k nearest matched keypoints, those within delta(z) px
     # (eq 9's radius) and neighbour_depth metres, at least neighbour_min of them. False = the paper. See
     # interaction.neighbour_p_g.
@@ -81,15 +78,13 @@ class DynamicsConfig:
     gamma_max: float = 28.0
     # eq 10 (ours): belief given to a static keypoint the OIM turns dynamic (the paper only says "becomes dynamic").
     oim_belief: float = 0.9
-    # eq 10 (ours, measured): a keypoint whose own epipolar test passed this frame (matched, err <= alpha) is no OIM
+    # eq 10 (ours): a keypoint whose own epipolar test passed this frame (matched, err <= alpha) is no OIM
     # candidate: its direct evidence of being static is not overridden by its neighbours'. False = the paper's reading
     # (every keypoint still static after eq 8). See interaction.oim_candidates for the measurements.
     oim_skip_observed_static: bool = True
-    # eq 10 (ours, measured, off): an unmatched keypoint whose matched neighbours say static (their mean P_g <= 0.5,
-    # see neighbour_p_g) is no OIM candidate either. Synthetic dev seeds 3-5 (15 runs, d2slam): precision +0.006 to
-    # +0.035 and F1 +0.002 to +0.031 (up on all 15), but recall -0.003 to -0.016 on walking and -0.026 to -0.048 on
-    # sitting_static, static precision -0.005 to 0.000, ATE within noise (37.6 against 38.6 mm over the 12 runs
-    # outside walking_rpy). Off because the issue's keypoint target is recall at static precision, which it lowers.
+    # eq 10 (ours, off): an unmatched keypoint whose matched neighbours say static (their mean P_g <= 0.5, see
+    # neighbour_p_g) is no OIM candidate either. Off because it lowers the recall at a given static precision, the
+    # keypoint target (docs/deviations.md).
     oim_skip_neighbour_static: bool = False
     # eq 4-5: fundamental matrix by RANSAC (OpenCV), seeded for determinism.
     f_ransac_threshold_px: float = 1.0
@@ -100,7 +95,7 @@ class DynamicsConfig:
     f_ransac_seed: int = 0
     # "ransac" (cv2.FM_RANSAC), "magsac" (cv2.USAC_MAGSAC) or "usac_accurate".
     f_ransac_method: str = "ransac"
-    # eq 5 (ours, RGB-D, measured): the pose test beside the epipolar error. The epipolar error cannot see motion
+    # eq 5 (ours, RGB-D): the pose test beside the epipolar error. The epipolar error cannot see motion
     # along the epipolar line (an object carried away from a rotating camera). With depth, the previous 3-D point is
     # moved by the relative pose (PnP-RANSAC on the static-believed matches) and compared with its match: dynamic when
     # the reprojection error exceeds pose_reproj_px x 1.2^octave, or the depth residual
@@ -109,23 +104,19 @@ class DynamicsConfig:
     pose_test: bool = True
     pose_reproj_px: float = 4.0
     pose_depth_sigmas: float = 2.0
-    # P(dynamic | a pose test exceeded) with equal priors, measured like p_g_exceed: 0.82-0.90 on dev seeds 3 / 4.
+    # P(dynamic | a pose test exceeded) with equal priors, measured like p_g_exceed (docs/deviations.md).
     p_pose_exceed: float = 0.9
     # Kinect axial depth noise sigma(z) = a + b (z - c)^2 metres (Nguyen et al. 2012; DESIGN.md section 3).
     depth_sigma_a: float = 0.0012
     depth_sigma_b: float = 0.0019
     depth_sigma_c: float = 0.4
     # Relative pose of the pose test: cv2.solvePnPRansac with SQPnP (seeded with f_ransac_seed; OpenCV re-estimates
-    # the pose on the inliers). Measured on the bench's scenes: 0.08 ms, within 0.2 mm / 0.004 deg of a further
-    # Levenberg-Marquardt refinement (cv2.solvePnPRefineLM), which would cost 0.5 ms more. 50 iterations against 100:
-    # no faster (RANSAC stops early at 0.99 confidence with ~75 % inliers: 5.46 vs 5.48 ms per call on recorded hook
-    # inputs of walking_xyz dev seed 3); over the 15 dev runs (seeds 3-5, 300 frames) identical results on 12,
-    # keypoint F1 within 0.003 on the other 3.
+    # the pose on the inliers; no further Levenberg-Marquardt refinement: docs/deviations.md).
     pnp_min_matches: int = 12
     pnp_ransac_px: float = 2.0
     pnp_iterations: int = 50
     pnp_confidence: float = 0.99
-    # eq 4-6 (ours, measured, off in `d2slam`, on in `d2slam-flow`): sub-pixel correspondences by pyramidal
+    # eq 4-6 (ours, off in `d2slam`, on in `d2slam-flow`): sub-pixel correspondences by pyramidal
     # Lucas-Kanade flow (flow.py). Each current keypoint is tracked into the previous image (matched ones starting at
     # their match), kept when the backward track returns within flow_fb_px; eq 5 then measures the tracked position,
     # and unmatched keypoints that track are observed too. Their alpha and eq 6's sigma are not scaled by the octave
@@ -138,33 +129,21 @@ class DynamicsConfig:
     flow_fb_px: float = 0.5
     # Where the flow is used: "all"; "matched" (in a mask area, eq 7's inside or uncertain, only matched keypoints
     # are refined, unmatched ones stay unobserved); "outside" (no flow in a mask area: the masks and the ORB matches
-    # decide there, as in the paper). Measured (synthetic dev seeds 3-5, 300 frames): "outside" against "all", ATE
-    # summed over the 9 runs of w/xyz, w/half and w/static 31.3 against 31.0 mm (d2slam 33.5), recall higher on 7 of
-    # those 9; sitting_static seed 4 recall 0.702 against 0.571 (d2slam 0.741): people who sit still are
-    # geometrically static, and the flow observes them.
+    # decide there, as in the paper: people who sit still are geometrically static, and the flow would observe them;
+    # docs/deviations.md).
     flow_area: str = "outside"
     # The flow's new matches (unmatched keypoints that tracked) get the previous depth image's robust depth at their
     # tracked position, so the RGB-D pose test runs on them too (flow.flow_matches); off: no depth, eq 5 alone.
-    # Measured (dev seeds 3-5, 300 frames, 15 runs, against off): recall up on all 15 (+0.009 to +0.074 walking,
-    # +0.020 to +0.031 sitting), static precision up on all 15 (+0.001 to +0.025), ATE summed over the 12 runs
-    # outside walking_rpy 36.2 -> 35.1 mm, walking_rpy 8.0 / 8.2 / 3.5 -> 8.0 / 5.1 / 3.3 mm: an object carried along
-    # its epipolar lines no longer passes eq 5 as static.
+    # An object carried along its epipolar lines then no longer passes eq 5 as static (docs/deviations.md).
     flow_new_depth: bool = True
-    # eq 7 (ours, measured, with the flow only: on in `d2slam-flow`, off in `d2slam`): a keypoint that nothing
+    # eq 7 (ours, with the flow only: on in `d2slam-flow`, off in `d2slam`): a keypoint that nothing
     # observed (not matched, the flow did not track it) and that lies outside every mask but within flow_edge_band px
     # of one (eq 1's signed distance d in (-band, 0)) gets P = max(P, flow_edge_p) (fusion.edge_band). Eq 7 gives it
     # P = P_S < 0.5, so it stayed static. These are person pixels the masks missed (boundary errors of the simulated
     # and real masks) or background at a person's silhouette, where a moving edge breaks the descriptor: on the
     # `oracle` (walking_static dev seed 3, 100 frames) only 11 % of the truly static keypoints within 8 px of a
     # silhouette were matched (64-66 % in the static twin), so they spend the feature budget without helping
-    # tracking. Measured on d2slam-flow against 0 (dev seeds 3-5, 300 frames, all 12 walking runs): recall
-    # 0.922-0.971 -> 0.957-0.980, static precision 0.988-0.993 -> 0.992-0.996 (both up on all 12), both keypoint
-    # targets met on 12 of 12 runs (5 of 12 at 0), precision down 0.01-0.03; ATE summed 46.4 -> 48.8 mm (+5 %, of
-    # which +1.75 mm on walking_rpy seed 4); sitting_static recall +0.02 to +0.04. 3 px: targets on 3 of 6 runs;
-    # 10 px: 6 of 6 but ATE +7 % (6 runs of w/static, w/xyz seeds 3-4, w/half, w/rpy seed 3). 0 turns it off.
-    # The study (seeds 101-103, against the previous study without it): recall +0.012 to +0.028 and static precision
-    # +0.003 to +0.007 on all 12 walking runs, both keypoint targets on 12 of 12 (10 without), precision -0.010 to
-    # -0.029; walking ATE summed 47.8 -> 47.3 mm (-0.7 to +1.0 mm per run); sitting_static recall +0.015 to +0.033.
+    # tracking. 0 turns it off. Measured: docs/deviations.md.
     flow_edge_band: float = 6.0
     flow_edge_p: float = 0.9
     # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
@@ -217,7 +196,7 @@ class EngineConfig:
     # (optimizer.stereo_information). A Kinect's depth noise grows as sigma_z = k z^2 (k = 1.425e-3 / m, Khoshelham
     # & Elberink 2012), i.e. a constant disparity error bf * k = 0.057 px at bf = 40 (the synthetic sensor's: 0.06-0.08
     # px over 1-3 m); ORB-SLAM's 1 px x scale lets points slide in depth and local BA drag keyframes with them.
-    # Measured (rpy static twins, dev seeds 3-8, `none`): RPE 1.09-1.97 cm -> 0.62-1.01 cm; see the README.
+    # Measured (rpy static twins, dev seeds 3-8, `none`): RPE 1.09-1.97 cm -> 0.62-1.01 cm; see docs/deviations.md.
     disparity_sigma_px: float = 0.057
     # ... in motion-only BA, the first rounds use ORB-SLAM's information all the same (wide basin from a coarse pose).
     pose_opt_coarse_rounds: int = 1
@@ -397,9 +376,8 @@ class SynthConfig:
     # Texture resolution (texels per metre) of the room and of people / objects.
     room_texels_per_m: float = 220.0
     body_texels_per_m: float = 420.0
-    # People: walking speed (m/s), step frequency (Hz), arm / leg swing amplitude (rad).
+    # People: walking speed (m/s), arm / leg swing amplitude (rad).
     walk_speed: tuple[float, float] = (0.8, 1.15)
-    step_freq: float = 0.9
     arm_swing: float = 0.55
     leg_swing: float = 0.5
     # People's clothes, calibrated with `d2slam bench realism` so that the fraction of engine ORB keypoints on people
@@ -481,6 +459,13 @@ class DataConfig:
     rotation_tolerance: float = 1e-5
     # `d2slam download`: connect/read timeout (s) so an unreachable server fails fast.
     download_timeout: float = 10.0
+    # Depth-scale check of `d2slam run`: the median valid depth (m) of the first depth_check_frames frames must lie in
+    # depth_median_range (an indoor RGB-D scene; a depth factor off by 5x, e.g. millimetres read with TUM's 5000,
+    # moves it out); otherwise a warning names the factor that would bring it in.
+    depth_check_frames: int = 5
+    depth_median_range: tuple[float, float] = (0.7, 10.0)
+    # Depth factors the warning suggests: millimetres, TUM's 1/5000 m, metres.
+    depth_factor_candidates: tuple[float, ...] = (1000.0, 5000.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -520,3 +505,45 @@ class Config:
 
 
 DEFAULT = Config()
+
+
+def with_overrides(base: Config, overrides: dict[str, Any]) -> Config:
+    """``base`` with the fields of ``overrides`` (``{section: {field: value}}``, any subset) replaced; lists become
+    tuples where the field is a tuple. Unknown sections or fields raise ``ValueError``."""
+    if not isinstance(overrides, dict) or not all(isinstance(v, dict) for v in overrides.values()):
+        raise ValueError("expected sections of fields, e.g. {dynamics: {z_far: 5.0}}")
+    data = base.to_dict()
+    for name, fields in overrides.items():
+        if name not in data:
+            raise ValueError(f"unknown config section {name!r}; sections: {', '.join(data)}")
+        for key, value in fields.items():
+            if key not in data[name]:
+                raise ValueError(f"unknown {name} config field {key!r}")
+            old = getattr(getattr(base, name), key)
+            data[name][key] = tuple(value) if isinstance(old, tuple) and isinstance(value, list) else value
+    return Config.from_dict(data)
+
+
+def load_config_file(path, base: Config = DEFAULT) -> tuple[Config, dict[str, Any]]:
+    """``base`` overridden by a YAML file of ``section: {field: value}`` (``--config FILE.yaml``); returns the config
+    and the overrides as read. A bad file is a ``D2SlamError`` naming it."""
+    from pathlib import Path
+
+    import yaml
+
+    from d2slam.errors import D2SlamError
+
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise D2SlamError("config file not found", path=path)
+    try:
+        overrides = yaml.safe_load(path.read_text()) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise D2SlamError(f"cannot read the config file: {getattr(exc, 'problem', None) or exc}", path=path,
+                          line=mark.line + 1 if mark is not None else None) from None
+    try:
+        config = with_overrides(base, overrides)
+    except (TypeError, ValueError) as exc:
+        raise D2SlamError(f"bad config file: {exc}", path=path) from None
+    return config, overrides

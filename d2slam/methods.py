@@ -14,7 +14,7 @@ A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and `
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 from d2slam.config import Config
 from d2slam.errors import D2SlamError
@@ -54,6 +54,49 @@ def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | N
     if requested is None and method.needs_masks:
         return "sim" if synthetic else "onnx"
     return requested
+
+
+@dataclass
+class MethodRun:
+    """What :func:`run_method` returns: the engine's ``RunResult``, the mask kind read (None: no masks) and the
+    keypoint classification against the synthetic truth (None on other sequences)."""
+
+    result: Any
+    masks: str | None
+    keypoints: dict | None
+
+
+def run_method(seq, name: str, config: Config, masks: str | None = None, mask_seq=None, synthetic: bool = False,
+               features: Callable[[object], object] | None = None, progress: bool | None = None,
+               desc: str | None = None) -> MethodRun:
+    """Run method ``name`` of our engine on ``seq``: its keypoint filter, the masks :func:`mask_kind` picks from
+    ``masks`` (read from ``mask_seq`` when given: the same frames of another sequence), the keypoint truth recorded
+    on synthetic sequences. ``features(keypoint_filter)`` may return stored features for ``run_sequence``. The one
+    place where ``d2slam run`` and the study run a method; the real ORB-SLAM3 (``runner``) is not run here."""
+    from d2slam.eval.keypoints import keypoint_recorder
+    from d2slam.pipeline import run_sequence
+
+    method = get_method(name)
+    if method.runner is not None:
+        raise D2SlamError(f"--method {name} is not a keypoint filter of the engine: it has its own runner")
+    kfilter = method.factory(config)
+    kind = mask_kind(method, masks, synthetic=synthetic)
+    if mask_seq is not None and kind is None:
+        raise D2SlamError(f"--masks-from: --method {name} reads no masks")
+    provider = None
+    if kind is not None:
+        from d2slam.segmentation import mask_source, masks_for, stack_masks
+
+        shape = (seq.camera.height, seq.camera.width)
+        src = seq if mask_seq is None else mask_source(seq, mask_seq)
+
+        def provider(i):
+            return stack_masks(masks_for(src, i, kind, config), shape)
+
+    recorder = keypoint_recorder(seq)
+    result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=recorder,
+                          progress=progress, desc=desc, features=features(kfilter) if features else None)
+    return MethodRun(result, kind, recorder.result() if recorder is not None else None)
 
 
 def methods() -> list[str]:

@@ -30,9 +30,10 @@ from tqdm import tqdm
 from d2slam.config import DEFAULT, Config
 from d2slam.data.base import Trajectory
 from d2slam.errors import D2SlamError
+from d2slam.slam.engine import STAGES as ENGINE_STAGES
 from d2slam.slam.engine import Engine
 
-STAGES = ("load", "segment", "extract", "filter", "track", "local_ba")
+STAGES = ("load", "segment") + ENGINE_STAGES
 
 Recorder = Callable[[int, np.ndarray, "np.ndarray | None", object], None]
 

@@ -170,10 +170,18 @@ def test_bad_masks(synth):
         seq.mask_gt(5)
 
 
-def test_explicit_camera_overrides_scene(synth, tmp_path):
+def test_explicit_camera_must_agree_with_the_scene(synth, tmp_path):
+    import dataclasses
+
     from d2slam.data.base import Camera
 
     cam = Camera(fx=1.0, fy=1.0, cx=32.0, cy=24.0, width=W, height=H)
-    assert SyntheticSequence(synth["root"], camera=cam).camera is cam
+    with pytest.raises(D2SlamError, match="conflicts with this synthetic sequence's own camera .* fx"):
+        SyntheticSequence(synth["root"], camera=cam)
+    with pytest.raises(D2SlamError, match="conflicts"):
+        open_sequence(synth["root"], camera="fr1")
+    own = SyntheticSequence(synth["root"]).camera
+    same = dataclasses.replace(own, name="mine")
+    assert SyntheticSequence(synth["root"], camera=same).camera == own
     copy = shutil.copytree(synth["root"], tmp_path / "copy")
     assert len(SyntheticSequence(copy)) == 5

@@ -6,13 +6,12 @@ import io
 import json
 import socket
 import tarfile
-import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import numpy as np
 import pytest
+from local_http import Server
 
 from d2slam.cli import main
 from d2slam.data import TumSequence
@@ -49,61 +48,6 @@ def tum_tgz(tmp_path_factory) -> bytes:
     write_tum_folder(root, n_frames=4, width=640, height=480)
     (root / "accelerometer.txt").write_text("# accelerometer data\n")
     return make_tgz(root, FOLDER)
-
-
-class Server:
-    """Serves ``files`` (url path -> bytes). Options: ignore_range (answer 200 with the whole file), cut_first
-    (the first response announces the full length but stops after that many bytes)."""
-
-    def __init__(self):
-        self.files: dict[str, bytes] = {}
-        self.requests: list[tuple[str, str | None]] = []
-        self.ignore_range = False
-        self.cut_first: int | None = None
-        outer = self
-
-        class Handler(BaseHTTPRequestHandler):
-            def log_message(self, *args):
-                pass
-
-            def do_GET(self):
-                rng = self.headers.get("Range")
-                outer.requests.append((self.path, rng))
-                data = outer.files.get(self.path)
-                if data is None:
-                    self.send_error(404, "Not Found")
-                    return
-                start = 0
-                m = rng and not outer.ignore_range and rng.startswith("bytes=") and rng[6:].split("-")[0]
-                if m:
-                    start = int(m)
-                    if start >= len(data):
-                        self.send_response(416)
-                        self.send_header("Content-Range", f"bytes */{len(data)}")
-                        self.send_header("Content-Length", "0")
-                        self.end_headers()
-                        return
-                    self.send_response(206)
-                    self.send_header("Content-Range", f"bytes {start}-{len(data) - 1}/{len(data)}")
-                else:
-                    self.send_response(200)
-                body = data[start:]
-                self.send_header("Content-Length", str(len(body)))
-                self.send_header("Accept-Ranges", "bytes")
-                self.end_headers()
-                if outer.cut_first is not None:
-                    body, outer.cut_first = body[: outer.cut_first], None
-                self.wfile.write(body)
-
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.httpd.daemon_threads = True
-        self.thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.02}, daemon=True)
-        self.thread.start()
-        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}"
-
-    def close(self):
-        self.httpd.shutdown()
-        self.httpd.server_close()
 
 
 @pytest.fixture
@@ -252,7 +196,7 @@ def test_unreachable_host_fails_fast_with_manual_instructions(tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     t = time.perf_counter()
-    with pytest.raises(D2SlamError, match="cannot reach the TUM server") as err:
+    with pytest.raises(D2SlamError, match="cannot reach the server of the TUM archive") as err:
         dl.download_sequence(NAME, tmp_path / "data", base_url=f"http://127.0.0.1:{port}", log=quiet)
     assert time.perf_counter() - t < 5
     text = str(err.value)
@@ -330,6 +274,6 @@ def test_silent_server_times_out_quickly(tmp_path):
         s.listen(4)
         url = f"http://127.0.0.1:{s.getsockname()[1]}"
         t = time.perf_counter()
-        with pytest.raises(D2SlamError, match="cannot reach the TUM server .*timed out"):
+        with pytest.raises(D2SlamError, match="cannot reach the server of the TUM archive .*timed out"):
             dl.download_sequence(NAME, tmp_path / "data", base_url=url, timeout=0.3, log=quiet)
         assert time.perf_counter() - t < 3

@@ -15,7 +15,7 @@ from d2slam.baselines import vocab as V
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence, read_tum_trajectory
 from d2slam.errors import D2SlamError
-from d2slam.paths import shared_dir
+from d2slam.assets import tum_frames
 
 pytest.importorskip("pyorbslam3")
 
@@ -35,7 +35,7 @@ def write_shift_sequence(root: Path, n: int = 36) -> Path:
     root.mkdir(parents=True)
     (root / "rgb").mkdir()
     (root / "depth").mkdir()
-    img = cv2.imread(str(shared_dir() / "images" / "tum_fr3" / "fr3_walking_frame_0193.png"))
+    img = cv2.imread(str(tum_frames()[0]))
     depth = np.full(img.shape[:2], int(DEPTH_M * 5000), np.uint16)
     rl, dl = [], []
     for i in range(n):

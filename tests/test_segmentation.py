@@ -1,4 +1,5 @@
-"""The ONNX person segmenter on the five real TUM frames of the shared folder, its decoder, and its bad inputs."""
+"""The ONNX person segmenter on the five real TUM frames (shared folder or cache, ``d2slam.assets``), its decoder,
+and its bad inputs."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 from d2slam.cli import main
 from d2slam.config import SegmentationConfig
 from d2slam.errors import D2SlamError
-from d2slam.paths import shared_dir
+from d2slam.assets import asset_path, tum_frames
 from d2slam.segmentation import get_segmenter, stack_masks
 from d2slam.segmentation.onnx import (
     KNOWN_MODELS,
@@ -24,8 +25,13 @@ from d2slam.segmentation.onnx import (
     read_rgb,
 )
 
-FRAMES = sorted((shared_dir() / "images" / "tum_fr3").glob("*.png"))
-MODELS = shared_dir() / "models"
+FRAMES = tum_frames()
+
+
+def model(name: str):
+    return asset_path(f"models/{name}")
+
+
 # The people in the five frames, by the x of their centre (pixels, +-60): looked up by eye in the images
 # (two, one, one, two and two people; frame 0546 has one standing and one seated person; several are cut by the
 # image border).
@@ -40,13 +46,13 @@ PEOPLE_X = {
 
 @pytest.fixture(scope="module")
 def images():
-    assert len(FRAMES) == 5, f"expected the five TUM frames in {shared_dir() / 'images' / 'tum_fr3'}"
+    assert len(FRAMES) == 5
     return {p.stem[-4:]: read_rgb(p) for p in FRAMES}
 
 
 @pytest.fixture(scope="module")
 def seg384():
-    return get_segmenter("onnx", model=MODELS / "yolov8n-seg_deq_384x512.onnx")
+    return get_segmenter("onnx", model=model("yolov8n-seg_deq_384x512.onnx"))
 
 
 @pytest.fixture(scope="module")
@@ -113,7 +119,7 @@ def test_segmentation_is_deterministic(seg384, images, results384):
 def test_256x320_model_finds_every_person(images):
     """The faster 256x320 file finds all 8 people too; in frame 0546 it adds one low-score (< 0.5) box that spans
     both people (its IoU with either stays under the NMS threshold 0.7). Stated, not hidden."""
-    seg = get_segmenter("onnx", model=MODELS / "yolov8n-seg_deq_256x320.onnx")
+    seg = get_segmenter("onnx", model=model("yolov8n-seg_deq_256x320.onnx"))
     assert seg.input_hw == (256, 320)
     for key, img in images.items():
         persons = seg(img)
@@ -125,7 +131,7 @@ def test_256x320_model_finds_every_person(images):
 
 def test_int8_square_input_is_scaled_per_axis(images):
     """The int8 file takes 320x320: a 640x480 frame is scaled by 0.5 x 0.667; it finds the same people."""
-    seg = get_segmenter("onnx", model=MODELS / "yolov8n-seg_int8.onnx")
+    seg = get_segmenter("onnx", model=model("yolov8n-seg_int8.onnx"))
     assert seg.input_hw == (320, 320)
     for key in ("0193", "0546"):
         persons = seg(images[key])
@@ -191,7 +197,7 @@ def test_unknown_or_corrupt_model(tmp_path, monkeypatch):
         OnnxSegmenter(garbage)
     # A truncated copy of a real model fails the hash check.
     truncated = tmp_path / "truncated.onnx"
-    truncated.write_bytes((MODELS / "yolov8n-seg_deq_256x320.onnx").read_bytes()[:100_000])
+    truncated.write_bytes((model("yolov8n-seg_deq_256x320.onnx")).read_bytes()[:100_000])
     monkeypatch.delenv("D2SLAM_SEG_ALLOW_UNKNOWN")
     with pytest.raises(D2SlamError, match="unknown model file"):
         OnnxSegmenter(truncated)
@@ -199,7 +205,7 @@ def test_unknown_or_corrupt_model(tmp_path, monkeypatch):
 
 def test_unknown_but_valid_model_runs_with_the_flag(tmp_path, images):
     copy = tmp_path / "mine.onnx"
-    shutil.copyfile(MODELS / "yolov8n-seg_deq_256x320.onnx", copy)
+    shutil.copyfile(model("yolov8n-seg_deq_256x320.onnx"), copy)
     with open(copy, "ab") as fh:  # append ModelProto field 5 (model_version = 7): another hash, same network
         fh.write(b"\x28\x07")
     with pytest.raises(D2SlamError, match="unknown model file"):

@@ -15,13 +15,20 @@ import pytest
 from d2slam.cli import main
 from d2slam.config import Config, SegmentationConfig
 from d2slam.errors import D2SlamError
-from d2slam.paths import shared_dir
+from d2slam.assets import asset_path, tum_frames
 from d2slam.segmentation import CachedSegmenter, get_segmenter, masks_for
 from d2slam.segmentation.base import PersonInstance
 from d2slam.segmentation.cache import RgbListSequence, load_instances, segmenter_key, sequence_key
 from d2slam.segmentation.sim import LabelSegmenter, instances_from_labels
 
 H, W = 24, 32
+
+
+@pytest.fixture(scope="module")
+def real_assets():
+    """The models and frames, found before each test moves the cache (module scope: set up before the autouse one)."""
+    return {"m384": asset_path("models/yolov8n-seg_deq_384x512.onnx"),
+            "m256": asset_path("models/yolov8n-seg_deq_256x320.onnx"), "frames": tum_frames()}
 
 
 @pytest.fixture(autouse=True)
@@ -129,12 +136,12 @@ def test_sequence_identity(tmp_path, seq):
     assert sequence_key(RgbListSequence(seq.root)) != key
 
 
-def test_real_segmenter_key_has_model_hash_and_mask_config():
-    models = shared_dir() / "models"
-    a = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx")
-    b = get_segmenter("onnx", model=models / "yolov8n-seg_deq_256x320.onnx")
-    c = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx", config=SegmentationConfig(nms_iou=0.5))
-    d = get_segmenter("onnx", model=models / "yolov8n-seg_deq_384x512.onnx",
+def test_real_segmenter_key_has_model_hash_and_mask_config(real_assets):
+    m384, m256 = real_assets["m384"], real_assets["m256"]
+    a = get_segmenter("onnx", model=m384)
+    b = get_segmenter("onnx", model=m256)
+    c = get_segmenter("onnx", model=m384, config=SegmentationConfig(nms_iou=0.5))
+    d = get_segmenter("onnx", model=m384,
                       config=SegmentationConfig(intra_op_threads=1))
     assert a.identity()["model_sha256"] == a.sha256
     assert len({segmenter_key(s) for s in (a, b, c)}) == 3
@@ -272,11 +279,12 @@ def test_rgb_list_bad_input(tmp_path):
         RgbListSequence(root)
 
 
-def test_segment_command_fills_the_cache_once(tmp_path, capsys):
+def test_segment_command_fills_the_cache_once(tmp_path, capsys, real_assets, monkeypatch):
     """`d2slam segment SEQUENCE_DIR` with the real model on two real frames; the second run segments nothing."""
     root = tmp_path / "real_seq"
     (root / "rgb").mkdir(parents=True)
-    frames = sorted((shared_dir() / "images" / "tum_fr3").glob("*.png"))[:2]
+    frames = real_assets["frames"][:2]
+    monkeypatch.setenv("D2SLAM_SEG_MODEL", str(real_assets["m384"]))  # the default model, wherever it was found
     lines = []
     for i, src in enumerate(frames):
         shutil.copyfile(src, root / "rgb" / f"{100 + i}.000000.png")

@@ -149,7 +149,7 @@ def test_twin_ratio_targets_fail_visibly():
 
 
 def test_targets_run_by_run():
-    """Issue 4's targets per run: each dynamic run over the same seed's twin (`none`), recall at static precision;
+    """The targets per run: each dynamic run over the same seed's twin (`none`), recall at static precision;
     counts of runs met; `none`'s target only on walking scenarios and no keypoint target for it; a missing value is
     never met."""
     df = _runs()
@@ -177,7 +177,7 @@ def test_targets_run_by_run():
     assert md[4] == "| s/static | `none` | 5.00x / 10.00x / 13.33x | n/a | n/a | n/a | n/a |"
     df.loc[(df["method"] == "d2slam") & (df["twin"] == 0) & (df["seed"] == 101), "ate_rmse_m"] = np.nan
     assert T.target_checks(df)["ate_ok"].tolist()[3] is False  # a failed run misses the target
-    assert "## Targets of issue 4, run by run" in T.tables_markdown(df, ["none", "d2slam", "semantic"])
+    assert "## Targets, run by run" in T.tables_markdown(df, ["none", "d2slam", "semantic"])
 
 
 def test_occluded_twin_tables():

@@ -23,6 +23,7 @@ the sequence has ground truth (else the first successful one).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -357,19 +358,23 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     seconds per repeat (default load + per-frame budget of :class:`~d2slam.config.BaselineConfig`)."""
     from d2slam.baselines.vocab import resolve_vocabulary
     from d2slam.data import open_sequence
+    from d2slam.outputs import check_output_file
 
     sequence_dir = Path(sequence_dir).expanduser().resolve()
     out_traj = Path(out_traj).expanduser()
     if repeats < 1:
         raise D2SlamError(f"repeats must be >= 1, got {repeats}")
-    out_traj.parent.mkdir(parents=True, exist_ok=True)
+    check_output_file(out_traj, "trajectory")
+    if metrics_json is not None:
+        check_output_file(metrics_json, "metrics JSON")
     for stale in [out_traj, out_traj.with_name(out_traj.stem + ".online.txt")]:
         stale.unlink(missing_ok=True)  # a failed run must not leave an older trajectory behind
     seq = open_sequence(sequence_dir, camera=camera) if camera else open_sequence(sequence_dir)
     n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
     base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
             "repeats": repeats,
-            "camera": seq.camera.name, "config_hash": config.hash()}
+            "camera": seq.camera.name, "camera_settings": dataclasses.asdict(seq.camera),
+            "config_hash": config.hash()}
     work_root = Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_", dir=out_traj.parent))
     try:
         # vocabulary and settings problems: recorded, not raised

@@ -466,18 +466,18 @@ def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path
                      progress: bool = True) -> dict:
     """Build (or reuse from the cache) a DBoW2 text vocabulary; returns its manifest.
 
-    Sources: the real TUM fr3 frames of the shared folder (``real``), every image of ``images_dirs``, every
+    Sources: the five real TUM fr3 frames (``real``, ``d2slam.assets``), every image of ``images_dirs``, every
     ``vocab_train_stride``-th frame of ``sequences`` and of the synthetic training sequences (``synthetic``,
     seeds 900-999). The manifest (``VOCAB.txt.json``) records sources with their sha256, seeds, parameters, sizes,
     the vocabulary's sha256 and the build time; an identical request reuses the cached file."""
     from d2slam import __version__
-    from d2slam.paths import shared_dir
+    from d2slam.assets import tum_frames
 
     out = Path(out) if out else default_vocab_path()
     groups: list[tuple[str, Path, list[Path]]] = []
     if real:
-        real_dir = shared_dir() / "images" / "tum_fr3"
-        groups.append(("real", real_dir, images_of_dir(real_dir)))
+        frames = tum_frames()
+        groups.append(("real", frames[0].parent, frames))
     for d in images_dirs:
         groups.append(("images", Path(d), images_of_dir(d)))
     for s in sequences:

@@ -75,7 +75,10 @@ def run(args) -> int:
     if args.against:
         return against_orbslam3(args)
     from d2slam.config import DEFAULT
+    from d2slam.outputs import check_output_file
 
+    if args.json:
+        check_output_file(args.json, "--json")
     print(f"d2slam bench engine: seed {args.seed}, {args.frames} frames, --method none, "
           f"cv2 threads {DEFAULT.engine.cv_threads} (set by the engine), config {DEFAULT.hash()}")
     print(f"{'scenario':<19} {'kind':<7} {'tracked':>9} {'KFs':>4} {'ATEcm':>7} {'RPEcm':>7} {'RPEdeg':>7} "

@@ -107,7 +107,9 @@ def run(args) -> int:
 
     if args.frames < 30:
         raise D2SlamError("--frames must be at least 30 (RPE needs 1 s pairs)")
-    out_root = Path(args.out) if args.out else cache_dir("bench", "orbslam3")
+    from d2slam.outputs import check_output_dir
+
+    out_root = check_output_dir(args.out, "--out") if args.out else cache_dir("bench", "orbslam3")
     out_root.mkdir(parents=True, exist_ok=True)
     rows = []
     for scenario in args.scenarios:

@@ -1,6 +1,6 @@
 """``d2slam bench realism``: are the synthetic people like real TUM fr3 people, for ORB?
 
-For the real fr3 walking frames of ``shared/images/tum_fr3`` (persons from the ONNX segmenter) and for every
+For the five real fr3 walking frames (``d2slam.assets``) (persons from the ONNX segmenter) and for every
 ``stride``-th frame of each synthetic walking scenario and sitting_static (persons and dynamic pixels from
 ``mask_gt``), prints the person area fraction, the fraction of the engine's ORB keypoints (ORB-SLAM settings,
 1000 features with bucketing) on persons, and their ratio (mean / min / max over the sampled frames). The ratio is
@@ -42,7 +42,7 @@ def _row(name: str, area, kp, ratio, n_kp) -> str:
 
 
 def run(args) -> int:
-    from d2slam.paths import shared_dir
+    from d2slam.assets import tum_frames
     from d2slam.synth.realism import extractor, real_stats, summary, synthetic_stats
     from d2slam.synth.scene import SCENARIOS
 
@@ -53,7 +53,7 @@ def run(args) -> int:
     print("Person area fraction, fraction of engine ORB keypoints on people, ratio (per frame: mean [min-max])")
     print(head)
     if not args.no_real:
-        paths = sorted((shared_dir() / "images" / "tum_fr3").glob("*.png"))
+        paths = tum_frames()
         r = real_stats(paths, ext=ext)
         print(_row(r.name, r.area, r.kp, r.ratio, r.n_kp))
         print("    per frame: " + ", ".join(f"{p.stem[-4:]} {a:.2f}/{k:.2f}" for p, a, k in zip(paths, r.area, r.kp))

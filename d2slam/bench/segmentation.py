@@ -1,6 +1,6 @@
 """``d2slam bench segmentation``: frames per second of the ONNX person segmenter, per model, with the time split
 into preprocess (resize, scale, NCHW), inference (onnxruntime) and postprocess (decode, NMS, masks at frame size),
-on the five real TUM frames of the shared folder repeated. Targets: >= 20 fps at 256x320, >= 15 fps at 384x512."""
+on the five real TUM frames (``d2slam.assets``) repeated. Targets: >= 20 fps at 256x320, >= 15 fps at 384x512."""
 
 from __future__ import annotations
 
@@ -19,25 +19,21 @@ def add_arguments(parser) -> None:
     parser.add_argument("--repeats", type=int, default=20, help="passes over the five frames (default 20)")
     parser.add_argument("--warmup", type=int, default=3, help="untimed frames first (default 3)")
     parser.add_argument("--model", action="append", metavar="PATH",
-                        help="model file (repeatable; default: the three shared models)")
+                        help="model file (repeatable; default: the three known models)")
     parser.add_argument("--threads", type=int, help="onnxruntime intra-op threads (default: the config's)")
 
 
 def run(args) -> int:
     import dataclasses
 
+    from d2slam.assets import asset_path, tum_frames
     from d2slam.config import DEFAULT
-    from d2slam.errors import D2SlamError
-    from d2slam.paths import shared_dir
     from d2slam.segmentation.onnx import KNOWN_MODELS, OnnxSegmenter, read_rgb
 
-    image_dir = shared_dir() / "images" / "tum_fr3"
-    images = sorted(image_dir.glob("*.png"))
-    if not images:
-        raise D2SlamError("no frames to benchmark on", path=image_dir)
+    images = tum_frames()
     frames = [read_rgb(p) for p in images]
     models = [Path(m) for m in args.model] if args.model else [
-        shared_dir() / "models" / name for name in sorted(KNOWN_MODELS.values(), reverse=True)]
+        asset_path(f"models/{name}") for name in sorted(KNOWN_MODELS.values(), reverse=True)]
     cfg = DEFAULT.segmentation
     if args.threads:
         cfg = dataclasses.replace(cfg, intra_op_threads=args.threads)

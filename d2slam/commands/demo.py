@@ -1,6 +1,7 @@
 """``d2slam demo``: the main job on built-in synthetic data, end to end and small.
 
-1. generate a short synthetic walking_xyz sequence and its static twin into the cache and describe them;
+1. generate (or reuse) a short synthetic walking_xyz sequence and its static twin in the study's sequence cache and
+   describe them;
 2. run the engine on both with the keypoint filter off (``none``, the ORB-SLAM3 stand-in) and with D2SLAM
    (``d2slam``, simulated masks), evaluate with evo and print the table (a tiny ``d2slam study`` grid).
 """
@@ -11,8 +12,8 @@ from __future__ import annotations
 def register(sub) -> None:
     p = sub.add_parser("demo", help="the main job on a short synthetic sequence: generate, run none vs d2slam, "
                        "evaluate",
-                       description="Generate a short synthetic walking_xyz sequence and its static twin into the "
-                       "cache (d2slam.paths.cache_dir('demo')), describe them, then run the engine with the "
+                       description="Generate (or reuse) a short synthetic walking_xyz sequence and its static twin "
+                       "in the study's sequence cache, describe them, then run the engine with the "
                        "keypoint filter off (none) and with D2SLAM (d2slam, simulated masks) on both, evaluate with "
                        "evo and print ATE / RPE / keypoint F1 (a tiny `d2slam study` grid).")
     p.add_argument("--frames", type=int, default=60, help="frames to generate (default 60)")
@@ -24,17 +25,18 @@ def register(sub) -> None:
 def run(args) -> int:
     import pandas as pd
 
-    from d2slam.commands.synth import summarise
+    from d2slam.data import open_sequence
     from d2slam.paths import cache_dir
     from d2slam.study import run_study
-    from d2slam.synth.generate import generate
+    from d2slam.study.sequences import ensure_sequence
 
     root = cache_dir("demo")
     print("== 1. synthetic sequences (TUM layout + masks + scene.json)")
     for twin in (False, True):
-        out = root / ("walking_xyz" + ("_static_twin" if twin else ""))
-        result = generate("walking_xyz", out, frames=args.frames, seed=args.seed, static_twin=twin)
-        print(summarise(result))
+        out = ensure_sequence("walking_xyz", args.seed, args.frames, twin, progress=True)
+        seq = open_sequence(out)
+        print(f"{len(seq)} frames of walking_xyz (seed {args.seed}{', static twin' if twin else ''}) in {out}")
+        print(f"  people ids {seq.person_ids.tolist()}, moved objects {seq.moved_object_ids.tolist()}")
         files = sorted(p.name for p in out.iterdir())
         print(f"  contents: {', '.join(files)}")
 
@@ -46,5 +48,5 @@ def run(args) -> int:
     runs = study.runs[[c for c in cols if c in study.runs.columns]].astype({"frames_tracked": "Int64", "twin": bool})
     with pd.option_context("display.width", 160, "display.max_columns", 20):
         print(runs.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
-    print(f"\nTables: {study.out / 'tables.md'}; the full study: `d2slam study --out results/` (see README).")
+    print(f"\nTables: {study.out / 'tables.md'}; the full study: `d2slam study --out results/` (see docs/results.md).")
     return 0

@@ -41,5 +41,6 @@ def run(args) -> int:
     if not args.timeout > 0:
         raise D2SlamError("--timeout must be positive")
     dl.download_sequence(args.sequence, args.to, base_url=args.base_url, archive=args.archive,
-                         keep_archive=args.keep_archive, force=args.force, timeout=args.timeout)
+                         keep_archive=args.keep_archive, force=args.force, timeout=args.timeout,
+                         log=print)
     return 0

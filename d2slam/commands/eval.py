@@ -24,6 +24,10 @@ def run(args) -> int:
     from d2slam.errors import D2SlamError
     from d2slam.eval.trajectory import evaluate
 
+    from d2slam.outputs import check_output_file
+
+    if args.plot:
+        check_output_file(args.plot, "--plot")
     gt_path = Path(args.groundtruth)
     if gt_path.is_dir():
         gt_path = gt_path / "groundtruth.txt"

@@ -23,8 +23,13 @@ def register(sub) -> None:
     p.add_argument("--masks-from", metavar="SEQUENCE_DIR", default=None,
                    help="read the masks from this sequence instead (same frames and timestamps), e.g. --method "
                    "oracle on a static twin with its dynamic sequence: the occluded twin of the study")
-    p.add_argument("--camera", metavar="fr1|fr2|fr3", default=None,
-                   help="camera of a TUM folder whose name does not say (synthetic sequences carry their own)")
+    p.add_argument("--camera", metavar="fr1|fr2|fr3|FILE.yaml", default=None,
+                   help="camera of a TUM-layout folder: fr1/fr2/fr3, or an ORB-SLAM3 RGB-D settings YAML (Camera.fx, "
+                   "..., DepthMapFactor, ThDepth; old Camera.* or new Camera1.* keys) for any other RGB-D camera "
+                   "(default: from the folder name; synthetic sequences carry their own, a different one is an error)")
+    p.add_argument("--config", metavar="FILE.yaml", default=None,
+                   help="override config fields (d2slam/config.py): a YAML of `section: {field: value}`, e.g. "
+                   "`dynamics: {z_far: 5.0}`; saved in the metrics JSON")
     p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
     p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 only: runs of ORB-SLAM3 (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
@@ -34,72 +39,93 @@ def register(sub) -> None:
 def run(args) -> int:
     import dataclasses
     import json
+    import sys
     from pathlib import Path
 
-    from d2slam.config import DEFAULT
+    from d2slam.config import DEFAULT, load_config_file
     from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
+    from d2slam.data.intrinsics import is_camera_file, read_camera_file
+    from d2slam.data.tum import depth_scale_warning
     from d2slam.errors import D2SlamError
-    from d2slam.eval.keypoints import keypoint_recorder
-    from d2slam.methods import get_method, mask_kind
-    from d2slam.pipeline import run_sequence
+    from d2slam.methods import get_method, run_method
+    from d2slam.outputs import check_output_file
+    from d2slam.pipeline import STAGES
 
     method = get_method(args.method)
+    out = check_output_file(args.out, "--out")
+    if args.metrics_json:
+        check_output_file(args.metrics_json, "--metrics-json")
     if method.runner is not None:  # not a keypoint filter of our engine (orbslam3): its own command
         if args.masks is not None or args.masks_from is not None:
             raise D2SlamError(f"--masks and --masks-from do not apply to --method {args.method}")
+        if args.config is not None:
+            raise D2SlamError(f"--config does not apply to --method {args.method}")
         return method.runner(args)
 
-    out = Path(args.out)
-    if not out.parent.is_dir():
-        raise D2SlamError("output folder does not exist", path=out.parent)
-    config = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, ransac_seed=args.seed))
-    seq = open_sequence(args.sequence, **({"camera": args.camera} if args.camera else {}))
-    kfilter = method.factory(config)
-    masks_kind = mask_kind(method, args.masks, synthetic=isinstance(seq, SyntheticSequence))
-    provider = None
-    if args.masks_from is not None and masks_kind is None:
-        raise D2SlamError(f"--masks-from: --method {args.method} reads no masks")
-    if masks_kind is not None:
-        from d2slam.segmentation import mask_source, masks_for, stack_masks
-
-        shape = (seq.camera.height, seq.camera.width)
-        src = seq if args.masks_from is None else mask_source(seq, open_sequence(args.masks_from))
-
-        def provider(i):
-            return stack_masks(masks_for(src, i, masks_kind, config), shape)
-
-    rec = keypoint_recorder(seq)  # keypoint truth (synthetic sequences only; None on TUM folders)
-    result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=rec,
-                          progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
+    config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
+    camera, camera_source = args.camera, None
+    if is_camera_file(args.camera):
+        settings = read_camera_file(args.camera)
+        camera, camera_source = settings.camera, str(Path(args.camera).expanduser().resolve())
+        if settings.th_depth is not None:
+            config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=settings.th_depth))
+    config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=args.seed))
+    seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
+    synthetic = isinstance(seq, SyntheticSequence)
+    warning = depth_scale_warning(seq, config)
+    if warning:
+        print(f"d2slam: warning: {warning}", file=sys.stderr)
+    mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
+    run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
+                     progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
+    result, masks_kind = run.result, run.masks
     if result.tracked == 0:
         write_tum_trajectory(out, result.trajectory, header=f"d2slam run {args.method}: no frame tracked")
     else:
         write_tum_trajectory(out, result.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
-              **({"masks_from": str(src.root)} if args.masks_from is not None else {}),
-              "seed": args.seed, "config_hash": config.hash(), **result.summary(),
-              "trajectory": str(out)}
-    if rec is not None:
-        record["keypoints"] = rec.result()
+              **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
+              "seed": args.seed, "config_hash": config.hash(),
+              "camera": {**dataclasses.asdict(seq.camera),
+                         "source": camera_source or ("scene.json" if synthetic else args.camera or "folder name")},
+              **({"config_file": str(Path(args.config).resolve()), "config_overrides": overrides,
+                  "config": config.to_dict()} if args.config else {}),
+              **result.summary(), "trajectory": str(out)}
+    if run.keypoints is not None:
+        record["keypoints"] = run.keypoints
     gt = seq.groundtruth
-    if gt is not None and result.tracked >= 3:
+    if gt is None:
+        record["metrics_error"] = "no ATE/RPE: the sequence has no groundtruth.txt"
+    elif result.tracked < 3:
+        record["metrics_error"] = f"no ATE/RPE: only {result.tracked} frames tracked (at least 3 are needed)"
+    else:
         from d2slam.eval.trajectory import evaluate
 
         try:
             record["metrics"] = evaluate(gt, result.trajectory).to_dict()
         except D2SlamError as exc:
-            record["metrics_error"] = str(exc)
-    for k in ("load", "extract", "filter", "track", "local_ba", "segment"):
+            record["metrics_error"] = f"no ATE/RPE: {exc}"
+    listed = getattr(seq, "n_rgb", result.frames)
+    if result.frames < listed:
+        record["frames_note"] = (f"{result.frames} of the {listed} frames of rgb.txt were run: the others have no "
+                                 f"depth image within {seq.max_dt:g} s (depth.txt lists {seq.n_depth})")
+    for k in STAGES:
         if k in result.stage_ms:
             record[f"{k}_ms"] = round(result.stage_ms[k], 3)
     if args.metrics_json:
-        Path(args.metrics_json).write_text(json.dumps(record, indent=2) + "\n")
+        tmp = Path(args.metrics_json).with_name(Path(args.metrics_json).name + ".tmp")
+        tmp.write_text(json.dumps(record, indent=2) + "\n")
+        tmp.replace(args.metrics_json)
     if not args.quiet:
         print(f"{seq.name}: {result.frames} frames, {result.tracked} tracked, {result.lost} lost, "
               f"{result.keyframes} keyframes, {result.fps:.1f} fps")
         print("ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
+        if "frames_note" in record:
+            print(record["frames_note"])
         if "metrics" in record:
             m = record["metrics"]
             print(f"ate_rmse_m {m['ate_rmse_m']:.4f}  rpe_trans_m {m['rpe_trans_m']:.4f}  "
                   f"rpe_rot_deg {m['rpe_rot_deg']:.3f}")
+        else:
+            print(record["metrics_error"])
     return 0

@@ -36,6 +36,10 @@ def run(args) -> int:
         if not 0.0 < args.score < 1.0:
             raise D2SlamError(f"--score must be in (0, 1), got {args.score}")
         cfg = dataclasses.replace(cfg, score_threshold=args.score)
+    from d2slam.outputs import check_output_dir
+
+    if args.overlay:
+        check_output_dir(args.overlay, "--overlay")
     paths = [Path(p) for p in args.inputs]
     dirs = [p for p in paths if p.is_dir()]
     if dirs and len(paths) > 1:

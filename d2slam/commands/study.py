@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 
 ENV_TUM = "D2SLAM_TUM_ROOT"
 
@@ -63,6 +64,8 @@ def run(args) -> int:
     from d2slam.errors import D2SlamError
     from d2slam.study import grid as G
 
+    from d2slam.outputs import check_output_dir
+
     out = Path(args.out)
     if args.tables_only:
         from d2slam.study.core import rebuild_tables
@@ -76,6 +79,10 @@ def run(args) -> int:
         tum_root = os.environ.get(ENV_TUM)
         if not tum_root:
             raise D2SlamError(f"--tum needs ${ENV_TUM} pointing at a TUM RGB-D copy")
+    check_output_dir(out, "--out")
+    scenarios = args.scenarios
+    if tum_root:
+        scenarios = _downloaded(tum_root, scenarios)
     methods = args.methods or G.default_methods("tum" if tum_root else "synth")
     from d2slam.methods import methods as registered
 
@@ -87,7 +94,7 @@ def run(args) -> int:
         raise D2SlamError(f"--frames {args.frames} is too short: RPE needs 1-second pairs (>= 40 frames at 30 Hz)")
     if args.jobs < 1:
         raise D2SlamError(f"--jobs must be >= 1, got {args.jobs}")
-    specs = G.expand_grid(args.scenarios, methods, args.seeds, args.frames, args.twin_methods,
+    specs = G.expand_grid(scenarios, methods, args.seeds, args.frames, args.twin_methods,
                           source="tum" if tum_root else "synth")
     if args.dry_run:
         return _dry_run(specs)
@@ -106,7 +113,31 @@ def run(args) -> int:
         print(f"  {len(res.manifest['grid']['reused_runs'])} runs reused from {out / 'runs'} (--resume)")
     print(f"  {res.manifest['timing'].get('total_s', 0):.0f} s ({res.manifest['executor']['executor']}, "
           f"jobs {args.jobs})")
+    if n_ok == 0:
+        print("d2slam: error: no run succeeded (see the 'error' column of runs.csv)", file=sys.stderr)
+        return 1
     return 0
+
+
+def _downloaded(tum_root, scenarios: list[str]) -> list[str]:
+    """The scenarios whose fr3 folder is under ``tum_root``; the others are listed as skipped (not downloaded).
+    A missing root, or one holding none of them, is an error."""
+    from pathlib import Path
+
+    from d2slam.errors import D2SlamError
+    from d2slam.study.grid import TUM_FOLDERS
+
+    root = Path(tum_root).expanduser()
+    if not root.is_dir():
+        raise D2SlamError("--tum-root: folder not found", path=root)
+    present = [s for s in scenarios if (root / TUM_FOLDERS[s]).is_dir()]
+    skipped = [TUM_FOLDERS[s] for s in scenarios if s not in present]
+    if not present:
+        raise D2SlamError(f"--tum-root holds none of the sequences ({', '.join(skipped)}); `d2slam download` "
+                          "fetches them", path=root)
+    if skipped:
+        print(f"skipped (not under {root}; `d2slam download` fetches them): {', '.join(skipped)}")
+    return present
 
 
 def _dry_run(specs) -> int:

@@ -50,8 +50,10 @@ def summarise(result: dict) -> str:
 
 
 def run(args) -> int:
+    from d2slam.outputs import check_output_dir
     from d2slam.synth.generate import generate
 
+    check_output_dir(args.out, "--out")
     result = generate(args.scenario, args.out, frames=args.frames, seed=args.seed, static_twin=args.static_twin,
                       workers=args.workers)
     print(summarise(result))

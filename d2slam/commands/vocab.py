@@ -30,7 +30,10 @@ def register(sub) -> None:
 
 def _build(args) -> int:
     from d2slam.baselines.vocab import build_vocabulary
+    from d2slam.outputs import check_output_file
 
+    if args.out:
+        check_output_file(args.out, "--out")
     sequences = [s for group in args.sequences for s in group]
     m = build_vocabulary(args.out, images_dirs=args.images_dir, sequences=sequences,
                          synthetic=not args.no_synthetic, real=not args.no_real, force=args.force)

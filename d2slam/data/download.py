@@ -26,6 +26,7 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -53,6 +54,7 @@ CONNECT_TIMEOUT = DEFAULT.data.download_timeout
 #: Automatic resumed retries of a transfer that breaks off after data started to flow.
 TRANSFER_RETRIES = 3
 CHUNK = 1 << 20
+_log = logging.getLogger(__name__)
 MIRROR_ENV = "D2SLAM_TUM_MIRROR"
 RECORD_FILE = "tum_archives.json"
 EXPECTED_FILES = ("rgb.txt", "depth.txt", "groundtruth.txt")
@@ -314,14 +316,16 @@ def _manual_hint(info: SequenceInfo, urls: list[str], dest: Path) -> str:
             f"--base-url to a server that mirrors the TUM layout.")
 
 
-def _download(info: SequenceInfo, urls: list[str], part: Path, dest: Path, timeout: float, log) -> tuple[str, int]:
-    """Try each URL in turn; returns (url used, bytes). Raises D2SlamError when none works."""
+def download_urls(urls: list[str], part: Path, timeout: float = CONNECT_TIMEOUT, log=_log.info,
+                  what: str = "file", hint: str = "") -> tuple[str, int]:
+    """Download the first of ``urls`` that works into ``part`` (resuming, retried on interruption); returns
+    (url used, bytes). Raises D2SlamError naming every failure, with ``hint`` (how to get the file otherwise)."""
     failures: list[str] = []
     unreachable = 0
     for url in urls:
         for attempt in range(TRANSFER_RETRIES + 1):
             try:
-                total = fetch(url, part, timeout=timeout, desc=info.archive)
+                total = fetch(url, part, timeout=timeout, desc=part.name[: -len(".part")] or part.name)
             except _Unreachable as exc:
                 failures.append(f"{url}: unreachable ({exc})")
                 unreachable += 1
@@ -341,9 +345,9 @@ def _download(info: SequenceInfo, urls: list[str], part: Path, dest: Path, timeo
                                   "resume", path=part)
             return url, size
     if unreachable == len(urls):
-        raise D2SlamError("cannot reach the TUM server (" + "; ".join(failures) + "). This machine may be "
-                          "offline. " + _manual_hint(info, urls, dest))
-    raise D2SlamError("download failed: " + "; ".join(failures) + ". " + _manual_hint(info, urls, dest))
+        raise D2SlamError(f"cannot reach the server of the {what} (" + "; ".join(failures) + "). This machine may "
+                          "be offline. " + hint)
+    raise D2SlamError(f"download of the {what} failed: " + "; ".join(failures) + ". " + hint)
 
 
 def _check_known(info: SequenceInfo, archive: Path, sha: str, size: int) -> dict | None:
@@ -366,7 +370,7 @@ def _check_known(info: SequenceInfo, archive: Path, sha: str, size: int) -> dict
 
 def download_sequence(name: str, dest: str | Path, base_url: str | None = None, archive: str | Path | None = None,
                       keep_archive: bool = False, force: bool = False, timeout: float = CONNECT_TIMEOUT,
-                      log=print) -> Path:
+                      log=_log.info) -> Path:
     """Download (or take ``archive``), verify and extract sequence ``name`` into ``dest``; returns the sequence
     folder (``dest/rgbd_dataset_freiburgN_NAME``). See the module docstring for every check."""
     from d2slam.data.tum import TumSequence
@@ -399,7 +403,8 @@ def download_sequence(name: str, dest: str | Path, base_url: str | None = None, 
             source = "(previously downloaded)"
             log(f"using {path} already downloaded")
         else:
-            source, _ = _download(info, urls, part, dest, timeout, log)
+            source, _ = download_urls(urls, part, timeout, log, what=f"TUM archive {info.archive}",
+                                      hint=_manual_hint(info, urls, dest))
             os.replace(part, path)
 
     size = path.stat().st_size
@@ -438,4 +443,5 @@ def format_list() -> str:
 
 
 __all__ = ["SequenceInfo", "registry", "resolve", "base_urls", "archive_urls", "download_sequence", "fetch",
+           "download_urls",
            "verify_and_extract", "sha256_file", "load_records", "record_path", "format_list", "CONNECT_TIMEOUT"]

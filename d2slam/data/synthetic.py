@@ -139,9 +139,20 @@ class SyntheticSequence(TumSequence):
         return Camera(name=str(cam.get("name", "synthetic")), **kwargs)
 
     def _load_camera(self, camera: Camera | str | None) -> Camera:
+        """The scene's camera; an explicit ``camera`` must agree with it (any intrinsic, size or depth factor that
+        differs is an error: the images were rendered with the scene's camera)."""
         if camera is None:
             return self._scene_camera
-        return super()._load_camera(camera)
+        given = super()._load_camera(camera)
+        own = self._scene_camera
+        differ = [f for f in ("fx", "fy", "cx", "cy", "width", "height", "dist", "depth_factor", "bf")
+                  if not np.allclose(getattr(given, f), getattr(own, f), rtol=1e-6, atol=1e-9)]
+        if differ:
+            raise D2SlamError(f"camera {given.name!r} conflicts with this synthetic sequence's own camera "
+                              f"(scene.json) in {', '.join(differ)}: "
+                              + ", ".join(f"{f} {getattr(given, f)} vs {getattr(own, f)}" for f in differ[:3])
+                              + "; drop --camera (synthetic sequences carry their camera)", path=self.root)
+        return own
 
     # -- masks ------------------------------------------------------------------------------------------------
     def _check_index(self, index: int) -> int:

@@ -16,7 +16,7 @@ error 0.66 px; with the tracked position 8 % exceed the unscaled alpha(z) (73 % 
 walking_rpy dev seed 4: 35 / 72 % -> 6 / 63 %. LK also finds a correspondence for keypoints the descriptor matching
 missed: on walking_xyz dev seed 3, for 91 % of the unmatched static keypoints outside the mask areas (6 % of those
 exceed alpha) and for 51 % of the missed dynamic ones there (62 % of those exceed alpha), which is where most of the
-missed dynamic keypoints are (issue 4's note). Notebook 03 shows the default settings (11 x 11 window, 10
+missed dynamic keypoints are. Notebook 03 shows the default settings (11 x 11 window, 10
 iterations) on a short sequence.
 
 Without a depth a new match has eq 5 alone, which cannot see an object carried along its epipolar lines; with the

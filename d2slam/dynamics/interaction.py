@@ -129,16 +129,16 @@ def oim_candidates(belief: np.ndarray, observed: np.ndarray, geo_dynamic: np.nda
     ``oim_skip_observed_static`` (ours, the default), not matched with a passed geometric test this frame (matched
     and not ``geo_dynamic``: epipolar error <= alpha and, with the pose test on, its residuals under threshold).
 
-    Deviation, measured (synthetic dev seeds 3-5, 300 frames, ``d2slam``; the scripts are described in the note of
-    issue 4, not in the repo): with the paper's candidates the OIM flipped about 4 static keypoints for each dynamic
-    one (walking_static, dev seed 3: 26.4k of the run's 78.1k false "dynamic" keypoints came from the OIM), and each
-    flip takes a static keypoint out of tracking and mapping. Replacing only those false positives by the truth
-    brought the ATE from 4.1 to 3.4 mm on walking_static and from 5.8 to 4.7 mm on walking_xyz (the keypoint truth
-    as the filter: 3.3 and 5.3). Keeping the keypoints whose own epipolar test passed out of the OIM lowered the ATE
-    on 13 of the 15 dev runs (5 scenarios x 3 seeds; walking_static 4.1/3.9/4.1 -> 3.4/3.5/3.5 mm; worse: walking_xyz
-    seed 5 4.0 -> 4.2, walking_rpy seed 3 52.7 -> 57.2) at a recall cost of 0.01-0.06 on the walking scenarios and
-    0.06-0.12 on sitting_static. Unmatched keypoints (most of an object's keypoints while it is carried) stay
-    candidates. ``oim_skip_observed_static=False`` gives the paper's reading.
+    Deviation, measured (synthetic dev seeds 3-5, 300 frames, ``d2slam``): with the paper's candidates the OIM
+    flipped about 4 static keypoints for each dynamic one (walking_static, dev seed 3: 26.4k of the run's 78.1k
+    false "dynamic" keypoints came from the OIM), and each flip takes a static keypoint out of tracking and mapping.
+    Replacing only those false positives by the truth brought the ATE from 4.1 to 3.4 mm on walking_static and from
+    5.8 to 4.7 mm on walking_xyz (the keypoint truth as the filter: 3.3 and 5.3). Keeping the keypoints whose own
+    epipolar test passed out of the OIM lowered the ATE on 13 of the 15 dev runs (5 scenarios x 3 seeds;
+    walking_static 4.1/3.9/4.1 -> 3.4/3.5/3.5 mm; worse: walking_xyz seed 5 4.0 -> 4.2, walking_rpy seed 3 52.7 ->
+    57.2) at a recall cost of 0.01-0.06 on the walking scenarios and 0.06-0.12 on sitting_static. Unmatched
+    keypoints (most of an object's keypoints while it is carried) stay candidates.
+    ``oim_skip_observed_static=False`` gives the paper's reading.
 
     ``oim_skip_neighbour_static`` (ours, off by default; the config comment has the measurements) also drops the
     unmatched keypoints whose matched neighbours say static, ``p_nb`` (``neighbour_p_g``) <= 0.5: it trades recall for
@@ -286,7 +286,7 @@ def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: n
     half of the dynamic keypoints the classifier missed were such keypoints (walking_xyz dev seed 3: 3531 of 6004,
     on people the simulated masks missed and on carried objects), and an unguided second matching found few of them.
     Their matched neighbours on the same surface usually carry the motion. Measured on synthetic dev seeds 3-5 (300
-    frames, ``d2slam``, 15 runs; the table is in the note of issue 4): recall +0.023 to +0.049 on the walking scenarios
+    frames, ``d2slam``, 15 runs): recall +0.023 to +0.049 on the walking scenarios
     (+0.002 to +0.004 on sitting_static), static precision up to +0.012, precision down by up to 0.039 and F1 by up to
     0.032, the ATE unchanged (44.1 and 44.0 mm summed over the 12 runs outside walking_rpy). A first version, the share
     of flagged neighbours within 0.25 m, raised recall more but the ATE too (45.9 mm) and lost 53 frames on one run.

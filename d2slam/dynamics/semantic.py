@@ -28,7 +28,7 @@ edges, bounding-box distances and pixel lookups are computed once, and its edge 
 reused by the OIM's zone test. Edge pixels are listed with ``np.flatnonzero`` and the trees are unbalanced with 32
 points per leaf (both measured faster, see ``_nonzero_xy`` and ``_tree``). ``d2slam bench dynamics``: all modules
 3.49 -> 2.50 ms median per frame (1000 keypoints, two masks); ``tests/test_dynamics_equivalence.py`` checks that
-every output is identical to the previous implementation (frozen in ``tests/dynamics_v1``).
+every output equals its stored reference (``tests/data/dynamics_reference.npz``).
 
 Special masks (documented recoveries):
 - no masks (``None`` or ``(0, H, W)``) or an empty mask: the mask does not exist, ``d = -inf``, P_S = 0, no zone;
@@ -232,12 +232,6 @@ class FrameMasks:
         if not self.kp.finite.all():
             out[~self.kp.finite] = np.nan
         return out
-
-
-def keypoint_pixels(kps: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(pu, pv, finite): keypoints rounded to the nearest pixel and clipped to the image; non-finite ones -> (0, 0)."""
-    kp = KeypointPixels(kps, shape)
-    return kp.pu, kp.pv, kp.finite
 
 
 def signed_distances(masks: np.ndarray | list[MaskEdges] | None, kps: np.ndarray,

@@ -11,10 +11,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from d2slam.data.intrinsics import FREIBURG3
 from d2slam.dynamics.depth import keypoint_depth
 from d2slam.slam.hook import FilterInput
 
-K_FR3 = np.array([[535.4, 0.0, 320.1], [0.0, 539.2, 247.6], [0.0, 0.0, 1.0]])
+K_FR3 = FREIBURG3.K
 
 
 def person_masks(shape: tuple[int, int], n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

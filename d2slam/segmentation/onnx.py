@@ -1,6 +1,6 @@
 """YOLOv8n-seg person segmentation through onnxruntime (CPU), decoded in numpy.
 
-The model (``../shared/README.md``): input ``images`` float32 NCHW RGB in [0, 1] of a fixed size; output
+The model (``d2slam.assets``: the shared folder or the cache): input ``images`` float32 NCHW RGB in [0, 1] of a fixed size; output
 ``output0`` [1, 4 + nc + nm, N] = box (cx, cy, w, h in input pixels), nc class scores (already sigmoid), nm mask
 coefficients; output ``output1`` [1, nm, H/4, W/4] mask prototypes.
 
@@ -32,9 +32,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from d2slam.assets import DERIVED, DOWNLOADS, assets_cache, find
 from d2slam.config import SegmentationConfig
 from d2slam.errors import D2SlamError
-from d2slam.paths import shared_dir
 from d2slam.segmentation.base import PersonInstance
 
 MODEL_ENV = "D2SLAM_SEG_MODEL"
@@ -43,15 +43,14 @@ DEFAULT_MODEL_NAME = "yolov8n-seg_deq_384x512.onnx"
 # Version of the decoding below: part of the mask-cache key, bump when decoding changes masks.
 DECODER_VERSION = 1
 
-KNOWN_MODELS: dict[str, str] = {
-    "a892891617cbadd34d860f66a866393a8d4c487c49f1474e9b6d9e578332e56a": "yolov8n-seg_int8.onnx",
-    "37b2e7e7d3e00f273d4490fdb3c167e579b6279d8b2c43c330693db05d7cf51d": "yolov8n-seg_deq_384x512.onnx",
-    "0e1c0fe92741cc4554e13bb9fba2d37717ede3dc6fe4c6c93db3d6ab0bbdc85d": "yolov8n-seg_deq_256x320.onnx",
-}
+#: sha256 -> file name of the three YOLOv8n-seg files (``d2slam.assets``).
+KNOWN_MODELS: dict[str, str] = {a.sha256: Path(a.path).name for a in (*DOWNLOADS, *DERIVED)
+                                if a.path.startswith("models/")}
 
 HOW_TO_GET_A_MODEL = (
-    "The YOLOv8n-seg ONNX files are read from the shared folder (`d2slam.paths.shared_dir()/models/`, "
-    "$D2SLAM_SHARED) and nothing is downloaded at run time. To use another copy set "
+    "The YOLOv8n-seg ONNX files are read from the shared folder ($D2SLAM_SHARED/models/) or the cache "
+    "($D2SLAM_CACHE/assets/models/, filled by `d2slam assets fetch`, which `make test` and `make demo` run); "
+    "nothing is downloaded at run time. To use another copy set "
     f"${MODEL_ENV}=/path/to/model.onnx (or pass --model). To export one yourself with Ultralytics: "
     "`pip install ultralytics && yolo export model=yolov8n-seg.pt format=onnx imgsz=384,512`, then set "
     f"${MODEL_ENV} to the exported file; a file whose sha256 is not one of the three known files needs "
@@ -62,9 +61,13 @@ _SHA_CACHE: dict[tuple[str, int, int], str] = {}
 
 
 def default_model_path() -> Path:
-    """``$D2SLAM_SEG_MODEL`` or the 384x512 file in ``shared_dir()/models/``."""
+    """``$D2SLAM_SEG_MODEL``, else the 384x512 file of the shared folder or the cache (``d2slam.assets.find``);
+    when neither holds it, its would-be place in the cache (``check_model`` then says how to fetch it)."""
     env = os.environ.get(MODEL_ENV)
-    return Path(env).expanduser() if env else shared_dir() / "models" / DEFAULT_MODEL_NAME
+    if env:
+        return Path(env).expanduser()
+    rel = f"models/{DEFAULT_MODEL_NAME}"
+    return find(rel) or assets_cache() / rel
 
 
 def file_sha256(path: str | Path) -> str:

@@ -19,9 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from d2slam.errors import D2SlamError
+from d2slam.pipeline import STAGES as ENGINE_STAGES
 from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, RunSpec
-
-ENGINE_STAGES = ("load", "segment", "extract", "filter", "track", "local_ba")
 
 
 def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
@@ -118,10 +117,8 @@ class _Head:
 
 def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     from d2slam.data import open_sequence
-    from d2slam.eval.keypoints import keypoint_recorder
     from d2slam.eval.trajectory import aligned_estimate, evaluate
-    from d2slam.methods import get_method, mask_kind
-    from d2slam.pipeline import run_sequence
+    from d2slam.methods import get_method, run_method
     from d2slam.slam.engine import refills
 
     config = _config(spec, options)
@@ -133,29 +130,25 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
         raise D2SlamError(f"sequence has {len(seq)} frames, the study expects {spec.frames}", path=path)
     if spec.source == "tum" and spec.frames > 0:
         seq = _Head(seq, spec.frames)
-    kfilter = method.factory(config)
-    provider = None
-    if method.needs_masks:
-        from d2slam.segmentation import mask_source, masks_for, stack_masks
+    # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
+    requested = None if method.masks else options.get("masks")
+    mask_seq = None
+    if method.needs_masks and spec.twin and spec.method == ORACLE:
+        # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
+        # the people and moving objects are cut out of a scene where nothing moves
+        mask_seq = open_sequence(_sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, False, options))
+    stored = {}
 
-        # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
-        kind = mask_kind(method, None if method.masks else options.get("masks"), synthetic=spec.source == "synth")
-        shape = (seq.camera.height, seq.camera.width)
-        src = seq
-        if spec.twin and spec.method == ORACLE:
-            # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
-            # the people and moving objects are cut out of a scene where nothing moves
-            src = mask_source(seq, open_sequence(_sequence_path(spec.source, spec.scenario, spec.seed, spec.frames,
-                                                                False, options)))
+    def stored_features(kfilter):
+        # A run whose extraction budget follows its filter extracts every frame itself: stored features have the
+        # fixed one.
+        stored["features"], stored["save_to"] = (_features(seq, path, config, options)
+                                                 if not refills(config, kfilter) else (None, None))
+        return stored["features"]
 
-        def provider(i):
-            return stack_masks(masks_for(src, i, kind, config), shape)
-
-    recorder = keypoint_recorder(seq)
-    # A run whose extraction budget follows its filter extracts every frame itself: stored features have the fixed one.
-    features, save_to = _features(seq, path, config, options) if not refills(config, kfilter) else (None, None)
-    result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=recorder,
-                          progress=False, features=features)
+    run = run_method(seq, spec.method, config, masks=requested if method.needs_masks else None, mask_seq=mask_seq,
+                     synthetic=spec.source == "synth", features=stored_features, progress=False)
+    result, features, save_to = run.result, stored["features"], stored["save_to"]
     if save_to is not None:
         features.save(save_to)
     row["features_cached"] = int(save_to is None and features is not None)
@@ -168,8 +161,8 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     out["stage_ms"] = dict(result.stage_ms)
     traj = result.trajectory
     out["trajectory"] = (np.asarray(traj.timestamps), np.asarray(traj.poses))
-    if recorder is not None:
-        kp = recorder.result()
+    if run.keypoints is not None:
+        kp = run.keypoints
         out["keypoints"] = kp
         final = kp["modules"].get("final", {})
         row.update(kp_precision=final.get("precision"), kp_recall=final.get("recall"), kp_f1=final.get("f1"),
