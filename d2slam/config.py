@@ -215,7 +215,6 @@ class EngineConfig:
     relocalisation_min_inliers: int = 50
     desc_th_high: int = 100
     desc_th_low: int = 50
-    nn_ratio: float = 0.9
     nn_ratio_local_map: float = 0.8
     nn_ratio_reference: float = 0.7
     nn_ratio_relocalisation: float = 0.75

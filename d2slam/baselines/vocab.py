@@ -34,6 +34,7 @@ import numpy as np
 
 from d2slam.config import DEFAULT, BaselineConfig, OrbConfig
 from d2slam.errors import D2SlamError
+from d2slam.slam.matching import hamming
 
 DESCRIPTOR_BYTES = 32
 FORMAT = "d2slam-dbow2-vocab/1"
@@ -43,18 +44,6 @@ _BIG = np.uint16(60000)
 # --------------------------------------------------------------------------------------------------
 # Hamming distances (numpy popcount on 64-bit words)
 # --------------------------------------------------------------------------------------------------
-def _as_words(desc: np.ndarray) -> np.ndarray:
-    """(..., 32) uint8 -> (..., 4) uint64 view (contiguous copy if needed)."""
-    desc = np.ascontiguousarray(desc, dtype=np.uint8)
-    return desc.view(np.uint64)
-
-
-def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamming distance between broadcastable arrays of 32-byte ORB descriptors (..., 32) -> (...) uint16."""
-    x = np.bitwise_xor(_as_words(a), _as_words(b))
-    return np.bitwise_count(x).sum(axis=-1, dtype=np.uint16)
-
-
 def _majority(desc: np.ndarray, keys: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
     """Bitwise majority of the descriptors sharing each key (DBoW2 ``FORB::meanValue``: a bit is set when at least
     ceil(n / 2) members have it). Returns (n_keys, 32) uint8 centres and (n_keys,) member counts (0 = empty)."""

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from d2slam.data.base import Camera, Frame, Sequence, Trajectory
+from d2slam.data.base import Camera, RGBDFrame, Sequence, Trajectory
 from d2slam.data.synthetic import SyntheticSequence
 from d2slam.data.tum import TumSequence, read_tum_trajectory, write_tum_trajectory
 
-__all__ = ["Camera", "Frame", "Sequence", "Trajectory", "TumSequence", "SyntheticSequence", "open_sequence",
+__all__ = ["Camera", "RGBDFrame", "Sequence", "Trajectory", "TumSequence", "SyntheticSequence", "open_sequence",
            "read_tum_trajectory", "write_tum_trajectory"]
 
 

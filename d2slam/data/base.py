@@ -39,7 +39,7 @@ class Camera:
 
 
 @dataclass
-class Frame:
+class RGBDFrame:
     """One associated RGB-D frame."""
 
     index: int
@@ -81,9 +81,9 @@ class Sequence(Protocol):
 
     def __len__(self) -> int: ...
 
-    def __getitem__(self, index: int) -> Frame: ...
+    def __getitem__(self, index: int) -> RGBDFrame: ...
 
-    def __iter__(self) -> Iterator[Frame]: ...
+    def __iter__(self) -> Iterator[RGBDFrame]: ...
 
     @property
     def groundtruth(self) -> Trajectory | None: ...

@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from d2slam.data.base import Camera, Frame, Trajectory
+from d2slam.data.base import Camera, RGBDFrame, Trajectory
 from d2slam.data.intrinsics import resolve_camera
 from d2slam.config import DEFAULT
 from d2slam.errors import D2SlamError
@@ -434,7 +434,7 @@ class TumSequence:
     def __len__(self) -> int:
         return len(self.timestamps)
 
-    def __getitem__(self, index: int) -> Frame:
+    def __getitem__(self, index: int) -> RGBDFrame:
         index = int(index)
         n = len(self)
         if index < 0:
@@ -445,7 +445,7 @@ class TumSequence:
         rgb = read_rgb(self.rgb_files[index], self._rgb_list, int(self._rgb_lines[index]), shape)
         depth = read_depth(self.depth_files[index], self.camera.depth_factor, self._depth_list,
                            int(self._depth_lines[index]), shape)
-        return Frame(index=index, timestamp=float(self.timestamps[index]),
+        return RGBDFrame(index=index, timestamp=float(self.timestamps[index]),
                      depth_timestamp=float(self.depth_timestamps[index]), rgb=rgb, depth=depth,
                      rgb_path=self.rgb_files[index], depth_path=self.depth_files[index])
 
@@ -458,7 +458,7 @@ class TumSequence:
         return read_depth(self.depth_files[index], self.camera.depth_factor, self._depth_list,
                           int(self._depth_lines[index]), (self.camera.height, self.camera.width))
 
-    def __iter__(self) -> Iterator[Frame]:
+    def __iter__(self) -> Iterator[RGBDFrame]:
         for i in range(len(self)):
             yield self[i]
 

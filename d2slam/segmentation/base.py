@@ -22,7 +22,7 @@ class PersonInstance:
 class Segmenter(Protocol):
     name: str
 
-    def __call__(self, frame) -> list[PersonInstance]:  # frame: d2slam.data.base.Frame
+    def __call__(self, frame) -> list[PersonInstance]:  # frame: d2slam.data.base.RGBDFrame
         ...
 
 

@@ -198,14 +198,14 @@ class RgbListSequence:
         return len(self.timestamps)
 
     def __getitem__(self, index: int):
-        from d2slam.data.base import Frame
+        from d2slam.data.base import RGBDFrame
         from d2slam.segmentation.onnx import read_rgb
 
         if not -len(self) <= index < len(self):
             raise IndexError(index)
         index %= len(self)
         ts = float(self.timestamps[index])
-        return Frame(index=index, timestamp=ts, depth_timestamp=ts, rgb=read_rgb(self.rgb_paths[index]),
+        return RGBDFrame(index=index, timestamp=ts, depth_timestamp=ts, rgb=read_rgb(self.rgb_paths[index]),
                      depth=np.zeros((0, 0), np.float32), rgb_path=self.rgb_paths[index])
 
     def __iter__(self):

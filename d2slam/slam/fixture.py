@@ -9,8 +9,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from d2slam.data.base import Camera
+from d2slam.data.intrinsics import FREIBURG3
 
-FR3 = Camera(fx=535.4, fy=539.2, cx=320.1, cy=247.6, name="fr3")
+FR3 = FREIBURG3
 
 
 def _texture(rng: np.random.Generator, size: int = 512) -> np.ndarray:

@@ -17,6 +17,7 @@ import numpy as np
 
 from d2slam.config import EngineConfig, OrbConfig
 from d2slam.data.base import Camera
+from d2slam.dynamics.depth import keypoint_depth
 
 
 @dataclass
@@ -152,7 +153,8 @@ class OrbExtractor:
         octave = attrs[:, 2].astype(np.int64)
         angle = attrs[:, 3].astype(np.float32)
         pts = undistort(raw, self.camera)
-        z = keypoint_depth(depth, raw, self.cfg.depth_patch_radius, self.engine)
+        z = keypoint_depth(depth, raw, self.cfg.depth_patch_radius).astype(np.float64)
+        z[(z < self.engine.min_depth) | (z > self.engine.max_depth)] = 0.0  # outside the sensor's range: no depth
         ur = virtual_right(pts[:, 0], z, self.camera.bf,
                            np.inf if self.engine.stereo_far_points else self.th_depth_m)
         return Frame(index=index, timestamp=timestamp, kps=pts, kps_raw=raw, octave=octave, angle=angle,
@@ -173,29 +175,6 @@ def undistort(pts: np.ndarray, camera: Camera) -> np.ndarray:
     out = cv2.undistortPoints(pts.reshape(-1, 1, 2).astype(np.float64), camera.K, np.asarray(camera.dist),
                               P=camera.K)
     return out.reshape(-1, 2)
-
-
-def keypoint_depth(depth: np.ndarray, pts: np.ndarray, radius: int, engine: EngineConfig) -> np.ndarray:
-    """Robust depth per keypoint: median of the valid pixels in a (2r+1)^2 patch (0 when none is valid or the
-    value lies outside [min_depth, max_depth]). Vectorised gather, no loop over keypoints."""
-    if len(pts) == 0:
-        return np.zeros(0)
-    h, w = depth.shape
-    u = np.rint(pts[:, 0]).astype(np.int64)
-    v = np.rint(pts[:, 1]).astype(np.int64)
-    off = np.arange(-radius, radius + 1)
-    uu = np.clip(u[:, None, None] + off[None, None, :], 0, w - 1)
-    vv = np.clip(v[:, None, None] + off[None, :, None], 0, h - 1)
-    patch = depth[vv, uu].reshape(len(pts), -1).astype(np.float64)
-    patch[~(patch > 0)] = np.inf  # invalid pixels sort last
-    patch.sort(axis=1)
-    n_valid = np.isfinite(patch).sum(axis=1)
-    rows = np.arange(len(pts))
-    lo = patch[rows, np.maximum(n_valid - 1, 0) // 2]
-    hi = np.where(n_valid % 2 == 0, patch[rows, np.minimum(n_valid // 2, patch.shape[1] - 1)], lo)
-    z = np.where(n_valid > 0, 0.5 * (lo + hi), 0.0)
-    z = np.where(np.isfinite(z) & (z >= engine.min_depth) & (z <= engine.max_depth), z, 0.0)
-    return z
 
 
 def close_depth(camera: Camera, engine: EngineConfig) -> float:

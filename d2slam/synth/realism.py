@@ -123,7 +123,7 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
 
 def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, ext=None) -> FrameStats:
     """Person statistics of real RGB frames (no depth needed), persons from ``segmenter`` (default: ONNX)."""
-    from d2slam.data.base import Frame
+    from d2slam.data.base import RGBDFrame
 
     if not paths:
         raise D2SlamError("no real frames to measure")
@@ -139,7 +139,7 @@ def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, 
             raise D2SlamError("image cannot be decoded", path=p)
         rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
         depth = np.zeros(rgb.shape[:2], np.float32)  # keypoint positions do not depend on depth
-        frame = Frame(0, 0.0, 0.0, rgb, depth, rgb_path=Path(p))
+        frame = RGBDFrame(0, 0.0, 0.0, rgb, depth, rgb_path=Path(p))
         mask = np.zeros(rgb.shape[:2], bool)
         for inst in segmenter(frame):
             mask |= inst.mask
