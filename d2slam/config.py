@@ -181,11 +181,11 @@ class EngineConfig:
     # then only decides which points are "close" (new map points, keyframe decision, keyframe culling). False: far
     # points (beyond th_depth * b) get monocular edges.
     stereo_far_points: bool = True
-    # Ours (measured): with a keypoint filter, each frame extracts OrbConfig.n_features plus as many keypoints as the
-    # filter flagged in the previous frame (at most refill_max x n_features), so tracking and mapping keep about
-    # n_features usable keypoints, as DynaSLAM's extraction outside the masks does. Without a filter (none, the static
-    # twins) nothing changes. Such runs extract every frame themselves (stored features have the fixed budget).
-    # See Engine.feature_budget for the measurements.
+    # Ours: with a keypoint filter, each frame extracts OrbConfig.n_features plus as many keypoints as the filter
+    # flagged in the previous frame (at most refill_max x n_features), so tracking and mapping keep about n_features
+    # usable keypoints, as DynaSLAM's extraction outside the masks does. Without a filter (none, the static twins)
+    # nothing changes. Such runs extract every frame themselves (stored features have the fixed budget). Measured:
+    # docs/deviations.md.
     refill_filtered: bool = True
     refill_max: float = 1.5
     depth_factor: float = 5000.0
@@ -196,7 +196,7 @@ class EngineConfig:
     # (optimizer.stereo_information). A Kinect's depth noise grows as sigma_z = k z^2 (k = 1.425e-3 / m, Khoshelham
     # & Elberink 2012), i.e. a constant disparity error bf * k = 0.057 px at bf = 40 (the synthetic sensor's: 0.06-0.08
     # px over 1-3 m); ORB-SLAM's 1 px x scale lets points slide in depth and local BA drag keyframes with them.
-    # Measured (rpy static twins, dev seeds 3-8, `none`): RPE 1.09-1.97 cm -> 0.62-1.01 cm; see docs/deviations.md.
+    # Measured: docs/deviations.md.
     disparity_sigma_px: float = 0.057
     # ... in motion-only BA, the first rounds use ORB-SLAM's information all the same (wide basin from a coarse pose).
     pose_opt_coarse_rounds: int = 1
@@ -254,12 +254,9 @@ class EngineConfig:
     kf_new_points_min: int = 100  # CreateNewKeyFrame: close points added until at least this many (maxPoint)
     # ... and all closer than this (m) as well (ours): ORB-SLAM3 gets its far points by triangulating keypoints between
     # keyframes (CreateNewMapPoints), which our engine does not do; its keyframes make points from depth up to the
-    # Kinect range instead (DynamicsConfig.z_far; 0 = ORB-SLAM3's rule, th_depth * b = 3 m). Measured (dev seeds 3-5,
-    # 300 frames): with people filling the near field, keyframes got few static points and walking_rpy lost track
-    # even with the keypoint truth as filter (oracle 176-202 of 300 frames tracked); with 4.5 every d2slam, oracle and
-    # static-twin run tracks 300/300, d2slam ATE w/xyz 12.8/6.1/5.3 -> 5.8/5.1/4.0 mm (but w/rpy, now tracked
-    # throughout, 52.7/140/6.4 mm where it was 29.9/36.7/5.6 mm over the frames it tracked). The keyframe decision keeps
-    # th_depth (with "close" at 4.5 m too, keyframes fell 5-10x and the unfiltered engine survived the people).
+    # Kinect range instead (DynamicsConfig.z_far; 0 = ORB-SLAM3's rule, th_depth * b = 3 m): with people filling the
+    # near field, ORB-SLAM3's rule leaves keyframes few static points. The keyframe decision keeps th_depth. Measured:
+    # docs/deviations.md.
     kf_new_points_depth: float = 4.5
     # Local mapping.
     local_ba_iterations: int = 10
@@ -272,7 +269,7 @@ class EngineConfig:
     optimizer: str = "lm"
     # SearchInNeighbors (observation part, no point merging): the new keyframe and its best covisibles (+ their
     # neighbours) exchange points by projection (radius th x scale, chi-square test, Hamming <= desc_th_low).
-    fuse_neighbours: int = 0  # 0 = off; 10 = ORB-SLAM. Measured off: see Engine.search_in_neighbors
+    fuse_neighbours: int = 0  # 0 = off; 10 = ORB-SLAM (measured: docs/deviations.md)
     fuse_second_neighbours: int = 5
     fuse_radius: float = 3.0
     local_ba_window: int = 10  # covisible keyframes optimised with the new one (best by shared points)
