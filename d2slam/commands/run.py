@@ -26,7 +26,8 @@ def register(sub) -> None:
     p.add_argument("--camera", metavar="fr1|fr2|fr3", default=None,
                    help="camera of a TUM folder whose name does not say (synthetic sequences carry their own)")
     p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
-    p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 only: runs of ORB-SLAM3 (default 1)")
+    p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
+                   "ORB-SLAM3 (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     p.set_defaults(func=run)
 
@@ -44,9 +45,11 @@ def run(args) -> int:
     from d2slam.pipeline import run_sequence
 
     method = get_method(args.method)
-    if method.runner is not None:  # not a keypoint filter of our engine (orbslam3): its own command
-        if args.masks is not None or args.masks_from is not None:
-            raise D2SlamError(f"--masks and --masks-from do not apply to --method {args.method}")
+    if method.runner is not None:  # not a keypoint filter of our engine (orbslam3[-masked]): its own command
+        if args.masks_from is not None:
+            raise D2SlamError(f"--masks-from does not apply to --method {args.method}")
+        if args.masks is not None and not method.needs_masks:
+            raise D2SlamError(f"--masks does not apply to --method {args.method}")
         return method.runner(args)
 
     out = Path(args.out)
