@@ -23,6 +23,20 @@ import time
 from pathlib import Path
 
 
+def remove_people(seq, i: int, rgb, depth, kind: str, config):
+    """Frame ``i``'s ``(rgb, depth)`` without its ``kind`` person masks (:func:`d2slam.segmentation.masks_for`,
+    :func:`d2slam.baselines.masking.mask_frame` with ``config.masking``), seconds reading the masks, seconds removing
+    them."""
+    from d2slam.baselines.masking import mask_frame
+    from d2slam.segmentation import masks_for, stack_masks
+
+    t = time.perf_counter()
+    masks = stack_masks(masks_for(seq, i, kind, config), rgb.shape[:2])
+    t_mask = time.perf_counter()
+    rgb, depth, _ = mask_frame(rgb, depth, masks, config.masking)
+    return rgb, depth, t_mask - t, time.perf_counter() - t_mask
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser()
     p.add_argument("--sequence", required=True)
@@ -51,22 +65,11 @@ def main(argv: list[str] | None = None) -> int:
         seq = open_sequence(args.sequence, camera=args.camera) if args.camera else open_sequence(args.sequence)
     except D2SlamError as exc:
         return fail(str(exc), 3)
-    remove_people = None
+    config = None
     if args.masks:
-        from d2slam.baselines.masking import mask_frame
         from d2slam.config import Config
-        from d2slam.segmentation import masks_for, stack_masks
 
         config = Config.from_dict(json.loads(Path(args.config).read_text()))
-        shape = (seq.camera.height, seq.camera.width)
-
-        def remove_people(i, rgb, depth):
-            """(rgb, depth) without the people, seconds reading the masks, seconds removing them."""
-            t = time.perf_counter()
-            masks = stack_masks(masks_for(seq, i, args.masks, config), shape)
-            t_mask = time.perf_counter()
-            rgb, depth, _ = mask_frame(rgb, depth, masks, config.masking)
-            return rgb, depth, t_mask - t, time.perf_counter() - t_mask
     import pyorbslam3
 
     t0 = time.perf_counter()
@@ -91,9 +94,9 @@ def main(argv: list[str] | None = None) -> int:
             depth = frame.depth * factor  # back to sensor units: ORB-SLAM3 divides by RGBD.DepthMapFactor
             io_s += time.perf_counter() - t_io
             rgb, mask_ms = frame.rgb, 0.0
-            if remove_people is not None:
+            if config is not None:
                 try:
-                    rgb, depth, seg_i, mask_i = remove_people(i, rgb, depth)
+                    rgb, depth, seg_i, mask_i = remove_people(seq, i, rgb, depth, args.masks, config)
                 except D2SlamError as exc:
                     slam.shutdown()
                     return fail(str(exc), 3)
@@ -112,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     shutdown_s = time.perf_counter() - t
     # Written before saving: SaveTrajectoryTUM can crash on odd maps; the online poses are already on disk.
     info = {"load_s": load_s, "loop_s": loop_s, "io_s": io_s, "shutdown_s": shutdown_s, "frames": n}
-    if remove_people is not None:
+    if config is not None:
         info.update(segment_s=segment_s, mask_s=mask_s)
     done.write_text(json.dumps(info))
     sys.stdout.flush()
