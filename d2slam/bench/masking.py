@@ -6,7 +6,8 @@ Per fill and dilation, on every ``--every``-th frame with people: milliseconds p
 :func:`~d2slam.baselines.masking.mask_frame` (median of ``--timing-repeats`` calls, and their minimum: the figure
 without other processes taking the cores), and the ORB keypoints (the engine's extractor, ORB-SLAM3's settings) the
 masked image gives within ``MaskingConfig.boundary_band_px`` of the region's edge (either side) and deeper inside the
-region: keypoints the fill created. With ``--twin`` the static twin's keypoints in the same band are printed too
+region: keypoints the fill created; and the keypoints left on the people (``mask_gt``) outside the region: what the
+masks and the dilation missed. With ``--twin`` the static twin's keypoints in the same band are printed too
 (what the scene itself has there). With ``--slam`` each option also runs ORB-SLAM3 on the masked sequences
 (``--repeats`` times: median and spread of the ATE).
 """
@@ -53,9 +54,10 @@ def _label(cfg) -> str:
     return f"{cfg.fill} +{cfg.dilate_px}px"
 
 
-def measure_frame(rgb, depth, masks, options, extractor, repeats: int) -> list[dict]:
-    """Per option: ``ms`` (median of ``repeats`` calls), ``ms_min``, ``band`` / ``inside`` keypoint counts, the
-    region and its band (for the twin's count)."""
+def measure_frame(rgb, depth, masks, options, extractor, repeats: int, persons=None) -> list[dict]:
+    """Per option: ``ms`` (median of ``repeats`` calls), ``ms_min``, ``band`` / ``inside`` keypoint counts, ``left``:
+    keypoints on the ``persons`` (H, W) truth outside the region (what the masks and dilation missed), the region's
+    band (for the twin's count)."""
     import cv2
 
     from d2slam.baselines.masking import boundary_band, keypoints_in, mask_frame
@@ -71,6 +73,7 @@ def measure_frame(rgb, depth, masks, options, extractor, repeats: int) -> list[d
         band = boundary_band(region, cfg.boundary_band_px)
         rows.append({"ms": 1000.0 * float(np.median(times)), "ms_min": 1000.0 * min(times),
                      "band": keypoints_in(band, kps), "inside": keypoints_in(region & ~band, kps), "kps": len(kps),
+                     "left": keypoints_in(persons & ~region, kps) if persons is not None else 0,
                      "band_mask": band})
     return rows
 
@@ -92,7 +95,7 @@ def run(args) -> int:
         raise D2SlamError("--every must be >= 1 and --frames >= 2")
     cv2.setNumThreads(1)
     options = _options(args)
-    stats = {_label(c): {"ms": [], "ms_min": [], "band": [], "inside": [], "kps": [], "twin_band": []}
+    stats = {_label(c): {"ms": [], "ms_min": [], "band": [], "inside": [], "kps": [], "left": [], "twin_band": []}
              for c in options}
     n_frames = 0
     for scenario in args.scenarios:
@@ -106,7 +109,8 @@ def run(args) -> int:
                 if not masks.any():
                     continue
                 frame = seq[i]
-                rows = measure_frame(frame.rgb, frame.depth, masks, options, extractor, args.timing_repeats)
+                persons = stack_masks(masks_for(seq, i, "gt"), shape).any(axis=0)
+                rows = measure_frame(frame.rgb, frame.depth, masks, options, extractor, args.timing_repeats, persons)
                 twin_kps = None
                 if twin is not None:
                     tf = twin[i]
@@ -116,7 +120,7 @@ def run(args) -> int:
 
                 for cfg, row in zip(options, rows):
                     s = stats[_label(cfg)]
-                    for k in ("ms", "ms_min", "band", "inside", "kps"):
+                    for k in ("ms", "ms_min", "band", "inside", "kps", "left"):
                         s[k].append(row[k])
                     if twin_kps is not None:
                         s["twin_band"].append(keypoints_in(row["band_mask"], twin_kps))
@@ -126,14 +130,15 @@ def run(args) -> int:
           f"people ({', '.join(args.scenarios)}; seeds {' '.join(map(str, args.seeds))}; every {args.every}th of "
           f"{args.frames}), {args.masks} masks, band {DEFAULT.masking.boundary_band_px} px")
     twin_col = f" {'twin band':>9s}" if args.twin else ""
-    print(f"{'option':16s} {'ms/frame':>8s} {'ms min':>7s} {'band kps':>8s} {'inside':>7s} {'all kps':>7s}{twin_col}")
+    print(f"{'option':16s} {'ms/frame':>8s} {'ms min':>7s} {'band kps':>8s} {'inside':>7s} {'all kps':>7s} "
+          f"{'on persons':>10s}{twin_col}")
     for cfg in options:
         s = stats[_label(cfg)]
         twin_val = f" {np.mean(s['twin_band']):9.1f}" if args.twin else ""
         print(f"{_label(cfg):16s} {np.mean(s['ms']):8.2f} {np.mean(s['ms_min']):7.2f} {np.mean(s['band']):8.1f} "
-              f"{np.mean(s['inside']):7.1f} {np.mean(s['kps']):7.0f}{twin_val}")
-    print("(keypoints per frame: mean; ms/frame: mean over frames of the median of the timed calls, ms min: of their "
-          "minimum)")
+              f"{np.mean(s['inside']):7.1f} {np.mean(s['kps']):7.0f} {np.mean(s['left']):10.1f}{twin_val}")
+    print("(keypoints per frame: mean; on persons: keypoints on the persons of mask_gt left outside the region; "
+          "ms/frame: mean over frames of the median of the timed calls, ms min: of their minimum)")
     if args.slam:
         _slam(args, options)
     return 0
