@@ -440,6 +440,28 @@ class BaselineConfig:
     orbslam3_frame_timeout_s: float = 2.0
 
 
+@dataclass(frozen=True)
+class MaskingConfig:
+    # `orbslam3-masked` (d2slam.baselines.masking): the person masks (the union of a frame's instances) are grown by
+    # dilate_px pixels (elliptic kernel), then the depth there is set to 0 (invalid) and the RGB there is filled.
+    # See docs/masking.md for the measurements behind the choice.
+    dilate_px: int = 4
+    # RGB fill: "black" (0), "mean" (the frame's mean colour outside the region), "blur" (normalised convolution of
+    # the pixels outside the region, Gaussian of sigma blur_px / 3 at 1/4 resolution; the mean colour where none is
+    # within reach), "pushpull" (a Gaussian pyramid of the pixels outside, pushpull_levels deep, filled coarse to
+    # fine), "telea" / "ns" (OpenCV inpainting, cv2.INPAINT_TELEA / cv2.INPAINT_NS, with inpaint_radius px at
+    # 1/inpaint_scale of the resolution).
+    fill: str = "pushpull"
+    blur_px: int = 31
+    pushpull_levels: int = 6
+    inpaint_radius: float = 3.0
+    inpaint_scale: int = 8
+    # The blur, pushpull and inpainting fills are computed on the region's bounding box grown by this many pixels.
+    crop_margin_px: int = 32
+    # `d2slam bench masking`: a keypoint is on the boundary when within this many pixels of the filled region's edge.
+    boundary_band_px: int = 3
+
+
 # --------------------------------------------------------------------------------------------------
 # --------------------------------------------------------------------------------------------------
 # Data: TUM reading and downloading (DESIGN.md section 3-4)
@@ -472,6 +494,7 @@ class Config:
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     baseline: BaselineConfig = field(default_factory=BaselineConfig)
+    masking: MaskingConfig = field(default_factory=MaskingConfig)
     data: DataConfig = field(default_factory=DataConfig)
 
     def to_dict(self) -> dict[str, Any]:

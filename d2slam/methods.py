@@ -1,7 +1,8 @@
 """Registry of run methods (``d2slam run --method NAME``): a name -> factory building the engine's keypoint filter.
 
 ``none`` is the engine with the hook off (our in-engine stand-in for ORB-SLAM3). The dynamics methods (``d2slam``,
-``no-depth``, ``no-oim``, ``no-bayes``, ``semantic``, ``geometric``) and the real ``orbslam3`` baseline plug in here
+``no-depth``, ``no-oim``, ``no-bayes``, ``semantic``, ``geometric``), the real ``orbslam3`` baseline and
+``orbslam3-masked`` (the real ORB-SLAM3 on frames with the people's pixels removed) plug in here
 with :func:`register` (one line each, e.g. from ``d2slam/dynamics/classifier.py``)::
 
     register("d2slam", lambda config: D2SlamFilter("d2slam", config), needs_masks=True)
@@ -127,6 +128,20 @@ def _orbslam3_runner(args) -> int:
 
 register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_runner,
          help="the real ORB-SLAM3 RGB-D (pyorbslam3) on the sequence, not our engine: d2slam.baselines.orbslam3")
+
+
+def _orbslam3_masked_runner(args) -> int:
+    from d2slam.baselines.orbslam3 import cli_run
+    from d2slam.data import SyntheticSequence, open_sequence
+
+    seq = open_sequence(args.sequence, **({"camera": args.camera} if getattr(args, "camera", None) else {}))
+    args.masks = mask_kind(get_method("orbslam3-masked"), args.masks, synthetic=isinstance(seq, SyntheticSequence))
+    return cli_run(args)
+
+
+register("orbslam3-masked", lambda config: None, needs_masks=True, runner=_orbslam3_masked_runner,
+         help="the real ORB-SLAM3 RGB-D on frames whose person pixels (--masks) are removed: depth 0, RGB filled "
+              "(d2slam.baselines.masking)")
 
 
 def _oracle(config: Config):

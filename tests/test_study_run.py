@@ -160,7 +160,8 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     # the manifest records the checkout and the run keys' code digests as they were when the study started
     m = json.loads((out / "manifest.json").read_text())
     assert m["git"] == {"commit": "a" * 40, "dirty": False}
-    assert m["code"] == {"engine": source_digest(_ENGINE_CODE), "orbslam3": source_digest(_ORBSLAM3_CODE)}
+    assert m["code"] == {"engine": source_digest(_ENGINE_CODE), "orbslam3": source_digest(_ORBSLAM3_CODE),
+                         "orbslam3-masked": source_digest(_ORBSLAM3_CODE + ("segmentation",))}
     pd.testing.assert_frame_equal(res.runs, serial.runs, check_exact=True)  # timings too: nothing re-ran
     spec = RunSpec("sitting_static", "none", 101, FRAMES)
     key = run_key(spec, run_options())

@@ -16,6 +16,12 @@
    ``status``: ``ok`` | ``lost`` (frames lost, one map) | ``reset`` (ORB-SLAM3 started a new map: the trajectory
    spans several maps) | ``failed`` (vocabulary, settings or sequence rejected) | ``crashed`` | ``timeout``.
 
+``masks="sim" | "gt" | "truth" | "onnx"``: the ``orbslam3-masked`` baseline. Each frame's person masks (the masks the
+engine's methods get, :func:`d2slam.segmentation.masks_for`; ``onnx`` masks are computed into the mask cache before
+ORB-SLAM3 starts) are removed from both images by :func:`d2slam.baselines.masking.mask_frame` (depth 0, RGB filled)
+before ORB-SLAM3 sees them; the per-frame milliseconds then include the masking (``stage_ms``: ``segment`` = reading
+the masks, ``mask`` = removing them, ``track`` = ORB-SLAM3).
+
 ORB-SLAM3 is not deterministic (its local-mapping and loop-closing threads): ``repeats=N`` runs it N times and
 reports the median and the spread (min, max) of each figure; the trajectory written is the median-ATE repeat when
 the sequence has ground truth (else the first successful one).
@@ -39,6 +45,7 @@ from d2slam.config import DEFAULT, Config
 from d2slam.errors import D2SlamError
 
 METHOD = "orbslam3"
+MASKED_METHOD = "orbslam3-masked"
 STATE_OK = (2, 5)  # TrackingState.OK, OK_KLT
 STATE_RECENTLY_LOST = 3
 STATE_LOST = 4
@@ -174,7 +181,8 @@ def _log_tail(log: Path, n: int = 6) -> str:
 
 
 def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: Path, camera: str | None,
-               max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool) -> dict:
+               max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
+               masks: str | None = None) -> dict:
     """Start the worker, follow its progress, enforce the time limits. Returns raw outcome fields."""
     from tqdm import tqdm
 
@@ -185,6 +193,10 @@ def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: P
            "--max-frames", str(max_frames)]
     if camera:
         cmd += ["--camera", camera]
+    if masks:
+        config_path = work / "config.json"
+        config_path.write_text(json.dumps(config.to_dict(), default=list))
+        cmd += ["--masks", masks, "--config", str(config_path)]
     env = dict(os.environ)
     env.pop("DISPLAY", None)  # headless: Pangolin is never started (use_viewer=False)
     if timeout is None:
@@ -240,14 +252,14 @@ def _kill(proc: subprocess.Popen) -> None:
 
 def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Path, camera: str | None,
               max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
-              work: Path) -> dict:
+              work: Path, masks: str | None = None) -> dict:
     from d2slam.data import Trajectory, read_tum_trajectory, write_tum_trajectory
 
     work.mkdir(parents=True, exist_ok=True)
     for name in ("progress.txt", "final.txt", "done.json", "loaded", "orbslam3.log"):
         (work / name).unlink(missing_ok=True)
     raw = _run_child(sequence_dir, vocab["path"], settings_path, work, camera, max_frames, n_frames, timeout,
-                     config, progress)
+                     config, progress, masks)
     rec = _read_progress(work / "progress.txt")
     done = {}
     if (work / "done.json").is_file():
@@ -264,7 +276,7 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
     maps_from_states = int(seg.max() + 1) if frames and seg.max() >= 0 else 0
     maps_from_log = log_text.count("Creation of new map with id")
     result = {
-        "method": METHOD,
+        "method": MASKED_METHOD if masks else METHOD,
         "sequence": str(sequence_dir),
         "frames": frames,
         "frames_expected": int(n_frames),
@@ -282,6 +294,10 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
                      "track": round(float(rec["ms"].mean()), 3) if frames else None},
         "log": str(log),
     }
+    if masks and frames and "mask_s" in done:  # the worker's per-frame ms hold the masking and ORB-SLAM3's tracking
+        mask_ms = 1000.0 * done["mask_s"] / frames
+        result["stage_ms"].update(segment=round(1000.0 * done["segment_s"] / frames, 3), mask=round(mask_ms, 3),
+                                  track=round(float(rec["ms"].mean()) - mask_ms, 3))
     # status
     if raw["timed_out"]:
         status, message = "timeout", f"ORB-SLAM3 stopped: {raw['timed_out']} (after {frames} frames)"
@@ -346,7 +362,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
                  repeats: int = 1, vocab: str | Path | None = None, settings: str | Path | None = None,
                  camera: str | None = None, max_frames: int = 0, timeout: float | None = None,
                  config: Config = DEFAULT, progress: bool = True, evaluate: bool = True,
-                 keep_work: bool = False) -> dict:
+                 keep_work: bool = False, masks: str | None = None) -> dict:
     """Run the real ORB-SLAM3 RGB-D on ``sequence_dir`` ``repeats`` times; write ``out_traj`` (TUM) and the run
     JSON (``metrics_json``); return the run dict. Never raises for an ORB-SLAM3 failure: the dict's ``status``
     says what happened and ``message`` why (see the module docstring). Bad arguments (no sequence, repeats < 1)
@@ -355,7 +371,9 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     ``vocab``: a DBoW2 text file (default ``$PYORBSLAM3_VOCAB``, else the project-built vocabulary, built on first
     use); ``settings``: an ORB-SLAM3 1.0 YAML (default: generated from the sequence's camera); ``camera``: override
     the sequence's camera (``fr1``/``fr2``/``fr3``); ``max_frames``: first N frames only (0 = all); ``timeout``:
-    seconds per repeat (default load + per-frame budget of :class:`~d2slam.config.BaselineConfig`)."""
+    seconds per repeat (default load + per-frame budget of :class:`~d2slam.config.BaselineConfig`); ``masks``: the
+    person masks to remove from the frames (``orbslam3-masked``, module docstring; they must exist: a synthetic
+    sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`)."""
     from d2slam.baselines.vocab import resolve_vocabulary
     from d2slam.data import open_sequence
     from d2slam.outputs import check_output_file
@@ -375,6 +393,9 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
             "repeats": repeats,
             "camera": seq.camera.name, "camera_settings": dataclasses.asdict(seq.camera),
             "config_hash": config.hash()}
+    if masks is not None:
+        _prepare_masks(seq, masks, n_frames, config, progress)
+        base.update(method=MASKED_METHOD, masks=masks, masking=dataclasses.asdict(config.masking))
     work_root = Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_", dir=out_traj.parent))
     try:
         # vocabulary and settings problems: recorded, not raised
@@ -398,7 +419,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         for r in range(repeats):
             traj_r = out_traj if repeats == 1 else out_traj.with_name(f"{out_traj.stem}.rep{r}{out_traj.suffix}")
             res = _run_once(sequence_dir, traj_r, vinfo, settings_path, camera, max_frames, n_frames, timeout,
-                            config, progress, work_root / f"rep{r}")
+                            config, progress, work_root / f"rep{r}", masks)
             res["repeat"] = r
             if keep_work or res["status"] not in ("ok", "lost"):
                 kept = out_traj.with_name(f"{out_traj.stem}.rep{r}.orbslam3.log")
@@ -413,6 +434,25 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         return _finish(_summarise(base, runs, out_traj), metrics_json)
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
+
+
+def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool) -> None:
+    """Check that the ``kind`` masks of the first ``n_frames`` frames can be had before ORB-SLAM3 starts (a clear
+    :class:`D2SlamError` otherwise: no ``mask_sim/`` on a real sequence, no ONNX model, a fill name unknown); the
+    ``onnx`` ones are segmented into the mask cache here, so the worker only reads them."""
+    from tqdm import tqdm
+
+    from d2slam.baselines.masking import FILLS, dilate
+    from d2slam.segmentation import KINDS, masks_for
+
+    if kind not in KINDS:
+        raise D2SlamError(f"unknown masks {kind!r}; choose one of {', '.join(KINDS)}")
+    if config.masking.fill not in FILLS:
+        raise D2SlamError(f"unknown mask fill {config.masking.fill!r}; choose one of {', '.join(FILLS)}")
+    dilate(np.zeros((1, 1), bool), config.masking.dilate_px)  # a negative dilation is an error
+    frames = range(n_frames) if kind == "onnx" else range(min(1, n_frames))
+    for i in tqdm(frames, desc=f"masks {kind}", unit="frame", disable=None if progress else True):
+        masks_for(seq, i, kind, config)
 
 
 def evaluate_trajectory(seq, traj_path: str) -> dict:
@@ -506,10 +546,12 @@ def cli_run(args) -> int:
     outcome; exit status 0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed."""
     run = run_orbslam3(args.sequence, args.out, getattr(args, "metrics_json", None),
                        repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
-                       camera=getattr(args, "camera", None), progress=not getattr(args, "quiet", False))
+                       camera=getattr(args, "camera", None), progress=not getattr(args, "quiet", False),
+                       masks=getattr(args, "masks", None))
     stream = sys.stdout if run["status"] in ("ok", "lost") else sys.stderr
     v = run.get("vocabulary") or {}
-    print(f"orbslam3 {run.get('name', args.sequence)}: {run['status']}: {run['message']}", file=stream)
+    masks = f" ({run['masks']} masks)" if run.get("masks") else ""
+    print(f"{run['method']} {run.get('name', args.sequence)}{masks}: {run['status']}: {run['message']}", file=stream)
     if v:
         print(f"  vocabulary: {v['kind']} {v['path']} (sha256 {v['sha256'][:16]})", file=stream)
     if isinstance(run.get("ms_per_frame"), (int, float)):

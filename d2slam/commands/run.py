@@ -31,7 +31,8 @@ def register(sub) -> None:
                    help="override config fields (d2slam/config.py): a YAML of `section: {field: value}`, e.g. "
                    "`dynamics: {z_far: 5.0}`; saved in the metrics JSON")
     p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
-    p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 only: runs of ORB-SLAM3 (default 1)")
+    p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
+                   "ORB-SLAM3 (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     p.set_defaults(func=run)
 
@@ -55,9 +56,11 @@ def run(args) -> int:
     out = check_output_file(args.out, "--out")
     if args.metrics_json:
         check_output_file(args.metrics_json, "--metrics-json")
-    if method.runner is not None:  # not a keypoint filter of our engine (orbslam3): its own command
-        if args.masks is not None or args.masks_from is not None:
-            raise D2SlamError(f"--masks and --masks-from do not apply to --method {args.method}")
+    if method.runner is not None:  # not a keypoint filter of our engine (orbslam3[-masked]): its own command
+        if args.masks_from is not None:
+            raise D2SlamError(f"--masks-from does not apply to --method {args.method}")
+        if args.masks is not None and not method.needs_masks:
+            raise D2SlamError(f"--masks does not apply to --method {args.method}")
         if args.config is not None:
             raise D2SlamError(f"--config does not apply to --method {args.method}")
         return method.runner(args)

@@ -76,7 +76,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
     t_seq = time.perf_counter() - t0
 
-    if any(s.method == G.ORBSLAM3 for s in specs):
+    if any(s.method in G.REPEATED for s in specs):
         _prepare_vocabulary(progress)
     keys_by_id = {s.run_id: run_key(s, options) for s in specs}
     reused = {}

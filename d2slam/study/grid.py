@@ -25,6 +25,8 @@ DEFAULT_SEEDS = (101, 102, 103)  # CONTRIBUTING.md: study seeds, never tuned on
 DEFAULT_FRAMES = 300
 BASELINE = "none"  # the engine with the hook off: our in-engine stand-in for ORB-SLAM3
 ORBSLAM3 = "orbslam3"  # the real ORB-SLAM3 (not deterministic: repeated, median and spread)
+ORBSLAM3_MASKED = "orbslam3-masked"  # the real ORB-SLAM3 on frames with the person masks removed (--masks)
+REPEATED = (ORBSLAM3, ORBSLAM3_MASKED)  # the methods that run ORB-SLAM3 (--orbslam3-repeats times)
 FULL = "d2slam"
 ORACLE = "oracle"  # the keypoint truth as the filter: the ceiling of every method (synthetic data only)
 # Methods also run on the static twins: the engine's own floor ("none"), the full method, and the oracle, which on a

@@ -60,11 +60,12 @@ def machine_info() -> dict:
 
 def code_info() -> dict:
     """The source digests that key the runs (``d2slam.study.runner.source_digest``: comments and docstrings left out):
-    ``engine`` for the engine's runs, ``orbslam3`` for ORB-SLAM3's. Two studies with the same digests ran the same
-    code, whatever their commits."""
-    from d2slam.study.runner import _ENGINE_CODE, _ORBSLAM3_CODE, source_digest
+    ``engine`` for the engine's runs, ``orbslam3`` for ORB-SLAM3's, ``orbslam3-masked`` for ORB-SLAM3's on masked
+    frames. Two studies with the same digests ran the same code, whatever their commits."""
+    from d2slam.study.runner import _ENGINE_CODE, _ORBSLAM3_CODE, _ORBSLAM3_MASKED_CODE, source_digest
 
-    return {"engine": source_digest(_ENGINE_CODE), "orbslam3": source_digest(_ORBSLAM3_CODE)}
+    return {"engine": source_digest(_ENGINE_CODE), "orbslam3": source_digest(_ORBSLAM3_CODE),
+            "orbslam3-masked": source_digest(_ORBSLAM3_MASKED_CODE)}
 
 
 def build_manifest(config, grid: dict, executor: dict, generator_version: str, timing: dict | None = None,

@@ -20,7 +20,7 @@ import numpy as np
 
 from d2slam.errors import D2SlamError
 from d2slam.pipeline import STAGES as ENGINE_STAGES
-from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, RunSpec
+from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, ORBSLAM3_MASKED, REPEATED, RunSpec
 
 
 def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
@@ -68,7 +68,7 @@ def execute_run(spec: RunSpec | dict, options: dict) -> dict:
     try:
         with _single_threaded():
             path = _sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, spec.twin, options)
-            if spec.method == ORBSLAM3:
+            if spec.method in REPEATED:
                 _run_orbslam3(spec, path, options, out)
             else:
                 _run_engine(spec, path, options, out)
@@ -81,7 +81,7 @@ def execute_run(spec: RunSpec | dict, options: dict) -> dict:
 def base_row(spec: RunSpec) -> dict:
     return {"scenario": spec.scenario, "sequence": LABELS.get(spec.scenario, spec.scenario), "twin": int(spec.twin),
             "method": spec.method, "seed": int(spec.seed), "frames": int(spec.frames), "source": spec.source,
-            "status": "failed", "error": "", "deterministic": int(spec.method != ORBSLAM3), "repeats": 1}
+            "status": "failed", "error": "", "deterministic": int(spec.method not in REPEATED), "repeats": 1}
 
 
 def _config(spec: RunSpec, options: dict):
@@ -239,16 +239,20 @@ def _run_orbslam3(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     from d2slam.baselines.orbslam3 import run_orbslam3
     from d2slam.data import open_sequence, read_tum_trajectory
     from d2slam.eval.trajectory import aligned_estimate
+    from d2slam.methods import get_method, mask_kind
 
     config = _config(spec, options)
     row = out["row"]
     repeats = int(options.get("orbslam3_repeats") or config.baseline.orbslam3_repeats)
     row.update(config_hash=config.hash(), repeats=repeats)
+    masks = None
+    if spec.method == ORBSLAM3_MASKED:  # the study's --masks, else sim on synthetic sequences and onnx on TUM
+        masks = mask_kind(get_method(spec.method), options.get("masks"), synthetic=spec.source == "synth")
     with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
         traj_path = Path(tmp) / "orbslam3.txt"
         res = run_orbslam3(path, traj_path, repeats=repeats, config=config, progress=False,
                            max_frames=spec.frames if spec.source == "tum" else 0,
-                           timeout=options.get("orbslam3_timeout"))
+                           timeout=options.get("orbslam3_timeout"), masks=masks)
         traj = read_tum_trajectory(traj_path) if res.get("trajectory") and traj_path.is_file() else None
     status = res.get("status", "failed")
     metrics = res.get("metrics") or {}
@@ -310,6 +314,7 @@ class _single_threaded:
 _ENGINE_CODE = ("slam", "dynamics", "segmentation", "data", "eval", "methods.py", "pipeline.py", "config.py",
                 "study/runner.py")
 _ORBSLAM3_CODE = ("baselines", "data", "eval", "config.py", "study/runner.py")
+_ORBSLAM3_MASKED_CODE = _ORBSLAM3_CODE + ("segmentation",)  # ... and the masks it removes
 _RUN_PACKAGES = ("numpy", "scipy", "opencv-python-headless", "onnxruntime", "gtsam", "g2opy", "evo", "pyorbslam3")
 
 
@@ -351,10 +356,10 @@ def run_key(spec: RunSpec, options: dict) -> str:
     """What a run's numbers depend on: the run, the config (seeded), the masks, the generator version, the source
     of the code that computes them and the versions of the numeric packages (and, for ORB-SLAM3, its repeats and
     vocabulary file). Equal keys => a finished run can be reused (``--resume``)."""
-    orb = spec.method == ORBSLAM3
+    orb = spec.method in REPEATED
+    code = {ORBSLAM3: _ORBSLAM3_CODE, ORBSLAM3_MASKED: _ORBSLAM3_MASKED_CODE}.get(spec.method, _ENGINE_CODE)
     ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options.get("masks"),
-             "tum_root": options.get("tum_root"), "code": source_digest(_ORBSLAM3_CODE if orb else _ENGINE_CODE),
-             "packages": _packages()}
+             "tum_root": options.get("tum_root"), "code": source_digest(code), "packages": _packages()}
     if spec.source == "synth":
         from d2slam.study.sequences import generator_version
 

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from d2slam.study.grid import BASELINE, FULL, LABELS, ORACLE, ORBSLAM3, SCENARIOS
+from d2slam.study.grid import BASELINE, FULL, LABELS, ORACLE, ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS
 
 # runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
 KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source"]
@@ -217,7 +217,7 @@ def improvement_markdown(df: pd.DataFrame, metric: str, baseline: str = BASELINE
 
 def _orb_runs(df: pd.DataFrame) -> str:
     """How ORB-SLAM3 was run per sequence, from the runs' ``repeats`` column."""
-    reps = sorted(set(int(r) for r in df[df["method"] == ORBSLAM3]["repeats"] if r > 0))
+    reps = sorted(set(int(r) for r in df[df["method"].isin(REPEATED)]["repeats"] if r > 0))
     if not reps or reps == [1]:
         return "one run per sequence: the spread over seeds includes its run-to-run variation"
     return f"median of its {'/'.join(map(str, reps))} repeats per sequence"
@@ -245,7 +245,7 @@ def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: lis
                 cell += f" [{v.min():.{nd}f}, {v.max():.{nd}f}]"
             if len(v) < n_all:
                 cell += f" ({n_all - len(v)} failed)"
-            if m == ORBSLAM3 and metric == "ate_rmse_m" and (g["repeats"] > 1).any():  # the spread of its own repeats
+            if m in REPEATED and metric == "ate_rmse_m" and (g["repeats"] > 1).any():  # the spread of its own repeats
                 lo, hi = g["ate_min_m"].to_numpy(np.float64), g["ate_max_m"].to_numpy(np.float64)
                 if np.isfinite(lo).any() and np.isfinite(hi).any():
                     cell += f" {{repeats {np.nanmin(lo):.{nd}f}-{np.nanmax(hi):.{nd}f}}}"
@@ -492,7 +492,10 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
            "Improvement over a baseline = (1 - ours / baseline) x 100 % (the paper's convention), computed on the "
            "medians over seeds; in brackets the range of the per-seed (paired) improvements.",
            "`none` is our engine with the keypoint filter off (the in-engine stand-in for ORB-SLAM3); `orbslam3` "
-           f"is the real ORB-SLAM3 ({_orb_runs(df)}; not deterministic).", DAGGER_NOTE]
+           f"is the real ORB-SLAM3 ({_orb_runs(df)}; not deterministic)"
+           + (f"; `{ORBSLAM3_MASKED}` is the real ORB-SLAM3 on frames whose person masks (the masks the other methods "
+              "get) are removed, depth 0 and RGB filled (docs/masking.md)" if ORBSLAM3_MASKED in methods else "")
+           + ".", DAGGER_NOTE]
     if ORACLE in methods:
         out.insert(-1, ORACLE_NOTE)
     if manifest:
@@ -505,7 +508,7 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
         title, unit = TITLES[metric], UNITS[metric]
         out += ["", f"## Table {n}: {title} ({unit}), improvement over `{BASELINE}`", ""]
         if BASELINE in methods:
-            out.append(improvement_markdown(df, metric, BASELINE, [m for m in methods if m != ORBSLAM3]))
+            out.append(improvement_markdown(df, metric, BASELINE, [m for m in methods if m not in REPEATED]))
         else:
             out.append(f"_`{BASELINE}` was not run: no improvement over it._")
         if have_orb:
