@@ -160,6 +160,24 @@ def test_orbslam3_masked_is_a_column_beside_orbslam3_with_its_repeats():
     assert "orbslam3" not in t1 and "`orbslam3-masked`" in t1b and "95.0 %" in t1b
 
 
+def test_baseline_comparison_rows():
+    """The practitioner's baselines beside ours: one row per scenario and method present, in that order, with the
+    spread over seeds, the share of frames tracked and ms per frame."""
+    df = _runs()
+    masked = df[(df["method"] == "none") & (df["twin"] == 0)].copy()
+    masked["method"], masked["ms_per_frame"], masked["frames_tracked"] = "orbslam3-masked", 20.0, masked["frames"] / 2
+    df = pd.concat([df, masked], ignore_index=True)
+    t = T.baseline_comparison(df)
+    d = df[df["twin"] == 0]
+    assert list(t.columns) == ["scenario", "method", "ATE m", "RPE m", "tracked %", "ms/frame"]
+    assert set(t["method"]) == {"orbslam3-masked", "none", "d2slam"} & set(d["method"])
+    first = t.iloc[0]
+    assert first["method"] == "orbslam3-masked" and first["tracked %"] == "50" and first["ms/frame"] == "20.0"
+    g = d[(d["method"] == "d2slam") & (d["scenario"] == d["scenario"].iloc[0])]["ate_rmse_m"]
+    row = t[(t["method"] == "d2slam")].iloc[0]
+    assert row["ATE m"] == T.spread_cell(g.to_numpy(np.float64), 4)
+
+
 def test_twin_ratio_targets_fail_visibly():
     df = _runs()
     df.loc[(df["method"] == "d2slam") & (df["twin"] == 0), "ate_rmse_m"] = 0.5

@@ -544,6 +544,29 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
     return "\n".join(out)
 
 
+BASELINE_METHODS = (ORBSLAM3, ORBSLAM3_MASKED, BASELINE, FULL, ORACLE)
+
+
+def baseline_comparison(df: pd.DataFrame, methods: tuple = BASELINE_METHODS) -> pd.DataFrame:
+    """The practitioner's baselines beside ours on the dynamic sequences: per scenario and method, the median
+    [min, max] over seeds of ATE (m) and translational RPE (m), the median share of frames tracked (%) and the median
+    ms per frame (a timing: it depends on the machine and its load, so it stays out of ``tables.md``)."""
+    d = df[df["twin"] == 0]
+    rows = []
+    for s in _scenarios(d):
+        for m in methods:
+            g = d[(d["scenario"] == s) & (d["method"] == m)]
+            if g.empty:
+                continue
+            tracked = 100.0 * g["frames_tracked"].to_numpy(np.float64) / np.maximum(g["frames"].to_numpy(np.float64), 1)
+            rows.append({"scenario": LABELS.get(s, s), "method": m,
+                         "ATE m": spread_cell(g["ate_rmse_m"].to_numpy(np.float64), 4),
+                         "RPE m": spread_cell(g["rpe_trans_m"].to_numpy(np.float64), 4),
+                         "tracked %": f"{_nanmedian(tracked):.0f}",
+                         "ms/frame": f"{_nanmedian(g['ms_per_frame'].to_numpy(np.float64)):.1f}"})
+    return pd.DataFrame(rows)
+
+
 # ------------------------------------------------------------------------------------------------------------
 # Ablation tables (notebooks/07_ablations.ipynb): one row per sequence and method, spreads over seeds
 # ------------------------------------------------------------------------------------------------------------
