@@ -32,15 +32,16 @@ class DynamicsConfig:
     alpha_max: float = 0.9
     # eq 5 (ours): alpha is expressed at the keypoint's detection scale, alpha(z) * alpha_octave_scale^octave
     # (ORB-SLAM's per-level sigma; = OrbConfig.scale_factor). 1.0 or no octaves from the engine = the paper as printed.
+    # Measured: docs/deviations.md.
     alpha_octave_scale: float = 1.2
     # eq 6: sigma of the epipolar-error model, P_g = 1 - exp(-de^2 / (2 sigma^2)) (our reading).
     sigma: float = 1.0
     # eq 6 (ours): sigma at the keypoint's detection scale too, sigma x 1.2^octave, like alpha (False = the paper), so
     # that a coarse-level match within its scaled alpha does not get P_g > 0.5. Measured: docs/deviations.md.
     sigma_at_scale: bool = True
-    # eq 5 (ours): P_g of a keypoint whose error exceeds alpha; the paper: 1 (certainly dynamic). 0.7 is the measured
-    # reliability of the test, P(dynamic | err > alpha) with equal priors = r_dyn / (r_dyn + r_static)
-    # (docs/deviations.md). See geometric.geometric_probability.
+    # eq 5 (ours): P_g of a keypoint whose error exceeds alpha; the paper: 1 (certainly dynamic). 0.7 is the
+    # reliability of the test, P(dynamic | err > alpha) with equal priors = r_dyn / (r_dyn + r_static) (measured:
+    # docs/deviations.md). See geometric.geometric_probability.
     p_g_exceed: float = 0.7
     # eq 7: weight of the geometric term, in the mask's uncertainty zone / in the reliable area.
     omega_uncertain: float = 0.5
@@ -50,7 +51,7 @@ class DynamicsConfig:
     # eq 7 (ours): a keypoint with no observation (not matched) takes the mean P_g of its matched neighbours
     # when that is larger than its eq 7 P: of its neighbour_k nearest matched keypoints, those within delta(z) px
     # (eq 9's radius) and neighbour_depth metres, at least neighbour_min of them. False = the paper. See
-    # interaction.neighbour_p_g.
+    # interaction.neighbour_p_g; measured: docs/deviations.md.
     neighbour_p_g: bool = True
     neighbour_k: int = 8
     neighbour_depth: float = 0.15
@@ -71,7 +72,8 @@ class DynamicsConfig:
     # eq 9 (our reading): interaction zone = within zone_factor * delta(z_n) px of mask n, |z - z_n| < zone_depth.
     zone_factor: float = 2.0
     zone_depth: float = 1.0
-    # eq 9 (ours): z_n = median of the valid depths of mask n sampled on a grid of this stride (1 = every pixel).
+    # eq 9 (ours): z_n = median of the valid depths of mask n sampled on a grid of this stride (1 = every pixel),
+    # for speed (measured: docs/deviations.md).
     zone_median_stride: int = 4
     # eq 10: gamma(z) = gamma_max - (gamma_max - gamma_min) s(z) pixels.
     gamma_min: float = 10.0
@@ -80,7 +82,7 @@ class DynamicsConfig:
     oim_belief: float = 0.9
     # eq 10 (ours): a keypoint whose own epipolar test passed this frame (matched, err <= alpha) is no OIM
     # candidate: its direct evidence of being static is not overridden by its neighbours'. False = the paper's reading
-    # (every keypoint still static after eq 8). See interaction.oim_candidates for the measurements.
+    # (every keypoint still static after eq 8). See interaction.oim_candidates; measured: docs/deviations.md.
     oim_skip_observed_static: bool = True
     # eq 10 (ours, off): an unmatched keypoint whose matched neighbours say static (their mean P_g <= 0.5, see
     # neighbour_p_g) is no OIM candidate either. Off because it lowers the recall at a given static precision, the
@@ -100,11 +102,11 @@ class DynamicsConfig:
     # moved by the relative pose (PnP-RANSAC on the static-believed matches) and compared with its match: dynamic when
     # the reprojection error exceeds pose_reproj_px x 1.2^octave, or the depth residual
     # |z_p - z_pred| / sqrt(sigma(z_p)^2 + sigma(z_pred)^2) exceeds pose_depth_sigmas; then P_g = max(P_g,
-    # p_pose_exceed). 0 turns a test off. See geometric.pose_residuals for the measurements.
+    # p_pose_exceed). 0 turns a test off. See geometric.pose_residuals; measured: docs/deviations.md.
     pose_test: bool = True
     pose_reproj_px: float = 4.0
     pose_depth_sigmas: float = 2.0
-    # P(dynamic | a pose test exceeded) with equal priors, measured like p_g_exceed (docs/deviations.md).
+    # P(dynamic | a pose test exceeded) with equal priors, like p_g_exceed (measured: docs/deviations.md).
     p_pose_exceed: float = 0.9
     # Kinect axial depth noise sigma(z) = a + b (z - c)^2 metres (Nguyen et al. 2012; DESIGN.md section 3).
     depth_sigma_a: float = 0.0012
@@ -120,7 +122,7 @@ class DynamicsConfig:
     # Lucas-Kanade flow (flow.py). Each current keypoint is tracked into the previous image (matched ones starting at
     # their match), kept when the backward track returns within flow_fb_px; eq 5 then measures the tracked position,
     # and unmatched keypoints that track are observed too. Their alpha and eq 6's sigma are not scaled by the octave
-    # (the flow's error does not depend on the detection scale). See flow.py for the measurements.
+    # (the flow's error does not depend on the detection scale). See flow.py; measured: docs/deviations.md.
     flow: bool = False
     flow_window: int = 11
     flow_levels: int = 3
@@ -130,20 +132,19 @@ class DynamicsConfig:
     # Where the flow is used: "all"; "matched" (in a mask area, eq 7's inside or uncertain, only matched keypoints
     # are refined, unmatched ones stay unobserved); "outside" (no flow in a mask area: the masks and the ORB matches
     # decide there, as in the paper: people who sit still are geometrically static, and the flow would observe them;
-    # docs/deviations.md).
+    # measured: docs/deviations.md).
     flow_area: str = "outside"
     # The flow's new matches (unmatched keypoints that tracked) get the previous depth image's robust depth at their
     # tracked position, so the RGB-D pose test runs on them too (flow.flow_matches); off: no depth, eq 5 alone.
-    # An object carried along its epipolar lines then no longer passes eq 5 as static (docs/deviations.md).
+    # An object carried along its epipolar lines then does not pass eq 5 as static (measured: docs/deviations.md).
     flow_new_depth: bool = True
     # eq 7 (ours, with the flow only: on in `d2slam-flow`, off in `d2slam`): a keypoint that nothing
     # observed (not matched, the flow did not track it) and that lies outside every mask but within flow_edge_band px
     # of one (eq 1's signed distance d in (-band, 0)) gets P = max(P, flow_edge_p) (fusion.edge_band). Eq 7 gives it
     # P = P_S < 0.5, so it stayed static. These are person pixels the masks missed (boundary errors of the simulated
-    # and real masks) or background at a person's silhouette, where a moving edge breaks the descriptor: on the
-    # `oracle` (walking_static dev seed 3, 100 frames) only 11 % of the truly static keypoints within 8 px of a
-    # silhouette were matched (64-66 % in the static twin), so they spend the feature budget without helping
-    # tracking. 0 turns it off. Measured: docs/deviations.md.
+    # and real masks) or background at a person's silhouette, where a moving edge breaks the descriptor, so few of
+    # them are matched and they spend the feature budget without helping tracking. 0 turns it off. Measured:
+    # docs/deviations.md.
     flow_edge_band: float = 6.0
     flow_edge_p: float = 0.9
     # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
@@ -377,8 +378,8 @@ class SynthConfig:
     arm_swing: float = 0.55
     leg_swing: float = 0.5
     # People's clothes, calibrated with `d2slam bench realism` so that the fraction of engine ORB keypoints on people
-    # over their area fraction is about 0.4-0.7 as in real fr3 walking frames (real: mean 0.44; the former busy
-    # clothes gave ~1.1): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
+    # over their area fraction is about 0.4-0.7 as in real fr3 walking frames (measured: docs/deviations.md,
+    # `SynthConfig.cloth_*`): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
     # check period (m), grey-level contrast of a garment's colours, folds and seams, probability of one printed logo,
     # small printed marks per square metre and their size (m), contrast of logos and marks, fabric blur sigma (m).
     # The carried box and pushed chair keep their busy room textures.
@@ -429,8 +430,8 @@ class BaselineConfig:
     vocab_train_frames: int = 60
     vocab_train_stride: int = 6
     # ORB-SLAM3 run: camera fps written in the settings, repeats of the study (threads are not deterministic; 1: the
-    # three seeds already give three runs per scenario, and each repeat costs ~20 s per sequence, 6 s of it loading
-    # the vocabulary, on a default study of about an hour), subprocess time limits (vocabulary load + per frame).
+    # three seeds already give three runs per scenario, and each repeat costs a whole run per sequence; measured:
+    # docs/deviations.md), subprocess time limits (vocabulary load + per frame).
     orbslam3_fps: float = 30.0
     # ORB-SLAM3's own TUM setting (Stereo.ThDepth: close points within 40 b = 3 m; it triangulates the far ones),
     # not our engine's EngineConfig.th_depth.

@@ -11,7 +11,8 @@ behind the engine's keypoint-filter hook.
   puts them in the run-method registry (``d2slam.methods``)
 
 The classifier (numpy, scipy, OpenCV) is imported on first use of ``D2SlamFilter``, ``FrameDiagnostics`` or
-``get_filter`` (PEP 562): the command line lists the method names without paying for those imports (0.45 s measured).
+``get_filter`` (PEP 562): the command line lists the method names without paying for those imports (measured:
+docs/deviations.md, "Measurements behind implementation choices").
 """
 
 from __future__ import annotations

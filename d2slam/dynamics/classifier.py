@@ -11,7 +11,7 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
                    flow_edge_p); bel = eq 8 Bayesian update from bel(q) / the map point       (fusion.py)
     OIM          = static keypoints in a person's interaction zone near geometric-dynamic ones -> dynamic
                    (candidates: not observed static this frame, i.e. not matched with err <= alpha
-                   and passing the pose test; our measured deviation)
+                   and passing the pose test; our deviation, DynamicsConfig.oim_skip_observed_static)
                                                                                              (eq 9-10, interaction.py)
 
 Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``none`` -> None, the hook off):

@@ -14,7 +14,7 @@ A depth is *valid* when it is finite and > 0 (0 = invalid, the project conventio
 midpoint of its range for an invalid depth (beta 0.15, alpha 0.7, delta 29.5, gamma 19), and for every depth when
 ``use_depth=False`` (the "no-depth" ablation). All functions are vectorised over arrays of any shape.
 
-Deviation (measured, see ``octave_factor``): the epipolar threshold used by the geometric module is
+Deviation (see ``octave_factor``): the epipolar threshold used by the geometric module is
 alpha(z) * 1.2^octave, alpha at the keypoint's detection scale, in every mode that has an epipolar threshold.
 """
 
@@ -65,14 +65,12 @@ def alpha(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarr
 
 
 def octave_factor(octave, n: int, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray | float:
-    """eq 5 (ours, a measured deviation): the factor ``alpha_octave_scale ** octave`` that expresses the epipolar
+    """eq 5 (ours, a deviation): the factor ``alpha_octave_scale ** octave`` that expresses the epipolar
     threshold at each keypoint's detection scale (ORB-SLAM's per-level sigma, ``scale_factor ** level``).
 
-    Why: an ORB keypoint detected at pyramid level k is localised on a grid ``1.2^k`` px wide at level 0. Measured on
-    synthetic walking_xyz (dev seed 5, 60 frames, sim masks), on static matches that are *correct* by the ground-truth
-    pose (reprojection < 1.5 * 1.2^k px), the epipolar error grows with the level (median 0.24 px at level 0, 0.61 px
-    at level 7) and the share above alpha(z) rises from 27 % to 50 %; with alpha(z) * 1.2^k it is flat, 22-27 % at
-    every level. An F fit on the truly static matches only (oracle) changes the share by 1 point: F is not the cause.
+    Why: an ORB keypoint detected at pyramid level k is localised on a grid ``1.2^k`` px wide at level 0, so the
+    epipolar error of correct static matches grows with the level; with alpha(z) * 1.2^k the share of them above the
+    threshold is about the same at every level (measured: docs/deviations.md, ``DynamicsConfig.alpha_octave_scale``).
     ``octave`` None (the engine gives no levels) or ``alpha_octave_scale`` 1 -> 1.0 (the paper as printed). Octaves
     are clipped to [0, 31] (NaN -> 0); an array whose length is not ``n`` (the keypoint count) is a D2SlamError."""
     if octave is None or cfg.alpha_octave_scale == 1.0:

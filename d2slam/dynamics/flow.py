@@ -1,4 +1,4 @@
-"""Sub-pixel correspondences for eq 4-6 by pyramidal Lucas-Kanade flow (ours, measured; ``DynamicsConfig.flow``).
+"""Sub-pixel correspondences for eq 4-6 by pyramidal Lucas-Kanade flow (ours; ``DynamicsConfig.flow``).
 
     q_i = LK(I_t -> I_{t-1}) of keypoint p_i, started at its match q_j (or at p_i when unmatched)
     q_i kept when LK(I_{t-1} -> I_t) of q_i, started at q_i + p_i - q_j, returns within flow_fb_px of p_i
@@ -8,27 +8,19 @@
 
 Eq 5 measures the distance of p to the epipolar line of its correspondence q. With ORB matches both p and q are FAST
 corners at integer positions of their pyramid levels, so even a correct static match is off by about a pixel, which is
-alpha's own size. Measured on the hook inputs of a `d2slam` run (synthetic walking_xyz dev seed 3, 300 frames, each
-variant with its own RANSAC F; LK with a 21 x 21 window, three levels, 30 iterations, the backward track
-from scratch, forward-backward 0.5 px):
-37 % of matched static keypoints exceed alpha(z) x 1.2^octave with the ORB match (78 % of dynamic ones), median static
-error 0.66 px; with the tracked position 8 % exceed the unscaled alpha(z) (73 % of dynamic ones), median 0.10 px.
-walking_rpy dev seed 4: 35 / 72 % -> 6 / 63 %. LK also finds a correspondence for keypoints the descriptor matching
-missed: on walking_xyz dev seed 3, for 91 % of the unmatched static keypoints outside the mask areas (6 % of those
-exceed alpha) and for 51 % of the missed dynamic ones there (62 % of those exceed alpha), which is where most of the
-missed dynamic keypoints are. Notebook 03 shows the default settings (11 x 11 window, 10
-iterations) on a short sequence.
+alpha's own size. The tracked position is sub-pixel: far fewer correct static matches exceed alpha, while dynamic ones
+still do. LK also finds a correspondence for many keypoints the descriptor matching missed, which is where most of the
+missed dynamic keypoints are (measured: docs/deviations.md, ``DynamicsConfig.flow``). Notebook 03 shows the default
+settings (11 x 11 window, 10 iterations) on a short sequence.
 
 Without a depth a new match has eq 5 alone, which cannot see an object carried along its epipolar lines; with the
-previous depth image's robust depth at q_i (``flow_new_depth``) the RGB-D pose test runs on it too. Against eq 5 alone
-on development seeds 3-5 (300 frames, the five scenarios): recall and static precision up on all 15 runs, walking_rpy
-seed 4 8.2 -> 5.1 mm ATE (``DynamicsConfig.flow_new_depth``).
+previous depth image's robust depth at q_i (``flow_new_depth``) the RGB-D pose test runs on it too (measured:
+docs/deviations.md, ``DynamicsConfig.flow_new_depth``).
 
-The cost is the flow itself: 8.8-10.2 ms median per frame (four runs) on the engine's hook inputs of walking_xyz dev
-seed 3 (about 1490 keypoints, both directions, one core; ``d2slam bench dynamics --sequence DIR --method
-d2slam-flow`` prints it apart). It tracks only the keypoints ``flow_area`` uses; tracking all of them and dropping
-some afterwards gave the same output in 13.0-18.7 ms, alternating on the same machine. So it is an extension beside
-the paper's modules, outside their 3 ms budget.
+The cost is the flow itself (``d2slam bench dynamics --sequence DIR --method d2slam-flow`` prints it apart; figures
+in docs/deviations.md, ``DynamicsConfig.flow``). It tracks only the keypoints ``flow_area`` uses (LK tracks each
+point on its own, so the others' tracks do not change). So it is an extension beside the paper's modules, outside
+their 3 ms budget.
 """
 
 from __future__ import annotations

@@ -14,12 +14,13 @@ Eq 8, binary state (dynamic / static), prior bel(q) of the keypoint's predecesso
 
 bel > 0.5 -> dynamic.
 
-Ours (measured, ``DynamicsConfig.neighbour_p_g``): a keypoint that is not matched takes max(P, P_nb), P_nb the mean
-P_g of its matched neighbours at the same depth (``interaction.neighbour_p_g``), where it has enough of them.
+Ours (``DynamicsConfig.neighbour_p_g``; measured: docs/deviations.md): a keypoint that is not matched takes
+max(P, P_nb), P_nb the mean P_g of its matched neighbours at the same depth (``interaction.neighbour_p_g``), where it
+has enough of them.
 
-Ours (measured, ``DynamicsConfig.flow_edge_band``, with the flow only): a keypoint nothing observed, just outside a
-mask (eq 1's signed distance in (-band, 0)), takes max(P, ``flow_edge_p``) (``edge_band``); eq 7 leaves it at
-P_S < 0.5, static.
+Ours (``DynamicsConfig.flow_edge_band``, with the flow only; measured: docs/deviations.md): a keypoint nothing
+observed, just outside a mask (eq 1's signed distance in (-band, 0)), takes max(P, ``flow_edge_p``) (``edge_band``);
+eq 7 leaves it at P_S < 0.5, static.
 """
 
 from __future__ import annotations

@@ -2,24 +2,21 @@
 
     l = F q~                                      epipolar line of the previous keypoint q in frame t   (eq 4)
     err = |p~^T F q~| / sqrt(l_x^2 + l_y^2)       distance (px) of the current keypoint p to that line  (eq 5)
-    err > alpha(z_p)  ->  dynamic, P_g = p_exceed (the paper: 1; ours: 0.7, measured, see below)
+    err > alpha(z_p)  ->  dynamic, P_g = p_exceed (the paper: 1; ours: 0.7, see below)
     otherwise         ->  P_g = 1 - exp(-err^2 / (2 sigma^2))                                          (eq 6)
 
-Deviation (measured): the paper's P_g = 1 above alpha makes a single exceedance certain, and eq 8 then gives a
-belief of ~1 whatever the keypoint's history, so its map point is culled. With ORB keypoints at integer positions
-of their pyramid level, alpha = 0.5-0.9 px is close to the noise floor of the test: against the ground-truth F the
-error of correct static matches at level 0 has median 0.29 px and 90th percentile 0.91 px, and with the RANSAC F
-23-35 % of matched static keypoints exceed alpha in a frame (62-76 % of matched dynamic ones), on synthetic dev
-seed 3. An exceedance is therefore evidence, not certainty: P_g = P(dynamic | err > alpha) with equal priors
-= r_dyn / (r_dyn + r_static) = 0.68-0.73, ``DynamicsConfig.p_g_exceed`` = 0.7 (1.0 restores the paper). Measured on
-the four walking scenarios (dev seed 3, 300 frames, d2slam): frames tracked 121 / 300 / 87 / 300 with 1.0 and
-153 / 300 / 156 / 300 with 0.7 (xyz / static / rpy / halfsphere), keypoint precision 0.36 / 0.18 / 0.32 / 0.34 ->
-0.41 / 0.20 / 0.37 / 0.38 at about the same recall (0.87 / 0.76 / 0.90 / 0.86 -> 0.87 / 0.75 / 0.89 / 0.86).
+Deviation: the paper's P_g = 1 above alpha makes a single exceedance certain, and eq 8 then gives a belief of ~1
+whatever the keypoint's history, so its map point is culled. With ORB keypoints at integer positions of their
+pyramid level, alpha = 0.5-0.9 px is close to the noise floor of the test: correct static matches exceed it in a
+sizeable share of frames. An exceedance is therefore evidence, not certainty: P_g = P(dynamic | err > alpha) with
+equal priors = r_dyn / (r_dyn + r_static), r_dyn and r_static the shares of matched dynamic and static keypoints
+that exceed alpha; ``DynamicsConfig.p_g_exceed`` = 0.7 (1.0 restores the paper; measured: docs/deviations.md,
+``DynamicsConfig.p_g_exceed``).
 
 Eq 6 as printed is a Gaussian *density* of the error (largest at zero error); DESIGN.md reads it as a probability
 of being dynamic that is 0 at zero error and grows with the error, which is what eq 7 needs. Like alpha, its sigma is
-taken at the keypoint's detection scale, sigma x 1.2^octave (``DynamicsConfig.sigma_at_scale``, measured there):
-otherwise a match below its scaled threshold could still get P_g > 0.5.
+taken at the keypoint's detection scale, sigma x 1.2^octave (``DynamicsConfig.sigma_at_scale``; measured:
+docs/deviations.md): otherwise a match below its scaled threshold could still get P_g > 0.5.
 
 F is estimated by RANSAC (``cv2.findFundamentalMat``, FM_RANSAC, seeded with ``cv2.setRNGSeed``) on the matches
 currently believed static (belief of the previous keypoint <= 0.5) when there are at least ``f_min_static_matches``
@@ -27,7 +24,7 @@ of them, else on all matches. With fewer than ``f_min_matches`` (8) usable match
 (finite, 3x3) F, there is no F: P_g is undefined (NaN) and eq 7 treats every keypoint as *unmatched*.
 A match whose epipolar line is degenerate (q at the epipole, l_x = l_y = 0) is unmatched as well.
 
-Extension (ours, RGB-D, measured; ``DynamicsConfig.pose_test``): the pose test beside eq 5.
+Extension (ours, RGB-D; ``DynamicsConfig.pose_test``): the pose test beside eq 5.
 
     (R, t)  = relative pose t-1 -> t: PnP-RANSAC (SQPnP) on the matches RANSAC used for F with a previous depth
     X'      = R X_q + t,  X_q the previous keypoint back-projected with its depth
@@ -36,9 +33,10 @@ Extension (ours, RGB-D, measured; ``DynamicsConfig.pose_test``): the pose test b
     e_r > pose_reproj_px 1.2^octave  or  |e_z| > pose_depth_sigmas  ->  dynamic, P_g = max(P_g, p_pose_exceed)
 
 The epipolar error measures only the motion across the epipolar line; a point moving along its line (an object
-carried away from or towards the camera, or sliding along the line under rotation) passes eq 5 whatever its speed.
-See ``pose_residuals`` for the measurements. Without a pose (fewer than ``pnp_min_matches`` matches with a previous
-depth, or no PnP solution) the test is skipped and eq 5 decides alone.
+carried away from or towards the camera, or sliding along the line under rotation) passes eq 5 whatever its speed;
+the pose test sees that motion (measured: docs/deviations.md, ``DynamicsConfig.pose_test``). Without a pose (fewer
+than ``pnp_min_matches`` matches with a previous depth, or no PnP solution) the test is skipped and eq 5 decides
+alone.
 """
 
 from __future__ import annotations
@@ -174,18 +172,10 @@ def pose_residuals(X: np.ndarray, p: np.ndarray, z: np.ndarray, R: np.ndarray, t
     depth residual is (z - z_pred) / sqrt(sigma(z)^2 + sigma(z_pred)^2) with sigma = ``depth.depth_sigma``. NaN where
     X is not finite or lies behind the camera; the depth residual also where z is invalid.
 
-    Measured (synthetic dev seeds, the ``d2slam`` classifier's matches and beliefs, the pose of ``relative_pose``):
-    share of matched keypoints flagged, static / people / moved objects, on walking_rpy seed 4 and walking_xyz seed 3:
-
-    - eq 5 (err > alpha(z) 1.2^octave): 0.28 / 0.70 / 0.41 and 0.31 / 0.77 / 0.74;
-    - reprojection error > 4 px x 1.2^octave: 0.08 / 0.44 / 0.22 and 0.07 / 0.59 / 0.86;
-    - |depth residual| > 2: 0.04 / 0.55 / 0.35 and 0.04 / 0.35 / 0.39;
-    - any of the three: 0.33 / 0.91 / 0.65 and 0.34 / 0.89 / 0.98.
-
-    On walking_rpy seed 4 a box carried away from the camera (frames 59-83, depth 2.1 -> 3.1 m) is matched with a
-    median epipolar error of 0.5-1.0 px, and later slid sideways along its epipolar lines (frames 140-146: median
-    epipolar error 0.7-0.8 px, reprojection error 5.6-6.2 px): eq 5 passes both, their map points enter the map and the
-    track drifts by 0.6 m. Reliability P(dynamic | flagged) with equal priors: 0.82-0.90 (``p_pose_exceed`` = 0.9)."""
+    Why: eq 5 cannot see a point that moves along its epipolar line (an object carried away from the camera, or slid
+    along its lines under rotation); the reprojection and depth residuals of the relative pose do. A flag is evidence
+    with the reliability P(dynamic | flagged), ``p_pose_exceed`` (measured: docs/deviations.md,
+    ``DynamicsConfig.pose_test`` and ``DynamicsConfig.p_pose_exceed``)."""
     X = np.asarray(X, dtype=np.float64).reshape(-1, 3)
     p = np.asarray(p, dtype=np.float64).reshape(-1, 2)
     z = np.asarray(z, dtype=np.float64).reshape(-1)

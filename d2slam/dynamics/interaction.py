@@ -34,7 +34,7 @@ _DEFAULT = DynamicsConfig()
 
 def _tree(pts: np.ndarray) -> cKDTree:
     """cKDTree of keypoints: unbalanced, non-compacted, 32 points per leaf (faster to build, the same answers;
-    measured on the toy scenes of ``d2slam bench dynamics``: 800 matched keypoints 0.14 -> 0.08 ms)."""
+    measured: docs/deviations.md, ``interaction._tree``)."""
     return cKDTree(pts, leafsize=32, balanced_tree=False, compact_nodes=False)
 
 
@@ -67,10 +67,9 @@ def mask_depths(depth: np.ndarray, masks: np.ndarray | list[MaskEdges] | None,
     """eq 9: z_n, the median of the valid depths of each mask (n,), NaN for a mask without valid depth.
 
     ``masks`` (n, H, W) bool, the frame's ``mask_edges`` or ``FrameMasks`` (their bounding boxes are reused).
-    Deviation, measured: the median is taken over the mask pixels of a grid of stride ``zone_median_stride`` (4:
-    1/16 of the pixels) inside the mask's bounding box. On two person-sized masks (640x480, ``toy.two_view_scene``,
-    process CPU time, loaded 2-core machine) the medians cost 0.70 ms at stride 1, 0.24 ms at 2, 0.14 ms at 4, and
-    differ from the full median by about 2 mm, against the zone's 1 m tolerance (the tests bound the difference).
+    Deviation, for speed: the median is taken over the mask pixels of a grid of stride ``zone_median_stride`` (4:
+    1/16 of the pixels) inside the mask's bounding box; it differs from the full median by far less than the zone's
+    1 m tolerance (the tests bound the difference; measured: docs/deviations.md, ``DynamicsConfig.zone_median_stride``).
     Stride 1 = every pixel. A mask the grid misses entirely falls back to every pixel."""
     edges = masks.edges if isinstance(masks, FrameMasks) else masks if isinstance(masks, list) else mask_edges(masks)
     s = max(int(cfg.zone_median_stride), 1)
@@ -94,7 +93,8 @@ def mask_depths(depth: np.ndarray, masks: np.ndarray | list[MaskEdges] | None,
 
 def _median(vals: np.ndarray) -> float:
     """``np.median`` of a non-empty 1-D array with the same result (one ``np.partition``, the mean of the two middle
-    values in the array's dtype), without ``np.median``'s overhead (measured 0.02 -> 0.01 ms per mask)."""
+    values in the array's dtype), without ``np.median``'s overhead (measured: docs/deviations.md,
+    ``interaction._median``)."""
     if vals.dtype.kind != "f":
         vals = vals.astype(np.float64)  # integer depths: np.median averages in float64 (and a uint16 sum overflows)
     h = len(vals) // 2
@@ -129,20 +129,16 @@ def oim_candidates(belief: np.ndarray, observed: np.ndarray, geo_dynamic: np.nda
     ``oim_skip_observed_static`` (ours, the default), not matched with a passed geometric test this frame (matched
     and not ``geo_dynamic``: epipolar error <= alpha and, with the pose test on, its residuals under threshold).
 
-    Deviation, measured (synthetic dev seeds 3-5, 300 frames, ``d2slam``): with the paper's candidates the OIM
-    flipped about 4 static keypoints for each dynamic one (walking_static, dev seed 3: 26.4k of the run's 78.1k
-    false "dynamic" keypoints came from the OIM), and each flip takes a static keypoint out of tracking and mapping.
-    Replacing only those false positives by the truth brought the ATE from 4.1 to 3.4 mm on walking_static and from
-    5.8 to 4.7 mm on walking_xyz (the keypoint truth as the filter: 3.3 and 5.3). Keeping the keypoints whose own
-    epipolar test passed out of the OIM lowered the ATE on 13 of the 15 dev runs (5 scenarios x 3 seeds;
-    walking_static 4.1/3.9/4.1 -> 3.4/3.5/3.5 mm; worse: walking_xyz seed 5 4.0 -> 4.2, walking_rpy seed 3 52.7 ->
-    57.2) at a recall cost of 0.01-0.06 on the walking scenarios and 0.06-0.12 on sitting_static. Unmatched
+    Deviation: with the paper's candidates the OIM flips many more static keypoints than dynamic ones, and each flip
+    takes a static keypoint out of tracking and mapping. A keypoint whose own epipolar test passed has direct
+    evidence of being static, which its neighbours' should not override; keeping it out of the OIM costs some recall
+    and lowers the ATE (measured: docs/deviations.md, ``DynamicsConfig.oim_skip_observed_static``). Unmatched
     keypoints (most of an object's keypoints while it is carried) stay candidates.
     ``oim_skip_observed_static=False`` gives the paper's reading.
 
-    ``oim_skip_neighbour_static`` (ours, off by default; the config comment has the measurements) also drops the
-    unmatched keypoints whose matched neighbours say static, ``p_nb`` (``neighbour_p_g``) <= 0.5: it trades recall for
-    precision (walking_xyz dev seed 3: recall 0.944 -> 0.935, precision 0.422 -> 0.441)."""
+    ``oim_skip_neighbour_static`` (ours, off by default) also drops the unmatched keypoints whose matched neighbours
+    say static, ``p_nb`` (``neighbour_p_g``) <= 0.5: it trades recall for precision (measured: docs/deviations.md,
+    ``DynamicsConfig.oim_skip_neighbour_static``)."""
     cand = np.asarray(belief, dtype=np.float64) <= cfg.dynamic_threshold
     if cfg.oim_skip_observed_static:
         cand &= ~(np.asarray(observed, dtype=bool) & ~np.asarray(geo_dynamic, dtype=bool))
@@ -276,20 +272,16 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
 def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: np.ndarray,
                   cfg: DynamicsConfig = _DEFAULT, skip: np.ndarray | None = None,
                   matched: MatchedPoints | None = None) -> np.ndarray:
-    """eq 7 (ours, measured): (N,) mean P_g (eq 6) of each unmatched keypoint's matched neighbours: of its
+    """eq 7 (ours): (N,) mean P_g (eq 6) of each unmatched keypoint's matched neighbours: of its
     ``neighbour_k`` nearest matched keypoints, those within delta(z_i) px (eq 9's radius) and |z_i - z_j| <
     ``neighbour_depth`` m. NaN for matched keypoints, keypoints without valid depth and keypoints with fewer than
     ``neighbour_min`` such neighbours, and where ``skip`` (optional (N,) bool; the classifier skips the keypoints
     inside a mask, whose P = P_S > 0.5 already says dynamic). ``fusion.fuse`` gives an unmatched keypoint max(P, this).
 
-    Why: eq 7 gives an unmatched keypoint outside every mask area P = 0.5, so its belief only keeps its prior. About
-    half of the dynamic keypoints the classifier missed were such keypoints (walking_xyz dev seed 3: 3531 of 6004,
-    on people the simulated masks missed and on carried objects), and an unguided second matching found few of them.
-    Their matched neighbours on the same surface usually carry the motion. Measured on synthetic dev seeds 3-5 (300
-    frames, ``d2slam``, 15 runs): recall +0.023 to +0.049 on the walking scenarios
-    (+0.002 to +0.004 on sitting_static), static precision up to +0.012, precision down by up to 0.039 and F1 by up to
-    0.032, the ATE unchanged (44.1 and 44.0 mm summed over the 12 runs outside walking_rpy). A first version, the share
-    of flagged neighbours within 0.25 m, raised recall more but the ATE too (45.9 mm) and lost 53 frames on one run.
+    Why: eq 7 gives an unmatched keypoint outside every mask area P = 0.5, so its belief only keeps its prior. Many
+    of the dynamic keypoints the classifier misses are such keypoints (on people the masks missed and on carried
+    objects), and their matched neighbours on the same surface usually carry the motion. It raises the recall at an
+    unchanged ATE (measured: docs/deviations.md, ``DynamicsConfig.neighbour_p_g``).
 
     One ``cKDTree.query`` (k nearest, bounded by the largest radius) over the matched keypoints: no Python loop.
     ``matched`` (optional): the frame's ``MatchedPoints`` of ``observed`` with a valid depth, whose tree the OIM

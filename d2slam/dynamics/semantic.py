@@ -9,26 +9,25 @@ probability of being dynamic with the depth-adaptive slope beta(z), and the mask
 keypoint's rounded pixel, i.e. the distance between pixel centres to the nearest background pixel (inside) or the
 nearest mask pixel (outside); the image border is not an edge (a person cut by the border continues out of view).
 
-Deviation, measured (640x480, one person-sized ellipse mask, 1 thread, this project's 2-core build machine):
-``cv2.distanceTransform(DIST_L2, DIST_MASK_PRECISE)`` costs 2.9 ms per full-image transform (scipy's
-``distance_transform_edt`` 15 ms) and still 0.64 ms + 1.40 ms on crops around the mask (+ 80 px), so two masks
-alone would exceed the 3 ms budget of all modules. We obtain the *same values* at the keypoints only: the nearest background pixel of an inside pixel is
-4-adjacent to the mask, and the nearest mask pixel of an outside pixel is 4-adjacent to the background, so the
-distance transforms at the keypoints equal nearest-neighbour distances to the border pixels of the mask and of its
-complement (morphology on the mask's bounding box), found with ``scipy.spatial.cKDTree``. ``tests/test_dynamics
-_semantic.py`` checks the equality against ``scipy.ndimage.distance_transform_edt`` on random masks. Outside
-points are only searched within ``margin`` px of the mask (the classifier passes the widest uncertainty zone and
-extends the search to the OIM's interaction zone only for the keypoints that need it, ``interaction.oim_frame``);
-beyond it ``d = -max(margin, distance to the mask's bounding box)``, a lower bound of the true
-distance that changes neither zone nor eq 7 (P_S is used by eq 7 only inside the mask area), and P_S there is below
-1 / (1 + exp(beta margin)).
+Deviation, for speed: distance transforms of the image (``cv2.distanceTransform``, scipy's
+``distance_transform_edt``), even on crops around each mask, would with two masks alone exceed the 3 ms budget of
+all modules (measured: docs/deviations.md, ``semantic.semantic_module``). We obtain the *same values* at the
+keypoints only: the nearest background pixel of an inside pixel is 4-adjacent to the mask, and the nearest mask
+pixel of an outside pixel is 4-adjacent to the background, so the distance transforms at the keypoints equal
+nearest-neighbour distances to the border pixels of the mask and of its complement (morphology on the mask's
+bounding box), found with ``scipy.spatial.cKDTree``. ``tests/test_dynamics_semantic.py`` checks the equality against
+``scipy.ndimage.distance_transform_edt`` on random masks. Outside points are only searched within ``margin`` px of
+the mask (the classifier passes the widest uncertainty zone and extends the search to the OIM's interaction zone
+only for the keypoints that need it, ``interaction.oim_frame``); beyond it ``d = -max(margin, distance to the mask's
+bounding box)``, a lower bound of the true distance that changes neither zone nor eq 7 (P_S is used by eq 7 only
+inside the mask area), and P_S there is below 1 / (1 + exp(beta margin)).
 
 Per frame the work is shared (``FrameMasks``): the keypoints are rounded once (``KeypointPixels``), each mask's
 edges, bounding-box distances and pixel lookups are computed once, and its edge trees are built on first use and
 reused by the OIM's zone test. Edge pixels are listed with ``np.flatnonzero`` and the trees are unbalanced with 32
-points per leaf (both measured faster, see ``_nonzero_xy`` and ``_tree``). ``d2slam bench dynamics``: all modules
-3.49 -> 2.50 ms median per frame (1000 keypoints, two masks); ``tests/test_dynamics_equivalence.py`` checks that
-every output equals its stored reference (``tests/data/dynamics_reference.npz``).
+points per leaf (both faster, see ``_nonzero_xy`` and ``_tree``). ``d2slam bench dynamics`` times all modules per
+frame; ``tests/test_dynamics_equivalence.py`` checks that every output equals its stored reference
+(``tests/data/dynamics_reference.npz``).
 
 Special masks (documented recoveries):
 - no masks (``None`` or ``(0, H, W)``) or an empty mask: the mask does not exist, ``d = -inf``, P_S = 0, no zone;
@@ -56,18 +55,17 @@ _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
 def _tree(pts: np.ndarray) -> cKDTree:
-    """cKDTree of edge pixels. Unbalanced, non-compacted nodes, 32 points per leaf: measured faster to build and to
-    query on these ~10^3 contour pixels than the defaults (two person masks of ``toy.two_view_scene``: builds
-    0.44 -> 0.24 ms, queries 0.49 -> 0.41 ms per frame, best of 7, process CPU time); the nearest distances are the
-    same (exact search either way). One tree shared by all the masks' edge sets (shifted apart) was measured slower
-    (1.25 against 1.20 ms for edges + distances of two masks), so each set keeps its own tree."""
+    """cKDTree of edge pixels. Unbalanced, non-compacted nodes, 32 points per leaf: faster to build and to query on
+    these ~10^3 contour pixels than the defaults, with the same nearest distances (exact search either way). Each
+    edge set keeps its own tree: one tree shared by all the masks' edge sets (shifted apart) is slower (measured:
+    docs/deviations.md, ``semantic._tree``)."""
     return cKDTree(pts, leafsize=32, balanced_tree=False, compact_nodes=False)
 
 
 def _nonzero_xy(img: np.ndarray, offset: np.ndarray) -> np.ndarray:
     """(P, 2) float64 (x, y) + offset of the non-zero pixels of a 0/1 uint8 image, in row-major order (the order of
-    ``cv2.findNonZero``). ``np.flatnonzero`` on the boolean view: measured 12 us against 44 us for findNonZero on a
-    450x143 person crop."""
+    ``cv2.findNonZero``). ``np.flatnonzero`` on the boolean view, faster than findNonZero (measured:
+    docs/deviations.md, ``semantic._nonzero_xy``)."""
     img = np.ascontiguousarray(img)
     idx = np.flatnonzero(img.view(bool))
     w = img.shape[1]

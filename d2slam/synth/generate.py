@@ -94,7 +94,8 @@ def render_frame(scene: Scene, renderer: Renderer, i: int) -> dict:
 
 
 def _write(path: Path, img: np.ndarray, compression: int) -> None:
-    # zlib RLE strategy with the SUB filter: 2-3x faster than the default on noisy images, similar size
+    # zlib RLE strategy with the SUB filter: faster than the default on noisy images at a similar size (measured:
+    # docs/deviations.md, `SynthConfig.png_compression`)
     params = [cv2.IMWRITE_PNG_COMPRESSION, int(compression), cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
               cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
     if not cv2.imwrite(str(path), img, params):
@@ -216,7 +217,8 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
                                          + "# timestamp tx ty tz qx qy qz qw\n" + lines)
     (out / "scene.json").write_text(json.dumps(scene_json(scene), indent=1) + "\n")
 
-    if workers is None:  # default: up to two, but a spawned worker costs ~1 s to start, so not for short runs
+    if workers is None:  # default: up to two, one per 20 frames at most: starting a spawned worker is not free
+        # (measured: docs/deviations.md, `SynthConfig.workers`)
         n_workers = max(1, min(cfg.workers or min(2, os.cpu_count() or 1), frames // 20))
     else:
         n_workers = max(1, min(int(workers), frames))

@@ -2,8 +2,8 @@
 People wear clothes built from a base colour: shirts with stripes or checks (or plain), folds, small printed marks
 and at most one logo; plain trousers with seams; skin with a face; hair strands; all blurred like fabric. Their
 constants (``SynthConfig.cloth_*``) are calibrated with ``d2slam bench realism`` so that the share of the engine's
-ORB keypoints on people over their area matches real TUM fr3 frames (about 0.4-0.7 instead of ~1.1 with the former
-busy clothes).
+ORB keypoints on people over their area matches real TUM fr3 frames, about 0.4-0.7 (measured: docs/deviations.md,
+``SynthConfig.cloth_*``).
 
 Every texture is a function of ``(rng, kind, width, height)`` (and the config) only, so the same seed gives the
 same pixels.
