@@ -2,8 +2,8 @@
 static twin and *generator version*.
 
 ``cache_dir("study", "sequences", "<scenario>_s<seed>_n<frames>[_twin]-<generator version>")``. The generator version
-is a digest of the synthetic format, the package version, every ``SynthConfig`` value and the source of
-``d2slam/synth/*.py``: a changed generator never feeds a study a stale sequence. A sequence counts as present only
+is a digest of the synthetic format, the package version, every ``SynthConfig`` value and the code of
+``d2slam/synth/*.py`` (comments and docstrings left out, as in the run keys): a changed generator never feeds a study a stale sequence. A sequence counts as present only
 when its ``.complete`` marker (written last, holding the key) is there; it is generated into a temporary folder and
 renamed into place, under a lock file, so concurrent workers (processes or a Dask cluster sharing the cache)
 never read a half-written sequence and never generate the same one twice.
@@ -35,10 +35,12 @@ def generator_version() -> str:
     h = hashlib.sha256()
     h.update(f"{FORMAT}|{d2slam.__version__}|".encode())
     h.update(json.dumps(dataclasses.asdict(SynthConfig()), sort_keys=True, default=str).encode())
+    from d2slam.study.runner import code_text
+
     src = Path(__file__).resolve().parent.parent / "synth"
     for path in sorted(src.glob("*.py")):
         h.update(path.name.encode())
-        h.update(path.read_bytes())
+        h.update(code_text(path.read_text()).encode())
     return h.hexdigest()[:16]
 
 
