@@ -136,6 +136,14 @@ def _sub_Jte(b, WJ, e):
         b[i] -= WJ[0, i] * e[0] + WJ[1, i] * e[1] + WJ[2, i] * e[2]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _damping(rho, new_chi, lam, nu):
+    """g2o's Levenberg-Marquardt damping after a trial step: (step kept, lambda, nu)."""
+    if rho > 0 and np.isfinite(new_chi):
+        return True, lam * max(GOOD_STEP_LOWER, min(1.0 - (2.0 * rho - 1.0) ** 3, GOOD_STEP_UPPER)), 2.0
+    return False, lam * nu, nu * 2.0
+
+
 @njit(cache=True, nogil=True)
 def pose_chi2(T, X, meas, stereo, info, active, delta, fx, fy, cx, cy, bf, robust):
     """Robust chi2 of the active edges of a pose."""
@@ -179,14 +187,11 @@ def pose_lm(T0, X, meas, stereo, info, active, delta, fx, fy, cx, cy, bf, robust
             new_chi = pose_chi2(Tn, X, meas, stereo, info, active, delta, fx, fy, cx, cy, bf, robust)
             rho = (chi - new_chi) / (dx @ (lam * dx + b) + 1e-3)
             trials += 1
-            if rho > 0 and np.isfinite(new_chi):
-                lam *= max(GOOD_STEP_LOWER, min(1.0 - (2.0 * rho - 1.0) ** 3, GOOD_STEP_UPPER))
-                nu = 2.0
+            kept, lam, nu = _damping(rho, new_chi, lam, nu)
+            if kept:
                 T = Tn
                 chi = new_chi
                 break
-            lam *= nu
-            nu *= 2.0
             if trials >= MAX_TRIALS:
                 break
         if rho <= 0 or not np.isfinite(lam):
@@ -342,13 +347,10 @@ def local_ba_lm(poses0, fixed, X0, obs_cam, obs_pt, meas, stereo, info, delta, f
                     scale += dxp[p, i] * (lam * dxp[p, i] + bp[p, i])
             rho = (chi - new_chi) / scale
             trials += 1
-            if rho > 0 and np.isfinite(new_chi):
-                lam *= max(GOOD_STEP_LOWER, min(1.0 - (2.0 * rho - 1.0) ** 3, GOOD_STEP_UPPER))
-                nu = 2.0
+            kept, lam, nu = _damping(rho, new_chi, lam, nu)
+            if kept:
                 poses, X = new_poses, new_X
                 break
-            lam *= nu
-            nu *= 2.0
             if trials >= MAX_TRIALS:
                 break
         if rho <= 0 or not np.isfinite(lam):
