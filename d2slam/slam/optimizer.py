@@ -174,11 +174,9 @@ def _pose_optimization_g2o(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: n
 
 def _local_bundle_adjustment_g2o(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray, obs_cam: np.ndarray,
                                  obs_pt: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
-                                 K: np.ndarray, bf: float, cfg: EngineConfig, iterations: int | None = None):
-    """Local BA (ORB-SLAM3 ``LocalBundleAdjustment``): keyframe poses ``poses`` (C, 4, 4) ``Tcw`` (``fixed`` (C,)
-    bool held constant) and points ``X`` (P, 3) refined together over observations (obs_cam, obs_pt, uv, ur,
-    inv_sigma2), Huber kernels, Schur complement on the points. Returns (poses, X, outlier (O,) bool): outliers
-    are observations above the chi2 thresholds or behind the camera after optimisation (ORB-SLAM erases them)."""
+                                 K: np.ndarray, bf: float, cfg: EngineConfig, iterations: int):
+    """``local_bundle_adjustment`` with a g2o graph (ORB-SLAM3's edge types, points marginalised): returns the
+    optimised (poses, X)."""
     opt = _optimizer(dense=False)
     C, P = len(poses), len(X)
     vposes = []
