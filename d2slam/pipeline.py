@@ -109,16 +109,15 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     fetch(1)
     for i in bar:
         t0 = time.perf_counter()
+        upcoming = None
         if pool:
             frame = pending.pop(i).result()
             fetch(i + 2)
-            upcoming = None
             if cached is None and i + 1 < n:
                 nxt = pending[i + 1].result()
                 upcoming = (nxt.gray, nxt.depth, i + 1, nxt.timestamp)
         else:
             frame = reader(i) if reader is not None else None
-            upcoming = None
         t1 = time.perf_counter()
         masks = mask_provider(i) if mask_provider is not None else None
         t2 = time.perf_counter()

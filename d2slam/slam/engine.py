@@ -7,8 +7,6 @@ from __future__ import annotations
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
-import time
-
 import cv2
 import numpy as np
 
@@ -119,11 +117,9 @@ class Engine:
         with timer("local_ba"):
             if keyframe:
                 kf = tracker.create_keyframe(frame)
-                culled = self.mapper.insert(kf)
+                self._replace_culled_reference(kf, self.mapper.insert(kf))
             else:
-                kf, culled = self.mapper.idle()
-            if kf is not None and tracker.ref_kf.id in culled:
-                tracker.ref_kf = kf
+                self._replace_culled_reference(*self.mapper.idle())
         keyframe = keyframe or (ok and how == "init")
         with timer("track"):
             tracker.finish(frame, ok)
@@ -147,9 +143,10 @@ class Engine:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="d2slam-extract")
 
         def job():
-            t0 = time.perf_counter()
-            out = self.extractor(gray, depth, index, timestamp, budget)
-            return out, time.perf_counter() - t0
+            timer = StageTimer("extract")
+            with timer("extract"):
+                out = self.extractor(gray, depth, index, timestamp, budget)
+            return out, timer.seconds["extract"]
 
         self._upcoming = (int(index), self._worker.submit(job))
 
@@ -164,6 +161,13 @@ class Engine:
         if self._worker is not None:
             self._worker.shutdown()
             self._worker = None
+
+    def _replace_culled_reference(self, kf, culled: list[int]) -> None:
+        """A reference keyframe that local mapping culled is replaced by ``kf``, the keyframe that made it redundant
+        (ORB-SLAM KeyFrameCulling)."""
+        ref = self.tracker.ref_kf
+        if kf is not None and ref is not None and ref.id in culled:
+            self.tracker.ref_kf = kf
 
     def _check_input(self, gray, depth, index: int, features) -> None:
         if features is None and (gray is None or depth is None):
@@ -198,9 +202,7 @@ class Engine:
         """(frame indices, timestamps, poses T_world_camera) of the tracked frames, each frame's pose taken relative
         to its reference keyframe's final (bundle-adjusted) pose, as ORB-SLAM's SaveTrajectoryTUM. Pending local
         mapping runs first (as ORB-SLAM3 empties its queue before saving): call it once the frames are done."""
-        kf, culled = self.mapper.idle()
-        if kf is not None and self.tracker.ref_kf is not None and self.tracker.ref_kf.id in culled:
-            self.tracker.ref_kf = kf
+        self._replace_culled_reference(*self.mapper.idle())
         idx = np.array(sorted(self.frame_refs), dtype=np.int64)
         poses = np.zeros((len(idx), 4, 4))
         for i, f in enumerate(idx):

@@ -130,10 +130,8 @@ class FilterHook:
         rays = np.c_[(prev.kps[:, 0] - K[0, 2]) / K[0, 0], (prev.kps[:, 1] - K[1, 2]) / K[1, 1], np.ones(prev.n)]
         X = rays * np.where(has, z, 1.0)[:, None]
         Xn = X @ V[:3, :3].T + np.where(has[:, None], V[:3, 3], 0.0)
-        zn = Xn[:, 2]
+        u, v, zn = proj.pixels(Xn)
         zs = np.where(zn > EPS_Z, zn, EPS_Z)
-        u = K[0, 0] * Xn[:, 0] / zs + K[0, 2]
-        v = K[1, 1] * Xn[:, 1] / zs + K[1, 2]
         sel = np.flatnonzero((zn > EPS_Z) & proj.in_image(u, v))
         if len(sel) == 0:
             return np.zeros((0, 2), dtype=np.int64)

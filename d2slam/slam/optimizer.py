@@ -238,17 +238,10 @@ def _ba_outliers(poses, X, obs_cam, obs_pt, uv, ur, inv_sigma2, K, bf, cfg: Engi
 def edge_information(inv_sigma2: np.ndarray, stereo: np.ndarray, disparity_sigma: float) -> np.ndarray:
     """(M, 3, 3) information per observation: ``I2 inv_sigma2`` in the top-left block of a mono edge,
     ``stereo_information`` for a stereo one."""
-    m = len(inv_sigma2)
-    info = np.zeros((m, 3, 3))
-    idx = np.arange(3)
-    info[:, idx, idx] = inv_sigma2[:, None]
-    info[~stereo, 2, 2] = 0.0
-    if disparity_sigma > 0:
-        w = 1.0 / disparity_sigma ** 2
-        info[stereo, 0, 0] += w
-        info[stereo, 0, 2] = info[stereo, 2, 0] = -w
-        info[stereo, 2, 2] = w
-    return info
+    vals, level = np.unique(inv_sigma2, return_inverse=True)  # one matrix per pyramid level
+    stereo_info = np.array([stereo_information(v, disparity_sigma) for v in vals]).reshape(-1, 3, 3)
+    mono_info = np.array([np.diag([v, v, 0.0]) for v in vals]).reshape(-1, 3, 3)
+    return np.where(np.asarray(stereo)[:, None, None], stereo_info[level], mono_info[level])
 
 
 def _edges(uv, ur, inv_sigma2, cfg: EngineConfig, disparity_sigma: float):

@@ -39,7 +39,10 @@ class Projector:
 
     def project(self, Tcw: np.ndarray, X: np.ndarray):
         """Pixel coordinates (u, v) and depth z of world points ``X`` (M, 3) seen from ``Tcw``."""
-        Xc = X @ Tcw[:3, :3].T + Tcw[:3, 3]
+        return self.pixels(X @ Tcw[:3, :3].T + Tcw[:3, 3])
+
+    def pixels(self, Xc: np.ndarray):
+        """Pixel coordinates (u, v) and depth z of camera points ``Xc`` (M, 3)."""
         z = Xc[:, 2]
         zs = np.where(z > EPS_Z, z, EPS_Z)
         u = self.K[0, 0] * Xc[:, 0] / zs + self.K[0, 2]
