@@ -47,7 +47,7 @@ _READER: dict = {}
 
 
 def _reader_class(pr):
-    """pyrender's ``Renderer`` with a leaner read-back: the colour pass reads colour only, the id pass reads its
+    """pyrender's ``Renderer`` with a fixed drawing order and a leaner read-back: the colour pass reads colour only, the id pass reads its
     colour and its depth, linearised in float32 without boolean indexing (pyrender reads and linearises the depth
     after every pass, about half of a frame's time here)."""
     if "cls" in _READER:
@@ -55,6 +55,11 @@ def _reader_class(pr):
     from OpenGL import GL
 
     class Reader(pr.Renderer):
+        def _sorted_mesh_nodes(self, scene):
+            # draw in a fixed order (the room, then object ids): surfaces at exactly equal depth (a sole on the
+            # floor) resolve the same way whatever the context's history (pyrender iterates a set of nodes)
+            return sorted(scene.mesh_nodes, key=lambda n: n.name)
+
         def _read_main_framebuffer(self, scene, flags):
             w, h = self._main_fb_dims
             GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb_ms)
@@ -119,13 +124,14 @@ class GLRenderer:
         """The room: one textured mesh (world coordinates), drawn black in the id pass."""
         for n in self.static_nodes:
             self.scene.remove_node(n)
-        self.static_nodes = [self.scene.add(self._mesh(positions, triangles, colours, uv))]
+        self.static_nodes = [self.scene.add(self._mesh(positions, triangles, colours, uv), name="0000")]
 
     def set_dynamic(self, meshes: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]) -> None:
         """This frame's dynamic meshes: (object id, positions (world), triangles, colours, uv or None)."""
         for _, n in self.dynamic:
             self.scene.remove_node(n)
-        self.dynamic = [(oid, self.scene.add(self._mesh(P, tri, col, uv))) for oid, P, tri, col, uv in meshes]
+        self.dynamic = [(oid, self.scene.add(self._mesh(P, tri, col, uv), name=f"{k + 1:04d}"))
+                        for k, (oid, P, tri, col, uv) in enumerate(meshes)]
 
     def render(self, T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres (0 = nothing), ``ids`` (H, W) uint8."""

@@ -342,53 +342,57 @@ class Scene:
         self.static_quads += box_quads(tf(R, centre), np.asarray(half, float), texs, 0)
 
     def _build_room(self, rng):
+        """An office corner in a hall: plain painted walls, a plain floor, a structured hall ceiling, a cork
+        partition behind two white desks with monitors and keyboards, shelves with books, a cabinet, a whiteboard,
+        a few posters and cardboard boxes. Plain surfaces are most of the view, as in the TUM fr3 office."""
         tpm = self.cfg.room_texels_per_m
         X, (Y0, Y1), Hh = ROOM_X, ROOM_Y, ROOM_H
         W, D = 2 * X, Y1 - Y0
         walls = [  # (O, U, V, kind): U = right, V = down as seen from inside
-            ((-X, Y1, Hh), (W, 0, 0), (0, 0, -Hh), "wall"),  # back
-            ((-X, Y0, Hh), (0, D, 0), (0, 0, -Hh), "wall"),  # left
-            ((X, Y1, Hh), (0, -D, 0), (0, 0, -Hh), "wall"),  # right
-            ((X, Y0, Hh), (-W, 0, 0), (0, 0, -Hh), "wall"),  # front (behind the camera)
-            ((-X, Y1, 0.0), (W, 0, 0), (0, -D, 0), "floor"),
-            ((-X, Y0, Hh), (W, 0, 0), (0, D, 0), "ceiling"),
+            ((-X, Y1, Hh), (W, 0, 0), (0, 0, -Hh), "paint"),  # back
+            ((-X, Y0, Hh), (0, D, 0), (0, 0, -Hh), "paint"),  # left
+            ((X, Y1, Hh), (0, -D, 0), (0, 0, -Hh), "paint"),  # right
+            ((X, Y0, Hh), (-W, 0, 0), (0, 0, -Hh), "paint"),  # front (behind the camera)
+            ((-X, Y1, 0.0), (W, 0, 0), (0, -D, 0), "floor_plain"),
+            ((-X, Y0, Hh), (W, 0, 0), (0, D, 0), "beams"),
         ]
         for O, U, V, kind in walls:
             U, V = np.array(U, float), np.array(V, float)
             tex = self._tex(rng, kind, np.linalg.norm(U), np.linalg.norm(V), tpm)
             self.static_quads.append(Quad(np.array(O, float), U, V, tex))
-        # posters / whiteboards on the walls (1 cm in front)
-        posters = [((-1.9, Y1 - 0.01, 2.2), (1.0, 0, 0), (0, 0, -0.75)), ((0.4, Y1 - 0.01, 2.25), (0.8, 0, 0), (0, 0, -1.0)),
-                   ((-0.6, Y1 - 0.01, 1.6), (0.7, 0, 0), (0, 0, -0.5)),
-                   ((-X + 0.01, 0.3, 2.0), (0, 1.2, 0), (0, 0, -0.8)), ((-X + 0.01, 2.9, 1.9), (0, 0.8, 0), (0, 0, -0.6)),
-                   ((X - 0.01, 3.2, 2.1), (0, -1.4, 0), (0, 0, -0.9)), ((X - 0.01, 0.5, 1.8), (0, -0.7, 0), (0, 0, -0.9))]
+        # the partition behind the desks and its posters (1 cm in front)
+        self._box(rng, (0.0, 3.88, 0.8), (1.95, 0.03, 0.8), "cork")
+        posters = [((-1.5, 3.84, 1.45), (0.45, 0, 0), (0, 0, -0.6)), ((0.55, 3.84, 1.5), (0.4, 0, 0), (0, 0, -0.55)),
+                   ((-X + 0.01, 0.4, 1.9), (0, 0.6, 0), (0, 0, -0.8)), ((X - 0.01, 3.0, 1.8), (0, -0.7, 0), (0, 0, -0.5))]
         for O, U, V in posters:
             U, V = np.array(U, float), np.array(V, float)
             tex = self._tex(rng, "poster", np.linalg.norm(U), np.linalg.norm(V), tpm * 1.5)
             self.static_quads.append(Quad(np.array(O, float), U, V, tex))
-        # desks along the back wall, monitors, shelves, cabinets, cardboard boxes
+        # a whiteboard on the back wall, above the partition
+        self._box(rng, (1.2, Y1 - 0.02, 1.95), (0.7, 0.01, 0.45), "desk")
+        # two white desks with a modesty panel, a monitor (dark frame, screen) and a keyboard each
         for x in (-1.0, 1.05):
-            self._box(rng, (x, 3.42, 0.735), (0.8, 0.4, 0.025), "wood")
-            self._box(rng, (x, 3.1, 0.36), (0.78, 0.02, 0.35), "wood", front=2, front_kind="poster")
-            for dx in (-0.35, 0.3):
-                self._box(rng, (x + dx, 3.6, 0.98), (0.24, 0.03, 0.19), "chair", front=2, front_kind="screen")
-        self._box(rng, (-ROOM_X + 0.2, 2.0, 1.0), (0.2, 0.75, 1.0), "wood", front=1, front_kind="books")
-        self._box(rng, (ROOM_X - 0.2, 1.3, 0.9), (0.2, 0.8, 0.9), "wood", front=0, front_kind="books")
-        self._box(rng, (ROOM_X - 0.25, 3.4, 0.55), (0.25, 0.5, 0.55), "box", front=0, front_kind="poster")
-        spots = [(-2.0, 3.6), (-1.95, 0.6), (2.0, 2.5), (1.95, -0.3), (-0.1, 3.75), (-2.05, -0.5), (2.1, 0.2)]
-        for k in rng.permutation(len(spots))[:5]:
+            self._box(rng, (x, 3.42, 0.735), (0.8, 0.4, 0.02), "desk")
+            self._box(rng, (x, 3.75, 0.36), (0.78, 0.015, 0.35), "cork")
+            for dx in (-0.4, 0.4):
+                self._box(rng, (x + dx, 3.42, 0.36), (0.02, 0.38, 0.36), "plastic")
+            mx = x + rng.uniform(-0.3, 0.3)
+            self._box(rng, (mx, 3.6, 0.98), (0.25, 0.025, 0.18), "plastic", front=2, front_kind="screen")
+            self._box(rng, (mx, 3.62, 0.78), (0.04, 0.04, 0.04), "plastic")
+            self._box(rng, (mx + rng.uniform(-0.05, 0.05), 3.3, 0.765), (0.22, 0.07, 0.012), "keyboard")
+        self._box(rng, (-ROOM_X + 0.2, 2.0, 1.0), (0.2, 0.75, 1.0), "plastic", front=1, front_kind="books")
+        self._box(rng, (ROOM_X - 0.2, 1.3, 0.9), (0.2, 0.8, 0.9), "plastic", front=0, front_kind="books")
+        self._box(rng, (ROOM_X - 0.25, 3.4, 0.55), (0.25, 0.4, 0.55), "plastic")
+        spots = [(-2.0, 3.6), (-1.95, 0.6), (2.0, 2.4), (1.95, -0.3), (-2.05, -0.5), (2.1, 0.2)]
+        for k in rng.permutation(len(spots))[:3]:
             x, y = spots[k]
-            h = rng.uniform(0.15, 0.35)
-            half = (rng.uniform(0.15, 0.3), rng.uniform(0.15, 0.3), h)
+            h = rng.uniform(0.15, 0.3)
+            half = (rng.uniform(0.15, 0.28), rng.uniform(0.15, 0.28), h)
             self._box(rng, (x, y, h), half, "box", R=rot_z(rng.uniform(-0.4, 0.4)))
-            if rng.random() < 0.6:  # a second box on top
-                h2 = rng.uniform(0.1, 0.2)
-                self._box(rng, (x, y, 2 * h + h2), (half[0] * 0.8, half[1] * 0.8, h2), "box",
-                          R=rot_z(rng.uniform(-0.5, 0.5)))
-        # small boxes on the desks
+        # small things on the desks
         for x in (-1.6, -0.3, 0.6, 1.7):
-            h = rng.uniform(0.05, 0.12)
-            self._box(rng, (x + rng.uniform(-0.1, 0.1), 3.3, 0.76 + h), (rng.uniform(0.08, 0.15), 0.1, h), "box")
+            h = rng.uniform(0.04, 0.1)
+            self._box(rng, (x + rng.uniform(-0.1, 0.1), 3.25, 0.755 + h), (rng.uniform(0.05, 0.12), 0.08, h), "box")
 
     def _texture_rng(self, k: int) -> np.random.Generator:
         """Texture stream of actor k (its clothes and the object it moves), apart from the paths' stream so that
@@ -413,7 +417,7 @@ class Scene:
                 params = {"x": x, "y": y, "heading": hd, "f": rng.uniform(2.0, 6.0, size=8),
                           "ph": rng.uniform(0, 2 * np.pi, size=8), "style": style, "seat_back": c.body.seat_back}
                 self.people.append(Person(k + 1, f"person_{k + 1}", "sit", shape, clothes, params, c.body))
-                chair_tex = self._tex(trng, "chair", 0.5, 0.5, c.room_texels_per_m)
+                chair_tex = self._tex(trng, "seat", 0.5, 0.5, c.room_texels_per_m)
                 for Tp, half in chair_parts(tf(rot_z(hd - np.pi / 2), [x, y, 0.0]) @ tf(t=[0, 0.02, 0])):
                     self.static_quads += box_quads(Tp, half, chair_tex, 0)
             return
@@ -448,7 +452,7 @@ class Scene:
                 tex = self._tex(trng, "box", 0.45, 0.32, c.body_texels_per_m)
                 self.objects.append(MovedObject(MOVED_BOX_ID, "carried_box", "box", person, interval, tex))
             elif role == "push":
-                tex = self._tex(trng, "chair", 0.5, 0.5, c.body_texels_per_m)
+                tex = self._tex(trng, "seat", 0.5, 0.5, c.body_texels_per_m)
                 self.objects.append(MovedObject(MOVED_CHAIR_ID, "pushed_chair", "chair", person, interval, tex))
 
     # ---- per-frame ----
