@@ -487,6 +487,12 @@ class SynthConfig:
     # Process pool over frames (0 = min(2, cpu count)); per-frame RNGs are seeded from (seed, frame index).
     workers: int = 0
     png_compression: int = 1
+    # Realism statistics (`d2slam bench realism`): a pixel is textured when the grey-level standard deviation in its
+    # realism_window x realism_window neighbourhood exceeds realism_texture_sd; image corners are FAST corners at
+    # ORB-SLAM's initial threshold (realism_fast_threshold), uncapped, unlike the extractor's 1000 keypoints.
+    realism_window: int = 7
+    realism_texture_sd: float = 8.0
+    realism_fast_threshold: int = 20
     # Articulated people (ANNY / MakeHuman bodies).
     body: BodyConfig = field(default_factory=BodyConfig)
 

@@ -165,7 +165,7 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, c
         for _ in range(int(rng.integers(2, 5))):
             y = int(rng.integers(0, max(height // 4, 2)))
             cv2.line(img, (0, y), (width, y), _colour(rng, 90, 230), int(rng.integers(3, 10)))
-        _rects(img, rng, area // 12000 + 3, max(6, min(width, height) // 15), [_colour(rng, 30, 230) for _ in range(6)],
+        _rects(img, rng, area // 7000 + 3, max(6, min(width, height) // 15), [_colour(rng, 30, 230) for _ in range(6)],
                filled=0.6)
         _lines(img, rng, area // 50000 + 3, [_colour(rng, 40, 200) for _ in range(3)], (2, 6))
         if rng.random() < 0.7:
@@ -179,8 +179,9 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, c
     elif kind == "floor_plain":  # smooth grey floor with a few scuffs
         base = _colour(rng, 135, 185)
         img[:] = base
-        _blobs(img, rng, area // 60000 + 3, 12, [_jitter(base, rng, 30) for _ in range(3)])
-        img = _grain(img, rng, 2.5)
+        _blobs(img, rng, area // 20000 + 3, 12, [_jitter(base, rng, 40) for _ in range(3)])
+        _lines(img, rng, area // 60000 + 2, [(200, 190, 60), (40, 40, 40)], (3, 8))
+        img = _grain(img, rng, 4.0)
     elif kind == "beams":  # a hall ceiling: beams, pipes and lamps
         base = _colour(rng, 150, 200)
         img[:] = base
