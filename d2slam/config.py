@@ -544,6 +544,29 @@ class DataConfig:
     download_timeout: float = 10.0
 
 
+def _frozen(value):
+    """Lists (as JSON gives them) back to the tuples a frozen config holds, recursively."""
+    return tuple(_frozen(v) for v in value) if isinstance(value, (list, tuple)) else value
+
+
+def _section(section_cls, data: dict, name: str):
+    """One config dataclass from a (possibly partial) dict: nested sections built recursively, tuples restored."""
+    known = {g.name: g for g in dataclasses.fields(section_cls)}
+    unknown = set(data) - set(known)
+    if unknown:
+        raise ValueError(f"unknown {name} config keys: {sorted(unknown)}")
+    defaults = section_cls()
+    kwargs = {}
+    for key, value in data.items():
+        default = getattr(defaults, key)
+        if dataclasses.is_dataclass(default) and isinstance(value, dict):
+            value = _section(type(default), value, f"{name}.{key}")
+        elif isinstance(default, tuple):
+            value = _frozen(value)
+        kwargs[key] = value
+    return section_cls(**kwargs)
+
+
 @dataclass(frozen=True)
 class Config:
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
@@ -563,13 +586,7 @@ class Config:
         kwargs = {}
         for f in dataclasses.fields(cls):
             if f.name in data:
-                section_cls = type(getattr(cls(), f.name))
-                section = data[f.name]
-                known = {g.name for g in dataclasses.fields(section_cls)}
-                unknown = set(section) - known
-                if unknown:
-                    raise ValueError(f"unknown {f.name} config keys: {sorted(unknown)}")
-                kwargs[f.name] = section_cls(**section)
+                kwargs[f.name] = _section(type(getattr(cls(), f.name)), data[f.name], f.name)
         unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise ValueError(f"unknown config sections: {sorted(unknown)}")

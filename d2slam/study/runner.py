@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from d2slam.errors import D2SlamError
-from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, RunSpec
+from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, STUDY_MASKS, RunSpec
 
 ENGINE_STAGES = ("load", "segment", "extract", "filter", "track", "local_ba")
 
@@ -139,7 +139,8 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
         from d2slam.segmentation import mask_source, masks_for, stack_masks
 
         # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
-        kind = mask_kind(method, None if method.masks else options.get("masks"), synthetic=spec.source == "synth")
+        kind = mask_kind(method, None if method.masks else options.get("masks") or STUDY_MASKS,
+                         synthetic=spec.source == "synth")
         shape = (seq.camera.height, seq.camera.width)
         src = seq
         if spec.twin and spec.method == ORACLE:
@@ -359,7 +360,7 @@ def run_key(spec: RunSpec, options: dict) -> str:
     of the code that computes them and the versions of the numeric packages (and, for ORB-SLAM3, its repeats and
     vocabulary file). Equal keys => a finished run can be reused (``--resume``)."""
     orb = spec.method == ORBSLAM3
-    ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options.get("masks"),
+    ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options.get("masks") or STUDY_MASKS,
              "tum_root": options.get("tum_root"), "code": source_digest(_ORBSLAM3_CODE if orb else _ENGINE_CODE),
              "packages": _packages()}
     if spec.source == "synth":
