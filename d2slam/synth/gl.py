@@ -47,8 +47,8 @@ _READER: dict = {}
 
 
 def _reader_class(pr):
-    """pyrender's ``Renderer`` with a fixed drawing order and a leaner read-back: the colour pass reads colour only, the id pass reads its
-    colour and its depth, linearised in float32 without boolean indexing (pyrender reads and linearises the depth
+    """pyrender's ``Renderer`` with a fixed drawing order and a leaner read-back: the colour pass reads colour only,
+    the id pass reads its colour and its depth, linearised in float32 without boolean indexing (pyrender reads and linearises the depth
     after every pass, about half of a frame's time here)."""
     if "cls" in _READER:
         return _READER["cls"]

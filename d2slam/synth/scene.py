@@ -363,7 +363,8 @@ class Scene:
         # the partition behind the desks and its posters (1 cm in front)
         self._box(rng, (0.0, 3.88, 0.8), (1.95, 0.03, 0.8), "cork")
         posters = [((-1.5, 3.84, 1.45), (0.45, 0, 0), (0, 0, -0.6)), ((0.55, 3.84, 1.5), (0.4, 0, 0), (0, 0, -0.55)),
-                   ((-X + 0.01, 0.4, 1.9), (0, 0.6, 0), (0, 0, -0.8)), ((X - 0.01, 3.0, 1.8), (0, -0.7, 0), (0, 0, -0.5))]
+                   ((-X + 0.01, 0.4, 1.9), (0, 0.6, 0), (0, 0, -0.8)),
+                   ((X - 0.01, 3.0, 1.8), (0, -0.7, 0), (0, 0, -0.5))]
         for O, U, V in posters:
             U, V = np.array(U, float), np.array(V, float)
             tex = self._tex(rng, "poster", np.linalg.norm(U), np.linalg.norm(V), tpm * 1.5)

@@ -190,7 +190,8 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, c
             cv2.rectangle(img, (0, y), (width, y + step // 5), _colour(rng, 40, 110), -1)
         for _ in range(area // 40000 + 6):
             x = int(rng.integers(0, width))
-            cv2.line(img, (x, 0), (x + int(rng.integers(-40, 41)), height), _colour(rng, 60, 230), int(rng.integers(2, 6)))
+            cv2.line(img, (x, 0), (x + int(rng.integers(-40, 41)), height), _colour(rng, 60, 230),
+                     int(rng.integers(2, 6)))
         _rects(img, rng, area // 50000 + 4, max(12, min(width, height) // 10), [(250, 250, 245)], filled=1.0)
         img = _grain(img, rng, 3.0)
     elif kind == "cork":  # office partition board with pinned notes
