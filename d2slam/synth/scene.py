@@ -428,7 +428,7 @@ class Scene:
         for k, role in enumerate(roles):
             ax, ay = rng.uniform(0.9, 1.3), rng.uniform(0.35, 0.6)
             params = {
-                "cx": rng.uniform(-0.3, 0.3), "cy": rng.uniform(2.05, 2.45), "ax": ax, "ay": ay,
+                "cx": rng.uniform(-0.3, 0.3), "cy": rng.uniform(1.8, 2.2), "ax": ax, "ay": ay,
                 "rot": rng.uniform(-0.25, 0.25), "wobble": rng.uniform(0.0, 0.15),
                 "wobble_ph": rng.uniform(0, 2 * np.pi), "direction": float(rng.choice([-1.0, 1.0])),
                 "speed": rng.uniform(*c.walk_speed), "speed_var": rng.uniform(0.1, 0.35),
