@@ -454,14 +454,10 @@ class SynthConfig:
     # Texture resolution (texels per metre) of the room and of people / objects.
     room_texels_per_m: float = 220.0
     body_texels_per_m: float = 420.0
-    # People: walking speed (m/s), step frequency (Hz), arm / leg swing amplitude (rad).
+    # People: walking speed (m/s); their bodies, gait and clothes are in ``body`` (BodyConfig).
     walk_speed: tuple[float, float] = (0.8, 1.15)
-    step_freq: float = 0.9
-    arm_swing: float = 0.55
-    leg_swing: float = 0.5
-    # People's clothes, calibrated with `d2slam bench realism` so that the fraction of engine ORB keypoints on people
-    # over their area fraction is about 0.4-0.7 as in real fr3 walking frames (real: mean 0.44; the former busy
-    # clothes gave ~1.1): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
+    # The cloth texture kinds of d2slam.synth.textures (cloth, trousers; the bodies are coloured per vertex by
+    # ``body`` instead): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
     # check period (m), grey-level contrast of a garment's colours, folds and seams, probability of one printed logo,
     # small printed marks per square metre and their size (m), contrast of logos and marks, fabric blur sigma (m).
     # The carried box and pushed chair keep their busy room textures.
