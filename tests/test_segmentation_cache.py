@@ -57,7 +57,7 @@ def _write_sequence(root: Path, n: int = 4, seed: int = 0) -> Path:
         cv2.imwrite(str(root / "mask_gt" / f"{stem}.png"), gt)
         lines.append(f"{stem} rgb/{stem}.png")
     (root / "rgb.txt").write_text("\n".join(lines) + "\n")
-    (root / "scene.json").write_text(json.dumps({"format": "d2slam-synth/1", "person_ids": [5, 7],
+    (root / "scene.json").write_text(json.dumps({"format": "d2slam-synth/2", "person_ids": [5, 7],
                                                  "moved_object_ids": [9]}))
     return root
 
@@ -322,7 +322,7 @@ def _synthetic_fixture(root: Path) -> Path:
         sim = (gt == 5).astype(np.uint8)
         cv2.imwrite(str(root / "mask_gt" / f"{stem}.png"), gt)
         cv2.imwrite(str(root / "mask_sim" / f"{stem}.png"), sim)
-    scene = {"format": "d2slam-synth/1", "camera": {"fx": 30.0, "fy": 30.0, "cx": W / 2, "cy": H / 2, "width": W,
+    scene = {"format": "d2slam-synth/2", "camera": {"fx": 30.0, "fy": 30.0, "cx": W / 2, "cy": H / 2, "width": W,
                                                     "height": H, "depth_factor": 5000.0},
              "objects": [{"id": 5, "kind": "person", "name": "p", "moved": True, "moving_intervals": []},
                          {"id": 9, "kind": "object", "name": "box", "moved": True, "moving_intervals": []}],

@@ -41,8 +41,8 @@ def register(sub) -> None:
     p.add_argument("--orbslam3-repeats", type=int, default=None, help="ORB-SLAM3 runs per sequence (not "
                    "deterministic: median and spread reported; default: config baseline.orbslam3_repeats, 1)")
     p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
-                   help="person masks (default: sim on synthetic sequences, onnx on TUM data; the oracle always "
-                   "uses truth)")
+                   help="person masks (default: onnx, the real segmenter through the mask cache; the oracle always "
+                   "uses truth, d2slam-sim the simulated segmenter)")
     p.add_argument("--tum-root", metavar="DIR", default=None,
                    help=f"run on a real TUM copy (folders rgbd_dataset_freiburg3_*) instead of synthetic data "
                    f"(default ${ENV_TUM} only when --tum is given)")

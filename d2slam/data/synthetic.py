@@ -5,7 +5,7 @@ Format (CONTRIBUTING.md, "Synthetic sequence format")::
     ROOT/rgb/ depth/ rgb.txt depth.txt groundtruth.txt    exactly the TUM layout (read by TumSequence)
     ROOT/mask_gt/<stem>.png    uint8 per-pixel object id (0 = static scene), <stem> = the RGB file's stem
     ROOT/mask_sim/<stem>.png   uint8 simulated segmenter output, person instances 1..n (0 = no person)
-    ROOT/scene.json            format "d2slam-synth/1", scenario, seed, frames, static_twin, camera {fx, fy, cx,
+    ROOT/scene.json            format "d2slam-synth/2", scenario, seed, frames, static_twin, camera {fx, fy, cx,
                                cy, width, height, depth_factor [, dist, bf]}, objects [{id, kind, name, moved,
                                moving_intervals [[t0, t1], ...]}], person_ids, moved_object_ids, generator
 
@@ -27,7 +27,8 @@ from d2slam.data.base import Camera
 from d2slam.data.tum import DEFAULT_MAX_DT, TumSequence
 from d2slam.errors import D2SlamError
 
-SCENE_FORMAT = "d2slam-synth/1"
+SCENE_FORMAT = "d2slam-synth/2"
+OLD_FORMATS = ("d2slam-synth/1",)
 
 
 class SyntheticSequence(TumSequence):
@@ -63,6 +64,11 @@ class SyntheticSequence(TumSequence):
             raise self._scene_error(f"cannot read: {exc}") from None
         if not isinstance(scene, dict):
             raise self._scene_error("expected a JSON object")
+        if scene.get("format") in OLD_FORMATS:
+            raise self._scene_error(
+                f"this sequence was written by the old generator (format {scene['format']!r}: box people, texture "
+                f"collage room); the reader needs {SCENE_FORMAT!r}: regenerate it with `d2slam synth SCENARIO --out "
+                f"{self.scene_path.parent}` (same scenario, --frames and --seed)")
         if scene.get("format") != SCENE_FORMAT:
             raise self._scene_error(f"format is {scene.get('format')!r}, expected {SCENE_FORMAT!r}")
         for key in ("camera", "objects", "person_ids", "moved_object_ids"):

@@ -61,7 +61,11 @@ def masks_for(sequence, index: int, kind: str = "onnx", config: Config | Segment
     cache (filled on demand; the ONNX session is built once per process and config/model); ``sim``/``gt`` read
     the sequence's label images."""
     cfg = segmentation_config(config)
-    model_key = None if model is None else str(model)
+    model_key = None
+    if kind == "onnx":  # keyed by the file it reads, so a changed $D2SLAM_SEG_MODEL gets a session of its own
+        from d2slam.segmentation.onnx import default_model_path
+
+        model_key = str(Path(model).expanduser() if model is not None else default_model_path())
     key = (id(sequence), kind, cfg, model_key)
     cached = _CACHED.get(key)
     if cached is None or cached.sequence is not sequence:

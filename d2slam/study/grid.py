@@ -29,6 +29,9 @@ ORBSLAM3_MASKED = "orbslam3-masked"  # the real ORB-SLAM3 on frames with the per
 REPEATED = (ORBSLAM3, ORBSLAM3_MASKED)  # the methods that run ORB-SLAM3 (--orbslam3-repeats times)
 FULL = "d2slam"
 ORACLE = "oracle"  # the keypoint truth as the filter: the ceiling of every method (synthetic data only)
+# The masks of every method that does not fix its own (``Method.masks``: the oracle's truth, d2slam-sim's simulated
+# segmenter): the real segmenter (YOLOv8n-seg through the mask cache, segmented once per sequence).
+STUDY_MASKS = "onnx"
 # Methods also run on the static twins: the engine's own floor ("none"), the full method, and the oracle, which on a
 # twin reads its dynamic sibling's truth (study.runner): the occluded twin, the people's and moving objects'
 # silhouettes cut out of a scene where nothing moves, i.e. what occlusion alone costs the engine.
@@ -103,7 +106,7 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
 
 def default_methods(source: str = "synth") -> list[str]:
     """Every method of the run registry (``none`` first) and ``orbslam3``; on a real TUM copy, not those that need
-    the synthetic truth (``oracle``)."""
+    a synthetic sequence's own masks (``oracle``: truth, ``d2slam-sim``: the simulated segmenter)."""
     from d2slam.methods import methods
 
     names = list(methods())
@@ -116,7 +119,7 @@ def default_methods(source: str = "synth") -> list[str]:
 def _truth_methods() -> set[str]:
     from d2slam.methods import get_method, methods
 
-    return {m for m in methods() if get_method(m).masks == "truth"}
+    return {m for m in methods() if get_method(m).masks in ("truth", "sim")}
 
 
 def _unique(items) -> list:

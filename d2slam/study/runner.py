@@ -20,7 +20,7 @@ import numpy as np
 
 from d2slam.errors import D2SlamError
 from d2slam.pipeline import STAGES as ENGINE_STAGES
-from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, ORBSLAM3_MASKED, REPEATED, RunSpec
+from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, ORBSLAM3_MASKED, REPEATED, STUDY_MASKS, RunSpec
 
 
 def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
@@ -131,7 +131,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     if spec.source == "tum" and spec.frames > 0:
         seq = _Head(seq, spec.frames)
     # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
-    requested = None if method.masks else options.get("masks")
+    requested = None if method.masks else options.get("masks") or STUDY_MASKS
     mask_seq = None
     if method.needs_masks and spec.twin and spec.method == ORACLE:
         # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
@@ -246,8 +246,9 @@ def _run_orbslam3(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     repeats = int(options.get("orbslam3_repeats") or config.baseline.orbslam3_repeats)
     row.update(config_hash=config.hash(), repeats=repeats)
     masks = None
-    if spec.method == ORBSLAM3_MASKED:  # the study's --masks, else sim on synthetic sequences and onnx on TUM
-        masks = mask_kind(get_method(spec.method), options.get("masks"), synthetic=spec.source == "synth")
+    if spec.method == ORBSLAM3_MASKED:  # the study's --masks, else the real segmenter's
+        masks = mask_kind(get_method(spec.method), options.get("masks") or STUDY_MASKS,
+                          synthetic=spec.source == "synth")
     with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
         traj_path = Path(tmp) / "orbslam3.txt"
         res = run_orbslam3(path, traj_path, repeats=repeats, config=config, progress=False,
@@ -358,7 +359,7 @@ def run_key(spec: RunSpec, options: dict) -> str:
     vocabulary file). Equal keys => a finished run can be reused (``--resume``)."""
     orb = spec.method in REPEATED
     code = {ORBSLAM3: _ORBSLAM3_CODE, ORBSLAM3_MASKED: _ORBSLAM3_MASKED_CODE}.get(spec.method, _ENGINE_CODE)
-    ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options.get("masks"),
+    ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options.get("masks") or STUDY_MASKS,
              "tum_root": options.get("tum_root"), "code": source_digest(code), "packages": _packages()}
     if spec.source == "synth":
         from d2slam.study.sequences import generator_version

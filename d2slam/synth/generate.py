@@ -37,12 +37,12 @@ from tqdm import tqdm
 from d2slam import __version__
 from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
-from d2slam.synth.render import Renderer
 from d2slam.synth.scene import SCENARIOS, Scene
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor
+from d2slam.synth.world import WorldRenderer
 
-FORMAT = "d2slam-synth/1"
+FORMAT = "d2slam-synth/2"
 SUBDIRS = ("rgb", "depth", "mask_gt", "mask_sim")
 
 _STATE: dict = {}
@@ -70,7 +70,7 @@ def blur_vector(scene: Scene, t: float, T: np.ndarray, z_centre: float) -> tuple
     return float(d[0]), float(d[1])
 
 
-def render_frame(scene: Scene, renderer: Renderer, i: int) -> dict:
+def render_frame(scene: Scene, renderer: WorldRenderer, i: int) -> dict:
     """Everything of frame i as arrays: rgb (uint8 RGB), depth (uint16 PNG values), depth_clean (float32 m),
     mask_gt, mask_sim (uint8), plus timings (ms)."""
     cfg = scene.cfg
@@ -79,9 +79,7 @@ def render_frame(scene: Scene, renderer: Renderer, i: int) -> dict:
     rngs = [np.random.default_rng([scene.seed, sidx, i, k]) for k in (11, 12, 13)]
     t_a = time.perf_counter()
     T = scene.camera.poses([t])[0]
-    rgb, invz, ids = renderer.render(scene.quads(t), T)
-    z = np.zeros_like(invz)
-    np.divide(1.0, invz, out=z, where=invz > 0)
+    rgb, z, ids = renderer.render(t, T)
     t_b = time.perf_counter()
     depth = depth_to_png(z, rngs[0], cfg)
     zc = float(z[cfg.height // 2, cfg.width // 2])
@@ -130,8 +128,7 @@ def _init_worker(args) -> None:
     if "scene" not in _STATE:  # a spawned worker rebuilds the (deterministic) scene instead of inheriting it
         scenario, seed, frames, static_twin, cfg, out = args
         scene = Scene(scenario, seed, frames, static_twin, cfg)
-        _STATE.update(scene=scene, renderer=Renderer(scene.K, cfg.width, cfg.height, scene.textures, cfg.near_plane),
-                      out=Path(out))
+        _STATE.update(scene=scene, renderer=WorldRenderer(scene), out=Path(out))
 
 
 def groundtruth(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -222,7 +219,7 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
         n_workers = max(1, min(cfg.workers or min(2, os.cpu_count() or 1), frames // 20))
     else:
         n_workers = max(1, min(int(workers), frames))
-    renderer = Renderer(scene.K, cfg.width, cfg.height, scene.textures, cfg.near_plane)
+    renderer = WorldRenderer(scene) if n_workers == 1 else None  # workers make their own OpenGL contexts
     _STATE.clear()
     _STATE.update(scene=scene, renderer=renderer, out=out)
     bar = dict(total=frames, desc=f"synth {scenario}{' (static twin)' if static_twin else ''}", unit="frame",
@@ -245,6 +242,8 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
                 stats = list(tqdm(pool.imap(_frame_job, range(frames), chunksize=2), **bar))
     finally:
         _STATE.clear()
+        if renderer is not None:
+            renderer.close()
     wall = time.perf_counter() - t_start
     frames_wall = time.perf_counter() - t_frames
     return {"out": out, "scenario": scenario, "seed": seed, "frames": frames, "static_twin": static_twin,

@@ -38,6 +38,8 @@ class FrameStats:
     area: np.ndarray  # person area fraction
     kp: np.ndarray  # fraction of keypoints on persons
     n_kp: np.ndarray  # keypoints per frame
+    textured: np.ndarray | None = None  # share of textured pixels (``texture_stats``)
+    corners: np.ndarray | None = None  # FAST corners per frame (``texture_stats``)
     dyn_area: np.ndarray | None = None  # synthetic only: persons + moving objects
     dyn_kp: np.ndarray | None = None
 
@@ -86,6 +88,19 @@ def frame_stats(gray: np.ndarray, depth: np.ndarray, masks: list[np.ndarray], ex
     return [float(m.mean()) for m in masks], keypoints_on(kps, masks), int(fr.n)
 
 
+def texture_stats(gray: np.ndarray, cfg: SynthConfig) -> tuple[float, int]:
+    """(share of textured pixels, FAST corners) of a grey image: a pixel is textured when the standard deviation of
+    its ``realism_window``-square neighbourhood exceeds ``realism_texture_sd`` grey levels; corners are FAST at
+    ``realism_fast_threshold`` (ORB-SLAM's initial threshold), not capped like the extractor's keypoints."""
+    g = gray.astype(np.float32)
+    k = (int(cfg.realism_window),) * 2
+    m = cv2.blur(g, k)
+    var = cv2.blur(g * g, k) - m * m
+    share = float((var > np.float32(cfg.realism_texture_sd) ** 2).mean())
+    fast = cv2.FastFeatureDetector_create(threshold=int(cfg.realism_fast_threshold))
+    return share, len(fast.detect(gray))
+
+
 def sample_indices(frames: int, stride: int) -> np.ndarray:
     if stride < 1:
         raise D2SlamError(f"--stride must be at least 1 (got {stride})")
@@ -96,13 +111,13 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
                     cfg: SynthConfig | None = None, config: Config | None = None, ext=None) -> FrameStats:
     """Person / dynamic statistics of every ``stride``-th frame of a synthetic sequence (rendered in memory)."""
     from d2slam.synth.generate import render_frame
-    from d2slam.synth.render import Renderer
     from d2slam.synth.scene import Scene
+    from d2slam.synth.world import WorldRenderer
 
     config = config or DEFAULT
     cfg = cfg or config.synth
     scene = Scene(scenario, seed, frames, False, cfg)
-    renderer = Renderer(scene.K, cfg.width, cfg.height, scene.textures, cfg.near_plane)
+    renderer = WorldRenderer(scene)
     ext = ext or extractor(config=config)
     idx = sample_indices(frames, stride)
     person_lut = np.zeros(256, bool)
@@ -116,9 +131,11 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
         masks = [person_lut[f["mask_gt"]], dyn_lut[f["mask_gt"]]]
         gray = cv2.cvtColor(f["rgb"], cv2.COLOR_RGB2GRAY)
         areas, kps, n = frame_stats(gray, f["depth"].astype(np.float32) / cfg.depth_factor, masks, ext)
-        rows.append((areas[0], kps[0], n, areas[1], kps[1]))
-    a = np.array(rows, float).reshape(-1, 5)
-    return FrameStats(f"{scenario} seed {seed}", idx, a[:, 0], a[:, 1], a[:, 2].astype(int), a[:, 3], a[:, 4])
+        rows.append((areas[0], kps[0], n, areas[1], kps[1], *texture_stats(gray, cfg)))
+    renderer.close()
+    a = np.array(rows, float).reshape(-1, 7)
+    return FrameStats(f"{scenario} seed {seed}", idx, a[:, 0], a[:, 1], a[:, 2].astype(int), dyn_area=a[:, 3],
+                      dyn_kp=a[:, 4], textured=a[:, 5], corners=a[:, 6].astype(int))
 
 
 def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, ext=None) -> FrameStats:
@@ -143,10 +160,12 @@ def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, 
         mask = np.zeros(rgb.shape[:2], bool)
         for inst in segmenter(frame):
             mask |= inst.mask
-        areas, kps, n = frame_stats(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), depth, [mask], ext)
-        rows.append((areas[0], kps[0], n))
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        areas, kps, n = frame_stats(gray, depth, [mask], ext)
+        rows.append((areas[0], kps[0], n, *texture_stats(gray, (config or DEFAULT).synth)))
     a = np.array(rows, float)
-    return FrameStats("TUM fr3 (real, ONNX masks)", np.arange(len(paths)), a[:, 0], a[:, 1], a[:, 2].astype(int))
+    return FrameStats("TUM fr3 (real, ONNX masks)", np.arange(len(paths)), a[:, 0], a[:, 1], a[:, 2].astype(int),
+                      textured=a[:, 3], corners=a[:, 4].astype(int))
 
 
 def summary(values: np.ndarray) -> tuple[float, float, float]:

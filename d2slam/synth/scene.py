@@ -15,6 +15,7 @@ import numpy as np
 
 from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
+from d2slam.synth import bodies
 from d2slam.synth.render import Quad, QuadSet, box_quads, boxes
 from d2slam.synth.textures import make_texture
 
@@ -144,12 +145,6 @@ class CameraPath:
 # --------------------------------------------------------------------------------------------------
 # people and moved objects
 # --------------------------------------------------------------------------------------------------
-# body dimensions: half sizes (m)
-HALF = {
-    "torso": np.array([0.20, 0.11, 0.30]), "head": np.array([0.095, 0.11, 0.125]),
-    "upper_arm": np.array([0.055, 0.06, 0.15]), "forearm": np.array([0.045, 0.05, 0.14]),
-    "thigh": np.array([0.08, 0.085, 0.225]), "shin": np.array([0.062, 0.068, 0.23]),
-}
 BOX_HALF = np.array([0.22, 0.16, 0.15])
 
 
@@ -161,18 +156,32 @@ def chair_parts(T: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
             (T @ tf(t=[0, 0, 0.04]), np.array([0.28, 0.28, 0.03]))]
 
 
+_BODIES: dict = {}
+
+
+def body_model(shape: tuple, cfg) -> bodies.BodyModel:
+    """The ANNY body of a shape (six controls), built once per process."""
+    key = (tuple(np.round(shape, 12)), cfg)
+    if key not in _BODIES:
+        _BODIES[key] = bodies.BodyModel(np.asarray(shape, float), cfg)
+    return _BODIES[key]
+
+
 @dataclass
 class Person:
-    """An articulated person: boxes for head, torso, upper/lower arms, thighs and shins, in a kinematic chain.
+    """An articulated MakeHuman body (``d2slam.synth.bodies``) on a path, posed by a sinusoidal gait.
 
     ``role``: ``walk`` (a closed path with turns), ``carry`` (walks and carries ``box`` during ``interval``),
-    ``push`` (walks and pushes ``chair`` during ``interval``) or ``sit`` (on a chair, gesturing)."""
+    ``push`` (walks and pushes ``chair`` during ``interval``) or ``sit`` (on a chair, shifting and gesturing).
+    ``shape``: the six ANNY shape controls; ``clothes``: colours and patterns; ``style``: gait amplitude factor."""
 
     pid: int
     name: str
     role: str
-    tex: dict
+    shape: tuple
+    clothes: bodies.Clothes
     params: dict
+    body_cfg: object
     interval: tuple[float, float] | None = None
     _path: tuple | None = field(default=None, repr=False)
 
@@ -218,62 +227,26 @@ class Person:
     def active(self, t: float) -> bool:
         return self.interval is not None and self.interval[0] <= t <= self.interval[1]
 
-    def parts(self, t: float) -> list[tuple[np.ndarray, np.ndarray, object]]:
-        """(4x4 pose, half sizes, texture) of every body part at time t (seconds)."""
-        p = self.params
-        g = np.pi * 2
+    def mesh(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World vertices (V, 3), triangles and shaded vertex colours of the posed body at time t (s)."""
+        p, cfg = self.params, self.body_cfg
+        body = body_model(self.shape, cfg)
+        amp = bodies.amplitudes(cfg, p["style"])
         if self.role == "sit":
-            T_root = self.root(t)
-            hip_h = 0.52
-            lean = 0.06 + 0.06 * np.sin(g * t / p["f"][0] + p["ph"][0])
-            T_hip = T_root @ tf(rot_x(-lean), [0, -0.05, hip_h])
-            legs = {s: (np.pi / 2 - 0.08, -np.pi / 2 + 0.12 + 0.05 * s) for s in (-1, 1)}
-            gest = 0.5 + 0.5 * np.sin(g * t / p["f"][1] + p["ph"][1])  # gesturing comes and goes
-            arms = {s: (0.35 + gest * 0.55 * np.sin(g * t / p["f"][2 + (s > 0)] + p["ph"][2 + (s > 0)]),
-                        0.9 + 0.5 * gest * np.sin(g * t / p["f"][4] + p["ph"][4] + s)) for s in (-1, 1)}
-            head_yaw = 0.4 * np.sin(g * t / p["f"][5] + p["ph"][5])
-            head_pitch = 0.12 * np.sin(g * t / p["f"][6] + p["ph"][6])
-            abduct = 0.12
+            rot = bodies.sitting(t, amp, p["ph"], p["f"])
         else:
-            (_, _), _, dist = self._walk_state(t)
-            phase = g * dist / p["stride"]
-            bob = 0.025 * (1 - np.cos(2 * phase)) / 2
-            T_root = self.root(t)
-            hip_h = 0.91 + bob
-            T_hip = T_root @ tf(rot_x(-0.04), [0, 0, hip_h])
-            legs = {}
-            arms = {}
-            for s in (-1, 1):
-                ph = phase if s < 0 else phase + np.pi
-                leg = p["leg_swing"] * np.sin(ph)
-                knee = -0.12 - 0.55 * max(0.0, np.cos(ph))
-                legs[s] = (leg, knee)
-                arm = -p["arm_swing"] * np.sin(ph)
-                arms[s] = (arm, 0.25 + 0.35 * max(0.0, arm))
-            if self.active(t):
-                if self.role == "carry":
-                    arms = {s: (0.45, 1.1) for s in (-1, 1)}
-                elif self.role == "push":
-                    arms = {s: (0.95, 0.45) for s in (-1, 1)}
-            head_yaw = 0.3 * np.sin(g * t / p["f"][5] + p["ph"][5])
-            head_pitch = 0.05 * np.sin(g * t / p["f"][6] + p["ph"][6])
-            abduct = 0.07
-        tx = self.tex
-        out = [(T_hip @ tf(t=[0, 0, 0.30]), HALF["torso"], tx["torso"])]
-        T_neck = T_hip @ tf(rot_z(head_yaw) @ rot_x(head_pitch), [0, 0, 0.60])
-        out.append((T_neck @ tf(t=[0, 0.0, 0.13]), HALF["head"], tx["head"]))
-        for s in (-1, 1):
-            arm, elbow = arms[s]
-            T_sh = T_hip @ tf(rot_x(arm) @ rot_y(-s * abduct), [s * 0.255, 0, 0.55])
-            out.append((T_sh @ tf(t=[0, 0, -0.15]), HALF["upper_arm"], tx["upper_arm"]))
-            T_el = T_sh @ tf(rot_x(elbow), [0, 0, -0.30])
-            out.append((T_el @ tf(t=[0, 0, -0.14]), HALF["forearm"], tx["forearm"]))
-            leg, knee = legs[s]
-            T_hp = T_hip @ tf(rot_x(leg), [s * 0.1, 0, 0])
-            out.append((T_hp @ tf(t=[0, 0, -0.225]), HALF["thigh"], tx["thigh"]))
-            T_kn = T_hp @ tf(rot_x(knee), [0, 0, -0.45])
-            out.append((T_kn @ tf(t=[0, 0, -0.23]), HALF["shin"], tx["shin"]))
-        return out
+            _, _, dist = self._walk_state(t)
+            carry = {"carry": "box", "push": "push"}.get(self.role) if self.active(t) else None
+            rot = bodies.gait(2 * np.pi * dist / p["stride"], amp, t, carry)
+        V = body.pose(rot)
+        T = self.root(t) @ tf(rot_z(np.pi))  # the ANNY body faces -y; the root's forward is +y
+        if self.role == "sit":
+            T = T @ tf(t=[0.0, p["seat_back"], 0.0])
+        Vw = V @ T[:3, :3].T + T[:3, 3]
+        light = np.asarray(cfg.light, float)
+        col = bodies.shade(body.colours(self.clothes), bodies.vertex_normals(Vw, body.triangles, body.incidence),
+                           light / np.linalg.norm(light), cfg.ambient)
+        return Vw, body.triangles, col
 
     # ---- carried box / pushed chair poses ----
     def carried_pose(self, t: float) -> np.ndarray:
@@ -369,71 +342,69 @@ class Scene:
         self.static_quads += box_quads(tf(R, centre), np.asarray(half, float), texs, 0)
 
     def _build_room(self, rng):
+        """An office corner in a hall: plain painted walls, a plain floor, a structured hall ceiling, a cork
+        partition behind two white desks with monitors and keyboards, shelves with books, a cabinet, a whiteboard,
+        a few posters and cardboard boxes. Plain surfaces are most of the view, as in the TUM fr3 office."""
         tpm = self.cfg.room_texels_per_m
         X, (Y0, Y1), Hh = ROOM_X, ROOM_Y, ROOM_H
         W, D = 2 * X, Y1 - Y0
         walls = [  # (O, U, V, kind): U = right, V = down as seen from inside
-            ((-X, Y1, Hh), (W, 0, 0), (0, 0, -Hh), "wall"),  # back
-            ((-X, Y0, Hh), (0, D, 0), (0, 0, -Hh), "wall"),  # left
-            ((X, Y1, Hh), (0, -D, 0), (0, 0, -Hh), "wall"),  # right
-            ((X, Y0, Hh), (-W, 0, 0), (0, 0, -Hh), "wall"),  # front (behind the camera)
-            ((-X, Y1, 0.0), (W, 0, 0), (0, -D, 0), "floor"),
-            ((-X, Y0, Hh), (W, 0, 0), (0, D, 0), "ceiling"),
+            ((-X, Y1, Hh), (W, 0, 0), (0, 0, -Hh), "paint"),  # back
+            ((-X, Y0, Hh), (0, D, 0), (0, 0, -Hh), "paint"),  # left
+            ((X, Y1, Hh), (0, -D, 0), (0, 0, -Hh), "paint"),  # right
+            ((X, Y0, Hh), (-W, 0, 0), (0, 0, -Hh), "paint"),  # front (behind the camera)
+            ((-X, Y1, 0.0), (W, 0, 0), (0, -D, 0), "floor_plain"),
+            ((-X, Y0, Hh), (W, 0, 0), (0, D, 0), "beams"),
         ]
         for O, U, V, kind in walls:
             U, V = np.array(U, float), np.array(V, float)
             tex = self._tex(rng, kind, np.linalg.norm(U), np.linalg.norm(V), tpm)
             self.static_quads.append(Quad(np.array(O, float), U, V, tex))
-        # posters / whiteboards on the walls (1 cm in front)
-        posters = [((-1.9, Y1 - 0.01, 2.2), (1.0, 0, 0), (0, 0, -0.75)), ((0.4, Y1 - 0.01, 2.25), (0.8, 0, 0), (0, 0, -1.0)),
-                   ((-0.6, Y1 - 0.01, 1.6), (0.7, 0, 0), (0, 0, -0.5)),
-                   ((-X + 0.01, 0.3, 2.0), (0, 1.2, 0), (0, 0, -0.8)), ((-X + 0.01, 2.9, 1.9), (0, 0.8, 0), (0, 0, -0.6)),
-                   ((X - 0.01, 3.2, 2.1), (0, -1.4, 0), (0, 0, -0.9)), ((X - 0.01, 0.5, 1.8), (0, -0.7, 0), (0, 0, -0.9))]
+        # the partition behind the desks and its posters (1 cm in front)
+        self._box(rng, (0.0, 3.88, 0.8), (1.95, 0.03, 0.8), "cork")
+        posters = [((-1.5, 3.84, 1.45), (0.45, 0, 0), (0, 0, -0.6)), ((0.55, 3.84, 1.5), (0.4, 0, 0), (0, 0, -0.55)),
+                   ((-X + 0.01, 0.4, 1.9), (0, 0.6, 0), (0, 0, -0.8)),
+                   ((X - 0.01, 3.0, 1.8), (0, -0.7, 0), (0, 0, -0.5))]
         for O, U, V in posters:
             U, V = np.array(U, float), np.array(V, float)
             tex = self._tex(rng, "poster", np.linalg.norm(U), np.linalg.norm(V), tpm * 1.5)
             self.static_quads.append(Quad(np.array(O, float), U, V, tex))
-        # desks along the back wall, monitors, shelves, cabinets, cardboard boxes
+        # a whiteboard on the back wall, above the partition
+        self._box(rng, (1.2, Y1 - 0.02, 1.95), (0.7, 0.01, 0.45), "desk")
+        # two white desks with a modesty panel, a monitor (dark frame, screen) and a keyboard each
         for x in (-1.0, 1.05):
-            self._box(rng, (x, 3.42, 0.735), (0.8, 0.4, 0.025), "wood")
-            self._box(rng, (x, 3.1, 0.36), (0.78, 0.02, 0.35), "wood", front=2, front_kind="poster")
-            for dx in (-0.35, 0.3):
-                self._box(rng, (x + dx, 3.6, 0.98), (0.24, 0.03, 0.19), "chair", front=2, front_kind="screen")
-        self._box(rng, (-ROOM_X + 0.2, 2.0, 1.0), (0.2, 0.75, 1.0), "wood", front=1, front_kind="books")
-        self._box(rng, (ROOM_X - 0.2, 1.3, 0.9), (0.2, 0.8, 0.9), "wood", front=0, front_kind="books")
-        self._box(rng, (ROOM_X - 0.25, 3.4, 0.55), (0.25, 0.5, 0.55), "box", front=0, front_kind="poster")
-        spots = [(-2.0, 3.6), (-1.95, 0.6), (2.0, 2.5), (1.95, -0.3), (-0.1, 3.75), (-2.05, -0.5), (2.1, 0.2)]
-        for k in rng.permutation(len(spots))[:5]:
+            self._box(rng, (x, 3.42, 0.735), (0.8, 0.4, 0.02), "desk")
+            self._box(rng, (x, 3.75, 0.36), (0.78, 0.015, 0.35), "cork")
+            for dx in (-0.4, 0.4):
+                self._box(rng, (x + dx, 3.42, 0.36), (0.02, 0.38, 0.36), "plastic")
+            mx = x + rng.uniform(-0.3, 0.3)
+            self._box(rng, (mx, 3.6, 0.98), (0.25, 0.025, 0.18), "plastic", front=2, front_kind="screen")
+            self._box(rng, (mx, 3.62, 0.78), (0.04, 0.04, 0.04), "plastic")
+            self._box(rng, (mx + rng.uniform(-0.05, 0.05), 3.3, 0.765), (0.22, 0.07, 0.012), "keyboard")
+        self._box(rng, (-ROOM_X + 0.2, 2.0, 1.0), (0.2, 0.75, 1.0), "plastic", front=1, front_kind="books")
+        self._box(rng, (ROOM_X - 0.2, 1.3, 0.9), (0.2, 0.8, 0.9), "plastic", front=0, front_kind="books")
+        self._box(rng, (ROOM_X - 0.25, 3.4, 0.55), (0.25, 0.4, 0.55), "plastic")
+        spots = [(-2.0, 3.6), (-1.95, 0.6), (2.0, 2.4), (1.95, -0.3), (-2.05, -0.5), (2.1, 0.2)]
+        for k in rng.permutation(len(spots))[:3]:
             x, y = spots[k]
-            h = rng.uniform(0.15, 0.35)
-            half = (rng.uniform(0.15, 0.3), rng.uniform(0.15, 0.3), h)
+            h = rng.uniform(0.15, 0.3)
+            half = (rng.uniform(0.15, 0.28), rng.uniform(0.15, 0.28), h)
             self._box(rng, (x, y, h), half, "box", R=rot_z(rng.uniform(-0.4, 0.4)))
-            if rng.random() < 0.6:  # a second box on top
-                h2 = rng.uniform(0.1, 0.2)
-                self._box(rng, (x, y, 2 * h + h2), (half[0] * 0.8, half[1] * 0.8, h2), "box",
-                          R=rot_z(rng.uniform(-0.5, 0.5)))
-        # small boxes on the desks
+        # small things on the desks
         for x in (-1.6, -0.3, 0.6, 1.7):
-            h = rng.uniform(0.05, 0.12)
-            self._box(rng, (x + rng.uniform(-0.1, 0.1), 3.3, 0.76 + h), (rng.uniform(0.08, 0.15), 0.1, h), "box")
+            h = rng.uniform(0.04, 0.1)
+            self._box(rng, (x + rng.uniform(-0.1, 0.1), 3.25, 0.755 + h), (rng.uniform(0.05, 0.12), 0.08, h), "box")
 
     def _texture_rng(self, k: int) -> np.random.Generator:
         """Texture stream of actor k (its clothes and the object it moves), apart from the paths' stream so that
         the clothes can change without moving anyone."""
         return np.random.default_rng([self.seed, 5, SCENARIOS.index(self.scenario), k])
 
-    def _person_textures(self, rng) -> dict:
-        tpm = self.cfg.body_texels_per_m
-        shirt = self._tex(rng, "cloth", 0.5, 0.6, tpm)
-        front = self._tex(rng, "cloth", 0.4, 0.6, tpm)
-        sleeve = shirt if rng.random() < 0.5 else self._tex(rng, "cloth", 0.25, 0.3, tpm)
-        trousers = self._tex(rng, "trousers", 0.25, 0.45, tpm)
-        skin = self._tex(rng, "skin", 0.2, 0.25, tpm)
-        hair = self._tex(rng, "hair", 0.2, 0.25, tpm)
-        forearm = skin if rng.random() < 0.4 else sleeve
-        # box face order: -x, +x, -y(back), +y(front), -z, +z
-        return {"torso": [shirt, shirt, shirt, front, shirt, shirt], "head": [hair, hair, hair, skin, skin, hair],
-                "upper_arm": sleeve, "forearm": forearm, "thigh": trousers, "shin": trousers}
+    def _person_look(self, rng) -> tuple[tuple, bodies.Clothes, float]:
+        """Body shape (six ANNY controls), clothes and gait style factor of one person."""
+        b = self.cfg.body
+        shape = tuple(float(v) for v in rng.uniform(b.shape_low, b.shape_high))
+        return shape, bodies.random_clothes(rng, b), float(rng.uniform(*b.gait_jitter))
 
     def _build_actors(self, rng):
         c = self.cfg
@@ -442,11 +413,12 @@ class Scene:
             seats = [(-0.55, 2.55, -np.pi / 2 + 0.35), (0.6, 2.45, -np.pi / 2 - 0.35)]
             for k, (x, y, hd) in enumerate(seats):
                 x, y, hd = x + rng.uniform(-0.1, 0.1), y + rng.uniform(-0.15, 0.15), hd + rng.uniform(-0.15, 0.15)
-                params = {"x": x, "y": y, "heading": hd, "f": rng.uniform(2.0, 6.0, size=8),
-                          "ph": rng.uniform(0, 2 * np.pi, size=8)}
                 trng = self._texture_rng(k)
-                self.people.append(Person(k + 1, f"person_{k + 1}", "sit", self._person_textures(trng), params))
-                chair_tex = self._tex(trng, "chair", 0.5, 0.5, c.room_texels_per_m)
+                shape, clothes, style = self._person_look(trng)
+                params = {"x": x, "y": y, "heading": hd, "f": rng.uniform(2.0, 6.0, size=8),
+                          "ph": rng.uniform(0, 2 * np.pi, size=8), "style": style, "seat_back": c.body.seat_back}
+                self.people.append(Person(k + 1, f"person_{k + 1}", "sit", shape, clothes, params, c.body))
+                chair_tex = self._tex(trng, "seat", 0.5, 0.5, c.room_texels_per_m)
                 for Tp, half in chair_parts(tf(rot_z(hd - np.pi / 2), [x, y, 0.0]) @ tf(t=[0, 0.02, 0])):
                     self.static_quads += box_quads(Tp, half, chair_tex, 0)
             return
@@ -456,13 +428,12 @@ class Scene:
         for k, role in enumerate(roles):
             ax, ay = rng.uniform(0.9, 1.3), rng.uniform(0.35, 0.6)
             params = {
-                "cx": rng.uniform(-0.3, 0.3), "cy": rng.uniform(2.05, 2.45), "ax": ax, "ay": ay,
+                "cx": rng.uniform(-0.3, 0.3), "cy": rng.uniform(1.8, 2.2), "ax": ax, "ay": ay,
                 "rot": rng.uniform(-0.25, 0.25), "wobble": rng.uniform(0.0, 0.15),
                 "wobble_ph": rng.uniform(0, 2 * np.pi), "direction": float(rng.choice([-1.0, 1.0])),
                 "speed": rng.uniform(*c.walk_speed), "speed_var": rng.uniform(0.1, 0.35),
                 "speed_period": rng.uniform(3.0, 7.0), "speed_ph": rng.uniform(0, 2 * np.pi),
-                "stride": rng.uniform(1.15, 1.45), "leg_swing": c.leg_swing * rng.uniform(0.85, 1.1),
-                "arm_swing": c.arm_swing * rng.uniform(0.7, 1.2),
+                "stride": rng.uniform(*c.body.stride_m),
                 "f": rng.uniform(3.0, 9.0, size=8), "ph": rng.uniform(0, 2 * np.pi, size=8),
             }
             # start on the near part of the loop, the people spread around it
@@ -475,13 +446,14 @@ class Scene:
                 b = rng.uniform(0.65, 0.85)
                 interval = (a * D, b * D)
             trng = self._texture_rng(k)
-            person = Person(k + 1, f"person_{k + 1}", role, self._person_textures(trng), params, interval)
+            shape, clothes, params["style"] = self._person_look(trng)
+            person = Person(k + 1, f"person_{k + 1}", role, shape, clothes, params, c.body, interval)
             self.people.append(person)
             if role == "carry":
                 tex = self._tex(trng, "box", 0.45, 0.32, c.body_texels_per_m)
                 self.objects.append(MovedObject(MOVED_BOX_ID, "carried_box", "box", person, interval, tex))
             elif role == "push":
-                tex = self._tex(trng, "chair", 0.5, 0.5, c.body_texels_per_m)
+                tex = self._tex(trng, "seat", 0.5, 0.5, c.body_texels_per_m)
                 self.objects.append(MovedObject(MOVED_CHAIR_ID, "pushed_chair", "chair", person, interval, tex))
 
     # ---- per-frame ----
@@ -491,22 +463,18 @@ class Scene:
             self._static_set = QuadSet.from_quads(self.static_quads)
         return self._static_set
 
-    def dynamic_quads(self, t: float) -> QuadSet:
-        """Quads of people and moved objects at time t (seconds from the first frame); none in the static twin."""
-        Ts, halves, texs, oids = [], [], [], []
-        if not self.static_twin:
-            for actor, oid in [(p, p.pid) for p in self.people] + [(o, o.oid) for o in self.objects]:
-                for T, half, tex in actor.parts(t):
-                    Ts.append(T)
-                    halves.append(half)
-                    texs.append(np.broadcast_to(np.asarray(tex, np.int64), (6,)))
-                    oids.append(oid)
-        if not Ts:
-            return QuadSet.from_quads([])
-        return boxes(np.stack(Ts), np.stack(halves), np.stack(texs), np.array(oids))
-
-    def quads(self, t: float) -> QuadSet:
-        return QuadSet.concat([self.static_set, self.dynamic_quads(t)])
+    def dynamic_meshes(self, t: float) -> list[tuple[int, object]]:
+        """(object id, mesh) of every person (``(vertices, triangles, colours)``) and moved object (a ``QuadSet``)
+        at time t (seconds from the first frame); none in the static twin."""
+        if self.static_twin:
+            return []
+        out: list[tuple[int, object]] = [(p.pid, p.mesh(t)) for p in self.people]
+        for o in self.objects:
+            parts = o.parts(t)
+            T = np.stack([q[0] for q in parts])
+            half = np.stack([q[1] for q in parts])
+            out.append((o.oid, boxes(T, half, np.full(len(parts), o.tex), np.full(len(parts), o.oid))))
+        return out
 
     @property
     def person_ids(self) -> list[int]:

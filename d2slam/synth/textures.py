@@ -24,7 +24,7 @@ _FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_CO
 _CHARS = np.array(list(string.ascii_letters + string.digits + "#%&+=?"))
 
 KINDS = ("wall", "floor", "ceiling", "poster", "books", "box", "wood", "screen", "cloth", "trousers", "skin",
-         "hair", "chair")
+         "hair", "chair", "paint", "floor_plain", "beams", "cork", "desk", "plastic", "keyboard", "seat")
 
 
 def _colour(rng, lo=0, hi=255) -> tuple[int, int, int]:
@@ -155,6 +155,66 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, c
         img[:] = _colour(rng, 0, 60)
         _rects(img, rng, 12, max(10, min(width, height) // 3), [_colour(rng, 60, 255) for _ in range(5)])
         _text(img, rng, 14, (0.4, 1.0), [(230, 230, 230), (120, 230, 120)])
+    elif kind == "paint":  # a painted wall: one colour, faint panel seams
+        base = _colour(rng, 185, 235)
+        img[:] = base
+        step = int(rng.integers(180, 300))
+        for x in range(step, width, step):
+            cv2.line(img, (x, 0), (x, height), _jitter(base, rng, 25), 2)
+        # hall fittings: pipes and ducts along the top, switches and signs, a radiator, a dark window pane
+        for _ in range(int(rng.integers(2, 5))):
+            y = int(rng.integers(0, max(height // 4, 2)))
+            cv2.line(img, (0, y), (width, y), _colour(rng, 90, 230), int(rng.integers(3, 10)))
+        _rects(img, rng, area // 7000 + 3, max(6, min(width, height) // 15), [_colour(rng, 30, 230) for _ in range(6)],
+               filled=0.6)
+        _lines(img, rng, area // 50000 + 3, [_colour(rng, 40, 200) for _ in range(3)], (2, 6))
+        if rng.random() < 0.7:
+            x0, w0 = int(rng.integers(0, max(width // 2, 2))), int(rng.integers(width // 6, width // 3 + 2))
+            y0 = int(rng.integers(height // 5, height // 2))
+            cv2.rectangle(img, (x0, y0), (x0 + w0, y0 + height // 4), _colour(rng, 40, 110), -1)
+            for x in range(x0, x0 + w0, max(w0 // 4, 2)):
+                cv2.line(img, (x, y0), (x, y0 + height // 4), (220, 220, 220), 3)
+        _text(img, rng, area // 20000 + 2, (0.4, 1.2), [(30, 30, 30), (180, 30, 30)])
+        img = _grain(img, rng, 1.5)
+    elif kind == "floor_plain":  # smooth grey floor with a few scuffs
+        base = _colour(rng, 135, 185)
+        img[:] = base
+        _blobs(img, rng, area // 20000 + 3, 12, [_jitter(base, rng, 40) for _ in range(3)])
+        _lines(img, rng, area // 60000 + 2, [(200, 190, 60), (40, 40, 40)], (3, 8))
+        img = _grain(img, rng, 4.0)
+    elif kind == "beams":  # a hall ceiling: beams, pipes and lamps
+        base = _colour(rng, 150, 200)
+        img[:] = base
+        step = int(rng.integers(30, 60))
+        for y in range(0, height, step):
+            cv2.rectangle(img, (0, y), (width, y + step // 5), _colour(rng, 40, 110), -1)
+        for _ in range(area // 40000 + 6):
+            x = int(rng.integers(0, width))
+            cv2.line(img, (x, 0), (x + int(rng.integers(-40, 41)), height), _colour(rng, 60, 230),
+                     int(rng.integers(2, 6)))
+        _rects(img, rng, area // 50000 + 4, max(12, min(width, height) // 10), [(250, 250, 245)], filled=1.0)
+        img = _grain(img, rng, 3.0)
+    elif kind == "cork":  # office partition board with pinned notes
+        img[:] = (int(rng.integers(170, 200)), int(rng.integers(125, 150)), int(rng.integers(75, 100)))
+        _rects(img, rng, area // 20000 + 2, max(8, min(width, height) // 6), [(240, 240, 235), (250, 240, 120)],
+               filled=1.0)
+        img = _grain(img, rng, 7.0)
+    elif kind == "desk":
+        img[:] = _colour(rng, 210, 240)
+        img = _grain(img, rng, 1.5)
+    elif kind == "plastic":
+        img[:] = _colour(rng, 25, 120) if rng.random() < 0.6 else _colour(rng, 150, 210)
+        img = _grain(img, rng, 2.0)
+    elif kind == "keyboard":
+        img[:] = _colour(rng, 15, 50)
+        key = max(4, min(width, height) // 6)
+        for y in range(2, height - key, key + 2):
+            for x in range(2, width - key, key + 2):
+                cv2.rectangle(img, (x, y), (x + key - 1, y + key - 1), _colour(rng, 60, 110), -1)
+    elif kind == "seat":  # a plain chair: moulded wood or dark fabric
+        img[:] = (int(rng.integers(200, 235)), int(rng.integers(150, 185)), int(rng.integers(60, 100))) \
+            if rng.random() < 0.6 else _colour(rng, 20, 70)
+        img = _grain(img, rng, 3.0)
     elif kind in _CLOTHES:
         return _clothes(rng, kind, width, height, cfg or SynthConfig(), texels_per_m)
     elif kind == "chair":
