@@ -225,3 +225,30 @@ def test_code_text_ignores_comments_docstrings_and_layout_only():
                'x = 1\n\n\ndef f(a):\n    y = "not a docstring"\n    return a + x\n']  # a statement
     for src in changed:
         assert code_text(src) != code_text(base)
+
+
+def test_real_masks_are_segmented_once_per_sequence_before_the_runs(serial):
+    from d2slam.config import DEFAULT
+    from d2slam.data import open_sequence
+    from d2slam.paths import cache_dir
+    from d2slam.segmentation import get_segmenter
+    from d2slam.segmentation.cache import segmenter_key, sequence_key
+    from d2slam.study.runner import onnx_sequence_keys, run_options, segment_sequence
+
+    dyn = RunSpec("sitting_static", "d2slam", 101, FRAMES)
+    twin = RunSpec("sitting_static", "d2slam", 101, FRAMES, twin=True)
+    specs = [RunSpec("sitting_static", "none", 101, FRAMES), dyn, twin,
+             RunSpec("sitting_static", "oracle", 101, FRAMES, twin=True),
+             RunSpec("walking_xyz", "d2slam-sim", 101, FRAMES), RunSpec("walking_xyz", "orbslam3-masked", 102, FRAMES)]
+    # the real segmenter's masks by default; the oracle (truth) and d2slam-sim (simulated) read their own
+    assert onnx_sequence_keys(specs, run_options()) == [dyn.sequence_key, twin.sequence_key,
+                                                        ("synth", "walking_xyz", 102, FRAMES, False)]
+    assert onnx_sequence_keys(specs, run_options(masks="sim")) == []
+    # the study segmented its sequence before the runs: every frame is in the mask cache
+    assert json.loads((serial.out / "manifest.json").read_text())["timing"]["segmentation_s"] > 0
+    seq = open_sequence(ensure_sequence("sitting_static", 101, FRAMES, False))
+    folder = cache_dir("masks", sequence_key(seq), segmenter_key(get_segmenter("onnx", config=DEFAULT)))
+    assert len(list(folder.glob("*.npz"))) == FRAMES
+    assert segment_sequence(dyn.sequence_key, run_options())["error"] is None
+    bad = segment_sequence(("synth", "no_such_scenario", 101, FRAMES, False), run_options())
+    assert "no_such_scenario" in bad["error"]

@@ -39,7 +39,7 @@ def register(sub) -> None:
                    help="run the grid on a dask.distributed cluster instead (workers need d2slam installed and the "
                    "same cache, or they generate the sequences themselves)")
     p.add_argument("--orbslam3-repeats", type=int, default=None, help="ORB-SLAM3 runs per sequence (not "
-                   "deterministic: median and spread reported; default: config baseline.orbslam3_repeats, 1)")
+                   "deterministic: median and spread reported; default: config baseline.orbslam3_repeats, 3)")
     p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
                    help="person masks (default: onnx, the real segmenter through the mask cache; the oracle always "
                    "uses truth, d2slam-sim the simulated segmenter)")

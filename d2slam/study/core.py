@@ -24,7 +24,8 @@ from d2slam.errors import D2SlamError
 from d2slam.study import tables as T
 from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
-from d2slam.study.runner import base_row, execute_run, prepare_sequence, run_key, run_options
+from d2slam.study.runner import (base_row, execute_run, onnx_sequence_keys, prepare_sequence, run_key, run_options,
+                                 segment_sequence)
 
 RETRY = ("failed", "crashed", "timeout")  # statuses never reused by --resume
 
@@ -86,6 +87,10 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
             if r is not None:
                 reused[s.run_id] = r
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
+    t_seg = time.perf_counter()
+    map_ordered(segment_sequence, onnx_sequence_keys(todo, options), (options,), jobs, scheduler, desc="segmentation",
+                progress=progress)
+    t_seg = time.perf_counter() - t_seg
     (out / "runs").mkdir(exist_ok=True)
 
     def checkpoint(i, r):  # each run is saved as it finishes, so that --resume recovers an interrupted study
@@ -106,7 +111,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
             row = base_row(s)
             row.update(status="failed", error=f"sequence: {prep_error[s.sequence_key]}")
             results.append({"row": row, "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}})
-    t_runs = time.perf_counter() - t0 - t_seq
+    t_runs = time.perf_counter() - t0 - t_seq - t_seg
 
     grid = {"scenarios": list(dict.fromkeys(s.scenario for s in specs)), "methods": method_order,
             "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
@@ -114,7 +119,8 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
             "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options["orbslam3_repeats"],
             "masks": masks, "reused_runs": sorted(reused)}
     manifest = build_manifest(config, grid, ex, generator_version(),
-                              {"sequences_s": round(t_seq, 2), "runs_s": round(t_runs, 2)}, git=checkout, code=code)
+                              {"sequences_s": round(t_seq, 2), "segmentation_s": round(t_seg, 2),
+                               "runs_s": round(t_runs, 2)}, git=checkout, code=code)
     # the finished runs are on disk already (saved as they finished, or read from there by --resume)
     res = write_results(out, specs, results, method_order, manifest, plots=plots, saved=set(by_id))
     manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)

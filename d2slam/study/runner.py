@@ -46,6 +46,44 @@ def prepare_sequence(key: tuple, options: dict) -> dict:
         return {"key": key, "path": None, "error": _message(exc)}
 
 
+def onnx_sequence_keys(specs, options: dict) -> list[tuple]:
+    """The sequences (``RunSpec.sequence_key``) on which some run of ``specs`` reads the real segmenter's masks."""
+    from d2slam.methods import get_method, mask_kind, methods
+
+    keys = []
+    for s in specs:
+        if s.method not in methods():
+            continue  # an unknown method's run records its own error
+        method = get_method(s.method)
+        if method.needs_masks and mask_kind(method, None if method.masks else options.get("masks") or STUDY_MASKS,
+                                            synthetic=s.source == "synth") == "onnx":
+            keys.append(s.sequence_key)
+    return list(dict.fromkeys(keys))
+
+
+def segment_sequence(key: tuple, options: dict) -> dict:
+    """Segment every frame the runs read of the sequence ``key`` with the real segmenter into the mask cache, once per
+    sequence before the runs (which then only read it, whichever worker runs them; two runs on one sequence at the
+    same time would otherwise both segment it). Returns ``{"key", "seconds", "error"}``; a failure is left to the
+    runs, which meet it again and record it."""
+    from d2slam.config import Config
+    from d2slam.data import open_sequence
+    from d2slam.segmentation import masks_for
+
+    source, scenario, seed, frames, twin = key
+    t = time.perf_counter()
+    try:
+        with _single_threaded():
+            seq = open_sequence(_sequence_path(source, scenario, seed, frames, twin, options))
+            config = Config.from_dict(options["config"])
+            n = len(seq) if frames <= 0 else min(len(seq), frames)
+            for i in range(n):
+                masks_for(seq, i, "onnx", config)
+        return {"key": key, "seconds": time.perf_counter() - t, "error": None}
+    except Exception as exc:  # noqa: BLE001 - recorded; the runs on it fail with their own message
+        return {"key": key, "seconds": time.perf_counter() - t, "error": _message(exc)}
+
+
 def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
     if source == "tum":
         from d2slam.study.sequences import tum_sequence_dir
