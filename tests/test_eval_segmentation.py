@@ -9,7 +9,7 @@ from scipy.spatial.distance import cdist
 
 from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
-from d2slam.eval.segmentation import boundary_error, depth_bin_table, frame_rows, synthetic_rows
+from d2slam.eval.segmentation import boundary_error, boundary_table, depth_bin_table, frame_rows, synthetic_rows
 
 
 def _square(shape=(60, 80), y=15, x=20, size=20, dy=0, dx=0):
@@ -134,3 +134,22 @@ def test_synthetic_rows_with_the_truth_as_segmenter():
     assert people and all(r["iou"] == 1.0 and r["boundary_q"] == 0.0 for r in people)
     with pytest.raises(D2SlamError, match="stride"):
         synthetic_rows([("walking_xyz", 0, 40, 0)], truth)
+
+
+def test_boundary_table_against_the_band():
+    """Detected people only (area and IoU thresholds); the share within the band compares each person's percentile
+    error with ln 3 / beta(z) at its own depth (22.0 px at 0.5 m, 4.4 px at 4.5 m)."""
+    from d2slam.config import DEFAULT
+
+    def row(z, q, iou=0.9, area=0.1):
+        return {"area": area, "iou": iou, "depth": z, "boundary_mean": q / 2, "boundary_q": q}
+
+    people = [row(0.5, 20.0), row(1.0, 30.0), row(4.5, 4.0), row(4.5, 5.0),
+              row(1.0, 1.0, iou=0.3), row(1.0, 1.0, area=0.01), row(1.0, np.nan)]  # last three: not counted
+    table = boundary_table(people, DEFAULT)
+    assert [t[0] for t in table] == ["0.0-1.5 m", "1.5-2.5 m", "2.5-3.5 m", ">= 3.5 m", "all"]
+    near, _, _, far, total = table
+    assert near[1] == 2 and near[3] == 25.0 and near[2] == 12.5 and near[5] == 0.5
+    assert near[4] == pytest.approx(np.median([np.log(3) / 0.05, np.log(3) / 0.075]))
+    assert far[1] == 2 and far[4] == pytest.approx(np.log(3) / 0.25) and far[5] == 0.5
+    assert total[1] == 4 and total[5] == 0.5

@@ -14,7 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from d2slam.config import SynthConfig
+from d2slam.config import DEFAULT, Config, SynthConfig
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 _PERCENTILE = SynthConfig.seg_eval_boundary_percentile
@@ -139,3 +139,24 @@ def synthetic_rows(runs, segmenter, cfg: SynthConfig | None = None) -> tuple[lis
             finally:
                 renderer.close()
     return people, frames
+
+
+def boundary_table(people: list[dict],
+                   config: Config | None = None) -> list[tuple[str, int, float, float, float, float]]:
+    """Boundary error of detected people (``frame_rows`` rows with area >= ``seg_eval_min_area`` and IoU >=
+    ``seg_eval_iou``) beside eq 2's uncertainty half-width ``w(z) = ln(p / (1 - p)) / beta(z)`` at each person's
+    median depth, per depth bin (``seg_eval_depth_bins``) and over all (label "all"): (label, people, median of the
+    mean error, median of the percentile error, median w, share of people whose percentile error is <= w)."""
+    from d2slam.dynamics.depth import beta, uncertainty_width
+
+    config = config or DEFAULT
+    cfg = config.synth
+    col = {k: np.array([r[k] for r in people], float).reshape(-1)
+           for k in ("area", "iou", "depth", "boundary_mean", "boundary_q")}
+    det = (col["area"] >= cfg.seg_eval_min_area) & (col["iou"] >= cfg.seg_eval_iou) & np.isfinite(col["boundary_q"])
+    z = col["depth"][det]
+    width = uncertainty_width(beta(z, config.dynamics), config.dynamics)
+    values = [col["boundary_mean"][det], col["boundary_q"][det], width, (col["boundary_q"][det] <= width) * 1.0]
+    tables = [depth_bin_table(z, v, cfg.seg_eval_depth_bins) + [("all", *depth_bin_table(z, v, ())[0][1:])]
+              for v in values]
+    return [(t_mean[0], t_mean[1], t_mean[3], t_q[3], t_w[3], t_in[2]) for t_mean, t_q, t_w, t_in in zip(*tables)]
