@@ -141,6 +141,15 @@ def synthetic_rows(runs, segmenter, cfg: SynthConfig | None = None) -> tuple[lis
     return people, frames
 
 
+def detected(people: list[dict], cfg: SynthConfig | None = None) -> np.ndarray:
+    """(N,) bool: the ``frame_rows`` rows of people covering at least ``seg_eval_min_area`` of the image whose best
+    mask has IoU >= ``seg_eval_iou``."""
+    cfg = cfg or SynthConfig()
+    area = np.array([r["area"] for r in people], float).reshape(-1)
+    iou = np.array([r["iou"] for r in people], float).reshape(-1)
+    return (area >= cfg.seg_eval_min_area) & (iou >= cfg.seg_eval_iou)
+
+
 def boundary_table(people: list[dict],
                    config: Config | None = None) -> list[tuple[str, int, float, float, float, float]]:
     """Boundary error of detected people (``frame_rows`` rows with area >= ``seg_eval_min_area`` and IoU >=
@@ -151,9 +160,8 @@ def boundary_table(people: list[dict],
 
     config = config or DEFAULT
     cfg = config.synth
-    col = {k: np.array([r[k] for r in people], float).reshape(-1)
-           for k in ("area", "iou", "depth", "boundary_mean", "boundary_q")}
-    det = (col["area"] >= cfg.seg_eval_min_area) & (col["iou"] >= cfg.seg_eval_iou) & np.isfinite(col["boundary_q"])
+    col = {k: np.array([r[k] for r in people], float).reshape(-1) for k in ("depth", "boundary_mean", "boundary_q")}
+    det = detected(people, cfg) & np.isfinite(col["boundary_q"])  # NaN: a person covering the whole image
     z = col["depth"][det]
     width = uncertainty_width(beta(z, config.dynamics), config.dynamics)
     values = [col["boundary_mean"][det], col["boundary_q"][det], width, (col["boundary_q"][det] <= width) * 1.0]
