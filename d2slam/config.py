@@ -496,11 +496,13 @@ class SynthConfig:
     realism_fast_threshold: int = 20
     # Segmenter against the truth (`d2slam bench detection`): people covering at least seg_eval_min_area of the image
     # count; detected when a predicted mask has IoU >= seg_eval_iou with the visible mask; target detection rate per
-    # scenario; inner edges (m) of the IoU-by-depth table.
+    # scenario; inner edges (m) of the IoU-by-depth table; the boundary error of a person's best mask is the mean and
+    # this percentile of the symmetric distances (px) between the two masks' boundaries.
     seg_eval_min_area: float = 0.03
     seg_eval_iou: float = 0.5
     seg_eval_target: float = 0.95
     seg_eval_depth_bins: tuple[float, ...] = (1.5, 2.5, 3.5)
+    seg_eval_boundary_percentile: float = 90.0
     # Articulated people (ANNY / MakeHuman bodies).
     body: BodyConfig = field(default_factory=BodyConfig)
 
