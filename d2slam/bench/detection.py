@@ -3,7 +3,7 @@
 Renders every ``stride``-th frame of synthetic sequences in memory (the generator's own ``render_frame``: the RGB
 as written to ``rgb/``, sensor blur and noise included), segments it, and matches the predicted masks with each
 visible person's truth mask. Prints per scenario the detection rate of people covering at least
-``SynthConfig.seg_eval_min_area`` of the image (detected: a predicted mask with IoU >= ``seg_eval_iou``; target
+``SynthEvalConfig.seg_eval_min_area`` of the image (detected: a predicted mask with IoU >= ``seg_eval_iou``; target
 >= ``seg_eval_target`` per scenario), false positives (predicted masks matching no person), and the IoU by the
 person's median depth, and the boundary error of detected people (``eval.segmentation.boundary_error``) by depth
 beside eq 2's uncertainty half-width ln 3 / beta(z) at their depth, with the share of people whose boundary error
@@ -35,7 +35,7 @@ def run(args) -> int:
     from d2slam.segmentation.onnx import OnnxSegmenter
     from d2slam.synth.scene import SCENARIOS
 
-    cfg = DEFAULT.synth
+    cfg = DEFAULT.synth_eval
     seeds = args.seed or [0, 1]
     seg = OnnxSegmenter(args.model, DEFAULT.segmentation)
     t0 = time.perf_counter()
@@ -45,7 +45,7 @@ def run(args) -> int:
           f"{'frames':>6}")
     all_rows = []
     for scenario in args.scenario or SCENARIOS:
-        rows, frames = synthetic_rows([(scenario, s, args.frames, args.stride) for s in seeds], seg, cfg)
+        rows, frames = synthetic_rows([(scenario, s, args.frames, args.stride) for s in seeds], seg, DEFAULT)
         big = [r for r in rows if r["area"] >= cfg.seg_eval_min_area]
         det = sum(r["iou"] >= cfg.seg_eval_iou for r in big)
         rate = det / len(big) if big else float("nan")

@@ -6,7 +6,7 @@ error by depth bin.
 Boundary error: the boundary of a mask is its pixels 4-adjacent to the background (the image border is not an edge,
 as for eq 1 in ``d2slam.dynamics.semantic``: a person cut by the border continues out of view). The distance from
 each boundary pixel of one mask to the nearest boundary pixel of the other, both ways, pooled (symmetric), gives the
-mean and a high percentile (``SynthConfig.seg_eval_boundary_percentile``). This is the quantity eq 2's uncertainty
+mean and a high percentile (``SynthEvalConfig.seg_eval_boundary_percentile``). This is the quantity eq 2's uncertainty
 band is meant to absorb: a true edge within ``ln 3 / beta(z)`` px of the predicted edge lies inside the band."""
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, Config, SynthConfig
+from d2slam.config import DEFAULT, Config, SynthEvalConfig
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-_PERCENTILE = SynthConfig.seg_eval_boundary_percentile
+_PERCENTILE = SynthEvalConfig.seg_eval_boundary_percentile
 
 
 def person_ious(ids: np.ndarray, person_ids, masks: list[np.ndarray]) -> np.ndarray:
@@ -102,14 +102,14 @@ def depth_bin_table(depth: np.ndarray, values: np.ndarray, edges) -> list[tuple[
     return out
 
 
-def synthetic_rows(runs, segmenter, cfg: SynthConfig | None = None) -> tuple[list[dict], list[dict]]:
+def synthetic_rows(runs, segmenter, config: Config | None = None) -> tuple[list[dict], list[dict]]:
     """A segmenter on synthetic people. For each run ``(scenario, seed, frames, stride)``, every ``stride``-th frame
     of the sequence is rendered in memory (the generator's own ``render_frame``: the RGB as written to ``rgb/``,
     sensor blur and noise included) and segmented (``segmenter(rgb)`` -> list of ``PersonInstance``).
 
     Returns ``(people, frames)``: one ``frame_rows`` row per visible person plus ``scenario``, ``seed``, ``frame``;
     one row per frame with ``scenario``, ``seed``, ``frame``, ``masks`` (predicted) and ``false_pos`` (predicted
-    masks whose IoU with every person of the scene is below ``cfg.seg_eval_iou``)."""
+    masks whose IoU with every person of the scene is below ``config.synth_eval.seg_eval_iou``)."""
     from tqdm import tqdm
 
     from d2slam.synth.generate import render_frame
@@ -117,7 +117,8 @@ def synthetic_rows(runs, segmenter, cfg: SynthConfig | None = None) -> tuple[lis
     from d2slam.synth.scene import Scene
     from d2slam.synth.world import WorldRenderer
 
-    cfg = cfg or SynthConfig()
+    config = config or DEFAULT
+    cfg, ev = config.synth, config.synth_eval
     runs = [(str(sc), int(seed), int(n), int(stride)) for sc, seed, n, stride in runs]
     todo = [sample_indices(n, stride) for _, _, n, stride in runs]
     people, frames = [], []
@@ -131,9 +132,9 @@ def synthetic_rows(runs, segmenter, cfg: SynthConfig | None = None) -> tuple[lis
                     masks = [p.mask for p in segmenter(f["rgb"])]
                     key = {"scenario": scenario, "seed": seed, "frame": int(i)}
                     people += [dict(r, **key) for r in frame_rows(f["mask_gt"], f["depth_clean"], scene.person_ids,
-                                                                  masks, cfg.seg_eval_boundary_percentile)]
+                                                                  masks, ev.seg_eval_boundary_percentile)]
                     iou = person_ious(f["mask_gt"], scene.person_ids, masks)
-                    fp = int((iou.max(axis=0, initial=0.0) < cfg.seg_eval_iou).sum()) if masks else 0
+                    fp = int((iou.max(axis=0, initial=0.0) < ev.seg_eval_iou).sum()) if masks else 0
                     frames.append(dict(key, masks=len(masks), false_pos=fp))
                     bar.update()
             finally:
@@ -141,10 +142,10 @@ def synthetic_rows(runs, segmenter, cfg: SynthConfig | None = None) -> tuple[lis
     return people, frames
 
 
-def detected(people: list[dict], cfg: SynthConfig | None = None) -> np.ndarray:
+def detected(people: list[dict], cfg: SynthEvalConfig | None = None) -> np.ndarray:
     """(N,) bool: the ``frame_rows`` rows of people covering at least ``seg_eval_min_area`` of the image whose best
     mask has IoU >= ``seg_eval_iou``."""
-    cfg = cfg or SynthConfig()
+    cfg = cfg or SynthEvalConfig()
     area = np.array([r["area"] for r in people], float).reshape(-1)
     iou = np.array([r["iou"] for r in people], float).reshape(-1)
     return (area >= cfg.seg_eval_min_area) & (iou >= cfg.seg_eval_iou)
@@ -159,7 +160,7 @@ def boundary_table(people: list[dict],
     from d2slam.dynamics.depth import beta, uncertainty_width
 
     config = config or DEFAULT
-    cfg = config.synth
+    cfg = config.synth_eval
     col = {k: np.array([r[k] for r in people], float).reshape(-1) for k in ("depth", "boundary_mean", "boundary_q")}
     det = detected(people, cfg) & np.isfinite(col["boundary_q"])  # NaN: a person covering the whole image
     z = col["depth"][det]

@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, Config, SynthConfig
+from d2slam.config import DEFAULT, Config, SynthConfig, SynthEvalConfig
 from d2slam.errors import D2SlamError
 
 MIN_AREA = 0.05  # frames with less mask than this (a sliver at the border) have no meaningful ratio
@@ -88,7 +88,7 @@ def frame_stats(gray: np.ndarray, depth: np.ndarray, masks: list[np.ndarray], ex
     return [float(m.mean()) for m in masks], keypoints_on(kps, masks), int(fr.n)
 
 
-def texture_stats(gray: np.ndarray, cfg: SynthConfig) -> tuple[float, int]:
+def texture_stats(gray: np.ndarray, cfg: SynthEvalConfig) -> tuple[float, int]:
     """(share of textured pixels, FAST corners) of a grey image: a pixel is textured when the standard deviation of
     its ``realism_window``-square neighbourhood exceeds ``realism_texture_sd`` grey levels; corners are FAST at
     ``realism_fast_threshold`` (ORB-SLAM's initial threshold), not capped like the extractor's keypoints."""
@@ -131,7 +131,7 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
         masks = [person_lut[f["mask_gt"]], dyn_lut[f["mask_gt"]]]
         gray = cv2.cvtColor(f["rgb"], cv2.COLOR_RGB2GRAY)
         areas, kps, n = frame_stats(gray, f["depth"].astype(np.float32) / cfg.depth_factor, masks, ext)
-        rows.append((areas[0], kps[0], n, areas[1], kps[1], *texture_stats(gray, cfg)))
+        rows.append((areas[0], kps[0], n, areas[1], kps[1], *texture_stats(gray, config.synth_eval)))
     renderer.close()
     a = np.array(rows, float).reshape(-1, 7)
     return FrameStats(f"{scenario} seed {seed}", idx, a[:, 0], a[:, 1], a[:, 2].astype(int), dyn_area=a[:, 3],
@@ -162,7 +162,7 @@ def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, 
             mask |= inst.mask
         gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         areas, kps, n = frame_stats(gray, depth, [mask], ext)
-        rows.append((areas[0], kps[0], n, *texture_stats(gray, (config or DEFAULT).synth)))
+        rows.append((areas[0], kps[0], n, *texture_stats(gray, (config or DEFAULT).synth_eval)))
     a = np.array(rows, float)
     return FrameStats("TUM fr3 (real, ONNX masks)", np.arange(len(paths)), a[:, 0], a[:, 1], a[:, 2].astype(int),
                       textured=a[:, 3], corners=a[:, 4].astype(int))
