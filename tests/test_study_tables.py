@@ -209,13 +209,32 @@ def test_targets_run_by_run():
     assert tc[(tc["scenario"] == "sitting_static") & (tc["method"] == "none")]["ate_ok"].isna().all()
     md = T.targets_markdown(df).splitlines()
     assert md[0].startswith("| fr3 (synthetic) | method | ATE / twin (seeds 101, 102, 103) | ATE target: runs met |")
-    assert md[2] == "| w/xyz | `none` | 5.00x / 10.00x / 13.33x | >= 5x: 3 of 3 | n/a | n/a | n/a |"
-    assert md[3] == ("| w/xyz | `d2slam` | 0.50x / 0.50x / 1.33x | <= 1.2x: 2 of 3 | 0.960 / 0.950 / 0.990 | "
+    assert md[2] == "| w/xyz | `none` | 5.00x / 10.00x / 13.33x | >= 5x twin: 3 of 3 | n/a | n/a | n/a |"
+    assert md[3] == ("| w/xyz | `d2slam` | 0.50x / 0.50x / 1.33x | <= 1.2x twin: 2 of 3 | 0.960 / 0.950 / 0.990 | "
                      "0.990 / 0.970 / n/a | 1 of 3 |")
     assert md[4] == "| s/static | `none` | 5.00x / 10.00x / 13.33x | n/a | n/a | n/a | n/a |"
     df.loc[(df["method"] == "d2slam") & (df["twin"] == 0) & (df["seed"] == 101), "ate_rmse_m"] = np.nan
     assert T.target_checks(df)["ate_ok"].tolist()[3] is False  # a failed run misses the target
     assert "## Targets, run by run" in T.tables_markdown(df, ["none", "d2slam", "semantic"])
+
+
+def test_filters_are_held_to_the_occluded_twin_when_it_was_run():
+    """With `oracle` run on the twins (the occluded twin), a filter's ATE target is judged against it, `none`'s
+    against the static twin; both ratios are in the table."""
+    df = _runs()
+    occ = df[(df["twin"] == 1) & (df["method"] == "none")].copy()
+    occ["method"], occ["ate_rmse_m"] = "oracle", [0.05, 0.1, 0.4]  # d2slam 0.1, 0.1, 0.4 -> 2x, 1x, 1x
+    df = T.runs_frame(pd.concat([df, occ], ignore_index=True).to_dict("records"))
+    tc = T.target_checks(df)
+    x = tc[tc["method"] == "d2slam"]
+    np.testing.assert_allclose(x["ate_over_occluded"], [2.0, 1.0, 1.0])
+    np.testing.assert_allclose(x["ate_over_twin"], [0.5, 0.5, 0.4 / 0.3])
+    assert x["ate_ok"].tolist() == [False, True, True]  # the static twin alone would say True, True, False
+    assert tc[tc["method"] == "none"]["ate_ok"].tolist() == [True, True, True]  # 5x, 10x, 13.3x the static twin
+    md = T.targets_markdown(df).splitlines()
+    assert "| ATE / occluded twin (seeds 101, 102, 103) |" in md[0]
+    assert md[3] == ("| w/xyz | `d2slam` | 0.50x / 0.50x / 1.33x | 2.00x / 1.00x / 1.00x | <= 1.2x occluded twin: "
+                     "2 of 3 | 0.700 / 0.700 / 0.700 | n/a / n/a / n/a | 0 of 3 |")
 
 
 def test_occluded_twin_tables():
