@@ -10,6 +10,6 @@ def test_demo_runs_the_main_job(tmp_path, monkeypatch, capsys):
     assert "12 frames of walking_xyz" in out and "static twin" in out
     table = out.split("== 2.")[1]
     assert table.count("none") >= 2 and table.count("d2slam") >= 2  # both methods on the sequence and its twin
-    assert len([p for p in (tmp_path / "study" / "sequences").glob("walking_xyz_s0_n12*") if p.is_dir()]) == 2
+    assert len([p for p in (tmp_path / "study" / "sequences").glob("walking_xyz_s1_n12*") if p.is_dir()]) == 2
     assert not (tmp_path / "demo" / "walking_xyz").exists()  # one sequence cache: the study's
     assert (tmp_path / "demo" / "study" / "runs.csv").is_file() and (tmp_path / "demo" / "study" / "tables.md").is_file()
