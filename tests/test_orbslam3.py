@@ -14,6 +14,7 @@ from d2slam.baselines import orbslam3 as O
 from d2slam.baselines import vocab as V
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence, read_tum_trajectory
+from d2slam.data.intrinsics import FREIBURG3
 from d2slam.errors import D2SlamError
 from d2slam.assets import tum_frames
 
@@ -217,3 +218,18 @@ def test_cli_run_entry_for_the_run_command(tmp_path, seq_dir, built_vocab, capsy
     args.vocab = str(tmp_path / "missing.txt")
     assert O.cli_run(args) == 2
     assert "failed" in capsys.readouterr().err
+
+
+def test_a_camera_file_gives_orbslam3_its_th_depth(tmp_path, seq_dir, built_vocab):
+    """``--camera FILE.yaml``: ORB-SLAM3's settings take the file's camera and its Stereo.ThDepth, not the TUM 40."""
+    from d2slam.data.intrinsics import read_camera_file
+
+    cam = tmp_path / "cam.yaml"
+    cam.write_text(O.settings_yaml(FREIBURG3).replace(f"Stereo.ThDepth: {DEFAULT.baseline.orbslam3_th_depth:.6f}",
+                                                      "Stereo.ThDepth: 35.000000"))
+    assert read_camera_file(cam).th_depth == 35.0
+    out = tmp_path / "traj.txt"
+    run = O.run_orbslam3(seq_dir, out, vocab=built_vocab, camera=str(cam), max_frames=5, progress=False)
+    assert run["status"] in ("ok", "lost"), run["message"]
+    written = read_camera_file(run["settings"])
+    assert written.th_depth == 35.0 and written.camera.fx == FREIBURG3.fx

@@ -376,6 +376,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`)."""
     from d2slam.baselines.vocab import resolve_vocabulary
     from d2slam.data import open_sequence
+    from d2slam.data.intrinsics import is_camera_file, read_camera_file
     from d2slam.outputs import check_output_file
 
     sequence_dir = Path(sequence_dir).expanduser().resolve()
@@ -388,6 +389,11 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     for stale in [out_traj, out_traj.with_name(out_traj.stem + ".online.txt")]:
         stale.unlink(missing_ok=True)  # a failed run must not leave an older trajectory behind
     seq = open_sequence(sequence_dir, camera=camera) if camera else open_sequence(sequence_dir)
+    if is_camera_file(camera):  # a settings YAML's own close-point threshold replaces the TUM value
+        th_depth = read_camera_file(camera).th_depth
+        if th_depth is not None:
+            config = dataclasses.replace(config, baseline=dataclasses.replace(config.baseline,
+                                                                              orbslam3_th_depth=th_depth))
     n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
     base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
             "repeats": repeats,
