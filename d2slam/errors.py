@@ -18,3 +18,15 @@ class D2SlamError(Exception):
         if path is not None:
             where = f"{path}:{line}: " if line is not None else f"{path}: "
         super().__init__(where + message)
+
+
+def read_text(path: str | Path, what: str) -> str:
+    """The text of the input file ``path``, or a one-line :class:`D2SlamError` naming it (``what``: e.g. "camera
+    settings") when it is missing or cannot be read as text."""
+    path = Path(path)
+    if not path.is_file():
+        raise D2SlamError(f"{what} file not found", path=path)
+    try:
+        return path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise D2SlamError(f"cannot read {what} as text ({exc})", path=path) from None

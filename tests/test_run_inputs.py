@@ -261,3 +261,17 @@ def test_study_tum_root_missing_partial_and_all_failed(tmp_path, capsys):
     code = main(["study", "--tum-root", str(root), "--out", str(tmp_path / "res2"), "--methods", "none",
                  "--seeds", "101", "--frames", "0", "--jobs", "1", "--no-plots", "--quiet"])
     assert code == 1 and "no run succeeded" in capsys.readouterr().err
+
+
+def test_input_files_that_are_missing_or_not_text_are_one_line_errors(tmp_path):
+    from d2slam.baselines.vocab import Vocabulary
+    from d2slam.errors import D2SlamError
+
+    binary = tmp_path / "cam.yaml"
+    binary.write_bytes(b"\xff\xfe\x00\x81")
+    with pytest.raises(D2SlamError, match="camera settings file not found"):
+        read_camera_file(tmp_path / "missing.yaml")
+    with pytest.raises(D2SlamError, match="cannot read camera settings as text"):
+        read_camera_file(binary)
+    with pytest.raises(D2SlamError, match="cannot read vocabulary as text"):
+        Vocabulary.load(binary)

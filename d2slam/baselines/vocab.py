@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from d2slam.config import DEFAULT, BaselineConfig, OrbConfig
-from d2slam.errors import D2SlamError
+from d2slam.errors import D2SlamError, read_text
 from d2slam.slam.matching import hamming
 
 DESCRIPTOR_BYTES = 32
@@ -184,12 +184,7 @@ class Vocabulary:
     def load(cls, path: str | Path) -> "Vocabulary":
         """Read a DBoW2 text vocabulary with the checks ORB-SLAM3's loader skips (it crashes or exits instead)."""
         path = Path(path)
-        if not path.is_file():
-            raise D2SlamError("vocabulary file not found", path=path)
-        try:
-            text = path.read_text()
-        except (OSError, UnicodeDecodeError) as exc:
-            raise D2SlamError(f"cannot read vocabulary as text ({exc})", path=path) from None
+        text = read_text(path, "vocabulary")
         nl = text.find("\n")
         header, body = (text, "") if nl < 0 else (text[:nl], text[nl + 1:])
         try:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from d2slam.data.base import Camera
-from d2slam.errors import D2SlamError
+from d2slam.errors import D2SlamError, read_text
 
 #: TUM depth PNG scale: depth in metres = PNG value / DEPTH_FACTOR.
 TUM_DEPTH_FACTOR = 5000.0
@@ -105,12 +105,7 @@ def read_camera_file(path: str | Path) -> CameraSettings:
     import yaml
 
     path = Path(path).expanduser()
-    if not path.is_file():
-        raise D2SlamError("camera settings file not found", path=path)
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise D2SlamError(f"cannot read camera settings ({exc})", path=path) from None
+    text = read_text(path, "camera settings")
     text = re.sub(r"\A\s*%YAML[: ]\s*\d+\.\d+[^\n]*\n", "", text)  # OpenCV's directive; PyYAML wants "%YAML 1.1"
     try:
         data = yaml.load(text, Loader=_yaml_loader())
