@@ -25,12 +25,13 @@ from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3, ORBSLAM3_MASKED, REPEATE
 
 def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
                 orbslam3_repeats: int | None = None, orbslam3_timeout: float | None = None) -> dict:
-    """The options every run of a study shares, as a picklable dict (``config`` as a nested dict)."""
+    """The options every run of a study shares, as a picklable dict (``config`` as a nested dict; ``masks``: the
+    study's masks, the real segmenter's unless given)."""
     from d2slam.config import DEFAULT
 
     config = config or DEFAULT
     return {"config": config.to_dict(), "cache_root": None if cache_root is None else str(cache_root),
-            "tum_root": None if tum_root is None else str(tum_root), "masks": masks,
+            "tum_root": None if tum_root is None else str(tum_root), "masks": masks or STUDY_MASKS,
             "orbslam3_repeats": int(orbslam3_repeats or config.baseline.orbslam3_repeats),
             "orbslam3_timeout": orbslam3_timeout}
 
@@ -55,7 +56,7 @@ def onnx_sequence_keys(specs, options: dict) -> list[tuple]:
         if s.method not in methods():
             continue  # an unknown method's run records its own error
         method = get_method(s.method)
-        if method.needs_masks and mask_kind(method, None if method.masks else options.get("masks") or STUDY_MASKS,
+        if method.needs_masks and mask_kind(method, None if method.masks else options["masks"],
                                             synthetic=s.source == "synth") == "onnx":
             keys.append(s.sequence_key)
     return list(dict.fromkeys(keys))
@@ -64,14 +65,13 @@ def onnx_sequence_keys(specs, options: dict) -> list[tuple]:
 def segment_sequence(key: tuple, options: dict) -> dict:
     """Segment every frame the runs read of the sequence ``key`` with the real segmenter into the mask cache, once per
     sequence before the runs (which then only read it, whichever worker runs them; two runs on one sequence at the
-    same time would otherwise both segment it). Returns ``{"key", "seconds", "error"}``; a failure is left to the
-    runs, which meet it again and record it."""
+    same time would otherwise both segment it). Returns ``{"key", "error"}``; a failure is left to the runs,
+    which meet it again and record it."""
     from d2slam.config import Config
     from d2slam.data import open_sequence
     from d2slam.segmentation import masks_for
 
     source, scenario, seed, frames, twin = key
-    t = time.perf_counter()
     try:
         with _single_threaded():
             seq = open_sequence(_sequence_path(source, scenario, seed, frames, twin, options))
@@ -79,9 +79,9 @@ def segment_sequence(key: tuple, options: dict) -> dict:
             n = len(seq) if frames <= 0 else min(len(seq), frames)
             for i in range(n):
                 masks_for(seq, i, "onnx", config)
-        return {"key": key, "seconds": time.perf_counter() - t, "error": None}
+        return {"key": key, "error": None}
     except Exception as exc:  # noqa: BLE001 - recorded; the runs on it fail with their own message
-        return {"key": key, "seconds": time.perf_counter() - t, "error": _message(exc)}
+        return {"key": key, "error": _message(exc)}
 
 
 def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
@@ -169,7 +169,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     if spec.source == "tum" and spec.frames > 0:
         seq = _Head(seq, spec.frames)
     # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
-    requested = None if method.masks else options.get("masks") or STUDY_MASKS
+    requested = None if method.masks else options["masks"]
     mask_seq = None
     if method.needs_masks and spec.twin and spec.method == ORACLE:
         # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
@@ -285,8 +285,7 @@ def _run_orbslam3(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     row.update(config_hash=config.hash(), repeats=repeats)
     masks = None
     if spec.method == ORBSLAM3_MASKED:  # the study's --masks, else the real segmenter's
-        masks = mask_kind(get_method(spec.method), options.get("masks") or STUDY_MASKS,
-                          synthetic=spec.source == "synth")
+        masks = mask_kind(get_method(spec.method), options["masks"], synthetic=spec.source == "synth")
     with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
         traj_path = Path(tmp) / "orbslam3.txt"
         res = run_orbslam3(path, traj_path, repeats=repeats, config=config, progress=False,
@@ -397,7 +396,7 @@ def run_key(spec: RunSpec, options: dict) -> str:
     vocabulary file). Equal keys => a finished run can be reused (``--resume``)."""
     orb = spec.method in REPEATED
     code = {ORBSLAM3: _ORBSLAM3_CODE, ORBSLAM3_MASKED: _ORBSLAM3_MASKED_CODE}.get(spec.method, _ENGINE_CODE)
-    ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options.get("masks") or STUDY_MASKS,
+    ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options["masks"],
              "tum_root": options.get("tum_root"), "code": source_digest(code), "packages": _packages()}
     if spec.source == "synth":
         from d2slam.study.sequences import generator_version
