@@ -373,7 +373,7 @@ def targets_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
     tc = target_checks(df, methods)
     if tc.empty or not np.isfinite(tc["ate_over_twin"].astype(np.float64)).any():
         return "_No dynamic run with a static twin (run the study on synthetic data with `none`)._"
-    occ = bool(np.isfinite(tc["ate_over_occluded"].astype(np.float64)).any())
+    occ = _has_occluded(df)
     rows = []
     for (s, m), g in tc.groupby(["scenario", "method"], sort=False):
         walking = s.startswith("walking")
