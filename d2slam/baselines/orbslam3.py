@@ -388,12 +388,13 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         check_output_file(metrics_json, "metrics JSON")
     for stale in [out_traj, out_traj.with_name(out_traj.stem + ".online.txt")]:
         stale.unlink(missing_ok=True)  # a failed run must not leave an older trajectory behind
-    seq = open_sequence(sequence_dir, camera=camera) if camera else open_sequence(sequence_dir)
-    if is_camera_file(camera):  # a settings YAML's own close-point threshold replaces the TUM value
-        th_depth = read_camera_file(camera).th_depth
-        if th_depth is not None:
-            config = dataclasses.replace(config, baseline=dataclasses.replace(config.baseline,
-                                                                              orbslam3_th_depth=th_depth))
+    camera_file = read_camera_file(camera) if is_camera_file(camera) else None  # read once (the worker reads its own)
+    if camera_file is not None and camera_file.th_depth is not None:
+        # a settings YAML's own close-point threshold replaces the TUM value
+        config = dataclasses.replace(config, baseline=dataclasses.replace(config.baseline,
+                                                                          orbslam3_th_depth=camera_file.th_depth))
+    seq_camera = camera_file.camera if camera_file is not None else camera
+    seq = open_sequence(sequence_dir, camera=seq_camera) if seq_camera else open_sequence(sequence_dir)
     n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
     base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
             "repeats": repeats,
