@@ -15,9 +15,9 @@ def register(sub) -> None:
     p = sub.add_parser("demo", help="the main job on a short synthetic sequence: generate, run none vs d2slam, "
                        "evaluate",
                        description="Generate (or reuse) a short synthetic walking_xyz sequence and its static twin "
-                       "in the study's sequence cache, describe them, then run the engine with the "
-                       "keypoint filter off (none) and with D2SLAM (d2slam, the real segmenter's masks) on both, evaluate with "
-                       "evo and print ATE / RPE / keypoint F1 (a tiny `d2slam study` grid).")
+                       "in the study's sequence cache, describe them, then run the engine with the keypoint filter "
+                       "off (none) and with D2SLAM (d2slam, the real segmenter's masks) on both, evaluate with evo "
+                       "and print ATE / RPE / keypoint F1 (a tiny `d2slam study` grid).")
     p.add_argument("--frames", type=int, default=120, help="frames to generate (default 120)")
     p.add_argument("--seed", type=int, default=1, help="synthetic seed (default 1, a development seed)")
     p.add_argument("--jobs", type=int, default=2, help="parallel runs (default 2)")
