@@ -366,7 +366,7 @@ class BodyConfig:
     hair_colours: tuple[tuple[int, int, int], ...] = ((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120),
                                                       (20, 20, 20))
     colour_jitter: float = 0.06
-    shirt_plain_prob: float = 0.4
+    shirt_plain_prob: float = 0.2
     pattern_period_m: tuple[float, float] = (0.04, 0.09)
     trousers_pattern_prob: float = 0.15
     trousers_second_scale: float = 0.75
@@ -426,16 +426,16 @@ class ActorsConfig:
     # Targets: in view (y in view_y, |x| <= view_slope * y: within about 24 degrees of the home camera's axis), or
     # out of view at the sides (|x| in exit_x, y in exit_y); a person counts as out of view beyond |x| > view_slope y
     # + view_margin_m. After leaving the view a person waits away_s before coming back.
-    view_y: tuple[float, float] = (1.1, 2.6)
+    view_y: tuple[float, float] = (0.9, 1.9)
     view_slope: float = 0.45
     view_margin_m: float = 0.3
     exit_x: tuple[float, float] = (1.85, 2.05)
     exit_y: tuple[float, float] = (1.0, 2.8)
-    away_s: tuple[float, float] = (0.3, 1.5)
+    away_s: tuple[float, float] = (0.3, 1.0)
     # The fr3 walkers' choice after each action: sit down on a free chair, walk out of view, stand still (stand_s),
     # else walk to a point in view; at the start: seated (p_start_seated) or out of view (p_start_exit).
-    p_sit: float = 0.3
-    p_exit: float = 0.2
+    p_sit: float = 0.2
+    p_exit: float = 0.1
     p_stand: float = 0.15
     stand_s: tuple[float, float] = (0.5, 2.0)
     p_start_seated: float = 0.2
@@ -453,7 +453,7 @@ class ActorsConfig:
     sit_approach_m: float = 0.40
     sit_side_m: float = 0.45
     sit_down_s: tuple[float, float] = (1.0, 1.4)
-    sit_s: tuple[float, float] = (2.0, 6.0)
+    sit_s: tuple[float, float] = (2.0, 5.0)
     sit_shift_m: tuple[float, float] = (0.02, 0.06)
     stand_shift_m: tuple[float, float] = (0.04, 0.10)
     shift_jitter_m: float = 0.02
@@ -485,7 +485,7 @@ class ActorsConfig:
     # Interaction scenarios: where the box / chair starts (x within object_x of the camera's axis, either side;
     # y in object_y); the chair faces across the view (towards the axis) within object_turn rad.
     object_x: tuple[float, float] = (0.3, 0.9)
-    object_y: tuple[float, float] = (1.6, 2.4)
+    object_y: tuple[float, float] = (1.2, 2.0)
     object_turn: float = 0.5
 
 

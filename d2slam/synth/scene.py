@@ -165,7 +165,7 @@ class Scene:
         tex = self._tex(rng, kind, 2 * max(half[0], half[1]), 2 * max(half[1], half[2]), tpm)
         texs = [tex] * 6
         if front is not None:
-            a = {0: (1, 2), 1: (1, 2), 2: (0, 2), 3: (0, 2)}[front]
+            a = {0: (1, 2), 1: (1, 2), 2: (0, 2), 3: (0, 2), 4: (0, 1), 5: (0, 1)}[front]
             texs[front] = self._tex(rng, front_kind, 2 * half[a[0]], 2 * half[a[1]], tpm * 1.3)
         self.static_quads += box_quads(tf(R, centre), np.asarray(half, float), texs, 0)
 
@@ -177,9 +177,9 @@ class Scene:
         X, (Y0, Y1), Hh = ROOM_X, ROOM_Y, ROOM_H
         W, D = 2 * X, Y1 - Y0
         walls = [  # (O, U, V, kind): U = right, V = down as seen from inside
-            ((-X, Y1, Hh), (W, 0, 0), (0, 0, -Hh), "paint"),  # back
-            ((-X, Y0, Hh), (0, D, 0), (0, 0, -Hh), "paint"),  # left
-            ((X, Y1, Hh), (0, -D, 0), (0, 0, -Hh), "paint"),  # right
+            ((-X, Y1, Hh), (W, 0, 0), (0, 0, -Hh), "hall"),  # back: the hall beyond the office
+            ((-X, Y0, Hh), (0, D, 0), (0, 0, -Hh), "hall"),  # left
+            ((X, Y1, Hh), (0, -D, 0), (0, 0, -Hh), "hall"),  # right
             ((X, Y0, Hh), (-W, 0, 0), (0, 0, -Hh), "paint"),  # front (behind the camera)
             ((-X, Y1, 0.0), (W, 0, 0), (0, -D, 0), "floor_plain"),
             ((-X, Y0, Hh), (W, 0, 0), (0, D, 0), "beams"),
@@ -197,8 +197,8 @@ class Scene:
             U, V = np.array(U, float), np.array(V, float)
             tex = self._tex(rng, "poster", np.linalg.norm(U), np.linalg.norm(V), tpm * 1.5)
             self.static_quads.append(Quad(np.array(O, float), U, V, tex))
-        # a whiteboard on the back wall, above the partition
-        self._box(rng, (1.2, Y1 - 0.02, 1.95), (0.7, 0.01, 0.45), "desk")
+        # white boards in dark frames on the back wall, above the partition
+        self._box(rng, (1.2, Y1 - 0.02, 1.95), (0.7, 0.01, 0.45), "plastic", front=2, front_kind="panels")
         # two white desks with a modesty panel, a monitor (dark frame, screen) and a keyboard each
         for x in (-1.0, 1.05):
             self._box(rng, (x, 3.42, 0.735), (0.8, 0.4, 0.02), "desk")
@@ -223,6 +223,24 @@ class Scene:
         for x in (-1.6, -0.3, 0.6, 1.7):
             h = rng.uniform(0.04, 0.1)
             self._box(rng, (x + rng.uniform(-0.1, 0.1), 3.25, 0.755 + h), (rng.uniform(0.05, 0.12), 0.08, h), "box")
+        # the clutter of a used desk, as on the TUM fr3 desks: sheets of paper, a stack of books, a mug, a tool; under
+        # each desk a computer and beside it a waste bin
+        for x in (-1.0, 1.05):
+            for _ in range(int(rng.integers(2, 4))):
+                self._box(rng, (x + rng.uniform(-0.65, 0.65), rng.uniform(3.1, 3.5), 0.757), (rng.uniform(0.1, 0.15),
+                          rng.uniform(0.07, 0.105), 0.002), "plastic", front=5, front_kind="paper",
+                          R=rot_z(rng.uniform(-0.5, 0.5)))
+            h = rng.uniform(0.05, 0.12)
+            self._box(rng, (x + rng.uniform(-0.6, 0.6), rng.uniform(3.15, 3.5), 0.755 + h), (0.12, 0.09, h), "books",
+                      R=rot_z(rng.uniform(-0.4, 0.4)))
+            self._box(rng, (x + rng.uniform(-0.6, 0.6), rng.uniform(3.1, 3.3), 0.805), (0.04, 0.04, 0.05), "box")
+            self._box(rng, (x + rng.uniform(-0.6, 0.6), rng.uniform(3.1, 3.4), 0.79), (0.1, 0.04, 0.035), "chair",
+                      R=rot_z(rng.uniform(-1.0, 1.0)))
+            self._box(rng, (x + rng.uniform(-0.3, 0.3), 3.5, 0.22), (0.1, 0.22, 0.22), "plastic", front=2,
+                      front_kind="screen")
+            bx = x + rng.choice([-0.95, 0.95])
+            if abs(bx) < ROOM_X - 0.4:
+                self._box(rng, (bx, 3.5, 0.17), (0.14, 0.14, 0.17), "plastic", floor=True)
 
     def _texture_rng(self, k: int) -> np.random.Generator:
         """Texture stream of actor k (its clothes and the object it moves), apart from the paths' stream so that

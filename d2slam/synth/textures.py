@@ -24,7 +24,8 @@ _FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_CO
 _CHARS = np.array(list(string.ascii_letters + string.digits + "#%&+=?"))
 
 KINDS = ("wall", "floor", "ceiling", "poster", "books", "box", "wood", "screen", "cloth", "trousers", "skin",
-         "hair", "chair", "paint", "floor_plain", "beams", "cork", "desk", "plastic", "keyboard", "seat")
+         "hair", "chair", "paint", "floor_plain", "beams", "hall", "cork", "paper", "panels", "desk", "plastic",
+         "keyboard", "seat")
 
 
 def _colour(rng, lo=0, hi=255) -> tuple[int, int, int]:
@@ -70,6 +71,26 @@ def _lines(img, rng, n, colours=None, thickness=(1, 4)):
         q = (int(rng.integers(0, w)), int(rng.integers(0, h)))
         col = colours[int(rng.integers(len(colours)))] if colours else _colour(rng)
         cv2.line(img, p, q, col, int(rng.integers(thickness[0], thickness[1] + 1)), cv2.LINE_AA)
+
+
+def _truss(img, rng, bay: int, depth: int, colour, horizontal: bool = True):
+    """A steel truss across the image: two chords ``depth`` apart with zig-zag lacing every ``bay`` texels
+    (horizontal: along the top rows; else along the columns, as seen on a ceiling)."""
+    h, w = img.shape[:2]
+    n, a = (w, int(rng.integers(0, max(h // 6, 2)))) if horizontal else (h, int(rng.integers(0, max(w // 3, 2))))
+    bay, depth = max(int(bay), 8), max(int(depth), 6)
+    for off in range(a, (h if horizontal else w), (h if horizontal else w) + 1):
+        pts = []
+        for k, s in enumerate(range(0, n + bay, bay)):
+            d = off + (depth if k % 2 else 0)
+            pts.append((s, d) if horizontal else (d, s))
+        line = lambda p, q: cv2.line(img, p, q, colour, 3, cv2.LINE_AA)  # noqa: E731
+        for p, q in zip(pts[:-1], pts[1:]):
+            line(p, q)
+        first = [(0, off), (n, off)] if horizontal else [(off, 0), (off, n)]
+        second = [(0, off + depth), (n, off + depth)] if horizontal else [(off + depth, 0), (off + depth, n)]
+        line(*first)
+        line(*second)
 
 
 def _grain(img, rng, amount):
@@ -176,29 +197,108 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, c
                 cv2.line(img, (x, y0), (x, y0 + height // 4), (220, 220, 220), 3)
         _text(img, rng, area // 20000 + 2, (0.4, 1.2), [(30, 30, 30), (180, 30, 30)])
         img = _grain(img, rng, 1.5)
-    elif kind == "floor_plain":  # smooth grey floor with a few scuffs
-        base = _colour(rng, 135, 185)
+    elif kind == "floor_plain":  # smooth grey floor with scuffs, taped lines, cables and their covers
+        base = _jitter((int(rng.integers(135, 185)),) * 3, rng, 8)
         img[:] = base
         _blobs(img, rng, area // 20000 + 3, 12, [_jitter(base, rng, 40) for _ in range(3)])
         _lines(img, rng, area // 60000 + 2, [(200, 190, 60), (40, 40, 40)], (3, 8))
+        for _ in range(area // 80000 + 3):  # cables: wavy polylines
+            p = np.array([rng.integers(0, width), rng.integers(0, height)], float)
+            d = rng.normal(size=2)
+            pts = [p.copy()]
+            for _ in range(int(rng.integers(6, 20))):
+                d = d + rng.normal(scale=0.5, size=2)
+                p += 25 * d / np.linalg.norm(d)
+                pts.append(p.copy())
+            cv2.polylines(img, [np.int32(pts)], False, _colour(rng, 10, 70), int(rng.integers(2, 4)), cv2.LINE_AA)
+        _rects(img, rng, area // 30000 + 3, 20, [_jitter(base, rng, 60) for _ in range(3)], filled=0.5)
         img = _grain(img, rng, 4.0)
-    elif kind == "beams":  # a hall ceiling: beams, pipes and lamps
+    elif kind == "beams":  # a hall ceiling: trusses (chords and zig-zag lacing), purlins, pipes and lamps
+        tpm = texels_per_m or 220.0
         base = _colour(rng, 150, 200)
         img[:] = base
+        steel = [_colour(rng, 40, 110) for _ in range(2)]
         step = int(rng.integers(30, 60))
         for y in range(0, height, step):
-            cv2.rectangle(img, (0, y), (width, y + step // 5), _colour(rng, 40, 110), -1)
+            cv2.rectangle(img, (0, y), (width, y + step // 5), steel[0], -1)
+        _truss(img, rng, int(0.9 * tpm), int(0.35 * tpm), steel[1], horizontal=False)
         for _ in range(area // 40000 + 6):
             x = int(rng.integers(0, width))
             cv2.line(img, (x, 0), (x + int(rng.integers(-40, 41)), height), _colour(rng, 60, 230),
                      int(rng.integers(2, 6)))
         _rects(img, rng, area // 50000 + 4, max(12, min(width, height) // 10), [(250, 250, 245)], filled=1.0)
         img = _grain(img, rng, 3.0)
-    elif kind == "cork":  # office partition board with pinned notes
+    elif kind == "hall":  # the hall beyond the office, as in TUM fr3: steel frame with trusses and bracing,
+        # windows with mullions, racks of boxes, pipes and cable trays, lamps and signs (texels_per_m: scale)
+        tpm = texels_per_m or 220.0
+        base = _colour(rng, 175, 220)
+        img[:] = base
+        steel = [_colour(rng, 50, 120) for _ in range(3)]
+        col_step = int(rng.uniform(1.0, 1.5) * tpm)
+        # a band of windows high up: bright panes divided by mullions
+        y0, y1 = int(0.08 * height), int(rng.uniform(0.3, 0.4) * height)
+        cv2.rectangle(img, (0, y0), (width, y1), (235, 238, 240), -1)
+        pane = int(rng.uniform(0.25, 0.4) * tpm)
+        for x in range(0, width, pane):
+            cv2.line(img, (x, y0), (x, y1), steel[2], max(2, int(0.02 * tpm)))
+        for y in range(y0, y1, pane):
+            cv2.line(img, (0, y), (width, y), steel[2], max(2, int(0.02 * tpm)))
+        # racks of boxes in the lower part, between the columns
+        for x in range(0, width, col_step):
+            if rng.random() < 0.6:
+                top = int(rng.uniform(0.5, 0.65) * height)
+                shelf = int(0.3 * tpm)
+                for y in range(top, height, shelf):
+                    cv2.rectangle(img, (x + 8, y), (x + col_step - 8, y + 4), steel[1], -1)
+                    bx = x + 10
+                    while bx < x + col_step - 20:
+                        bw = int(rng.uniform(0.12, 0.35) * tpm)
+                        bh = int(rng.uniform(0.4, 0.9) * shelf)
+                        cv2.rectangle(img, (bx, y - bh), (min(bx + bw, x + col_step - 10), y - 1),
+                                      _colour(rng, 60, 230), -1)
+                        bx += bw + int(rng.integers(2, 12))
+        # the steel frame: columns, beams and cross bracing in some bays, a truss under the roof
+        beams = [int(f * height) for f in (0.05, rng.uniform(0.42, 0.5))]
+        for x in range(0, width + col_step, col_step):
+            cv2.rectangle(img, (x - 5, 0), (x + 5, height), steel[0], -1)
+        for y in beams:
+            cv2.rectangle(img, (0, y - 4), (width, y + 4), steel[0], -1)
+        for x in range(0, width, col_step):
+            if rng.random() < 0.5:
+                cv2.line(img, (x, beams[0]), (x + col_step, beams[1]), steel[0], 3)
+                cv2.line(img, (x + col_step, beams[0]), (x, beams[1]), steel[0], 3)
+        _truss(img, rng, col_step // 3, max(beams[0], 12), steel[1], horizontal=True)
+        # pipes and cable trays along the wall, lamps, signs
+        for _ in range(int(rng.integers(3, 7))):
+            y = int(rng.uniform(0.0, 0.6) * height)
+            cv2.line(img, (0, y), (width, y + int(rng.integers(-4, 5))), _colour(rng, 40, 230),
+                     int(rng.integers(3, 9)))
+        _rects(img, rng, area // 60000 + 3, max(10, int(0.08 * tpm)), [(252, 252, 245)], filled=1.0)
+        _rects(img, rng, area // 40000 + 3, max(10, int(0.12 * tpm)), [_colour(rng, 20, 230) for _ in range(4)],
+               filled=0.8)
+        _text(img, rng, area // 40000 + 2, (0.5, 1.4), [(30, 30, 30), (200, 40, 30), (30, 60, 160)])
+        img = _grain(img, rng, 3.0)
+    elif kind == "cork":  # office partition board with pinned notes, a calendar, a timetable
         img[:] = (int(rng.integers(170, 200)), int(rng.integers(125, 150)), int(rng.integers(75, 100)))
-        _rects(img, rng, area // 20000 + 2, max(8, min(width, height) // 6), [(240, 240, 235), (250, 240, 120)],
+        _rects(img, rng, area // 12000 + 3, max(8, min(width, height) // 6), [(240, 240, 235), (250, 240, 120)],
                filled=1.0)
+        _text(img, rng, area // 20000 + 2, (0.4, 0.8), [(30, 30, 30), (30, 40, 140)])
         img = _grain(img, rng, 7.0)
+    elif kind == "paper":  # a printed sheet: lines of text
+        img[:] = _jitter((242, 242, 238), rng, 6)
+        for y in range(int(0.1 * height), int(0.9 * height), max(height // 12, 4)):
+            x1 = int(rng.uniform(0.4, 0.9) * width)
+            cv2.line(img, (int(0.1 * width), y), (x1, y), (60, 60, 60), max(1, height // 60))
+    elif kind == "panels":  # white boards in dark frames, with a few notes and writing
+        img[:] = (235, 236, 234)
+        n = int(rng.integers(2, 4))
+        for k in range(n + 1):
+            x = int(k * (width - 1) / n)
+            cv2.line(img, (x, 0), (x, height), (70, 70, 75), max(3, width // 120))
+        cv2.rectangle(img, (0, 0), (width - 1, height - 1), (70, 70, 75), max(3, width // 120))
+        _rects(img, rng, int(rng.integers(3, 8)), max(8, min(width, height) // 6), [(250, 240, 120), (240, 240, 235)],
+               filled=1.0)
+        _text(img, rng, int(rng.integers(3, 8)), (0.6, 1.4), [(40, 40, 140), (30, 30, 30), (160, 30, 30)], (1, 2))
     elif kind == "desk":
         img[:] = _colour(rng, 210, 240)
         img = _grain(img, rng, 1.5)
