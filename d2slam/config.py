@@ -352,9 +352,8 @@ class BodyConfig:
     hair_top_m: float = 0.07
     hair_back_m: float = 0.16
     hair_back_y: float = 0.01
-    # Clothes: RGB palettes (0-255), colour jitter (0-1 units), probability of a plain shirt (else stripes or
-    # checks with a period in pattern_period_m), of striped trousers (second colour = the first times
-    # trousers_second_scale), of long sleeves.
+    # Clothes: RGB palettes (0-255), colour jitter (0-1 units), probability of long sleeves (the garments' patterns
+    # are SynthConfig.cloth_*).
     shirt_colours: tuple[tuple[int, int, int], ...] = (
         (200, 40, 40), (40, 70, 160), (230, 230, 225), (30, 30, 35), (60, 130, 70), (230, 190, 60), (120, 120, 130),
         (150, 60, 140), (240, 140, 60), (90, 160, 200), (180, 170, 150), (110, 40, 40))
@@ -366,10 +365,15 @@ class BodyConfig:
     hair_colours: tuple[tuple[int, int, int], ...] = ((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120),
                                                       (20, 20, 20))
     colour_jitter: float = 0.06
-    shirt_plain_prob: float = 0.2
-    pattern_period_m: tuple[float, float] = (0.04, 0.09)
-    trousers_pattern_prob: float = 0.15
-    trousers_second_scale: float = 0.75
+    # Garment textures (d2slam.synth.bodies.uv_layout): one turn round the body (m of texture at the torso's
+    # radius) by the body's height (m); texel density of shirt, trousers, shoes, skin, hair relative to
+    # SynthConfig.body_texels_per_m; the face on the skin texture: eyes this far below the top of the head, drawn
+    # for a head of this radius (the cylindrical map stretches it sideways by turn_m / (2 pi head_radius_m)).
+    turn_m: float = 1.13
+    height_m: float = 1.8
+    garment_texels: tuple[float, ...] = (1.0, 1.0, 0.25, 1.0, 0.5)
+    eyes_m: float = 0.115
+    head_radius_m: float = 0.09
     long_sleeve_prob: float = 0.5
     # Baked Lambert shading: ambient share and the light direction (world, towards the light).
     ambient: float = 0.45
@@ -426,7 +430,7 @@ class ActorsConfig:
     # Targets: in view (y in view_y, |x| <= view_slope * y: within about 24 degrees of the home camera's axis), or
     # out of view at the sides (|x| in exit_x, y in exit_y); a person counts as out of view beyond |x| > view_slope y
     # + view_margin_m. After leaving the view a person waits away_s before coming back.
-    view_y: tuple[float, float] = (0.9, 1.9)
+    view_y: tuple[float, float] = (0.9, 1.8)
     view_slope: float = 0.45
     view_margin_m: float = 0.3
     exit_x: tuple[float, float] = (1.85, 2.05)
@@ -434,8 +438,8 @@ class ActorsConfig:
     away_s: tuple[float, float] = (0.3, 1.0)
     # The fr3 walkers' choice after each action: sit down on a free chair, walk out of view, stand still (stand_s),
     # else walk to a point in view; at the start: seated (p_start_seated) or out of view (p_start_exit).
-    p_sit: float = 0.2
-    p_exit: float = 0.1
+    p_sit: float = 0.15
+    p_exit: float = 0.06
     p_stand: float = 0.15
     stand_s: tuple[float, float] = (0.5, 2.0)
     p_start_seated: float = 0.2
@@ -453,7 +457,7 @@ class ActorsConfig:
     sit_approach_m: float = 0.40
     sit_side_m: float = 0.45
     sit_down_s: tuple[float, float] = (1.0, 1.4)
-    sit_s: tuple[float, float] = (2.0, 5.0)
+    sit_s: tuple[float, float] = (1.5, 4.0)
     sit_shift_m: tuple[float, float] = (0.02, 0.06)
     stand_shift_m: tuple[float, float] = (0.04, 0.10)
     shift_jitter_m: float = 0.02
@@ -462,6 +466,7 @@ class ActorsConfig:
     # Clearances: furniture (rectangles grown by floor_clearance), chairs (discs), other people, held objects.
     floor_clearance: float = 0.18
     chair_radius: float = 0.5
+    squeeze_m: float = 0.3  # routes from within chair_radius + squeeze_m of a chair may pass it when nothing else does
     person_gap: float = 0.65
     object_gap: float = 0.55
     # Route detours tried sideways at mid-route (m), targets drawn per action, wait after a failed one (s), and the

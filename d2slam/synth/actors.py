@@ -314,7 +314,7 @@ class Person:
     """An articulated MakeHuman body (``d2slam.synth.bodies``) following a :class:`Timeline`.
 
     ``role``: ``walk`` (the fr3 people), ``carry``, ``push`` or ``sit`` (seated throughout); ``shape``: the six ANNY
-    shape controls; ``clothes``; ``params``: gait style factor ``style``, stride ``stride`` (m), phases ``ph`` and
+    shape controls; ``clothes``; ``tex``: the garments' textures; ``params``: gait style factor ``style``, stride ``stride`` (m), phases ``ph`` and
     periods ``f`` of the seated movements."""
 
     pid: int
@@ -325,6 +325,7 @@ class Person:
     params: dict
     body_cfg: BodyConfig
     timeline: Timeline
+    tex: np.ndarray  # (5,) texture index of each garment (bodies.PARTS)
 
     def state(self, t: float) -> ActorState:
         return self.timeline.state(t)
@@ -334,8 +335,9 @@ class Person:
         s = self.state(t)
         return yaw_pose(s.xy, s.heading)
 
-    def mesh(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World vertices (V, 3), triangles and shaded vertex colours of the posed body at time t (s)."""
+    def mesh(self, t: float):
+        """The posed body at time t (s): world vertices (R, 3), triangles, shading (R, 3) and per vertex its texture
+        coordinates in [0, 1]^2 and texture index (``tex`` of its garment), for ``WorldRenderer``."""
         p, cfg = self.params, self.body_cfg
         s = self.state(t)
         body = body_model(self.shape, cfg)
@@ -351,9 +353,11 @@ class Person:
         T = yaw_pose(s.xy, s.heading) @ tf(rot_z(np.pi)) @ tf(t=[0.0, cfg.seat_back * s.sit, 0.0])
         Vw = V @ T[:3, :3].T + T[:3, 3]
         light = np.asarray(cfg.light, float)
-        col = bodies.shade(body.colours(self.clothes), bodies.vertex_normals(Vw, body.triangles, body.incidence),
-                           light / np.linalg.norm(light), cfg.ambient)
-        return Vw, body.triangles, col
+        shading = bodies.shade(np.ones_like(Vw), bodies.vertex_normals(Vw, body.triangles, body.incidence),
+                               light / np.linalg.norm(light), cfg.ambient)
+        lay = body.layout(self.clothes.long_sleeves)
+        uv = lay.uv / np.array([1.0 + bodies.SEAM_PAD, 1.0])
+        return Vw[lay.src], lay.triangles, shading[lay.src], (uv, self.tex[lay.part])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -420,20 +424,21 @@ class Planner:
             return None
         n = np.array([-d[1], d[0]]) / L
 
-        # a chair the route starts next to (a person who just got up from it) does not block it
-        ignore = tuple(ignore) + tuple(ch for ch in self.chairs if np.linalg.norm(a - ch.xy) < self.cfg.chair_radius)
+        near = tuple(ch for ch in self.chairs if np.linalg.norm(a - ch.xy) < self.cfg.chair_radius + self.cfg.squeeze_m)
+        # a chair the route starts next to (a person who just got up from it) does not block it; failing all else, a
+        # person squeezes past the chairs near where they stand (pushing one aside a little)
+        for skip in (tuple(ignore) + tuple(ch for ch in near if np.linalg.norm(a - ch.xy) < self.cfg.chair_radius),
+                     tuple(ignore) + near):
+            def ok(pts):
+                return self._static_free(Route(pts, rounds=0).xy[1:], skip)
 
-        def ok(pts):
-            return self._static_free(Route(pts, rounds=0).xy[1:], ignore)
-
-        if ok(np.stack([a, b])):
-            return np.stack([a, b])
-        for k in self.cfg.detours:
-            for sign in (1.0, -1.0):
-                mid = a + 0.5 * d + sign * k * n
-                pts = np.stack([a, mid, b])
-                if ok(pts):
-                    return pts
+            if ok(np.stack([a, b])):
+                return np.stack([a, b])
+            for k in self.cfg.detours:
+                for sign in (1.0, -1.0):
+                    pts = np.stack([a, a + 0.5 * d + sign * k * n, b])
+                    if ok(pts):
+                        return pts
         return None
 
     def _clear_of_people(self, legs: list[Leg], holding: HeldObject | None = None) -> bool:

@@ -9,11 +9,13 @@ about local x, +angle bends a knee and an elbow, -angle flexes a hip (leg forwar
 forward), +angle leans the spine forward; about local y the spine twists; about local z ``upperarm01.L`` with
 -angle (``.R`` with +angle) lowers the arm from the rest A-pose towards the body.
 
-Colours: every vertex takes the garment of its dominant bone (largest skin weight): shirt (spine above the waist,
+Clothes: every vertex takes the garment of its dominant bone (largest skin weight): shirt (spine above the waist,
 clavicles, shoulders, upper arms; forearms with long sleeves), trousers (pelvis, legs, spine below the waist),
 shoes (feet, toes), skin (neck, head, hands, forearms with short sleeves) and a hair cap (head vertices near the
-top and the back). Shirts and trousers are solid or striped / checked in rest-pose coordinates. Lambert shading
-from a fixed light is baked into the vertex colours, so the renderer draws them flat.
+top and the back). Each garment is a texture of its own (``d2slam.synth.textures``: shirts plain, striped or checked
+with folds and prints, trousers with seams, skin with a face, hair), wrapped round the body by a cylindrical map of
+the rest pose (:func:`uv_layout`). Lambert shading from a fixed light is baked into the vertex colours, which the
+renderer multiplies with the textures.
 """
 
 from __future__ import annotations
@@ -68,31 +70,57 @@ def load_anny(rig: str = "default", simplify: float = 1.0):
 
 @dataclass
 class Clothes:
-    """Base colours (RGB floats in [0, 1]) of the five parts and the garment patterns."""
+    """Base colours (RGB floats in [0, 1]) of the five parts, and the sleeves."""
 
-    colours: np.ndarray  # (5, 3)
-    shirt_second: np.ndarray  # (3,) second colour of a patterned shirt
-    shirt_pattern: str  # "plain" | "stripes" | "checks"
-    shirt_period: float  # m
-    trousers_second: np.ndarray
-    trousers_pattern: str  # "plain" | "stripes"
+    colours: np.ndarray  # (5, 3): shirt, trousers, shoes, skin, hair
     long_sleeves: bool
 
 
 def random_clothes(rng: np.random.Generator, cfg: BodyConfig) -> Clothes:
-    """Clothes of one person: colours and patterns drawn from ``cfg``'s palettes."""
+    """Clothes of one person: colours drawn from ``cfg``'s palettes (garments jittered), sleeves."""
     pick = lambda pal: np.asarray(pal[int(rng.integers(len(pal)))], float) / 255.0  # noqa: E731
     shirt, trousers, shoes = pick(cfg.shirt_colours), pick(cfg.trousers_colours), pick(cfg.shoe_colours)
     skin, hair = pick(cfg.skin_colours), pick(cfg.hair_colours)
     jit = lambda c: np.clip(c + rng.uniform(-cfg.colour_jitter, cfg.colour_jitter, 3), 0, 1)  # noqa: E731
-    u = rng.random()
-    pattern = "plain" if u < cfg.shirt_plain_prob else ("stripes" if rng.random() < 0.5 else "checks")
-    second = pick(cfg.shirt_colours)
-    return Clothes(np.stack([jit(shirt), jit(trousers), jit(shoes), skin, hair]), jit(second), pattern,
-                   float(rng.uniform(*cfg.pattern_period_m)),
-                   np.clip(jit(trousers) * cfg.trousers_second_scale, 0, 1),
-                   "stripes" if rng.random() < cfg.trousers_pattern_prob else "plain",
-                   bool(rng.random() < cfg.long_sleeve_prob))
+    return Clothes(np.stack([jit(shirt), jit(trousers), jit(shoes), skin, hair]), bool(rng.random() < cfg.long_sleeve_prob))
+
+
+# Garment textures wrap round the body: u in [0, 1) is one turn; a triangle across the seam behind the body takes
+# u + 1 on its near side, so each texture carries its first SEAM_PAD of a turn again after the turn (u < 1 + pad).
+SEAM_PAD = 0.5
+
+
+@dataclass
+class UVLayout:
+    """The body mesh cut along garment boundaries and the seam, for texturing: render vertex k is rest vertex
+    ``src[k]`` of garment ``part[k]`` at texture coordinates ``uv[k]`` (u: turns round the body, 0.5 in front,
+    up to 1 + SEAM_PAD; v: 0 at the top of the head, 1 at the soles)."""
+
+    src: np.ndarray
+    part: np.ndarray
+    uv: np.ndarray
+    triangles: np.ndarray
+
+
+def uv_layout(rest: np.ndarray, triangles: np.ndarray, part: np.ndarray) -> UVLayout:
+    """Cylindrical texture coordinates about the body's vertical axis (rest pose, the body facing -y); each triangle
+    takes the garment of the majority of its vertices (else of its first), so no triangle spans two textures."""
+    tri = np.asarray(triangles, np.int64)
+    p = part[tri]
+    tpart = np.where((p[:, 0] == p[:, 1]) | (p[:, 0] == p[:, 2]), p[:, 0], np.where(p[:, 1] == p[:, 2], p[:, 1],
+                                                                                     p[:, 0]))
+    c = rest[:, :2].mean(axis=0)
+    u = (np.arctan2(rest[:, 0] - c[0], -(rest[:, 1] - c[1])) + np.pi) / (2 * np.pi)
+    z = rest[:, 2]
+    v = (z.max() - z) / max(z.max() - z.min(), 1e-9)
+    U = u[tri]
+    wrapped = ((U.max(axis=1) - U.min(axis=1)) > 0.5)[:, None] & (U < 0.5)
+    key = (tri * len(PARTS) + tpart[:, None]) * 2 + wrapped
+    keys, inverse = np.unique(key.ravel(), return_inverse=True)
+    src = keys // 2 // len(PARTS)
+    uu = np.minimum(u[src] + keys % 2, 1.0 + SEAM_PAD)
+    return UVLayout(src, (keys // 2) % len(PARTS), np.stack([uu, v[src]], axis=1),
+                    inverse.reshape(-1, 3).astype(np.uint32))
 
 
 class BodyModel:
@@ -116,6 +144,7 @@ class BodyModel:
         rest = self._skin(np.zeros((len(self.names), 3)))
         self.rest = rest
         self.part = self._parts(rest, np.asarray(m.skin_weights))
+        self._layouts: dict[bool, UVLayout] = {}
 
     def _skin(self, rotvecs: np.ndarray) -> np.ndarray:
         """Posed vertices for per-bone local axis-angle rotations (163, 3): the package's forward kinematics, then
@@ -150,24 +179,14 @@ class BodyModel:
             part[cap] = HAIR
         return part
 
-    def colours(self, clothes: Clothes) -> np.ndarray:
-        """(V, 3) float albedo of every vertex for ``clothes`` (patterns in rest-pose coordinates)."""
-        part = self.part.copy()
-        if clothes.long_sleeves:
-            part[self.forearm] = SHIRT
-        col = clothes.colours[part].copy()
-        x, y, z = self.rest.T
-        if clothes.shirt_pattern != "plain":
-            p = clothes.shirt_period
-            s = np.floor(z / p) % 2 == 1
-            if clothes.shirt_pattern == "checks":
-                s ^= np.floor((x + 0.7 * y) / p) % 2 == 1
-            sel = (part == SHIRT) & s
-            col[sel] = clothes.shirt_second
-        if clothes.trousers_pattern == "stripes":
-            sel = (part == TROUSERS) & (np.floor(x / (0.5 * clothes.shirt_period)) % 2 == 1)
-            col[sel] = clothes.trousers_second
-        return col
+    def layout(self, long_sleeves: bool) -> UVLayout:
+        """The textured mesh of this body (forearms in the shirt with long sleeves), built once per variant."""
+        if long_sleeves not in self._layouts:
+            part = self.part.copy()
+            if long_sleeves:
+                part[self.forearm] = SHIRT
+            self._layouts[long_sleeves] = uv_layout(self.rest, self.triangles, part)
+        return self._layouts[long_sleeves]
 
     def pose(self, rotations: dict[str, np.ndarray]) -> np.ndarray:
         """(V, 3) vertices in the body frame for bone rotations {bone name: local axis-angle (3,)}; soles on Z=0."""

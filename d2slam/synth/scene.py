@@ -247,18 +247,34 @@ class Scene:
         the clothes can change without moving anyone."""
         return np.random.default_rng([self.seed, 5, SCENARIOS.index(self.scenario), k])
 
-    def _person_look(self, rng) -> tuple[tuple, bodies.Clothes, float]:
-        """Body shape (six ANNY controls), clothes and gait style factor of one person."""
+    def _person_look(self, rng) -> tuple[tuple, bodies.Clothes, float, np.ndarray]:
+        """Body shape (six ANNY controls), clothes, gait style factor and garment textures of one person."""
         b = self.cfg.body
         shape = tuple(float(v) for v in rng.uniform(b.shape_low, b.shape_high))
-        return shape, bodies.random_clothes(rng, b), float(rng.uniform(*b.gait_jitter))
+        clothes = bodies.random_clothes(rng, b)
+        return shape, clothes, float(rng.uniform(*b.gait_jitter)), self._garments(rng, clothes)
+
+    def _garments(self, rng, clothes: bodies.Clothes) -> np.ndarray:
+        """One texture per garment (shirt, trousers, shoes, skin with the face in front, hair) in its colour: one turn
+        round the body wide (``BodyConfig.turn_m``) plus the seam pad, the body's height tall; indices (5,)."""
+        c, b = self.cfg, self.cfg.body
+        out = []
+        for part, kind in enumerate(("cloth", "trousers", "trousers", "skin", "hair")):
+            tpm = c.body_texels_per_m * b.garment_texels[part]
+            w, h = int(b.turn_m * tpm), int(b.height_m * tpm)
+            face = (0.5 * w, b.eyes_m * tpm, tpm * b.turn_m / (2 * np.pi * b.head_radius_m)) if kind == "skin" else None
+            img = make_texture(rng, kind, w, h, c, tpm, base=tuple(255.0 * clothes.colours[part]), face=face)
+            self.textures.append(np.concatenate([img, img[:, :int(bodies.SEAM_PAD * w)]], axis=1))
+            out.append(len(self.textures) - 1)
+        return np.asarray(out)
 
     def _new_person(self, k: int, role: str, rng, timeline: Timeline) -> Person:
         """Person k (id k + 1): look from its own texture stream, gait stride and seated movements from ``rng``."""
-        shape, clothes, style = self._person_look(self._texture_rng(k))
+        shape, clothes, style, tex = self._person_look(self._texture_rng(k))
         params = {"style": style, "stride": float(rng.uniform(*self.cfg.body.stride_m)),
                   "f": rng.uniform(2.0, 6.0, size=8), "ph": rng.uniform(0, 2 * np.pi, size=8)}
-        return Person(k + PERSON_IDS_START, f"person_{k + 1}", role, shape, clothes, params, self.cfg.body, timeline)
+        return Person(k + PERSON_IDS_START, f"person_{k + 1}", role, shape, clothes, params, self.cfg.body, timeline,
+                      tex)
 
     def _build_actors(self, rng):
         c, a = self.cfg, self.cfg.actors
@@ -318,8 +334,9 @@ class Scene:
         return self._static_set
 
     def dynamic_meshes(self, t: float) -> list[tuple[int, object]]:
-        """(object id, mesh) of every person (``(vertices, triangles, colours)``) and moved object (a ``QuadSet``)
-        at time t (seconds from the first frame); none in the static twin."""
+        """(object id, mesh) of every person (``(vertices, triangles, shading, (uv, texture index) per vertex)``,
+        ``Person.mesh``) and moved object (a ``QuadSet``) at time t (seconds from the first frame); none in the
+        static twin."""
         if self.static_twin:
             return []
         out: list[tuple[int, object]] = [(p.pid, p.mesh(t)) for p in self.people]

@@ -99,10 +99,12 @@ def _grain(img, rng, amount):
 
 
 def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, cfg: SynthConfig | None = None,
-                 texels_per_m: float | None = None) -> np.ndarray:
+                 texels_per_m: float | None = None, base: tuple | None = None, face: tuple | None = None) -> np.ndarray:
     """A ``height x width`` RGB texture of the given kind (see ``KINDS``), drawn with ``rng``. Clothes, skin and
     hair (``cloth``, ``trousers``, ``skin``, ``hair``) follow the people constants of ``cfg`` (pattern sizes in
-    metres, converted with ``texels_per_m``, default ``cfg.body_texels_per_m``)."""
+    metres, converted with ``texels_per_m``, default ``cfg.body_texels_per_m``), in the colour ``base`` (RGB 0-255;
+    drawn when None); ``face``: where a skin texture carries the face, ``(x, y, px_per_m_x)`` (texels; the eyes'
+    centre and the horizontal scale), else at its centre."""
     width, height = max(int(width), 16), max(int(height), 16)
     area = width * height
     img = np.empty((height, width, 3), np.uint8)
@@ -316,7 +318,7 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, c
             if rng.random() < 0.6 else _colour(rng, 20, 70)
         img = _grain(img, rng, 3.0)
     elif kind in _CLOTHES:
-        return _clothes(rng, kind, width, height, cfg or SynthConfig(), texels_per_m)
+        return _clothes(rng, kind, width, height, cfg or SynthConfig(), texels_per_m, base, face)
     elif kind == "chair":
         base = _colour(rng, 10, 90)
         img[:] = base
@@ -340,13 +342,16 @@ def _shifted(base, rng, contrast) -> tuple[int, int, int]:
     return tuple(int(np.clip(c + d + rng.integers(-8, 9), 0, 255)) for c in base)
 
 
-def _clothes(rng, kind, width, height, cfg: SynthConfig, texels_per_m: float | None) -> np.ndarray:
-    """Clothes, skin and hair (see the module docstring); sizes in metres times ``texels_per_m``."""
+def _clothes(rng, kind, width, height, cfg: SynthConfig, texels_per_m: float | None, base=None,
+             face=None) -> np.ndarray:
+    """Clothes, skin and hair (see the module docstring and ``make_texture``); sizes in metres times
+    ``texels_per_m``."""
     tpm = float(texels_per_m or cfg.body_texels_per_m)
     img = np.empty((height, width, 3), np.uint8)
     contrast = cfg.cloth_contrast
+    given = None if base is None else tuple(int(c) for c in base)
     if kind == "cloth":
-        base = _colour(rng, 25, 225)
+        base = given or _colour(rng, 25, 225)
         img[:] = base
         other = _shifted(base, rng, contrast)
         u = rng.random()
@@ -389,7 +394,7 @@ def _clothes(rng, kind, width, height, cfg: SynthConfig, texels_per_m: float | N
             _text(img, rng, 1, (0.3 * size / 20, 0.5 * size / 20), [_shifted(col, rng, cfg.cloth_print_contrast)],
                   (1, 2))
     elif kind == "trousers":
-        base = _colour(rng, 20, 130)
+        base = given or _colour(rng, 20, 130)
         img[:] = base
         seam = _shifted(base, rng, contrast / 2)
         _lines(img, rng, int(rng.integers(2, 6)), [seam], (max(1, int(0.006 * tpm)), max(2, int(0.015 * tpm))))
@@ -400,17 +405,26 @@ def _clothes(rng, kind, width, height, cfg: SynthConfig, texels_per_m: float | N
             x, y = int(rng.uniform(0.1, 0.5) * width), int(rng.uniform(0.05, 0.3) * height)
             cv2.rectangle(img, (x, y), (x + w, y + w), seam, max(1, int(0.004 * tpm)))
     elif kind == "skin":
-        base = (int(rng.integers(120, 235)), int(rng.integers(85, 185)), int(rng.integers(60, 150)))
+        base = given or (int(rng.integers(120, 235)), int(rng.integers(85, 185)), int(rng.integers(60, 150)))
         img[:] = base
         _blobs(img, rng, 2 + width * height // 20000, max(4, min(width, height) // 8), [_jitter(base, rng, 20)])
-        # a face: eyes, mouth (the front face of a head gets the whole texture)
-        cx, cy = width // 2, height // 2
-        for dx in (-width // 5, width // 5):
-            cv2.circle(img, (cx + dx, cy - height // 8), max(2, width // 16), _jitter((60, 45, 40), rng, 15), -1)
-        cv2.line(img, (cx - width // 6, cy + height // 5), (cx + width // 6, cy + height // 5),
-                 _jitter((140, 70, 60), rng, 15), 3)
+        # a face: eyebrows, eyes, nose, mouth (the front face of a box head gets the whole texture)
+        if face is None:
+            cx, cy, sx, sy = width // 2, height // 2 - height // 8, width / 0.16, height / 0.22
+        else:
+            cx, cy, sx, sy = int(face[0]), int(face[1]), float(face[2]), tpm
+        dark, lips = _jitter((60, 45, 40), rng, 15), _jitter((140, 70, 60), rng, 15)
+        for side in (-1, 1):
+            ex = int(cx + side * 0.032 * sx)
+            cv2.ellipse(img, (ex, cy), (max(2, int(0.012 * sx)), max(1, int(0.006 * sy))), 0, 0, 360, dark, -1)
+            cv2.line(img, (int(ex - 0.015 * sx), int(cy - 0.018 * sy)), (int(ex + 0.015 * sx), int(cy - 0.02 * sy)),
+                     dark, max(1, int(0.004 * sy)))
+        cv2.line(img, (cx, int(cy + 0.01 * sy)), (cx, int(cy + 0.04 * sy)), _shifted(base, rng, 40),
+                 max(1, int(0.004 * sx)))
+        cv2.line(img, (int(cx - 0.025 * sx), int(cy + 0.065 * sy)), (int(cx + 0.025 * sx), int(cy + 0.065 * sy)), lips,
+                 max(2, int(0.006 * sy)))
     else:  # hair
-        base = _colour(rng, 10, 110)
+        base = given or _colour(rng, 10, 110)
         img[:] = base
         _lines(img, rng, 8 + width * height // 4000, [_jitter(base, rng, contrast // 2) for _ in range(3)], (1, 2))
     img = _grain(img, rng, 2.0)

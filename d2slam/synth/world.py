@@ -4,7 +4,7 @@ bodies), drawn by ``d2slam.synth.gl.GLRenderer``.
 Quads (``d2slam.synth.render.QuadSet``: parallelograms ``O + a U + b V``) become two triangles each with texture
 coordinates into one texture atlas (every texture of the scene packed in rows, each padded by replicating its
 border so that mipmapped sampling does not bleed between neighbours); each quad's Lambert shade is its vertex
-colour. People are their posed body meshes with baked vertex colours.
+colour. People are their posed body meshes, their garments' textures in the atlas too, with baked shading.
 """
 
 from __future__ import annotations
@@ -43,6 +43,15 @@ def build_atlas(textures: list[np.ndarray], width: int = ATLAS_WIDTH, pad: int =
     return atlas, rects
 
 
+def atlas_uv(uv: np.ndarray, tex: np.ndarray, rects: np.ndarray) -> np.ndarray:
+    """Atlas texture coordinates of points at ``uv`` in [0, 1]^2 (u along a texture's columns, v down its rows) of
+    textures ``tex`` (pyrender uploads the atlas's first row at v = 1)."""
+    r = rects[tex]
+    u = r[:, 0] + uv[:, 0] * (r[:, 2] - r[:, 0])
+    v = r[:, 1] + uv[:, 1] * (r[:, 3] - r[:, 1])
+    return np.stack([u, 1.0 - v], axis=1)
+
+
 def quad_mesh(q: QuadSet, rects: np.ndarray):
     """Positions (4N, 3), triangles (2N, 3), colours (4N, 3) (the quads' shades) and texture coordinates (4N, 2)
     of N quads; texture columns run along U, rows along V (pyrender uploads the atlas's first row at v = 1); the
@@ -51,10 +60,8 @@ def quad_mesh(q: QuadSet, rects: np.ndarray):
     P = np.stack([q.O, q.O + q.U, q.O + q.U + q.V, q.O + q.V], axis=1).reshape(-1, 3)
     base = 4 * np.arange(n)[:, None]
     tri = np.concatenate([base + [0, 2, 1], base + [0, 3, 2]], axis=1).reshape(-1, 3)  # front face: V x U
-    r = rects[q.tex]
-    u = np.stack([r[:, 0], r[:, 2], r[:, 2], r[:, 0]], axis=1)
-    v = np.stack([r[:, 1], r[:, 1], r[:, 3], r[:, 3]], axis=1)
-    uv = np.stack([u, 1.0 - v], axis=2).reshape(-1, 2)
+    corners = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), (n, 1))
+    uv = atlas_uv(corners, np.repeat(q.tex, 4), rects)
     col = np.repeat(q.shade, 4)[:, None].repeat(3, axis=1)
     return P, tri, col, uv
 
@@ -75,8 +82,9 @@ class WorldRenderer:
         for oid, item in self.scene.dynamic_meshes(t):
             if isinstance(item, QuadSet):
                 meshes.append((oid, *quad_mesh(item, self.rects)))
-            else:
-                meshes.append((oid, *item, None))
+            else:  # a person: vertices, triangles, shading, (uv, texture index) per vertex
+                V, tri, shading, (uv, tex) = item
+                meshes.append((oid, V, tri, shading, atlas_uv(uv, tex, self.rects)))
         self.gl.set_dynamic(meshes)
         return self.gl.render(T_world_camera)
 
