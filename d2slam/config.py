@@ -469,28 +469,34 @@ class ActorsConfig:
     squeeze_m: float = 0.3  # routes from within chair_radius + squeeze_m of a chair may pass it when nothing else does
     person_gap: float = 0.65
     object_gap: float = 0.55
-    # Route detours tried sideways at mid-route (m), targets drawn per action, wait after a failed one (s), and the
-    # time step of the checks between people (s).
+    # ... a person whose last relax_after actions all failed (boxed in) keeps relax_gap of these gaps
+    relax_after: int = 3
+    relax_gap: float = 0.65
+    # Routes: straight, else via a detour sideways at mid-route (m), else along a lane across the room; targets drawn
+    # per action, wait after a failed one (s), and the time step of the checks between people (s).
     detours: tuple[float, ...] = (0.6, 1.0, 1.5)
+    lanes: tuple[float, ...] = (0.7, 1.3, 1.9)  # ... else across the room along one of these y
     tries: int = 20
     retry_wait_s: float = 0.5
     check_dt: float = 0.1
     # Carrying and pushing: the object's pose in the holder's root frame (box in the arms; chair in front, its
     # back to the pusher), the last straight approach behind it, the time to take it or leave it, the least
-    # distance it is moved (to the other side of the view, at least move_side of the way to its edge), the largest
+    # distance it is moved (to the other side of the view, at least move_side of the way to its edge, y in move_y:
+    # where the holder goes), the largest
     # turn between the chair's heading and the push, the step away after.
     box_offset: tuple[float, float, float] = (0.0, 0.42, 1.17)
     push_offset: tuple[float, float, float] = (0.0, 0.72, 0.0)
     take_approach_m: float = 0.5
     take_s: float = 0.9
-    move_min_m: float = 1.2
+    move_min_m: float = 1.0
     move_side: float = 0.3
+    move_y: tuple[float, float] = (0.9, 2.3)
     push_max_turn: float = 2.0
     leave_m: float = 0.6
     # Interaction scenarios: where the box / chair starts (x within object_x of the camera's axis, either side;
-    # y in object_y); the chair faces across the view (towards the axis) within object_turn rad.
+    # y in object_y), facing away from the camera within object_turn rad (taken from the camera's side).
     object_x: tuple[float, float] = (0.3, 0.9)
-    object_y: tuple[float, float] = (1.2, 2.0)
+    object_y: tuple[float, float] = (1.6, 2.2)
     object_turn: float = 0.5
 
 

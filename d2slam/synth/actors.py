@@ -112,22 +112,25 @@ class Leg:
 
 
 class Route:
-    """A polyline in the floor plane, corners rounded (Chaikin), parametrised by arc length."""
+    """A polyline in the floor plane with rounded corners (resampled every ``step`` m and smoothed by a Gaussian of
+    ``smooth`` m, the ends kept in place), parametrised by arc length."""
 
-    def __init__(self, points: np.ndarray, rounds: int = 3, step: float = 0.02):
+    def __init__(self, points: np.ndarray, smooth: float = 0.4, step: float = 0.02):
         P = np.asarray(points, float)
-        for _ in range(rounds if len(P) > 2 else 0):
-            Q = 0.75 * P[:-1] + 0.25 * P[1:]
-            R = 0.25 * P[:-1] + 0.75 * P[1:]
-            mid = np.stack([Q, R], axis=1).reshape(-1, 2)
-            P = np.concatenate([P[:1], mid[1:-1], P[-1:]])
         seg = np.linalg.norm(np.diff(P, axis=0), axis=1)
         arc = np.concatenate([[0.0], np.cumsum(seg)])
         n = max(int(np.ceil(arc[-1] / step)), 1)
         s = np.linspace(0.0, arc[-1], n + 1)
-        self.xy = np.stack([np.interp(s, arc, P[:, 0]), np.interp(s, arc, P[:, 1])], axis=1)
-        self.arc = s
-        self.length = float(arc[-1])
+        xy = np.stack([np.interp(s, arc, P[:, 0]), np.interp(s, arc, P[:, 1])], axis=1)
+        if len(P) > 2 and smooth > 0:
+            from scipy.ndimage import gaussian_filter1d
+
+            sm = gaussian_filter1d(xy, smooth / step, axis=0, mode="nearest")
+            w = (s / s[-1])[:, None]
+            xy = sm + (1.0 - w) * (P[0] - sm[0]) + w * (P[-1] - sm[-1])
+            seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+            s = np.concatenate([[0.0], np.cumsum(seg)])
+        self.xy, self.arc, self.length = xy, s, float(s[-1])
         d = np.gradient(self.xy, axis=0) if len(self.xy) > 1 else np.array([[1.0, 0.0]])
         self.heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
 
@@ -387,11 +390,14 @@ class Planner:
     sequence plus a margin); ``chairs``: the desk chairs people may sit on; ``objects``: held objects (obstacles
     for everybody, moved by their carrier or pusher)."""
 
-    def __init__(self, rng: np.random.Generator, cfg: ActorsConfig, plan: FloorPlan, duration: float,
+    def __init__(self, rng: np.random.Generator, cfg: ActorsConfig, floor: FloorPlan, duration: float,
                  chairs: list[Chair], objects: list[HeldObject] = ()):
-        self.rng, self.cfg, self.plan, self.duration = rng, cfg, plan, float(duration)
+        self.rng, self.cfg, self.floor, self.duration = rng, cfg, floor, float(duration)
         self.chairs, self.objects = list(chairs), list(objects)
-        self.people: list[Person] = []  # planned so far (others avoid them)
+        self.people: list[Person] = []  # being planned (each avoids what the others will do)
+        self._current: Person | None = None  # whose action is being planned
+        self._relax = 1.0  # factor on the gaps: below 1 for a person boxed in for a while (see plan)
+        self._objects_block = True
         self._times = np.arange(0.0, self.duration + cfg.check_dt, cfg.check_dt)
 
     # ---- sampling ----
@@ -406,7 +412,7 @@ class Planner:
 
     # ---- collision tests ----
     def _static_free(self, P: np.ndarray, ignore=()) -> bool:
-        if not self.plan.free(P):
+        if not self.floor.free(P):
             return False
         c = self.cfg
         for ch in self.chairs:
@@ -430,7 +436,7 @@ class Planner:
         for skip in (tuple(ignore) + tuple(ch for ch in near if np.linalg.norm(a - ch.xy) < self.cfg.chair_radius),
                      tuple(ignore) + near):
             def ok(pts):
-                return self._static_free(Route(pts, rounds=0).xy[1:], skip)
+                return self._static_free(Route(pts, smooth=0.0).xy[1:], skip)
 
             if ok(np.stack([a, b])):
                 return np.stack([a, b])
@@ -439,29 +445,42 @@ class Planner:
                     pts = np.stack([a, a + 0.5 * d + sign * k * n, b])
                     if ok(pts):
                         return pts
+            for y in sorted(self.cfg.lanes, key=lambda y: abs(y - 0.5 * (a[1] + b[1]))):  # across the room
+                pts = np.array([a, [a[0], y], [b[0], y], b])
+                if ok(pts):
+                    return pts
         return None
 
-    def _clear_of_people(self, legs: list[Leg], holding: HeldObject | None = None) -> bool:
-        """The candidate legs keep ``person_gap`` from everybody planned and ``object_gap`` from held objects (a
-        person who starts closer than that only has to get no closer)."""
+    def _clear_of_people(self, legs: list[Leg], holding: HeldObject | None = None, strict: bool = False) -> bool:
+        """The candidate legs keep ``person_gap`` from everybody else and ``object_gap`` from held objects (a person
+        who starts closer than that only has to get no closer)."""
         if not legs:
             return True
-        t0, t1 = legs[0].t0, min(legs[-1].t1, self.duration)
-        times = self._times[(self._times >= t0) & (self._times <= t1)]
+        # until the others' plans end: after its legs, the person stands where they end until its next action
+        t1 = max([legs[-1].t1] + [o.timeline.t_end for o in self.people if o is not self._current and o.timeline.legs])
+        times = self._times[(self._times >= legs[0].t0) & (self._times <= min(t1, self.duration))]
         if len(times) == 0:
             return True
         tl = Timeline(self.cfg)
         for leg in legs:
             tl.add(leg)
         P = tl.positions(times)
-        others = [(other.timeline.positions(times), self.cfg.person_gap) for other in self.people]
-        others += [(np.array([o.xy(float(t)) for t in times]), self.cfg.object_gap) for o in self.objects
-                   if o is not holding]
-        for Q, gap in others:
-            d = np.linalg.norm(P - Q, axis=1)
-            if np.min(d) < min(gap, d[0] - 1e-3):
+        for other in self.people:  # where their plans take them, standing there after their plans end so far
+            if other is not self._current and other.timeline.legs and not self._apart(
+                    P, other.timeline.positions(times), self.cfg.person_gap * self._relax, strict):
+                return False
+        for o in self.objects if self._objects_block else ():
+            if o is not holding and not self._apart(P, np.array([o.xy(float(t)) for t in times]),
+                                                    self.cfg.object_gap * self._relax, strict):
                 return False
         return True
+
+    @staticmethod
+    def _apart(P: np.ndarray, Q: np.ndarray, gap: float, strict: bool = False) -> bool:
+        """At least ``gap`` apart throughout, or, starting closer (unless ``strict``), never closer than at the
+        start."""
+        d = np.linalg.norm(P - Q, axis=1)
+        return bool(np.min(d) >= (gap if strict else min(gap, d[0] - 1e-3)))
 
     # ---- legs ----
     def _turn(self, s: ActorState, t: float, heading: float, hold=None, w=0.0) -> Leg | None:
@@ -503,9 +522,23 @@ class Planner:
         return True
 
     def _wait(self, tl: Timeline, seconds: float, hold=None) -> None:
+        """Stand still; a person who would be in somebody's way walks somewhere free instead, or steps away from
+        the nearest person."""
         s = tl.end_state()
         w = 1.0 if hold else 0.0
-        tl.add(self._stand(s, tl.t_end, seconds, hold, (w, w)))
+        leg = self._stand(s, tl.t_end, seconds, hold, (w, w))
+        if hold is None and not self._clear_of_people([leg]):
+            if self._try_walk(tl, self.in_view_point) or self._try_walk(tl, self._step_away(s, tl.t_end)):
+                return
+        tl.add(leg)
+
+    def _step_away(self, s: ActorState, t: float):
+        """Targets a step (0.5-1.2 m) away from the nearest other person, in a direction within 60 degrees of
+        straight away."""
+        others = [o.timeline.state(t).xy for o in self.people if o is not self._current and o.timeline.legs]
+        away = s.xy - min(others, key=lambda q: np.linalg.norm(q - s.xy)) if others else unit(s.heading)
+        h = float(np.arctan2(away[1], away[0]))
+        return lambda: s.xy + self.rng.uniform(0.5, 1.2) * unit(h + self.rng.uniform(-1.0, 1.0))
 
     def _sit_legs(self, s: ActorState, t: float, chair: Chair):
         """Walk beside the chair, step in front of it, turn to its heading, sit down, sit, get up. Returns the legs,
@@ -601,14 +634,16 @@ class Planner:
                 return True
         return False
 
-    def _start(self, tl: Timeline) -> None:
-        """The first leg: standing at a free point in view or at an exit (drawn)."""
+    def _start(self, tl: Timeline, side: float = 0.0) -> None:
+        """The first leg: standing at a free point in view or at an exit (drawn; ``side`` +-1: on that side of the
+        camera's axis)."""
         c = self.cfg
-        for _ in range(c.tries):
+        for k in range(2 * c.tries):
             xy = self.exit_point() if self.rng.random() < c.p_start_exit else self.in_view_point()
+            xy[0] = side * abs(xy[0]) if side and k < c.tries else xy[0]  # on that side if there is room
             s = ActorState(np.asarray(xy, float), float(self.rng.uniform(-np.pi, np.pi)), 0.0, 0.0, 0.0, None, 0.0)
             leg = self._stand(s, -c.check_dt, c.check_dt)
-            if self._static_free(s.xy[None]) and self._clear_of_people([leg]):
+            if self._static_free(s.xy[None]) and self._clear_of_people([leg], strict=True):
                 tl.add(leg)
                 return
         raise RuntimeError("no free starting point for a person")  # the floor plan leaves room: a bug
@@ -616,11 +651,35 @@ class Planner:
     def _in_view(self, xy: np.ndarray) -> bool:
         return abs(xy[0]) <= self.cfg.view_slope * xy[1] + self.cfg.view_margin_m
 
-    def walker(self, person: Person) -> None:
-        """Plan ``person.timeline`` as one of the fr3 walking people (see the module docstring)."""
+    def plan(self, people: list[Person], moves: dict[int, HeldObject] | None = None) -> None:
+        """Plan every person's timeline: ``moves[pid]`` is the object that person carries or pushes (a mover), the
+        others are fr3 walkers. The plans grow one action at a time, always for the person whose plan ends first, so
+        that every action keeps clear of what the others are known to do by then."""
+        moves = moves or {}
+        steps = {}
+        for p in people:
+            self.people.append(p)
+            steps[p.pid] = self._mover(p, moves[p.pid]) if p.pid in moves else self._walker(p)
+        active, stuck = list(people), dict.fromkeys(steps, 0)
+        while active:
+            p = min(active, key=lambda q: (q.timeline.t_end if q.timeline.legs else -np.inf, q.pid))
+            self._current = p
+            # a person whose last actions all failed squeezes past the others (bodies close, not overlapping), and
+            # after twice as many past objects in the way too (pushing them aside a little)
+            self._relax = self.cfg.relax_gap if stuck[p.pid] >= self.cfg.relax_after else 1.0
+            self._objects_block = stuck[p.pid] < 2 * self.cfg.relax_after
+            done = next(steps[p.pid], None)
+            if done is None:
+                active.remove(p)
+            stuck[p.pid] = 0 if done else stuck[p.pid] + 1
+        self._current, self._relax, self._objects_block = None, 1.0, True
+
+    def _walker(self, person: Person):
+        """The actions of one of the fr3 walking people (see the module docstring), one per step."""
         c, rng, tl = self.cfg, self.rng, person.timeline
         if not (rng.random() < c.p_start_seated and self._start_seated(tl, person.pid)):
             self._start(tl)
+        yield True
         while tl.t_end < self.duration:
             u = rng.random()
             if not self._in_view(tl.end_state().xy):
@@ -637,33 +696,37 @@ class Planner:
                 done = self._try_walk(tl, self.in_view_point)
             if not done:
                 self._wait(tl, c.retry_wait_s)
-        self.people.append(person)
+            yield done
 
-    def mover(self, person: Person, obj: HeldObject) -> None:
-        """Plan ``person.timeline`` as the carrier of a box or the pusher of a chair (``obj.kind``): walk to it,
-        take it, move it at least ``move_min_m`` to a point in view, leave it, walk away or wait, and again."""
+    def _mover(self, person: Person, obj: HeldObject):
+        """The actions of the carrier of a box or the pusher of a chair (``obj.kind``): walk to it, take it, move it
+        across the view, leave it, walk away or wait, and again; one per step."""
         c, rng, tl = self.cfg, self.rng, person.timeline
         hold = "box" if obj.kind == "box" else "push"
-        self._start(tl)
+        obj.moved_by.append(person.pid)
+        T = obj.pose(0.0)  # start on the side from which the object is taken
+        self._start(tl, side=float(np.sign(T[0, 3] - T[0, 1]) or 1.0))
+        yield True
         while tl.t_end < self.duration:
             if not self._take(tl, person, obj, hold):
                 self._wait(tl, c.retry_wait_s)
+                yield False
                 continue
+            yield True
             for _ in range(c.tries):
                 if self._move(tl, obj, hold):
                     break
                 self._wait(tl, c.retry_wait_s, hold)
+                yield False
+            yield True
             self._leave(tl, obj, hold)
-            if tl.t_end >= self.duration:
-                break
+            yield True
             if rng.random() < c.p_exit:
                 if self._try_walk(tl, self.exit_point):
                     self._wait(tl, rng.uniform(*c.away_s))
             elif rng.random() < c.p_stand:
                 self._wait(tl, rng.uniform(*c.stand_s))
-        if person.pid not in obj.moved_by:
-            obj.moved_by.append(person.pid)
-        self.people.append(person)
+            yield True
 
     def _take(self, tl: Timeline, person: Person, obj: HeldObject, hold: str) -> bool:
         """Walk to the object's back (along its facing direction), face it, take it: a new ``Hold`` opens."""
@@ -672,13 +735,11 @@ class Planner:
         T = obj.pose(t)
         h = float(np.arctan2(T[1, 1], T[0, 1]))  # the object's +y axis: the holder's forward
         stand_at = T[:2, 3] - float(obj.offset[1, 3]) * unit(h)
-        legs = self._walk(tl.end_state(), t, stand_at - c.take_approach_m * unit(h))
+        legs = self._walk(tl.end_state(), t, stand_at - c.take_approach_m * unit(h))  # the last step straight at it
+        step = self._walk(legs[-1].end(c), legs[-1].t1, stand_at) if legs is not None else None
+        legs = legs + step if step is not None else self._walk(tl.end_state(), t, stand_at)
         if legs is None:
             return False
-        step = self._walk(legs[-1].end(c), legs[-1].t1, stand_at)
-        if step is None:
-            return False
-        legs += step
         turn = self._turn(legs[-1].end(c), legs[-1].t1, h)
         legs += [turn] if turn is not None else []
         if not self._go(tl, legs, obj):
@@ -695,7 +756,7 @@ class Planner:
         s = tl.end_state()
         side = -1.0 if s.xy[0] > 0 else 1.0
         for _ in range(c.tries):
-            y = self.rng.uniform(*c.view_y)
+            y = self.rng.uniform(*c.move_y)
             target = np.array([side * self.rng.uniform(c.move_side, 1.0) * c.view_slope * y, y])
             d = target - s.xy
             if np.linalg.norm(d) < c.move_min_m:

@@ -299,31 +299,25 @@ class Scene:
             tex = self._tex(self._texture_rng(10 + j), "seat", 0.5, 0.5, c.body_texels_per_m)
             chairs.append(Chair(oid, f"desk_chair_{j + 1}", xy, float(h), tex))
         held = []
-        if self.scenario in INTERACTION_SCENARIOS:
-            box = self.scenario == "walking_carry"
+        if self.scenario in INTERACTION_SCENARIOS:  # the box / chair on one side of the view, taken from the camera's side
             side = rng.choice([-1.0, 1.0])
             xy = np.array([side * rng.uniform(*a.object_x), rng.uniform(*a.object_y)])
+            h = np.pi / 2 + rng.uniform(-a.object_turn, a.object_turn)
             trng = self._texture_rng(0)
-            if box:
+            if self.scenario == "walking_carry":
                 tex = self._tex(trng, "box", 0.45, 0.32, c.body_texels_per_m)
-                held.append(HeldObject(MOVED_BOX_ID, "carried_box", "box", tex, yaw_pose(xy, np.pi / 2, BOX_HALF[2]),
+                held.append(HeldObject(MOVED_BOX_ID, "carried_box", "box", tex, yaw_pose(xy, h, BOX_HALF[2]),
                                        tf(t=a.box_offset), float(BOX_HALF[2])))
             else:
                 tex = self._tex(trng, "seat", 0.5, 0.5, c.body_texels_per_m)
-                h = (np.pi if side > 0 else 0.0) + rng.uniform(-a.object_turn, a.object_turn)
                 held.append(HeldObject(MOVED_CHAIR_ID, "pushed_chair", "chair", tex, yaw_pose(xy, h),
                                        tf(t=a.push_offset), 0.0))
         floor = FloorPlan((-ROOM_X, ROOM_X, ROOM_Y[0], ROOM_Y[1]), self.floor_rects, a.floor_clearance)
-        planner = Planner(rng, a, floor, self.duration + 1.0, chairs, held)
-        for k in range(2):
-            mover = held and k == 0
-            person = self._new_person(k, ("carry" if held[0].kind == "box" else "push") if mover else "walk", rng,
-                                      Timeline(a))
-            if mover:
-                planner.mover(person, held[0])
-            else:
-                planner.walker(person)
-            self.people.append(person)
+        for k in range(2):  # with an object to move, the first person moves it
+            role = ("carry" if held[0].kind == "box" else "push") if held and k == 0 else "walk"
+            self.people.append(self._new_person(k, role, rng, Timeline(a)))
+        Planner(rng, a, floor, self.duration + 1.0, chairs, held).plan(
+            self.people, {self.people[0].pid: held[0]} if held else None)
         self.objects = chairs + held
 
     # ---- per-frame ----
