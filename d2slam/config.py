@@ -443,7 +443,7 @@ class ActorsConfig:
     p_stand: float = 0.15
     stand_s: tuple[float, float] = (0.5, 2.0)
     p_start_seated: float = 0.2
-    p_start_exit: float = 0.2
+    p_start_exit: float = 0.1
     # Desk chairs (two, at the desks): centres x = +-desk_chair_x + jitter, y = desk_chair_y + jitter, facing the
     # desk (+y) turned by up to desk_chair_turn rad.
     desk_chair_x: float = 1.0

@@ -14,7 +14,7 @@ from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
 from d2slam.synth import SCENARIOS, Scene, generate
 from d2slam.synth.world import WorldRenderer
-from d2slam.synth.scene import MOVED_BOX_ID, MOVED_CHAIR_ID
+from d2slam.synth.scene import DESK_CHAIR_IDS
 
 FRAMES = 16
 
@@ -116,13 +116,16 @@ def test_scene_json(seqs):
     assert scene["frames"] == FRAMES and scene["static_twin"] is False
     assert scene["camera"] == {"fx": 535.4, "fy": 539.2, "cx": 320.1, "cy": 247.6, "width": 640, "height": 480,
                                "depth_factor": 5000.0}
-    assert scene["person_ids"] == [1, 2, 3] and sorted(scene["moved_object_ids"]) == [MOVED_BOX_ID, MOVED_CHAIR_ID]
+    # two people and the two desk chairs (moved when somebody sits down or gets up during the sequence)
+    assert scene["person_ids"] == [1, 2] and set(scene["moved_object_ids"]) <= set(DESK_CHAIR_IDS)
     kinds = {o["id"]: o for o in scene["objects"]}
-    for oid in scene["moved_object_ids"]:
+    assert {oid for oid, o in kinds.items() if o["kind"] == "object"} == set(DESK_CHAIR_IDS)
+    assert [kinds[p]["role"] for p in scene["person_ids"]] == ["walk", "walk"]
+    for oid in DESK_CHAIR_IDS:
         o = kinds[oid]
-        assert o["kind"] == "object" and o["moved"] and len(o["moving_intervals"]) == 1
-        a, b = o["moving_intervals"][0]
-        assert scene["generator"]["start_time"] <= a < b
+        assert o["object"] == "chair" and o["moved"] == bool(o["moving_intervals"]) and isinstance(o["moved_by"], list)
+        for a, b in o["moving_intervals"]:
+            assert scene["generator"]["start_time"] <= a < b
     assert scene["generator"]["depth_rendered_at"] == "rgb_timestamp"
     assert scene["generator"]["config"]["depth_noise_b"] == 0.0019
 
@@ -158,19 +161,14 @@ def _centroid(mask):
 @pytest.mark.parametrize("scenario", [s for s in SCENARIOS if s.startswith("walking")])
 def test_walking_people_move_and_cover_much_of_the_image(scenario):
     scene = Scene(scenario, 0, 300)
-    times = np.arange(0.0, 3.01, 0.5)
+    times = np.arange(0.0, 9.01, 0.5)
     ids = _render_ids(scene, times)
-    # people walk: each root moves > 0.4 m per second on average
-    for p in scene.people:
-        d = np.linalg.norm(p.root(3.0)[:2, 3] - p.root(0.0)[:2, 3])
-        path = sum(np.linalg.norm(p.root(t + 0.1)[:2, 3] - p.root(t)[:2, 3]) for t in np.arange(0, 3, 0.1))
-        assert path > 1.2 and d > 0.2
-    # and their masks change a lot between frames 0.5 s apart
     person = [np.isin(m, scene.person_ids) for m in ids]
+    coverage = np.array([m.mean() for m in person])
+    assert coverage.max() >= 0.2 and np.mean(coverage > 0.02) > 0.6  # in view most of the time, near at times
+    # their masks change between frames 0.5 s apart (someone is walking most of the time)
     changes = [(a ^ b).sum() / max((a | b).sum(), 1) for a, b in zip(person[:-1], person[1:])]
-    assert np.median(changes) > 0.3
-    coverage = [m.mean() for m in person]
-    assert max(coverage) >= 0.2
+    assert np.median(changes) > 0.1
 
 
 def test_sitting_people_move_a_little():
@@ -189,36 +187,24 @@ def test_sitting_people_move_a_little():
         assert 0.005 < moves.max() < 0.5
 
 
-def test_moved_objects_move_only_during_their_interval():
-    scene = Scene("walking_xyz", 0, 300)  # 10 s
-    assert {o.oid for o in scene.objects} == {MOVED_BOX_ID, MOVED_CHAIR_ID}
-    for obj in scene.objects:
-        a, b = obj.interval
-        before = [obj.pose(t)[:3, 3] for t in (0.0, a * 0.5, a)]
-        after = [obj.pose(t)[:3, 3] for t in (b, (b + 10) / 2, 10.0)]
-        np.testing.assert_allclose(before[0], before[2])
-        np.testing.assert_allclose(after[0], after[2])
-        during = np.array([obj.pose(t)[:3, 3] for t in np.linspace(a, b, 30)])
-        travelled = np.linalg.norm(np.diff(during, axis=0), axis=1).sum()
-        assert travelled > 1.0  # carried / pushed a long way
-        assert not obj.moving(a - 0.01) and obj.moving((a + b) / 2)
-        # it follows its carrier: distance to the carrier's root stays under a metre while moving
-        for t in np.linspace(a, b, 10):
-            assert np.linalg.norm(obj.pose(t)[:2, 3] - obj.carrier.root(t)[:2, 3]) < 1.0
-    # and it is seen moving in the images
-    box = next(o for o in scene.objects if o.kind == "box")
-    a, b = box.interval
-    times = np.linspace(a + 0.5, b - 0.5, 6)
-    seen = [_centroid(m == MOVED_BOX_ID) for m in _render_ids(scene, times)]
+@pytest.mark.parametrize("scenario", ["walking_carry", "walking_push"])
+def test_the_moved_object_is_seen_moving(scenario):
+    from d2slam.synth.actors import HeldObject
+
+    scene = Scene(scenario, 0, 300)  # 10 s
+    obj = next(o for o in scene.objects if isinstance(o, HeldObject))
+    a, b = obj.intervals[0]
+    times = np.linspace(a, b, 8)
+    seen = [_centroid(m == obj.oid) for m in _render_ids(scene, times)]
     seen = [c for c in seen if c is not None]
-    assert len(seen) >= 2
-    assert max(np.linalg.norm(c - seen[0]) for c in seen) > 30
+    assert len(seen) >= 4
+    assert max(np.linalg.norm(c - seen[0]) for c in seen) > 30  # pixels
 
 
 def test_masks_consistent_with_rendered_people(seqs):
     root = seqs["a"]["out"]
     scene = json.loads((root / "scene.json").read_text())
-    pids, oids = scene["person_ids"], scene["moved_object_ids"]
+    pids, oids = scene["person_ids"], [o["id"] for o in scene["objects"] if o["kind"] == "object"]
     ious, moved_labelled, moved_total = [], 0, 0
     for t, name in _read_list(root / "rgb.txt"):
         gt = cv2.imread(str(root / "mask_gt" / f"{t}.png"), cv2.IMREAD_UNCHANGED)
@@ -240,7 +226,7 @@ def test_masks_consistent_with_rendered_people(seqs):
 
 def test_walking_frames_show_people(seqs):
     frac = np.array([s["person_fraction"] for s in seqs["a"]["stats"]])
-    assert frac.max() >= 0.12  # half a second of walking_xyz seed 0
+    assert frac.max() >= 0.05  # half a second of walking_xyz seed 0
     assert (frac > 0).all()
 
 

@@ -45,15 +45,29 @@ def test_gait_swings_the_legs_forward_and_back(body):
     assert ys[0] < ys[1] - 0.3
 
 
-def test_clothes_colours_follow_parts(body):
-    cl = bodies.random_clothes(np.random.default_rng(3), CFG)
-    col = body.colours(cl)
-    assert col.shape == (len(body.rest), 3) and col.min() >= 0 and col.max() <= 1
-    assert np.allclose(col[body.part == bodies.SHOES], cl.colours[bodies.SHOES])
+def test_garment_texture_layout(body):
+    """Every triangle lies in one garment's texture and does not straddle the seam behind the body; coordinates stay
+    in the texture (u up to 1 + the seam pad); shoes at the bottom, hair at the top; the face side in front."""
+    for long_sleeves in (False, True):
+        lay = body.layout(long_sleeves)
+        tri = lay.triangles.astype(int)
+        assert tri.max() < len(lay.src) and (lay.src < len(body.rest)).all()
+        assert (lay.part[tri] == lay.part[tri[:, :1]]).all()
+        u, v = lay.uv[:, 0], lay.uv[:, 1]
+        assert u.min() >= 0 and u.max() <= 1 + bodies.SEAM_PAD and v.min() >= 0 and v.max() <= 1
+        span = u[tri].max(axis=1) - u[tri].min(axis=1)
+        assert np.mean(span < 0.25) > 0.995  # only triangles round the axis (top of the head) span much of a turn
+        assert v[lay.part == bodies.SHOES].mean() > 0.9 and v[lay.part == bodies.HAIR].mean() < 0.1
+        c = body.rest[:, :2].mean(axis=0)  # the body faces -y: its front middle line at u = 0.5
+        front = (np.abs(body.rest[lay.src, 0] - c[0]) < 0.02) & (body.rest[lay.src, 1] < c[1] - 0.05)
+        assert front.sum() > 20 and np.abs(u[front] - 0.5).max() < 0.05
+    assert (body.layout(True).part == bodies.SHIRT).sum() > (body.layout(False).part == bodies.SHIRT).sum()
     n = bodies.vertex_normals(body.rest, body.triangles, body.incidence)
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
-    s = bodies.shade(col, n, np.array([0.0, 0.0, 1.0]), 0.5)
-    assert (s <= col + 1e-12).all()
+    s = bodies.shade(np.ones_like(n), n, np.array([0.0, 0.0, 1.0]), 0.5)
+    assert (s <= 1 + 1e-12).all() and (s >= 0.5 - 1e-12).all()
+    cl = bodies.random_clothes(np.random.default_rng(3), CFG)
+    assert cl.colours.shape == (5, 3) and cl.colours.min() >= 0 and cl.colours.max() <= 1
 
 
 def _plane_renderer(width=64, height=48):

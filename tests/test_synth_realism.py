@@ -62,16 +62,15 @@ def test_real_stats_with_a_given_segmenter_and_bad_image(tmp_path, ext):
 # ---------------------------------------------------------------------------------------------- calibration
 @pytest.mark.parametrize("scenario", ["walking_xyz", "walking_static"])
 def test_walking_people_cover_and_feature_like_real_ones(scenario, ext):
-    """Ten frames spread over a 300-frame walking sequence (seed 0, a development seed): people cover a sixth to a
-    quarter of the image on average (real fr3 walking: 0.10-0.42, mean 0.24), at times much more, and carry
-    fewer ORB keypoints than their area (real: ratio 0.1-1.0, mean 0.44; the former busy clothes gave 1.0-1.4) but
-    clearly not none."""
+    """Ten frames spread over a 300-frame walking sequence (seed 0, a development seed): people cover a tenth to a
+    third of the image on average (real fr3 walking: 0.10-0.42, mean 0.24), at times much more, and carry
+    fewer ORB keypoints than their area (real: ratio 0.1-1.0, mean 0.44) but clearly not none."""
     s = realism.synthetic_stats(scenario, 0, 300, 30, ext=ext)
     assert len(s.area) == 10 and (s.n_kp > 900).all()
-    assert 0.12 <= s.area.mean() <= 0.34
+    assert 0.1 <= s.area.mean() <= 0.34
     assert 0.2 <= s.area.max() <= 0.6
-    # the room: textured share and FAST corners of the order of the real frames' (0.48-0.62, 1480-3300)
-    assert 0.25 <= s.textured.mean() <= 0.7 and 1000 <= s.corners.mean() <= 4000
+    # the room: textured share and FAST corners near the real frames' (0.48-0.62, 1480-3300)
+    assert 0.38 <= s.textured.mean() <= 0.7 and 1300 <= s.corners.mean() <= 4000
     assert (s.dyn_area >= s.area).all()
     r = s.ratio
     assert len(r) >= 8
