@@ -133,9 +133,16 @@ def test_routes_and_speed_profiles():
 
 
 def test_tum_durations():
-    assert tum_frames("walking_xyz") == round(TUM_DURATIONS["walking_xyz"] * 30)
-    assert all(700 <= tum_frames(s) <= 1100 for s in TUM_DURATIONS)
     from d2slam.errors import D2SlamError
+    from d2slam.study.grid import expand_grid
+    from d2slam.synth.scene import frames_arg, resolve_frames
 
-    with pytest.raises(D2SlamError, match="not a TUM fr3 sequence"):
-        tum_frames("walking_carry")
+    assert tum_frames("walking_xyz") == round(TUM_DURATIONS["walking_xyz"] * 30) == 865
+    assert all(700 <= tum_frames(s) <= 1100 for s in TUM_DURATIONS)
+    assert frames_arg("tum") == "tum" and frames_arg("120") == 120 and resolve_frames("sitting_static", "tum") == 709
+    with pytest.raises(D2SlamError, match="unknown scenario"):
+        tum_frames("walking_sideways")
+    specs = expand_grid(["walking_static", "walking_carry"], ["none"], [0], "tum", ())
+    assert [s.frames for s in specs] == [745, 900]
+    with pytest.raises(D2SlamError, match="not a TUM sequence"):
+        expand_grid(["walking_carry"], ["none"], [0], "tum", (), source="tum")

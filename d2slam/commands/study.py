@@ -10,6 +10,7 @@ ENV_TUM = "D2SLAM_TUM_ROOT"
 
 def register(sub) -> None:
     from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS, SCENARIOS, TWIN_METHODS
+    from d2slam.synth.scene import frames_arg
 
     p = sub.add_parser(
         "study", help="run the study grid and write runs.csv, summary.csv, tables.md, plots, manifest.json",
@@ -22,13 +23,14 @@ def register(sub) -> None:
         "OUT/runs/*.json and OUT/manifest.json. A failed run is a row with status=failed and its error.")
     p.add_argument("--out", required=True, metavar="DIR", help="results folder (created)")
     p.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS), metavar="SCENARIO",
-                   help=f"default: all five ({', '.join(SCENARIOS)})")
+                   help=f"default: all ({', '.join(SCENARIOS)}; the last two are ours, not TUM's)")
     p.add_argument("--methods", nargs="+", default=None, metavar="METHOD",
                    help="default: every registered method and orbslam3 (real ORB-SLAM3)")
     p.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), metavar="SEED",
                    help=f"default: {' '.join(map(str, DEFAULT_SEEDS))} (the study seeds, never tuned on)")
-    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help=f"frames per sequence (default "
-                   f"{DEFAULT_FRAMES}; >= 40 so that 1-second RPE pairs exist; on TUM data: first N frames, 0 = all)")
+    p.add_argument("--frames", type=frames_arg, default=DEFAULT_FRAMES, help=f"frames per sequence (default "
+                   f"{DEFAULT_FRAMES}; >= 40 so that 1-second RPE pairs exist; 'tum': each scenario at the duration "
+                   "of its TUM fr3 sequence; on TUM data: first N frames, 0 = all)")
     p.add_argument("--twin-methods", nargs="*", default=list(TWIN_METHODS), metavar="METHOD",
                    help="methods also run on each static twin (default: none d2slam oracle; oracle there reads the "
                    "dynamic sequence's truth: the occluded twin; give none of them to skip)")
@@ -81,8 +83,11 @@ def run(args) -> int:
             raise D2SlamError(f"--tum needs ${ENV_TUM} pointing at a TUM RGB-D copy")
     check_output_dir(out, "--out")
     scenarios = args.scenarios
-    if tum_root:
-        scenarios = _downloaded(tum_root, scenarios)
+    if tum_root:  # a real TUM copy has the fr3 sequences only
+        ours = [s for s in scenarios if s not in G.FR3_SCENARIOS]
+        if ours and scenarios != list(G.SCENARIOS):
+            raise D2SlamError(f"{', '.join(ours)} is ours, not a TUM sequence: give fr3 scenarios with --tum-root")
+        scenarios = _downloaded(tum_root, [s for s in scenarios if s in G.FR3_SCENARIOS])
     methods = args.methods or G.default_methods("tum" if tum_root else "synth")
     from d2slam.methods import methods as registered
 
@@ -90,7 +95,7 @@ def run(args) -> int:
     if unknown:
         raise D2SlamError(f"unknown method(s) {', '.join(unknown)}; choose from "
                           f"{', '.join(registered() + [G.ORBSLAM3])}")
-    if not tum_root and args.frames < 40:
+    if not tum_root and args.frames != "tum" and args.frames < 40:
         raise D2SlamError(f"--frames {args.frames} is too short: RPE needs 1-second pairs (>= 40 frames at 30 Hz)")
     if args.jobs < 1:
         raise D2SlamError(f"--jobs must be >= 1, got {args.jobs}")

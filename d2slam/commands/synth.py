@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.synth.scene import SCENARIOS
+from d2slam.synth.scene import SCENARIOS, frames_arg
 
 
 def register(sub) -> None:
@@ -17,7 +17,8 @@ def register(sub) -> None:
     p.add_argument("scenario", choices=SCENARIOS)
     p.add_argument("--out", required=True, help="output folder (created; a previous synthetic sequence there is "
                    "replaced)")
-    p.add_argument("--frames", type=int, default=300, help="number of RGB-D frames at 30 Hz (default 300)")
+    p.add_argument("--frames", type=frames_arg, default=300, help="number of RGB-D frames at 30 Hz (default 300), "
+                   "or 'tum': the duration of the TUM fr3 sequence of that name (walking_xyz 28.8 s, ...)")
     p.add_argument("--seed", type=int, default=0, help="seed of the room, people, paths and noise (default 0)")
     p.add_argument("--static-twin", action="store_true",
                    help="same camera path and room, no people and no moved objects (all masks 0)")
@@ -37,9 +38,10 @@ def summarise(result: dict) -> str:
         f"  people ids {result['person_ids']}, moved objects {result['moved_object_ids']}",
     ]
     for o in result["objects"]:
-        if o["kind"] == "object":
-            a, b = o["moving_intervals"][0]
-            lines.append(f"  {o['name']} (id {o['id']}) moved by person {o['moved_by']} during [{a:.3f}, {b:.3f}]")
+        if o["kind"] == "object" and o["moving_intervals"]:
+            spans = ", ".join(f"[{a:.3f}, {b:.3f}]" for a, b in o["moving_intervals"])
+            who = ", ".join(str(p) for p in o["moved_by"])
+            lines.append(f"  {o['name']} (id {o['id']}) moved by person {who} during {spans}")
     lines += [
         f"  person pixels per frame: mean {100 * person.mean():.1f} %, max {100 * person.max():.1f} %, frames with "
         f">= 20 %: {int((person >= 0.2).sum())}",
@@ -52,9 +54,10 @@ def summarise(result: dict) -> str:
 def run(args) -> int:
     from d2slam.outputs import check_output_dir
     from d2slam.synth.generate import generate
+    from d2slam.synth.scene import resolve_frames
 
     check_output_dir(args.out, "--out")
-    result = generate(args.scenario, args.out, frames=args.frames, seed=args.seed, static_twin=args.static_twin,
-                      workers=args.workers)
+    result = generate(args.scenario, args.out, frames=resolve_frames(args.scenario, args.frames), seed=args.seed,
+                      static_twin=args.static_twin, workers=args.workers)
     print(summarise(result))
     return 0

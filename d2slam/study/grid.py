@@ -86,7 +86,7 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     scenarios, methods, seeds = _unique(scenarios), _unique(methods), _unique(int(s) for s in seeds)
     if not scenarios or not methods or not seeds:
         raise D2SlamError("the study grid is empty: give at least one scenario, method and seed")
-    if int(frames) < (0 if source == "tum" else 2):
+    if frames != "tum" and int(frames) < (0 if source == "tum" else 2):
         raise D2SlamError(f"--frames must be >= 2 (0 = all frames of a TUM folder), got {frames}")
     if source not in ("synth", "tum"):
         raise D2SlamError(f"unknown sequence source {source!r} (synth or tum)")
@@ -98,14 +98,27 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
         raise D2SlamError(f"unknown scenario(s) {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}")
+    ours = [s for s in scenarios if s not in FR3_SCENARIOS]
+    if source == "tum" and ours:
+        raise D2SlamError(f"{', '.join(ours)} is ours, not a TUM sequence: give fr3 scenarios with a TUM copy")
     twins = [] if source == "tum" else [m for m in methods if m in set(twin_methods or ())]
     specs = []
     for scenario in sorted(scenarios, key=_scenario_rank):
+        n = frames_of(scenario, frames, source)
         for twin, ms in ((False, methods), (True, twins)):
             for seed in sorted(seeds):
                 for m in ms:
-                    specs.append(RunSpec(scenario, m, seed, int(frames), twin, source))
+                    specs.append(RunSpec(scenario, m, seed, n, twin, source))
     return specs
+
+
+def frames_of(scenario: str, frames: int | str, source: str = "synth") -> int:
+    """The frames of a scenario's runs: ``frames``, or with ``tum`` its TUM duration (all frames of a real copy)."""
+    if frames != "tum":
+        return int(frames)
+    from d2slam.synth.scene import tum_frames
+
+    return 0 if source == "tum" else tum_frames(scenario)
 
 
 def default_methods(source: str = "synth") -> list[str]:

@@ -26,9 +26,10 @@ from d2slam.synth.textures import make_texture
 FR3_SCENARIOS = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy", "sitting_static")
 INTERACTION_SCENARIOS = ("walking_carry", "walking_push")
 SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS
-# Frames of the real TUM sequences (their listed durations at 30 Hz): ``--frames tum``.
+# ``--frames tum``: the durations (s) of the real TUM fr3 sequences as the dataset lists them; our interaction
+# scenarios take 30 s, about the fr3 walking sequences' mean.
 TUM_DURATIONS = {"walking_xyz": 28.83, "walking_halfsphere": 35.81, "walking_static": 24.83, "walking_rpy": 30.61,
-                 "sitting_static": 23.63}
+                 "sitting_static": 23.63, "walking_carry": 30.0, "walking_push": 30.0}
 
 ROOM_X = 2.6  # half width (m)
 ROOM_Y = (-1.6, 4.0)
@@ -43,10 +44,27 @@ DESK_CHAIR_IDS = (13, 14)
 
 
 def tum_frames(scenario: str, fps: float = 30.0) -> int:
-    """Frames of the real TUM sequence of that name at ``fps`` (``--frames tum``); ours have no TUM counterpart."""
+    """Frames of the real TUM sequence of that name at ``fps`` (``--frames tum``; see ``TUM_DURATIONS``)."""
     if scenario not in TUM_DURATIONS:
-        raise D2SlamError(f"--frames tum: {scenario} is not a TUM fr3 sequence (one of {', '.join(TUM_DURATIONS)})")
+        raise D2SlamError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
     return int(round(TUM_DURATIONS[scenario] * fps))
+
+
+def frames_arg(value: str) -> int | str:
+    """``--frames``: a number of frames, or ``tum`` (each scenario at its TUM duration)."""
+    import argparse
+
+    if str(value).lower() == "tum":
+        return "tum"
+    try:
+        return int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of frames or 'tum', got {value!r}") from None
+
+
+def resolve_frames(scenario: str, frames: int | str, fps: float = 30.0) -> int:
+    """``frames`` as a number of frames for ``scenario`` (``tum``: its TUM duration)."""
+    return tum_frames(scenario, fps) if frames == "tum" else int(frames)
 
 
 # --------------------------------------------------------------------------------------------------
