@@ -15,9 +15,9 @@ import pandas as pd
 
 from d2slam.errors import D2SlamError
 from d2slam.paths import REPO_ROOT
-from d2slam.study.grid import LABELS
+from d2slam.study.grid import FR3_SCENARIOS, LABELS
 
-SEQUENCES = list(LABELS.values())  # w/xyz, w/half, w/static, w/rpy, s/static
+SEQUENCES = [LABELS[s] for s in FR3_SCENARIOS]  # w/xyz, w/half, w/static, w/rpy, s/static
 PAPER_METHODS = ["DynaSLAM", "DS-SLAM", "DP-SLAM", "D2SLAM"]
 METRICS = {1: "ate", 2: "rpe_trans", 3: "rpe_rot"}
 STUDY_METRIC = {"ate": "ate_rmse_m", "rpe_trans": "rpe_trans_m", "rpe_rot": "rpe_rot_deg"}
