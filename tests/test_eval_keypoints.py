@@ -64,6 +64,9 @@ class _ToySequence:
     def dynamic_mask(self, i):
         return self.frames[i].masks.any(axis=0)
 
+    def dynamic_labels(self, i):  # people only (1): no moved objects
+        return self.dynamic_mask(i).astype(np.uint8)
+
 
 def test_recorder_matches_direct_module_metrics_and_is_strict_json():
     import json
@@ -86,6 +89,7 @@ def test_recorder_matches_direct_module_metrics_and_is_strict_json():
         assert res["modules"][name] == m  # no NaN here: identical numbers
     final = res["modules"]["final"]
     assert final["recall"] >= 0.95 and final["static_precision"] >= 0.95
+    assert res["moved_objects"] == {"keypoints": 0, "recall": None}  # people only here
     json.dumps(res, allow_nan=False)
 
 

@@ -227,9 +227,14 @@ class SyntheticSequence(TumSequence):
                   if np.any((self.moving_intervals[oid][:, 0] <= t) & (t <= self.moving_intervals[oid][:, 1]))]
         return np.asarray(sorted(self.person_ids.tolist() + moving), dtype=np.int64)
 
-    def dynamic_mask(self, index: int) -> np.ndarray:
-        """(H, W) bool truth of frame ``index``: pixels whose gt id is a person, or a moved object during one of
-        its moving intervals at the frame's RGB timestamp."""
-        lut = np.zeros(256, dtype=bool)
-        lut[self.dynamic_ids(index)] = True
+    def dynamic_labels(self, index: int) -> np.ndarray:
+        """(H, W) uint8 truth of frame ``index``: 1 where the gt id is a person, 2 where it is a moved object during
+        one of its moving intervals at the frame's RGB timestamp, 0 elsewhere."""
+        lut = np.zeros(256, dtype=np.uint8)
+        lut[self.dynamic_ids(index)] = 2
+        lut[self.person_ids] = 1
         return lut[self.mask_gt(index)]
+
+    def dynamic_mask(self, index: int) -> np.ndarray:
+        """(H, W) bool truth of frame ``index``: a person, or a moved object while it moves (``dynamic_labels``)."""
+        return self.dynamic_labels(index) > 0

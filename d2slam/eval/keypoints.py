@@ -19,12 +19,12 @@ import numpy as np
 from d2slam.errors import D2SlamError
 
 
-def keypoint_truth(kps: np.ndarray, dynamic_mask: np.ndarray) -> np.ndarray:
-    """(N,) bool: the truth mask at each keypoint's pixel (u, v), rounded to the nearest pixel (``np.rint``).
+def keypoint_labels(kps: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(N,) the label image's value at each keypoint's pixel (u, v), rounded to the nearest pixel (``np.rint``).
 
-    Keypoints outside the image (after rounding) or with non-finite coordinates are static (False): the truth has
+    Keypoints outside the image (after rounding) or with non-finite coordinates get 0 (static): the truth has
     nothing to say there, and the engine keeps only in-image keypoints anyway."""
-    m = np.asarray(dynamic_mask)
+    m = np.asarray(labels)
     if m.ndim != 2:
         raise D2SlamError(f"dynamic truth mask must be (H, W), got shape {m.shape}")
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
@@ -32,9 +32,14 @@ def keypoint_truth(kps: np.ndarray, dynamic_mask: np.ndarray) -> np.ndarray:
     finite = np.all(np.isfinite(kps), axis=1)
     pix = np.rint(np.where(finite[:, None], kps, -1.0)).astype(np.int64)
     ok = finite & (pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
-    out = np.zeros(len(kps), dtype=bool)
-    out[ok] = m[pix[ok, 1], pix[ok, 0]] != 0
+    out = np.zeros(len(kps), dtype=m.dtype)
+    out[ok] = m[pix[ok, 1], pix[ok, 0]]
     return out
+
+
+def keypoint_truth(kps: np.ndarray, dynamic_mask: np.ndarray) -> np.ndarray:
+    """(N,) bool: the truth mask at each keypoint's pixel (``keypoint_labels`` != 0)."""
+    return keypoint_labels(kps, dynamic_mask) != 0
 
 
 class OracleFilter:
@@ -141,21 +146,24 @@ class KeypointRecorder:
     per module of the classifier, and static precision, against the sequence's keypoint truth.
 
     Called once per frame as ``recorder(index, kps (N, 2), beliefs (N,) or None, diagnostics)``: the truth of each
-    keypoint is ``keypoint_truth(kps, sequence.dynamic_mask(index))``; the predictions are the diagnostics'
+    keypoint is its label in ``sequence.dynamic_labels(index)`` (``keypoint_labels``: 1 a person, 2 a moved object
+    while it moves, 0 static); the predictions are the diagnostics'
     ``predictions()`` (``FrameDiagnostics``: semantic, geometric, pose, edge, fusion, bayes, oim, final - whichever
     modules the mode ran) when the diagnostics belong to this frame (same ``frame_index`` and keypoint count),
     otherwise only ``final`` from the beliefs (belief > ``threshold``; no beliefs, i.e. method ``none``: every
-    keypoint static). ``sequence`` must have ``dynamic_mask(i)`` (``d2slam.data.SyntheticSequence``); anything else
-    is a D2SlamError.
+    keypoint static). ``moved_objects``: the final classification's recall on the keypoints of moved objects (what
+    the masks cannot see and the OIM and geometry are for). ``sequence`` must have ``dynamic_labels(i)``
+    (``d2slam.data.SyntheticSequence``); anything else is a D2SlamError.
     """
 
     def __init__(self, sequence, threshold: float = 0.5):
-        if not callable(getattr(sequence, "dynamic_mask", None)):
+        if not callable(getattr(sequence, "dynamic_labels", None)):
             raise D2SlamError("keypoint metrics need a synthetic sequence (per-pixel truth in mask_gt/ and scene.json)",
                               path=getattr(sequence, "root", None))
         self.sequence = sequence
         self.threshold = float(threshold)
         self.metrics = ModuleMetrics()
+        self.objects = KeypointMetrics()  # the final classification of keypoints on moved objects while they move
         self.frames = 0
         self.keypoints = 0
         self.dynamic_keypoints = 0
@@ -169,11 +177,11 @@ class KeypointRecorder:
         if self._next is not None and self._next[0] == index:
             mask = self._next[1].result()
         else:
-            mask = self.sequence.dynamic_mask(index)
+            mask = self.sequence.dynamic_labels(index)
         if index + 1 < len(self.sequence) if hasattr(self.sequence, "__len__") else False:
             if self._reader is None:
                 self._reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="d2slam-truth")
-            self._next = (index + 1, self._reader.submit(self.sequence.dynamic_mask, index + 1))
+            self._next = (index + 1, self._reader.submit(self.sequence.dynamic_labels, index + 1))
         elif self._reader is not None:  # the last frame: the thread is not needed any more
             self._next = None
             self._reader.shutdown(wait=False)
@@ -183,7 +191,8 @@ class KeypointRecorder:
     def __call__(self, index: int, kps: np.ndarray, beliefs: np.ndarray | None, diagnostics=None) -> None:
         kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
         n = len(kps)
-        truth = keypoint_truth(kps, self._truth_mask(index))
+        labels = keypoint_labels(kps, self._truth_mask(index))  # 0 static, 1 person, 2 moved object
+        truth = labels > 0
         preds = None
         if diagnostics is not None and getattr(diagnostics, "frame_index", None) == index \
                 and len(getattr(diagnostics, "belief", ())) == n:
@@ -199,6 +208,8 @@ class KeypointRecorder:
                 final = b > self.threshold
             preds = {"final": final}
         self.metrics.update(preds, truth)
+        on_objects = labels == 2
+        self.objects.update(preds["final"][on_objects], truth[on_objects])
         self.frames += 1
         self.keypoints += n
         self.dynamic_keypoints += int(truth.sum())
@@ -211,11 +222,12 @@ class KeypointRecorder:
         return {"frames": self.frames, "frames_with_diagnostics": self.frames_with_diagnostics,
                 "keypoints": self.keypoints, "dynamic_keypoints": self.dynamic_keypoints,
                 "threshold": self.threshold,
-                "modules": {m: {k: _json_number(v) for k, v in mods[m].items()} for m in names}}
+                "modules": {m: {k: _json_number(v) for k, v in mods[m].items()} for m in names},
+                "moved_objects": {"keypoints": self.objects.n, "recall": _json_number(self.objects.recall)}}
 
 
 def keypoint_recorder(sequence, threshold: float = 0.5) -> KeypointRecorder | None:
     """A ``KeypointRecorder`` when ``sequence`` carries keypoint truth (synthetic), None otherwise (TUM)."""
-    if callable(getattr(sequence, "dynamic_mask", None)):
+    if callable(getattr(sequence, "dynamic_labels", None)):
         return KeypointRecorder(sequence, threshold)
     return None

@@ -204,7 +204,8 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
         out["keypoints"] = kp
         final = kp["modules"].get("final", {})
         row.update(kp_precision=final.get("precision"), kp_recall=final.get("recall"), kp_f1=final.get("f1"),
-                   kp_static_precision=final.get("static_precision"))
+                   kp_static_precision=final.get("static_precision"),
+                   kp_object_recall=kp["moved_objects"]["recall"], kp_object_keypoints=kp["moved_objects"]["keypoints"])
     gt = seq.groundtruth
     if gt is None:
         row.update(status="unevaluated", error="the sequence has no ground truth")
