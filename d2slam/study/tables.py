@@ -15,14 +15,17 @@ import math
 import numpy as np
 import pandas as pd
 
-from d2slam.study.grid import BASELINE, FULL, LABELS, ORACLE, ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS
+from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, ORACLE, ORBSLAM3,
+                               ORBSLAM3_MASKED, REPEATED, SCENARIOS)
 
 # runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
 KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source"]
 OUTCOME_COLUMNS = ["status", "error", "deterministic", "repeats", "config_hash"]
 METRIC_COLUMNS = ["ate_rmse_m", "rpe_trans_m", "rpe_rot_deg"]
 RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp_recall", "kp_f1",
-                                   "kp_static_precision", "frames_tracked", "frames_lost", "keyframes", "map_points"]
+                                   "kp_static_precision", "kp_object_recall", "kp_object_keypoints", "frames_tracked",
+                                   "frames_lost", "keyframes", "map_points"]
+OPTIONAL_COLUMNS = ["kp_object_recall", "kp_object_keypoints"]
 # features_cached = 1: the run read the sequence's features extracted by an earlier run (its ms_extract and fps count
 # the extraction time stored with them, d2slam.slam.features).
 TIMING_COLUMNS = ["fps", "ms_per_frame", "ms_load", "ms_segment", "ms_extract", "ms_filter", "ms_track",
@@ -82,6 +85,9 @@ def write_runs_csv(df: pd.DataFrame, path) -> None:
 def read_runs_csv(path) -> pd.DataFrame:
     text = {c: str for c in ("scenario", "sequence", "method", "source", "status", "error", "config_hash")}
     df = pd.read_csv(path, keep_default_na=True, dtype=text)
+    for c in OPTIONAL_COLUMNS:  # metrics a study made before they existed did not record: missing values
+        if c not in df.columns:
+            df[c] = np.nan
     missing = [c for c in RUN_COLUMNS if c not in df.columns]
     if missing:
         from d2slam.errors import D2SlamError
@@ -258,6 +264,8 @@ def absolute_markdown(df: pd.DataFrame, metric: str, twin: int = 0, methods: lis
 # engine's ATE on the static twin; `none` at least TARGET_NONE_TWIN x on the walking scenarios; dynamic-keypoint recall
 # at least TARGET_RECALL at a static precision of at least TARGET_STATIC_PRECISION.
 TARGET_ATE_TWIN = 1.2
+TARGET_ATE_TWIN_OURS = 1.5  # the interaction scenarios (objects moved by people: beyond what the paper evaluates)
+TARGET_MASKS_OVER_D2SLAM = 3.0  # ... where the masks-only baselines are to be at least this many times d2slam's ATE
 TARGET_NONE_TWIN = 5.0
 TARGET_RECALL = 0.95
 TARGET_STATIC_PRECISION = 0.98
@@ -324,7 +332,8 @@ def twin_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
 def target_checks(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFrame:
     """The targets run by run: one row per dynamic run (scenario, method, seed) with its ATE over the same seed's
     static twin (``none``) and over its occluded twin (``oracle`` on the twin, when run), recall, static precision, and
-    whether each target holds: ``ate_ok`` (a filter's ATE <= TARGET_ATE_TWIN x its reference, the occluded twin when
+    whether each target holds: ``ate_ok`` (a filter's ATE <= TARGET_ATE_TWIN x its reference (TARGET_ATE_TWIN_OURS on
+    the interaction scenarios), the occluded twin when
     there is one, else the static twin: what a keypoint filter can reach on this engine; for ``none`` on a walking
     scenario >= TARGET_NONE_TWIN x the static twin; NaN elsewhere) and ``kp_ok`` (recall and static precision both at
     their targets; NaN without keypoint metrics, and for ``none``, which classifies nothing). A missing value never
@@ -346,7 +355,8 @@ def target_checks(df: pd.DataFrame, methods: list[str] | None = None) -> pd.Data
                     ate_ok = bool(ratio >= TARGET_NONE_TWIN) if walking else np.nan
                     rec = sp = np.nan
                 else:
-                    ate_ok = bool((over_occ if (s, r["seed"]) in occluded.index else ratio) <= TARGET_ATE_TWIN)
+                    limit = TARGET_ATE_TWIN_OURS if s in INTERACTION_SCENARIOS else TARGET_ATE_TWIN
+                    ate_ok = bool((over_occ if (s, r["seed"]) in occluded.index else ratio) <= limit)
                     rec, sp = float(r.get("kp_recall", np.nan)), float(r.get("kp_static_precision", np.nan))
                 has_kp = math.isfinite(rec) or math.isfinite(sp)
                 kp_ok = bool(rec >= TARGET_RECALL and sp >= TARGET_STATIC_PRECISION) if has_kp else np.nan
@@ -380,7 +390,8 @@ def targets_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
         if m == BASELINE:
             ate_target = f">= {TARGET_NONE_TWIN:g}x twin: " + _met(g["ate_ok"]) if walking else "n/a"
         else:
-            ate_target = f"<= {TARGET_ATE_TWIN:g}x {'occluded twin' if occ else 'twin'}: " + _met(g["ate_ok"])
+            limit = TARGET_ATE_TWIN_OURS if s in INTERACTION_SCENARIOS else TARGET_ATE_TWIN
+            ate_target = f"<= {limit:g}x {'occluded twin' if occ else 'twin'}: " + _met(g["ate_ok"])
         kp = g[g["kp_ok"].notna()]
         rows.append([g["sequence"].iloc[0], f"`{m}`", _per_seed(g["ate_over_twin"], 2, "x")]
                     + ([_per_seed(g["ate_over_occluded"], 2, "x") if m != BASELINE else "n/a"] if occ else [])
@@ -421,6 +432,64 @@ def occluded_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str
             cells.append(cell + (_flag(df, s, m) if cell != "n/a" else ""))
         rows.append(cells)
     return _md(["fr3 (synthetic)", "occluded twin ATE `oracle` (m)"] + [f"`{m}` / occluded twin" for m in ms], rows)
+
+
+OIM_METHODS = (FULL, "no-oim")
+
+
+def oim_table(df: pd.DataFrame) -> pd.DataFrame:
+    """What the Object Interaction Module buys, and where: per dynamic scenario, the ATE of ``d2slam`` and
+    ``no-oim`` (medians over seeds) and their ratio, and each one's recall on the keypoints of moved objects (the
+    people's masks do not cover them) and on every dynamic keypoint."""
+    d = df[(df["twin"] == 0) & df["method"].isin(OIM_METHODS)]
+    out = []
+    for s in _scenarios(d):
+        g = {m: d[(d["scenario"] == s) & (d["method"] == m)] for m in OIM_METHODS}
+        if any(x.empty for x in g.values()):
+            continue
+        row = {"scenario": s, "sequence": LABELS.get(s, s)}
+        for m, x in g.items():
+            row[f"ate_{m}"] = _nanmedian(x["ate_rmse_m"])
+            row[f"object_recall_{m}"] = _nanmedian(x["kp_object_recall"]) if "kp_object_recall" in x else np.nan
+            row[f"recall_{m}"] = _nanmedian(x["kp_recall"])
+        row["ratio"] = _ratio(row["ate_no-oim"], row[f"ate_{FULL}"])
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def oim_markdown(df: pd.DataFrame) -> str:
+    t = oim_table(df)
+    if t.empty:
+        return "_`d2slam` and `no-oim` were not both run._"
+    rows = [[r["sequence"], _num(r[f"ate_{FULL}"], 4), _num(r["ate_no-oim"], 4), _num(r["ratio"], 2, "x"),
+             _num(r[f"object_recall_{FULL}"], 3), _num(r["object_recall_no-oim"], 3), _num(r[f"recall_{FULL}"], 3),
+             _num(r["recall_no-oim"], 3)] for _, r in t.iterrows()]
+    return _md([_rowhead(df), "ATE `d2slam` (m)", "ATE `no-oim` (m)", "`no-oim` / `d2slam`",
+                "moved-object recall `d2slam`", "`no-oim`", "dynamic recall `d2slam`", "`no-oim`"], rows)
+
+
+def interaction_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
+    """The scenarios of our own (people moving objects): absolute ATE, ATE over the occluded twin, and the
+    targets (``d2slam`` within TARGET_ATE_TWIN_OURS x the occluded twin; the masks-only baselines at least
+    TARGET_MASKS_OVER_D2SLAM x ``d2slam``'s ATE)."""
+    ours = df[df["scenario"].isin(INTERACTION_SCENARIOS)]
+    ms = [m for m in (methods or _methods(df)) if m in set(ours["method"])]
+    out = ["### ATE (m), absolute: median [min, max] over seeds", "", absolute_markdown(ours, "ate_rmse_m", 0, ms)]
+    if _has_occluded(ours):
+        out += ["", "### ATE relative to the occluded twin", "", occluded_markdown(ours, ms)]
+    lines = []
+    for s in _scenarios(ours):
+        g = ours[(ours["scenario"] == s) & (ours["twin"] == 0)]
+        full = _nanmedian(g[g["method"] == FULL]["ate_rmse_m"])
+        for m in (ORBSLAM3_MASKED, "semantic"):
+            other = _nanmedian(g[g["method"] == m]["ate_rmse_m"])
+            r = _ratio(other, full)
+            if math.isfinite(r):
+                lines.append(f"- {LABELS.get(s, s)}: `{m}` / `{FULL}` = {r:.1f}x (target >= "
+                             f"{TARGET_MASKS_OVER_D2SLAM:g}x: {'met' if r >= TARGET_MASKS_OVER_D2SLAM else 'not met'})")
+    if lines:
+        out += ["", "### The masks-only baselines against `d2slam` (medians over seeds)", "", *lines]
+    return "\n".join(out)
 
 
 def _num(v, nd: int, suffix: str = "") -> str:
@@ -509,6 +578,8 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
         out.append(f"Config hash `{manifest.get('config_hash', '')}`, git `{manifest.get('git', {}).get('commit', '')}`"
                    f", generator `{manifest.get('generator_version', '')}`.")
     have_orb = ORBSLAM3 in methods and np.isfinite(df[df["method"] == ORBSLAM3]["ate_rmse_m"]).any()
+    ours = df[df["scenario"].isin(INTERACTION_SCENARIOS)]
+    df_all, df = df, df[~df["scenario"].isin(INTERACTION_SCENARIOS)]  # the paper's tables: the fr3 scenarios
     n = 0
     for metric in METRIC_COLUMNS:
         n += 1
@@ -523,6 +594,27 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
                     improvement_markdown(df, metric, ORBSLAM3, methods)]
         out += ["", f"### Table {n}c: {title} ({unit}), absolute: median [min, max] over seeds", "",
                 absolute_markdown(df, metric, 0, methods)]
+    if have_orb and df["scenario"].isin(FR3_SCENARIOS).any():
+        from d2slam.study.calibration import calibration_checks, calibration_markdown, calibration_table
+
+        cal = calibration_table(df)
+        if not cal.empty:
+            out += ["", "## The benchmark against the published record on the real fr3 sequences", "",
+                    "ORB-SLAM3's ATE and each method's improvement over `orbslam3` (paired by seed: median [min, max] "
+                    "over seeds) beside the published values on the real TUM sequences (`d2slam bench calibration`; "
+                    "d2slam.study.calibration).", "", calibration_markdown(cal), ""]
+            out += [f"- {label}: {what}: {'met' if ok else 'not met'}" for label, what, ok in calibration_checks(cal)]
+    if not ours.empty:
+        out += ["", "## Interaction scenarios (ours): people moving objects", "",
+                "A person carries a box (`walking_carry`) or pushes a chair (`walking_push`) across the view while "
+                "another walks; the segmenter labels the people, not the objects. These scenarios go beyond the "
+                "paper's evaluation (no TUM counterpart).", "", interaction_markdown(ours, methods)]
+    if set(OIM_METHODS) <= set(df_all["method"]):
+        out += ["", "## What the OIM buys, and where", "",
+                "`d2slam` with and without the Object Interaction Module (eq 9-10): ATE (medians over seeds) and the "
+                "recall of the final classification on the keypoints of moved objects while they move (which the "
+                "masks do not cover) and on every dynamic keypoint.", "", oim_markdown(df_all)]
+    df = df_all
     occluded = _has_occluded(df)
     if (df["twin"] == 1).any():
         out += ["", "## Static twins: ATE (m), absolute", ""]
