@@ -40,6 +40,10 @@ STUDY_MASKS = "onnx"
 # twin reads its dynamic sibling's truth (study.runner): the occluded twin, the people's and moving objects'
 # silhouettes cut out of a scene where nothing moves, i.e. what occlusion alone costs the engine.
 TWIN_METHODS = (BASELINE, FULL, ORACLE)
+# The default methods of the interaction scenarios: the baselines, the paper's method, the ablations that tell what
+# the OIM and the geometric module do with objects people move, ours, and the ceiling.
+INTERACTION_METHODS = (BASELINE, ORBSLAM3, ORBSLAM3_MASKED, "semantic", "geometric", "no-oim", FULL, "d2slam-flow",
+                       ORACLE)
 
 
 @dataclass(frozen=True, order=False)
@@ -79,8 +83,10 @@ def _scenario_rank(name: str) -> int:
 def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: int = DEFAULT_FRAMES,
                 twin_methods=TWIN_METHODS, source: str = "synth") -> list[RunSpec]:
     """Every run of the study, in the documented order. ``methods`` default: every registered method plus
-    ``orbslam3``. ``twin_methods``: the methods also run on each static twin (only those of ``methods``; none on
-    a real TUM copy, which has no twin). Duplicates in the arguments are dropped (first occurrence kept)."""
+    ``orbslam3`` (on the interaction scenarios those of ``INTERACTION_METHODS``). ``twin_methods``: the methods also
+    run on each static twin (only those of ``methods``; none on a real TUM copy, which has no twin). Duplicates in the
+    arguments are dropped (first occurrence kept)."""
+    default = methods is None
     if methods is None:
         methods = default_methods(source)
     scenarios, methods, seeds = _unique(scenarios), _unique(methods), _unique(int(s) for s in seeds)
@@ -105,10 +111,12 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     specs = []
     for scenario in sorted(scenarios, key=_scenario_rank):
         n = frames_of(scenario, frames, source)
+        keep = (lambda m: m in INTERACTION_METHODS) if default and scenario in INTERACTION_SCENARIOS else bool
         for twin, ms in ((False, methods), (True, twins)):
             for seed in sorted(seeds):
                 for m in ms:
-                    specs.append(RunSpec(scenario, m, seed, n, twin, source))
+                    if keep(m):
+                        specs.append(RunSpec(scenario, m, seed, n, twin, source))
     return specs
 
 
