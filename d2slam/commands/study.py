@@ -99,7 +99,7 @@ def run(args) -> int:
         raise D2SlamError(f"--frames {args.frames} is too short: RPE needs 1-second pairs (>= 40 frames at 30 Hz)")
     if args.jobs < 1:
         raise D2SlamError(f"--jobs must be >= 1, got {args.jobs}")
-    specs = G.expand_grid(scenarios, methods, args.seeds, args.frames, args.twin_methods,
+    specs = G.expand_grid(scenarios, args.methods, args.seeds, args.frames, args.twin_methods,
                           source="tum" if tum_root else "synth")
     if args.dry_run:
         return _dry_run(specs)
