@@ -13,7 +13,7 @@ export OMP_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export PYTHONHASHSEED := 0
 
-.PHONY: demo test install assets clean-venv
+.PHONY: demo test test-portable install assets clean-venv
 
 install: $(STAMP)
 
@@ -41,6 +41,18 @@ demo: assets
 
 test: assets
 	$(PY) -m pytest -q tests notebooks --nbval-lax --nbval-sanitize-with notebooks/sanitize.cfg -p no:cacheprovider
+
+# The suite again with older CPUs' SIMD paths forced (numpy's dispatch, OpenBLAS's kernels, OpenCV's dispatch,
+# numba's target): AVX2 without AVX-512 (x86-64-v3), then SSE4.2 only (x86-64-v2). A reference made on one CPU must
+# pass on another (README "Determinism"). onnxruntime picks its kernels from the CPU and cannot be forced.
+PORTABLE_V3 := NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" OPENBLAS_CORETYPE=Haswell \
+	OPENCV_CPU_DISABLE=AVX512-SKX NUMBA_CPU_NAME=haswell
+PORTABLE_V2 := NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR" OPENBLAS_CORETYPE=Nehalem \
+	OPENCV_CPU_DISABLE=AVX512-SKX,AVX2,FP16,AVX NUMBA_CPU_NAME=nehalem
+
+test-portable: assets
+	$(PORTABLE_V3) $(PY) -m pytest -q tests notebooks --nbval-lax --nbval-sanitize-with notebooks/sanitize.cfg -p no:cacheprovider
+	$(PORTABLE_V2) $(PY) -m pytest -q tests notebooks --nbval-lax --nbval-sanitize-with notebooks/sanitize.cfg -p no:cacheprovider
 
 clean-venv:
 	rm -rf $(VENV)

@@ -1,8 +1,8 @@
 """Writes ``tests/data/dynamics_reference.npz``: the outputs of every dynamics mode, with the default config, on
 seeded toy scenes (two chained frames each) and a scene with persons at the image border.
 
-``tests/test_dynamics_equivalence.py`` recomputes them and compares exactly: a change of any number of the dynamics
-modules shows up there. Re-run this script (``python tests/data/make_dynamics_reference.py``) only when a change of
+``tests/test_dynamics_equivalence.py`` recomputes them and compares them (floats to a few ulps, so that another CPU's
+rounding passes; decisions exactly): a change of any number of the dynamics modules shows up there. Re-run this script (``python tests/data/make_dynamics_reference.py``) only when a change of
 the outputs is intended, and say so in the commit.
 """
 
