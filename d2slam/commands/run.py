@@ -16,10 +16,11 @@ def register(sub) -> None:
     p.add_argument("--method", default="none", choices=methods(), help="keypoint filter (default: none)")
     p.add_argument("--out", required=True, metavar="TRAJ.txt", help="estimated trajectory (TUM format)")
     p.add_argument("--metrics-json", metavar="RUN.json", help="write run statistics and metrics as JSON")
-    p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
-                   help="person masks given to the filter (default: sim on synthetic sequences, onnx otherwise, "
-                   "when the method needs masks; never computed for --method none unless asked). truth: the "
-                   "synthetic dynamic truth (persons and moving objects), what --method oracle always uses")
+    p.add_argument("--masks", choices=["onnx", "sim", "gt", "truth"], default=None,
+                   help="person masks given to the filter when the method needs masks (default: onnx, the real "
+                   "segmenter, as in the study; its masks are computed once per sequence into the mask cache). "
+                   "sim: the simulated segmenter of a synthetic sequence (mask_sim/), gt: its person ids (mask_gt/), "
+                   "truth: its dynamic truth (persons and moving objects), what --method oracle always uses")
     p.add_argument("--masks-from", metavar="SEQUENCE_DIR", default=None,
                    help="read the masks from this sequence instead (same frames and timestamps), e.g. --method "
                    "oracle on a static twin with its dynamic sequence: the occluded twin of the study")
@@ -33,7 +34,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
     p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
                    "ORB-SLAM3 (default 1)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    p.add_argument("--quiet", action="store_true", help="no progress, no summary")
     p.set_defaults(func=run)
 
 
@@ -46,7 +47,7 @@ def run(args) -> int:
     from d2slam.config import DEFAULT, load_config_file
     from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
-    from d2slam.data.tum import depth_scale_warning
+    from d2slam.data.depth_scale import depth_scale_warning
     from d2slam.errors import D2SlamError
     from d2slam.methods import get_method, run_method
     from d2slam.outputs import check_output_file
@@ -88,6 +89,7 @@ def run(args) -> int:
         write_tum_trajectory(out, result.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
               **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
+              **({"masks_origin": run.masks_origin} if run.masks_origin else {}),
               "seed": args.seed, "config_hash": config.hash(),
               "camera": {**dataclasses.asdict(seq.camera),
                          "source": camera_source or ("scene.json" if synthetic else args.camera or "folder name")},
@@ -120,15 +122,33 @@ def run(args) -> int:
         tmp.write_text(json.dumps(record, indent=2) + "\n")
         tmp.replace(args.metrics_json)
     if not args.quiet:
-        print(f"{seq.name}: {result.frames} frames, {result.tracked} tracked, {result.lost} lost, "
-              f"{result.keyframes} keyframes, {result.fps:.1f} fps")
-        print("ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
+        print(f"{seq.name}: {result.lost} lost, {result.keyframes} keyframes, {result.fps:.1f} fps; ms/frame: "
+              + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
         if "frames_note" in record:
             print(record["frames_note"])
         if "metrics" in record:
             m = record["metrics"]
-            print(f"ate_rmse_m {m['ate_rmse_m']:.4f}  rpe_trans_m {m['rpe_trans_m']:.4f}  "
-                  f"rpe_rot_deg {m['rpe_rot_deg']:.3f}")
+            print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
         else:
             print(record["metrics_error"])
+        masks = f"{masks_kind} ({run.masks_origin})" if masks_kind else "none"
+        print(summary_line(args.method, masks, camera_text(seq.camera.name, record["camera"]["source"], args.camera),
+                           result.tracked, result.frames, record.get("metrics", {}).get("ate_rmse_m"),
+                           [out, args.metrics_json]))
     return 0
+
+
+def camera_text(name: str, source: str, camera_arg: str | None) -> str:
+    """The camera of a run and where it came from (the run JSON's ``camera.source``: a settings file, the synthetic
+    sequence's ``scene.json``, the TUM folder name, or ``--camera NAME``), for the summary line."""
+    return f"{name} ({'--camera ' + source if camera_arg and source == camera_arg else source})"
+
+
+def summary_line(method: str, masks: str, camera: str, tracked: float, frames: float, ate_m: float | None,
+                 outputs, ate_note: str = "") -> str:
+    """The one line ``d2slam run`` ends with (the engine's methods and the real ORB-SLAM3 alike), easy to grep:
+    ``d2slam run: method M; masks KIND (ORIGIN); camera NAME (ORIGIN); tracked T/N frames; ATE X m; wrote FILES``."""
+    ate = f"ATE {ate_m:.4f} m{ate_note}" if ate_m is not None else "no ATE"
+    wrote = ", ".join(str(o) for o in outputs if o) or "nothing"
+    return (f"d2slam run: method {method}; masks {masks}; camera {camera}; tracked {tracked:.0f}/{frames:.0f} "
+            f"frames; {ate}; wrote {wrote}")
