@@ -734,15 +734,19 @@ class CliConfig:
     depth_ratio_tolerance: float = 2.0
     depth_far_percentile: float = 95.0
     depth_far_min_m: float = 1.0
-    # `d2slam eval GROUNDTRUTH TRAJ`: a trajectory belongs to a sequence folder when at least eval_min_frame_share of
-    # its timestamps are the folder's frame times (rgb.txt or depth.txt, within eval_frame_tolerance_s; synthetic
-    # sequences share a clock but each (scenario, seed) has its own frame jitter, 1.5 ms). Against a bare
-    # ground-truth file, a trajectory whose ATE RMSE exceeds both eval_ate_floor_m and eval_ate_extent_ratio x the
-    # ground truth's extent (RMS distance of its matched positions from their centroid) is refused (--force).
+    # `d2slam eval GROUNDTRUTH TRAJ` (d2slam.eval.belongs): a trajectory belongs to a sequence folder when at least
+    # eval_min_frame_share of its timestamps are the folder's frame times (rgb.txt or depth.txt, within
+    # eval_frame_tolerance_s; synthetic sequences share a clock but each (scenario, seed) has its own frame jitter of
+    # up to 1.5 ms); a bare ground-truth file when it holds the positions of the groundtruth.txt of the sequence the
+    # trajectory's header names (within eval_same_gt_m). With neither, a trajectory whose ATE RMSE exceeds
+    # eval_ate_floor_m and eval_ate_extent_ratio x the ground truth's extent (RMS distance of its matched positions
+    # from their centroid), while its own extent is at most eval_est_extent_max x that, is refused (--force).
     eval_frame_tolerance_s: float = 1e-4
     eval_min_frame_share: float = 0.5
+    eval_same_gt_m: float = 1e-3
     eval_ate_floor_m: float = 0.05
     eval_ate_extent_ratio: float = 0.5
+    eval_est_extent_max: float = 1.5
 
 
 CLI = CliConfig()
