@@ -141,7 +141,10 @@ def run(args) -> int:
 def camera_text(name: str, source: str, camera_arg: str | None) -> str:
     """The camera of a run and where it came from (the run JSON's ``camera.source``: a settings file, the synthetic
     sequence's ``scene.json``, the TUM folder name, or ``--camera NAME``), for the summary line."""
-    return f"{name} ({'--camera ' + source if camera_arg and source == camera_arg else source})"
+    from d2slam.data.intrinsics import is_camera_file
+
+    named = camera_arg and source == camera_arg and not is_camera_file(camera_arg)
+    return f"{name} ({'--camera ' + source if named else source})"
 
 
 def summary_line(method: str, masks: str, camera: str, tracked: float, frames: float, ate_m: float | None,
