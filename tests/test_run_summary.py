@@ -69,6 +69,11 @@ def test_camera_origins_and_no_masks(room, tmp_path, capsys):
         assert line.startswith(f"d2slam run: method none; masks none; camera {camera}; tracked 12/12 frames; ATE ")
     assert main(["run", str(room), "--camera", "fr3", "--out", str(tmp_path / "t.txt"), "--quiet"]) == 0
     assert capsys.readouterr().out == ""
+    short = write_room_sequence(tmp_path / "short", n=6, seed=1, fps=10.0)  # 0.5 s: no 1-second RPE pair
+    assert main(["run", str(short), "--camera", "fr3", "--out", str(tmp_path / "t.txt")]) == 0
+    out = capsys.readouterr().out
+    assert "no RPE: cannot compute RPE over 1.0 s pairs" in out and "tracked 6/6 frames; ATE 0.0" in out
+    assert " m (no RPE); wrote " in summary_lines(out)[0]
 
 
 def test_the_real_segmenter_is_the_default_everywhere():

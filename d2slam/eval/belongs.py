@@ -113,6 +113,20 @@ def same_poses(a, b, tol_m: float) -> bool:
     return bool(np.max(np.linalg.norm(at[ok, :3, 3] - np.asarray(a.poses)[ok, :3, 3], axis=1)) <= tol_m)
 
 
+def residual_check(gt_xyz: np.ndarray, est_xyz: np.ndarray, cli: CliConfig = CLI) -> tuple[bool, float, float, float]:
+    """The residual rule (module docstring, 3) on matched ground-truth and aligned estimated positions (M, 3):
+    (refused, ATE RMSE, the ground truth's extent, the estimate's extent), extents as RMS distances from the
+    centroid."""
+    def rms(x):
+        return float(np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=1))))
+
+    ate = float(np.sqrt(np.mean(np.sum((gt_xyz - est_xyz) ** 2, axis=1))))
+    extent, spread = rms(gt_xyz), rms(est_xyz)
+    refused = ate > max(cli.eval_ate_floor_m, cli.eval_ate_extent_ratio * extent) and \
+        spread <= cli.eval_est_extent_max * extent
+    return refused, ate, extent, spread
+
+
 def _who(ident: tuple[str, int]) -> str:
     return f"{ident[0]} seed {ident[1]}"
 
@@ -152,10 +166,8 @@ def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Pat
     from d2slam.eval.trajectory import aligned_estimate
 
     gt_xyz, est_xyz, _ = aligned_estimate(gt, est)
-    ate = float(np.sqrt(np.mean(np.sum((gt_xyz - est_xyz) ** 2, axis=1))))
-    extent = float(np.sqrt(np.mean(np.sum((gt_xyz - gt_xyz.mean(axis=0)) ** 2, axis=1))))
-    spread = float(np.sqrt(np.mean(np.sum((est_xyz - est_xyz.mean(axis=0)) ** 2, axis=1))))
-    if ate > max(cli.eval_ate_floor_m, cli.eval_ate_extent_ratio * extent) and spread <= cli.eval_est_extent_max * extent:
+    refused, ate, extent, spread = residual_check(gt_xyz, est_xyz, cli)
+    if refused:
         raise D2SlamError(f"ATE RMSE {ate:.3f} m is {ate / max(extent, 1e-12):.1f} times the ground truth's extent "
                           f"({extent:.3f} m RMS about its centroid over {len(gt_xyz)} matched poses) while the "
                           f"estimate spans as little ({spread:.3f} m): it looks like another trajectory (give the "
