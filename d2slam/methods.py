@@ -15,6 +15,7 @@ A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and `
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 from d2slam.config import Config
@@ -97,6 +98,8 @@ def run_method(seq, name: str, config: Config, masks: str | None = None, mask_se
         src = seq if mask_seq is None else mask_source(seq, mask_seq)
         # the real segmenter's masks missing from the cache are computed now, announced, before the run
         origin = masks_origin(src, kind, config, frames=len(seq), progress=progress is not False)
+        if mask_seq is not None and kind == "onnx":  # the label kinds name their folder already
+            origin = f"{origin}, of {Path(mask_seq.root).resolve()}"
 
         def provider(i):
             return stack_masks(masks_for(src, i, kind, config), shape)

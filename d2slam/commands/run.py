@@ -11,7 +11,8 @@ def register(sub) -> None:
         description="Run the ORB-SLAM3-style RGB-D engine on SEQUENCE_DIR (TUM layout, or a d2slam synthetic "
         "sequence) with a keypoint-filter method, write the trajectory of the tracked frames in TUM format and, "
         "with --metrics-json, frames/tracked/lost/fps, mean milliseconds per stage, the config hash and (when the "
-        "sequence has ground truth) ATE/RPE computed with evo.")
+        "sequence has ground truth) ATE/RPE computed with evo. The last line printed says what was run: `d2slam run: "
+        "method M; masks KIND (where from); camera NAME (where from); tracked T/N frames; ATE X m; wrote FILES`.")
     p.add_argument("sequence", metavar="SEQUENCE_DIR")
     p.add_argument("--method", default="none", choices=methods(), help="keypoint filter (default: none)")
     p.add_argument("--out", required=True, metavar="TRAJ.txt", help="estimated trajectory (TUM format)")
