@@ -42,7 +42,6 @@ def register(sub) -> None:
 def run(args) -> int:
     import dataclasses
     import json
-    import sys
     from pathlib import Path
 
     import numpy as np
@@ -50,7 +49,6 @@ def run(args) -> int:
     from d2slam.config import DEFAULT, load_config_file
     from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
-    from d2slam.data.depth_scale import depth_scale_warning
     from d2slam.errors import D2SlamError
     from d2slam.methods import get_method, run_method
     from d2slam.outputs import check_output_file
@@ -60,6 +58,11 @@ def run(args) -> int:
     out = check_output_file(args.out, "--out")
     if args.metrics_json:
         check_output_file(args.metrics_json, "--metrics-json")
+    camera, camera_source, th_depth = args.camera, None, None
+    if is_camera_file(args.camera):
+        settings = read_camera_file(args.camera)
+        camera, camera_source, th_depth = settings.camera, str(Path(args.camera).expanduser().resolve()), \
+            settings.th_depth
     if method.runner is not None:  # not a keypoint filter of our engine (orbslam3[-masked]): its own command
         if args.masks_from is not None:
             raise D2SlamError(f"--masks-from does not apply to --method {args.method}")
@@ -67,21 +70,16 @@ def run(args) -> int:
             raise D2SlamError(f"--masks does not apply to --method {args.method}")
         if args.config is not None:
             raise D2SlamError(f"--config does not apply to --method {args.method}")
+        _warn_depth_scale(open_sequence(args.sequence, **({"camera": camera} if camera else {})), DEFAULT)
         return method.runner(args)
 
     config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
-    camera, camera_source = args.camera, None
-    if is_camera_file(args.camera):
-        settings = read_camera_file(args.camera)
-        camera, camera_source = settings.camera, str(Path(args.camera).expanduser().resolve())
-        if settings.th_depth is not None:
-            config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=settings.th_depth))
+    if th_depth is not None:
+        config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=th_depth))
     config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=args.seed))
     seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
     synthetic = isinstance(seq, SyntheticSequence)
-    warning = depth_scale_warning(seq, config)
-    if warning:
-        print(f"d2slam: warning: {warning}", file=sys.stderr)
+    _warn_depth_scale(seq, config)
     mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
     run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
                      progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
@@ -146,6 +144,17 @@ def run(args) -> int:
                            result.tracked, result.frames, ate, [out, args.metrics_json],
                            ate_note=" (no RPE)" if ate_only is not None else ""))
     return 0
+
+
+def _warn_depth_scale(seq, config) -> None:
+    """The depth-scale check (:mod:`d2slam.data.depth_scale`): a warning on stderr naming the factor to set."""
+    import sys
+
+    from d2slam.data.depth_scale import depth_scale_warning
+
+    warning = depth_scale_warning(seq, config)
+    if warning:
+        print(f"d2slam: warning: {warning}", file=sys.stderr)
 
 
 def camera_text(name: str, source: str, camera_arg: str | None) -> str:
