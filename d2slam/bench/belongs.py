@@ -43,5 +43,6 @@ def run(args) -> int:
     caught = sum(refused(est, gt) for est, gt in others)
     print(f"{len(runs)} runs of {len(truths)} sequences in {args.results}")
     print(f"  against their own ground truth: {len(own)} refused" + (f" ({', '.join(own)})" if own else ""))
-    print(f"  against another sequence's: {caught} of {len(others)} refused ({100 * caught / max(1, len(others)):.0f} %)")
+    share = 100 * caught / max(1, len(others))
+    print(f"  against another sequence's: {caught} of {len(others)} refused ({share:.0f} %)")
     return 0

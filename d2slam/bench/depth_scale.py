@@ -20,8 +20,6 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     import dataclasses
 
-    import numpy as np
-
     from d2slam.data import open_sequence
     from d2slam.data.depth_scale import depth_scale_warning, translation_ratios
     from d2slam.data.tum import TumSequence
