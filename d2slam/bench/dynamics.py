@@ -67,8 +67,7 @@ def _run_mode(mode: str, scenes, args) -> dict[str, list[float]]:
 
 def recorded_inputs(path: str, frames: int) -> list:
     """The ``FilterInput`` of frames 1 .. ``frames``-1 of a sequence as the engine gives them to the ``d2slam`` filter
-    (default config, masks as ``d2slam run`` reads them: ``mask_sim`` on synthetic sequences, the ONNX segmenter on
-    TUM folders)."""
+    (default config, masks as ``d2slam run`` reads them: the ONNX segmenter's, through the mask cache)."""
     from d2slam.config import DEFAULT
     from d2slam.data import SyntheticSequence, open_sequence
     from d2slam.dynamics import get_filter

@@ -56,8 +56,16 @@ def run(args) -> int:
     from d2slam.synth.generate import generate
     from d2slam.synth.scene import resolve_frames
 
+    from d2slam.progress import announce
+    from d2slam.synth.generate import estimated_seconds, worker_count
+
     check_output_dir(args.out, "--out")
-    result = generate(args.scenario, args.out, frames=resolve_frames(args.scenario, args.frames), seed=args.seed,
-                      static_twin=args.static_twin, workers=args.workers)
+    frames = resolve_frames(args.scenario, args.frames)
+    workers = worker_count(frames, args.workers)
+    announce(f"generating {frames} frames of {args.scenario} (seed {args.seed}"
+             f"{', static twin' if args.static_twin else ''}) into {args.out} with {workers} "
+             f"worker{'s' if workers > 1 else ''}", estimated_seconds(frames, args.workers))
+    result = generate(args.scenario, args.out, frames=frames, seed=args.seed, static_twin=args.static_twin,
+                      workers=args.workers)
     print(summarise(result))
     return 0

@@ -160,18 +160,34 @@ class CachedSegmenter:
             return cached
         return self._compute(frame)
 
-    def fill(self, progress: bool = True) -> tuple[int, int]:
-        """Segment every frame not yet cached (tqdm bar); returns (hits, misses) of this call."""
-        from tqdm import tqdm
+    def missing(self, frames: int | None = None) -> list[int]:
+        """Indices of the first ``frames`` frames (all by default) whose masks are not in the cache yet."""
+        n = len(self.sequence) if frames is None else min(len(self.sequence), int(frames))
+        return [i for i in range(n) if not self.path_for(self.sequence.timestamps[i]).is_file()]
+
+    def fill(self, progress: bool = True, frames: int | None = None, recheck: bool = True) -> tuple[int, int]:
+        """Segment the first ``frames`` frames (all by default) not yet cached; ``recheck`` also reads the cached ones
+        (a corrupt file is recomputed). With ``progress`` the segmentation is announced with an estimate
+        (``CliConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Returns (hits, misses) of this
+        call."""
+        from d2slam.config import CLI
+        from d2slam.progress import announce
+        from d2slam.progress import progress as follow
 
         if not self.cacheable:
             raise D2SlamError(f"the '{self.name}' masks are read from the sequence and need no cache")
+        n = len(self.sequence) if frames is None else min(len(self.sequence), int(frames))
+        todo = self.missing(n)
+        if todo and progress:
+            model = getattr(self.segmenter, "model_path", None)
+            announce(f"segmenting {len(todo)} frames of {self.sequence.name} with "
+                     f"{Path(model).name if model else self.name} into the mask cache {self.dir} (once per "
+                     "sequence)", len(todo) * CLI.segment_frame_s)
         h0, m0 = self.hits, self.misses
-        for i in tqdm(range(len(self.sequence)), desc=f"segment {self.name}", unit="frame",
-                      disable=None if progress else True):
+        for i in follow(range(n) if recheck else todo, desc=f"segment {self.sequence.name}",
+                        enabled=progress and bool(todo)):
             self.instances(i)
-        return self.hits - h0, self.misses - m0
-
+        return self.hits - h0 + (0 if recheck else n - len(todo)), self.misses - m0
 
 class RgbListSequence:
     """Every RGB image listed in a TUM ``rgb.txt`` (parsed by ``d2slam.data.tum.read_file_list``; no depth, no

@@ -93,7 +93,7 @@ def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
         return tum_sequence_dir(options["tum_root"], scenario)
     from d2slam.study.sequences import ensure_sequence
 
-    return ensure_sequence(scenario, seed, frames, twin, root=options.get("cache_root"))
+    return ensure_sequence(scenario, seed, frames, twin, root=options.get("cache_root"), progress=False)
 
 
 def execute_run(spec: RunSpec | dict, options: dict) -> dict:

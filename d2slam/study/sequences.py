@@ -61,8 +61,9 @@ def is_complete(path: Path) -> bool:
 
 
 def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, root: str | Path | None = None,
-                    progress: bool = False) -> Path:
-    """The cached sequence's folder, generated (single process, deterministic) if missing or incomplete."""
+                    progress: bool = True) -> Path:
+    """The cached sequence's folder, generated (single process, deterministic) if missing or incomplete; with
+    ``progress`` the generation is announced with an estimate and followed (:mod:`d2slam.progress`)."""
     path = sequence_dir(scenario, seed, frames, twin, root)
     if is_complete(path):
         return path
@@ -75,6 +76,12 @@ def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, r
                 return path
             from d2slam.synth import generate
 
+            if progress:
+                from d2slam.progress import announce
+                from d2slam.synth.generate import estimated_seconds
+
+                announce(f"generating {sequence_name(scenario, seed, frames, twin)} (once; cached in {path.parent})",
+                         estimated_seconds(int(frames), 1))
             tmp = path.parent / f"{path.name}.tmp-{os.getpid()}"
             shutil.rmtree(tmp, ignore_errors=True)
             try:
