@@ -11,7 +11,7 @@ def register(sub) -> None:
     topics = parser.add_subparsers(dest="topic", metavar="TOPIC", required=True)
     for name in bench.topics():
         module = bench.load(name)
-        text = module.DESCRIPTION.replace("%", "%%")  # argparse %-formats help texts: "3 % of the image"
-        p = topics.add_parser(name, help=text, description=text)
+        # argparse %-formats help texts ("3 % of the image"), not descriptions
+        p = topics.add_parser(name, help=module.DESCRIPTION.replace("%", "%%"), description=module.DESCRIPTION)
         module.add_arguments(p)
         p.set_defaults(func=module.run)
