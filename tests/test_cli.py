@@ -38,3 +38,14 @@ def test_config_roundtrip_and_unknown_keys():
         assert "nope" in str(exc)
     else:  # pragma: no cover
         raise AssertionError("unknown key accepted")
+
+
+def test_ctrl_c_while_the_commands_load_is_one_line(monkeypatch, capsys):
+    import d2slam.cli as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["study", "--help"]) == 130
+    assert capsys.readouterr().err == "d2slam: interrupted\n"

@@ -18,9 +18,10 @@ def register(sub) -> None:
         "sequences of the same name; 30 Hz frames, ground truth at 100 Hz. Same scenario, frames and seed give "
         "byte-identical files.")
     p.add_argument("scenario", choices=SCENARIOS)
-    p.add_argument("--out", required=True, help="output folder (created; a previous synthetic sequence there is "
-                   "replaced, any other non-empty folder refused). Written into DIR.tmp-PID@HOST beside it and renamed "
-                   "at the end: an interrupted run leaves DIR as it was")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder (created; a previous synthetic sequence there is replaced, any other non-empty "
+                   "folder refused). Written into DIR.tmp-PID@HOST beside it and renamed at the end: an interrupted "
+                   "run leaves DIR as it was")
     p.add_argument("--frames", type=frames_arg, default=300, help="number of RGB-D frames at 30 Hz (default 300), "
                    "or 'tum': the duration of the TUM fr3 sequence of that name (walking_xyz 28.8 s, ...)")
     p.add_argument("--seed", type=int, default=0, help="seed of the room, people, paths and noise (default 0)")
