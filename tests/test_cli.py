@@ -79,3 +79,14 @@ def test_docs_outside_a_checkout_says_so_first(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err.startswith("d2slam: error: `d2slam docs` runs inside a d2slam checkout")
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "docs").exists()
+
+
+def test_ctrl_c_while_the_commands_load_is_one_line(monkeypatch, capsys):
+    import d2slam.cli as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["study", "--help"]) == 130
+    assert capsys.readouterr().err == "d2slam: interrupted\n"

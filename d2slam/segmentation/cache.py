@@ -10,8 +10,9 @@ Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/<timestamp>.npz`` 
 * one compressed ``.npz`` per frame, named by the RGB timestamp (``%.6f``): ``bits`` (``np.packbits`` of the
   (k, H, W) masks), ``shape``, ``scores`` (k,), ``boxes`` (k, 4), ``timestamp``.
 
-Files are written atomically (temporary file + rename). A corrupt or inconsistent file is reported with a warning
-naming it, recomputed and overwritten (documented recovery). ``meta.json`` beside the files records the keys.
+Files are written atomically (a temporary file named after the writing process, :mod:`d2slam.outputs`, then a
+rename). A corrupt or inconsistent file is reported with a warning naming it, recomputed and overwritten (documented
+recovery). ``meta.json`` beside the files records the keys.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from d2slam.errors import D2SlamError
+from d2slam.outputs import temp_tag
 from d2slam.paths import cache_dir
 from d2slam.segmentation.base import PersonInstance
 
@@ -65,7 +67,7 @@ def save_instances(path: Path, instances: list[PersonInstance], shape: tuple[int
         "timestamp": np.float64(timestamp),
     }
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{temp_tag()}-", suffix=".npz")
     try:
         with os.fdopen(fd, "wb") as fh:
             np.savez_compressed(fh, **arrays)
