@@ -26,6 +26,7 @@ import json
 import multiprocessing as mp
 import os
 import shutil
+import signal
 import time
 from pathlib import Path
 
@@ -123,6 +124,7 @@ def _frame_job(i: int) -> dict:
 
 
 def _init_worker(args) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it stops the pool, workers say nothing
     cv2.setNumThreads(1)
     if "scene" not in _STATE:  # a spawned worker rebuilds the (deterministic) scene instead of inheriting it
         scenario, seed, frames, static_twin, cfg, out = args
