@@ -37,7 +37,11 @@ def test_grid_dedup_defaults_and_errors():
     default = expand_grid(frames=300)
     n_methods = len(G.default_methods())
     assert "orbslam3" in G.default_methods() and G.default_methods()[0] == "none"
-    assert len(default) == 5 * 3 * n_methods + 5 * 3 * 3  # twins: none, d2slam, oracle (the occluded twin)
+    fr3 = [s for s in default if s.scenario in G.FR3_SCENARIOS]
+    assert len(fr3) == 5 * 3 * n_methods + 5 * 3 * 3  # twins: none, d2slam, oracle (the occluded twin)
+    ours = [s for s in default if s.scenario in G.INTERACTION_SCENARIOS]
+    assert len(ours) == 2 * 3 * len(G.INTERACTION_METHODS) + 2 * 3 * 3
+    assert {s.method for s in ours} == set(G.INTERACTION_METHODS)
     assert {s.seed for s in default} == {101, 102, 103}
     tum = expand_grid(["walking_xyz"], ["none", "d2slam"], [1], 0, source="tum")
     assert not any(s.twin for s in tum) and all(s.source == "tum" for s in tum)
