@@ -183,9 +183,45 @@ def _print_table(rows: list[dict], args) -> None:
                   + ", ".join(f"{k} {np.median(v):.1f}" for k, v in stages.items()))
         print(f"  machine load average at the end: {', '.join(f'{x:.1f}' for x in _loadavg())} "
               "(figures are wall-clock: other processes slow both)")
+    _print_overhead(rows)
     for method in ("orbslam3", "none"):
         for variant in ("twin", "dynamic"):
             ates = [r["metrics"]["ate_rmse_m"] for r in rows if r["method"] == method and r["variant"] == variant
                     and isinstance((r.get("metrics") or {}).get("ate_rmse_m"), (int, float))]
             if ates:
                 print(f"median ATE {method:8s} {variant:7s}: {np.median(ates):.4f} m over {len(ates)} sequence(s)")
+
+
+OVERHEAD_PARTS = ("process", "load", "decode", "save", "evaluate")
+
+
+def overhead(run: dict) -> dict | None:
+    """Per-run seconds of an ORB-SLAM3 run dict (median over its repeats): ``wall`` (the child process, plus its
+    evaluation and its share of the frame store), ``track`` (the frames' ``track_rgbd`` calls), the overhead parts
+    (``process``: interpreter, imports, exit; ``load``: the vocabulary; ``decode``: frames read in the worker plus
+    the share of the frames decoded once; ``save``: shutdown and SaveTrajectoryTUM; ``evaluate``: evo) and their
+    sum ``overhead``; ``cpu``: the worker's CPU seconds (every ORB-SLAM3 thread). None without per-run seconds."""
+    reps = [r for r in run.get("runs") or [] if r.get("seconds")]
+    if not reps:
+        return None
+    share = (run.get("frame_store") or {}).get("wall_s", 0.0) / len(reps)
+    per = []
+    for r in reps:
+        sec = dict(r["seconds"])
+        sec["decode"] = sec.get("decode", 0.0) + share
+        sec["wall"] = r["wall_s"] + sec.get("evaluate", 0.0) + share
+        sec["overhead"] = sum(sec.get(k, 0.0) for k in OVERHEAD_PARTS)
+        sec["cpu"] = r.get("cpu_s") or float("nan")
+        per.append(sec)
+    keys = ("wall", "track", "overhead", *OVERHEAD_PARTS, "cpu")
+    return {k: float(np.median([p.get(k, 0.0) for p in per])) for k in keys}
+
+
+def _print_overhead(rows: list[dict]) -> None:
+    table = [(r["sequence"], o) for r in rows if r["method"] == "orbslam3" and (o := overhead(r))]
+    if not table:
+        return
+    print("\nORB-SLAM3 per-run seconds (median over repeats): wall = track + overhead + the frame loop's own time")
+    print(f"{'sequence':30s} " + " ".join(f"{k:>8s}" for k in table[0][1]))
+    for name, o in table:
+        print(f"{name:30s} " + " ".join(f"{v:8.2f}" for v in o.values()))
