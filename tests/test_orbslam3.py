@@ -294,3 +294,14 @@ def test_a_camera_file_gives_orbslam3_its_th_depth(tmp_path, seq_dir, built_voca
     assert run["status"] in ("ok", "lost"), run["message"]
     written = read_camera_file(run["settings"])
     assert written.th_depth == 35.0 and written.camera.fx == FREIBURG3.fx
+
+
+def test_the_worker_imports_this_d2slam_from_any_folder(tmp_path, seq_dir, built_vocab, monkeypatch):
+    """``python -m`` puts the working folder first on sys.path: another d2slam checkout there must not be run."""
+    fake = tmp_path / "elsewhere" / "d2slam"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ImportError('the d2slam of the working folder')\n")
+    monkeypatch.chdir(fake.parent)
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, max_frames=3, progress=False,
+                         evaluate=False)
+    assert run["status"] == "ok", run["message"]

@@ -199,7 +199,9 @@ def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: P
         config_path = work / "config.json"
         config_path.write_text(json.dumps(config.to_dict(), default=list))
         cmd += ["--masks", masks, "--config", str(config_path)]
-    env = dict(os.environ)
+    from d2slam.baselines import child_env
+
+    env = child_env()
     env.pop("DISPLAY", None)  # headless: Pangolin is never started (use_viewer=False)
     if timeout is None:
         timeout = cfg.orbslam3_load_timeout_s + cfg.orbslam3_frame_timeout_s * n_frames

@@ -422,7 +422,9 @@ def render_training_frames(jobs: list[dict], cfg: BaselineConfig = DEFAULT.basel
     total = _n_rendered(jobs)
     cmd = [sys.executable, "-m", "d2slam.baselines.vocab", "render", json.dumps(jobs)]
     bar = Progress("render training frames", total, progress, cfg.vocab_log_interval_s)
-    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as proc:
+    from d2slam.baselines import child_env
+
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=child_env()) as proc:
         for line in proc.stdout:
             if line.startswith("frame"):
                 bar.update()
