@@ -305,3 +305,23 @@ def test_the_worker_imports_this_d2slam_from_any_folder(tmp_path, seq_dir, built
     run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, max_frames=3, progress=False,
                          evaluate=False)
     assert run["status"] == "ok", run["message"]
+
+
+def test_bench_prints_the_per_run_split_and_takes_a_config(tmp_path, built_vocab, capsys):
+    """`d2slam bench orbslam3` prints where each run's seconds went; `--config` reaches ORB-SLAM3's runs (here:
+    no frame store, every repeat decodes its frames)."""
+    from d2slam.cli import main
+    from d2slam.study.sequences import ensure_sequence
+
+    ensure_sequence("sitting_static", 101, 40, False)  # the study's cached test sequence
+    (tmp_path / "c.yaml").write_text("baseline: {orbslam3_frame_store_mb: 0}\n")
+    argv = ["bench", "orbslam3", "--scenarios", "sitting_static", "--seeds", "101", "--frames", "40", "--variants",
+            "dynamic", "--methods", "orbslam3", "--repeats", "2", "--vocab", str(built_vocab)]
+    assert main(argv + ["--out", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert "per-run seconds" in out and "overhead" in out and "decode" in out
+    rows = json.loads((tmp_path / "a" / "bench_orbslam3.json").read_text())["rows"]
+    assert rows[0]["frame_store"]["frames"] == 40
+    assert main(argv + ["--out", str(tmp_path / "b"), "--config", str(tmp_path / "c.yaml")]) == 0
+    rows = json.loads((tmp_path / "b" / "bench_orbslam3.json").read_text())["rows"]
+    assert "frame_store" not in rows[0] and rows[0]["status"] in ("ok", "lost", "reset")

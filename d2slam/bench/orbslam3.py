@@ -31,6 +31,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--repeats", type=int, default=1, help="ORB-SLAM3 runs per sequence (median, spread)")
     parser.add_argument("--vocab", default=None, help="DBoW2 text vocabulary (default: $PYORBSLAM3_VOCAB or the "
                         "project-built one)")
+    parser.add_argument("--config", default=None, metavar="FILE.yaml",
+                        help="config overrides for ORB-SLAM3's runs, e.g. `baseline: {orbslam3_frame_store_mb: 0}` "
+                        "(every repeat decodes its own frames)")
     parser.add_argument("--out", default=None, help="output folder (default: the d2slam cache)")
     parser.add_argument("--regenerate", action="store_true",
                         help="generate the sequences again (the cache is already keyed by the generator version)")
@@ -109,6 +112,9 @@ def run(args) -> int:
         raise D2SlamError("--frames must be at least 30 (RPE needs 1 s pairs)")
     from d2slam.outputs import check_output_dir
 
+    from d2slam.config import DEFAULT, load_config_file
+
+    config = load_config_file(args.config)[0] if args.config else DEFAULT
     out_root = check_output_dir(args.out, "--out") if args.out else cache_dir("bench", "orbslam3")
     out_root.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -124,7 +130,7 @@ def run(args) -> int:
                 for method in args.methods:
                     if method == "orbslam3":
                         r = run_orbslam3(seq, out / "orbslam3.txt", out / "orbslam3.json", repeats=args.repeats,
-                                         vocab=args.vocab)
+                                         vocab=args.vocab, config=config)
                     else:
                         r = _run_engine(seq, out)
                         if r.get("trajectory") and "metrics" not in r and "metrics_error" not in r:
