@@ -4,11 +4,13 @@
 
 1. resolves the vocabulary (argument, ``$PYORBSLAM3_VOCAB`` = e.g. the official ORBvoc.txt, or the one the project
    builds, :mod:`d2slam.baselines.vocab`) and checks its structure (ORB-SLAM3's loader accepts garbage and crashes
-   later); never downloads;
+   later; a file the project built is known by its manifest); never downloads;
 2. writes an ORB-SLAM3 1.0 settings YAML from the sequence's camera (fr3 from the TUM folder name, synthetic
    sequences from ``scene.json``) and the ORB / engine constants of :mod:`d2slam.config`;
-3. runs ORB-SLAM3 in a child process (:mod:`d2slam.baselines._orbslam3_worker`) with a time limit: a crash, an
-   ``exit(-1)`` on a bad settings file or a hang never takes the caller down;
+3. runs ORB-SLAM3 in a child process (:mod:`d2slam.baselines._orbslam3_worker`, a fresh one per run) with a time
+   limit: a crash, an ``exit(-1)`` on a bad settings file or a hang never takes the caller down; repeated runs read
+   the frames decoded once (a frame store, ``BaselineConfig.orbslam3_frame_store_dir``); the run JSON says where
+   each run's seconds went (``seconds``, ``cpu_s``);
 4. writes the trajectory in TUM format (``T_world_camera`` of the *tracked* frames: ORB-SLAM3's final, BA-refined
    ``SaveTrajectoryTUM`` poses at the frames whose state was OK; the online poses if that file is missing) and a run
    JSON with the keys of the engine's run JSON (``frames``, ``tracked``, ``lost``, ``fps``, ``ms_per_frame``, ...),
