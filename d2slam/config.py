@@ -634,6 +634,10 @@ class BaselineConfig:
     vocab_train_scenarios: tuple[str, ...] = ("walking_xyz", "walking_halfsphere", "walking_rpy", "sitting_static")
     vocab_train_frames: int = 60
     vocab_train_stride: int = 6
+    # A build is announced with its estimate: a + b x frames to render + c x training images (CPU seconds, measured:
+    # docs/orbslam3_baseline.md); without a terminal each stage logs a line on stderr every this many seconds.
+    vocab_estimate_s: tuple[float, float, float] = (3.0, 0.15, 0.15)
+    vocab_log_interval_s: float = 5.0
     # ORB-SLAM3 run: camera fps written in the settings, repeats of the study (its threads are not deterministic: the
     # study reports the median and spread of the repeats per sequence; docs/deviations.md), subprocess time limits
     # (vocabulary load + per frame).
@@ -644,6 +648,11 @@ class BaselineConfig:
     orbslam3_repeats: int = 3
     orbslam3_load_timeout_s: float = 180.0
     orbslam3_frame_timeout_s: float = 2.0
+    # Repeated runs read frames decoded once (and people removed once) from a frame store in this folder (memory-
+    # backed; the run's work folder when it lacks room), at most this many MB (RGB + float32 depth: 2.1 MB a
+    # 640x480 frame); beyond it each run decodes its frames (docs/orbslam3_baseline.md: per-run overhead).
+    orbslam3_frame_store_dir: str = "/dev/shm"
+    orbslam3_frame_store_mb: int = 2048
 
 
 @dataclass(frozen=True)

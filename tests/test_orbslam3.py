@@ -116,7 +116,12 @@ def test_built_vocabulary_loads_in_orbslam3_and_tracks(tmp_path, seq_dir, built_
     assert saved["metrics"]["ate_rmse_m"] < 0.01 and saved["metrics"]["n_matched"] == 36
 
 
+def _stores() -> set:
+    return set(Path(DEFAULT.baseline.orbslam3_frame_store_dir).glob("d2slam_orbslam3_frames_*"))
+
+
 def test_repeats_report_median_and_spread(tmp_path, seq_dir, built_vocab):
+    before = _stores()
     run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", repeats=2, vocab=built_vocab, max_frames=6, progress=False,
                          evaluate=False)
     assert len(run["runs"]) == 2 and run["statuses"] == ["ok", "ok"]
@@ -124,6 +129,62 @@ def test_repeats_report_median_and_spread(tmp_path, seq_dir, built_vocab):
     lo, hi = run["ms_per_frame_spread"]["min"], run["ms_per_frame_spread"]["max"]
     assert lo <= run["ms_per_frame"] <= hi
     assert (tmp_path / "t.txt").is_file() and (tmp_path / "t.rep1.txt").is_file()
+    # the repeats read the frames decoded once; the store is gone afterwards
+    assert run["frame_store"]["frames"] == 6 and run["frame_store"]["error"] is None
+    assert run["frame_store"]["bytes"] >= 6 * 640 * 480 * 7 and _stores() == before
+    assert all(r["stage_ms"]["load"] > 0 for r in run["runs"])  # the decoding time per frame, measured once
+
+
+def test_run_seconds_say_where_the_time_went(tmp_path, seq_dir, built_vocab):
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, progress=False)
+    sec = run["seconds"]
+    assert set(sec) == {"track", "load", "decode", "loop", "save", "process", "evaluate"}
+    assert sec["load"] > 0 and sec["decode"] > 0 and sec["evaluate"] > 0
+    assert sec["track"] + sec["decode"] <= sec["loop"] <= run["wall_s"]
+    assert abs(sec["process"] + sec["load"] + sec["loop"] + sec["save"] - run["wall_s"]) < 0.01
+    assert run["cpu_s"] > 0 and "frame_store" not in run  # a single run decodes in its worker
+    from d2slam.bench.orbslam3 import overhead
+
+    o = overhead(run)
+    assert o["overhead"] == pytest.approx(sum(o[k] for k in ("process", "load", "decode", "save", "evaluate")))
+
+
+def test_frame_store_holds_what_the_worker_would_decode(tmp_path, seq_dir):
+    """The frames repeats share are the arrays the worker gives ORB-SLAM3 when it decodes them itself; an unreadable
+    frame ends the store, and the worker meets its error after the frames before it."""
+    import shutil
+
+    from d2slam.baselines import _orbslam3_worker as W
+
+    seq = open_sequence(seq_dir)
+    meta = W.write_frame_store(seq, 4, tmp_path / "store")
+    assert meta["frames"] == 4 and meta["error"] is None and meta["io_s"] > 0
+    for i, got in enumerate(W.store_frames(tmp_path / "store")):  # (timestamp, rgb, depth, io_s, seg_s, mask_s)
+        want = W.sequence_frame(seq, i)
+        assert got[0] == want[0] and np.array_equal(got[1], want[1]) and np.array_equal(got[2], want[2])
+        assert got[2].dtype == np.float32 and got[2].max() == pytest.approx(DEPTH_M * 5000)
+    broken = tmp_path / "rgbd_dataset_freiburg3_broken"
+    shutil.copytree(seq_dir, broken)
+    bad = open_sequence(broken)
+    bad.rgb_files[2].write_bytes(b"not a png")
+    meta = W.write_frame_store(bad, 4, tmp_path / "bad")
+    assert meta["frames"] == 2 and bad.rgb_files[2].name in meta["error"]
+    frames = W.store_frames(tmp_path / "bad")
+    assert len([next(frames), next(frames)]) == 2
+    with pytest.raises(D2SlamError, match=bad.rgb_files[2].name):
+        next(frames)
+
+
+def test_corrupt_frame_with_repeats_is_recorded_as_without(tmp_path, seq_dir, built_vocab):
+    import shutil
+
+    broken = tmp_path / "rgbd_dataset_freiburg3_broken"
+    shutil.copytree(seq_dir, broken)
+    seq = open_sequence(broken)
+    seq.rgb_files[5].write_bytes(b"not a png")
+    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False, repeats=2, evaluate=False)
+    assert run["statuses"] == ["failed", "failed"] and seq.rgb_files[5].name in run["message"]
+    assert run["frames"] == 5 and run["tracked"] == 5
 
 
 def test_corrupt_vocabulary_is_a_failed_run_not_a_crash(tmp_path, seq_dir):
@@ -233,3 +294,34 @@ def test_a_camera_file_gives_orbslam3_its_th_depth(tmp_path, seq_dir, built_voca
     assert run["status"] in ("ok", "lost"), run["message"]
     written = read_camera_file(run["settings"])
     assert written.th_depth == 35.0 and written.camera.fx == FREIBURG3.fx
+
+
+def test_the_worker_imports_this_d2slam_from_any_folder(tmp_path, seq_dir, built_vocab, monkeypatch):
+    """``python -m`` puts the working folder first on sys.path: another d2slam checkout there must not be run."""
+    fake = tmp_path / "elsewhere" / "d2slam"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ImportError('the d2slam of the working folder')\n")
+    monkeypatch.chdir(fake.parent)
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, max_frames=3, progress=False,
+                         evaluate=False)
+    assert run["status"] == "ok", run["message"]
+
+
+def test_bench_prints_the_per_run_split_and_takes_a_config(tmp_path, built_vocab, capsys):
+    """`d2slam bench orbslam3` prints where each run's seconds went; `--config` reaches ORB-SLAM3's runs (here:
+    no frame store, every repeat decodes its frames)."""
+    from d2slam.cli import main
+    from d2slam.study.sequences import ensure_sequence
+
+    ensure_sequence("sitting_static", 101, 40, False)  # the study's cached test sequence
+    (tmp_path / "c.yaml").write_text("baseline: {orbslam3_frame_store_mb: 0}\n")
+    argv = ["bench", "orbslam3", "--scenarios", "sitting_static", "--seeds", "101", "--frames", "40", "--variants",
+            "dynamic", "--methods", "orbslam3", "--repeats", "2", "--vocab", str(built_vocab)]
+    assert main(argv + ["--out", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert "per-run seconds" in out and "overhead" in out and "decode" in out
+    rows = json.loads((tmp_path / "a" / "bench_orbslam3.json").read_text())["rows"]
+    assert rows[0]["frame_store"]["frames"] == 40
+    assert main(argv + ["--out", str(tmp_path / "b"), "--config", str(tmp_path / "c.yaml")]) == 0
+    rows = json.loads((tmp_path / "b" / "bench_orbslam3.json").read_text())["rows"]
+    assert "frame_store" not in rows[0] and rows[0]["status"] in ("ok", "lost", "reset")

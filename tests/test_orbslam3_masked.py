@@ -95,6 +95,30 @@ def test_the_worker_gives_orbslam3_the_frames_without_the_people(seq):
     assert seg_s >= 0 and mask_s > 0
 
 
+def test_repeats_share_frames_masked_once(seq, vocab, tmp_path):
+    """Repeated runs read the frames with the people removed once (the frame store): the same arrays as the worker's
+    own masking, and each frame's masking time still counts in its milliseconds."""
+    import numpy as np
+
+    from d2slam.baselines import _orbslam3_worker as W
+    from d2slam.baselines.orbslam3 import run_orbslam3
+    from d2slam.data import open_sequence
+    from d2slam.segmentation import masks_for
+
+    s = open_sequence(seq)
+    i = next(k for k in range(FRAMES) if masks_for(s, k, "gt"))
+    W.write_frame_store(s, i + 1, tmp_path / "store", "gt", DEFAULT)
+    got = list(W.store_frames(tmp_path / "store"))[i]
+    want = W.sequence_frame(s, i, "gt", DEFAULT)
+    assert np.array_equal(got[1], want[1]) and np.array_equal(got[2], want[2]) and (got[2] == 0).any()
+    run = run_orbslam3(seq, tmp_path / "t.txt", repeats=2, vocab=vocab, masks="gt", max_frames=12, progress=False,
+                       evaluate=False)
+    assert run["frame_store"]["mask_s"] > 0 and run["frame_store"]["frames"] == 12
+    for r in run["runs"]:
+        assert r["status"] in ("ok", "lost") and r["stage_ms"]["mask"] > 0
+        assert r["ms_per_frame"] == pytest.approx(r["stage_ms"]["mask"] + r["stage_ms"]["track"], abs=1e-2)
+
+
 def test_study_runs_it_with_repeats(seq, vocab, monkeypatch):
     from d2slam.study.grid import RunSpec
     from d2slam.study.runner import execute_run, run_key, run_options

@@ -196,3 +196,88 @@ def test_cli_build_bad_images_dir(tmp_path, capsys):
     assert main(["vocab", "build", "--no-synthetic", "--no-real", "--images-dir", str(empty),
                  "--out", str(tmp_path / "v.txt")]) == 2
     assert "x.png" in capsys.readouterr().err
+
+
+def test_progress_logs_lines_without_a_terminal(capsys):
+    bar = V.Progress("stage", 3, enabled=True, interval=0.0)  # pytest's stderr is not a terminal
+    for _ in range(3):
+        bar.update()
+    bar.close()
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[0].startswith("vocabulary: stage 1/3") and lines[-1].startswith("vocabulary: stage 3/3")
+    quiet = V.Progress("stage", 3, enabled=False, interval=0.0)
+    quiet.update()
+    quiet.close()
+    assert capsys.readouterr().err == ""
+
+
+def test_a_build_is_announced_with_an_estimate_and_a_cached_one_is_silent(tmp_path, capsys):
+    out = tmp_path / "v.txt"
+    m = V.build_vocabulary(out, synthetic=False, real=True, progress=False)
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("vocabulary: building the DBoW2 vocabulary") and "about" in err[0] and str(out) in err[0]
+    assert err[-1].startswith("vocabulary: built in") and len(err) == 2  # progress off: no stage lines
+    assert not m["cached"] and {"render", "descriptors", "tree", "write", "total"} <= set(m["seconds"])
+    assert V.build_vocabulary(out, synthetic=False, real=True, progress=False)["cached"]
+    assert capsys.readouterr().err == ""
+
+
+def test_a_second_builder_waits_for_the_first(tmp_path, capsys):
+    import threading
+
+    out = tmp_path / "v.txt"
+    entered = threading.Event()
+
+    def second():
+        with V._build_lock(out):
+            entered.set()
+
+    with V._build_lock(out):
+        t = threading.Thread(target=second)
+        t.start()
+        assert not entered.wait(0.5)  # blocked while the first holds the lock
+    t.join(10)
+    assert entered.is_set() and "waiting for it" in capsys.readouterr().err
+
+
+def test_training_jobs_are_keyed_by_generator_and_need_training_seeds(tmp_path, monkeypatch):
+    from dataclasses import replace
+
+    from d2slam.config import DEFAULT
+    from d2slam.study.sequences import generator_version
+
+    monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path))
+    cfg = replace(DEFAULT.baseline, vocab_train_seeds=(900,), vocab_train_scenarios=("walking_xyz",))
+    (job,) = V.training_jobs(cfg)
+    assert generator_version() in job["out"] and job["out"].endswith("walking_xyz_s900_n60_every6")
+    assert not job["done"] and V._n_rendered([job]) == 10
+    with pytest.raises(D2SlamError, match="900-999"):
+        V.training_jobs(replace(cfg, vocab_train_seeds=(101,)))
+
+
+def test_rendered_training_frames_are_the_sequence_files(tmp_path):
+    """Only every stride-th frame is rendered, and each file is byte for byte the one `d2slam synth` writes."""
+    from d2slam.data import open_sequence
+    from d2slam.study.sequences import ensure_sequence
+
+    seq = open_sequence(ensure_sequence("sitting_static", 101, 40, False))  # also used by the ORB-SLAM3 tests
+    job = {"scenario": "sitting_static", "seed": 101, "frames": 40, "stride": 20, "out": str(tmp_path / "j")}
+    V.render_training_frames([job], progress=False)
+    files = V.images_of_dir(tmp_path / "j")
+    assert [f.name for f in files] == [seq.rgb_files[0].name, seq.rgb_files[20].name]
+    assert all(f.read_bytes() == seq.rgb_files[i].read_bytes() for f, i in zip(files, (0, 20)))
+    assert (tmp_path / "j" / V.MARKER).is_file() and not (tmp_path / "j.part").exists()
+
+
+def test_resolve_checks_a_file_once_and_trusts_its_own_build(small_vocab, tmp_path, monkeypatch):
+    _, path, _, _, _ = small_vocab
+    calls = []
+    monkeypatch.setattr(V, "check_vocabulary_file", lambda p: calls.append(p))
+    external = tmp_path / "other.txt"
+    external.write_bytes(path.read_bytes())
+    V.resolve_vocabulary(external, build=False)
+    V.resolve_vocabulary(external, build=False)
+    assert len(calls) == 1  # once per content and process
+    built = tmp_path / "built.txt"
+    V.build_vocabulary(built, synthetic=False, real=True, progress=False)
+    assert V.resolve_vocabulary(built, build=False)["kind"] == "built" and len(calls) == 1

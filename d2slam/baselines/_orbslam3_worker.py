@@ -2,15 +2,27 @@
 :func:`d2slam.baselines.orbslam3.run_orbslam3`, never by users.
 
 ORB-SLAM3 calls ``exit(-1)`` on a bad settings file, accepts a garbage vocabulary and then crashes, and runs
-threads: it lives in this process so that the caller survives and can time it out. Protocol (files in ``--work``):
+threads: it lives in this process so that the caller survives and can time it out. Each run gets a fresh process
+(a fresh ``ORB_SLAM3::System``): ``System::Reset`` leaves the loop closer's pending candidates and the previous
+maps alive, so a reused system is not the system a fresh run gets.
 
+Frames come from ``--frames DIR`` (a frame store: the frames decoded once by the caller, people already removed with
+``--masks``, shared by the repeats: :func:`write_frame_store`) or are decoded here from ``--sequence``.
+
+Protocol (files in ``--work``):
+
+- ``loaded``: the vocabulary load's seconds, written once ORB-SLAM3 has started;
 - ``progress.txt``: one line per frame, flushed: ``index timestamp state ms n_tracked pose(16 values | -)``
   where ``state`` is ORB-SLAM3's ``TrackingState`` value, ``ms`` the time of ``track_rgbd`` (plus removing the
-  people with ``--masks``) and ``pose`` is ``T_world_camera`` (row-major);
+  people with ``--masks``; a frame store's masking time is added by the caller) and ``pose`` is ``T_world_camera``
+  (row-major);
 - ``final.txt``: ORB-SLAM3's own ``SaveTrajectoryTUM`` after shutdown (final, BA-refined poses);
-- ``done.json``: load / loop / shutdown seconds (with ``--masks``: ``segment_s`` reading the masks, ``mask_s``
-  removing them, :func:`d2slam.baselines.masking.mask_frame` with the ``--config`` JSON's ``masking``), or
-  ``{"error": ...}`` on a Python-level failure.
+- ``done.json``: seconds ``start_s`` (the module's start to ORB-SLAM3's construction: imports, frame source),
+  ``load_s`` (the construction: the vocabulary), ``loop_s`` (the frame loop), ``io_s`` (in it, decoding or mapping
+  the frames), ``shutdown_s``, ``save_s``, and ``cpu_s`` (the process's CPU seconds, every thread) (with
+  ``--masks``: ``segment_s`` reading the masks, ``mask_s`` removing them,
+  :func:`d2slam.baselines.masking.mask_frame` with the ``--config`` JSON's ``masking``), or ``{"error": ...}`` on
+  a Python-level failure.
 ORB-SLAM3's console output goes to the log file the parent gives as stdout.
 """
 
@@ -21,6 +33,8 @@ import json
 import sys
 import time
 from pathlib import Path
+
+T_START = time.perf_counter()  # the interpreter's own start-up precedes this; the parent measures the whole
 
 
 def remove_people(seq, i: int, rgb, depth, kind: str, config):
@@ -37,9 +51,108 @@ def remove_people(seq, i: int, rgb, depth, kind: str, config):
     return rgb, depth, t_mask - t, time.perf_counter() - t_mask
 
 
+def sequence_frame(seq, i: int, masks: str | None = None, config=None):
+    """What ORB-SLAM3 is given for frame ``i``: ``(timestamp, rgb, depth, io_s, segment_s, mask_s)`` with the RGB
+    image in RGB order (the settings say ``Camera.RGB: 1``) and the depth back in sensor units (ORB-SLAM3 divides by
+    ``RGBD.DepthMapFactor``), the people removed when ``masks`` is given. Raises the reader's D2SlamError."""
+    import numpy as np
+
+    t = time.perf_counter()
+    frame = seq[i]
+    depth = frame.depth * np.float32(seq.camera.depth_factor)
+    io_s = time.perf_counter() - t
+    rgb, seg_s, mask_s = frame.rgb, 0.0, 0.0
+    if masks is not None:
+        rgb, depth, seg_s, mask_s = remove_people(seq, i, rgb, depth, masks, config)
+    return frame.timestamp, rgb, depth, io_s, seg_s, mask_s
+
+
+# --------------------------------------------------------------------------------------------------
+# Frame store: frames decoded once, mapped by every repeat
+# --------------------------------------------------------------------------------------------------
+STORE_META = "frames.json"
+
+
+def write_frame_store(seq, n: int, root: Path, masks: str | None = None, config=None, progress: bool = False) -> dict:
+    """Decode frames ``0..n-1`` of ``seq`` once into ``root`` (``rgb.npy`` uint8 (n, H, W, 3), ``depth.npy``
+    float32 (n, H, W) in sensor units, ``timestamps.npy``, ``mask_ms.npy`` and ``frames.json``): exactly the arrays
+    :func:`sequence_frame` gives ORB-SLAM3. A frame that cannot be read ends the store there: ``frames`` counts the
+    frames before it and ``error`` holds the reader's message (the worker tracks those, then fails with it, as it
+    does when it decodes). Returns the meta dict (``io_s``, ``segment_s``, ``mask_s``, ``cpu_s``)."""
+    import numpy as np
+    from tqdm import tqdm
+
+    from d2slam.errors import D2SlamError
+
+    cpu0 = time.process_time()
+    root.mkdir(parents=True, exist_ok=True)
+    h, w = int(seq.camera.height), int(seq.camera.width)
+    rgb = np.lib.format.open_memmap(root / "rgb.npy", mode="w+", dtype=np.uint8, shape=(n, h, w, 3))
+    depth = np.lib.format.open_memmap(root / "depth.npy", mode="w+", dtype=np.float32, shape=(n, h, w))
+    stamps, mask_ms = np.zeros(n), np.zeros(n)
+    meta = {"frames": 0, "frames_expected": n, "io_s": 0.0, "segment_s": 0.0, "mask_s": 0.0, "error": None}
+    for i in tqdm(range(n), desc="decode frames", unit="frame", disable=None if progress else True):
+        try:
+            stamps[i], rgb[i], depth[i], io_s, seg_s, mask_s = sequence_frame(seq, i, masks, config)
+        except D2SlamError as exc:
+            meta["error"] = str(exc)
+            break
+        meta["io_s"] += io_s
+        meta["segment_s"] += seg_s
+        meta["mask_s"] += mask_s
+        mask_ms[i] = 1000.0 * mask_s
+        meta["frames"] = i + 1
+    rgb.flush()
+    depth.flush()
+    del rgb, depth
+    np.save(root / "timestamps.npy", stamps)
+    np.save(root / "mask_ms.npy", mask_ms)
+    meta["cpu_s"] = time.process_time() - cpu0
+    (root / STORE_META).write_text(json.dumps(meta))
+    return meta
+
+
+def store_frames(root: Path):
+    """The frames of a store (opened now), as :func:`sequence_frame` tuples (``io_s`` = mapping the arrays), then,
+    if the store ended on an unreadable frame, its error as a D2SlamError."""
+    import numpy as np
+
+    from d2slam.errors import D2SlamError
+
+    meta = json.loads((root / STORE_META).read_text())
+    rgb = np.load(root / "rgb.npy", mmap_mode="r")
+    depth = np.load(root / "depth.npy", mmap_mode="r")
+    stamps = np.load(root / "timestamps.npy")
+
+    def frames():
+        for i in range(meta["frames"]):
+            t = time.perf_counter()
+            frame = float(stamps[i]), np.ascontiguousarray(rgb[i]), np.ascontiguousarray(depth[i])
+            yield (*frame, time.perf_counter() - t, 0.0, 0.0)
+        if meta["error"]:
+            raise D2SlamError(meta["error"])
+
+    return frames()
+
+
+def _sequence_frames(args):
+    """The frames of ``--sequence`` (opened now: a bad folder fails before ORB-SLAM3 starts), decoded one by one."""
+    from d2slam.data import open_sequence
+
+    seq = open_sequence(args.sequence, camera=args.camera) if args.camera else open_sequence(args.sequence)
+    config = None
+    if args.masks:
+        from d2slam.config import Config
+
+        config = Config.from_dict(json.loads(Path(args.config).read_text()))
+    n = len(seq) if args.max_frames <= 0 else min(len(seq), args.max_frames)
+    return (sequence_frame(seq, i, args.masks, config) for i in range(n))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser()
-    p.add_argument("--sequence", required=True)
+    p.add_argument("--sequence", default=None)
+    p.add_argument("--frames", default=None, help="a frame store (write_frame_store) instead of --sequence")
     p.add_argument("--camera", default=None)
     p.add_argument("--vocab", required=True)
     p.add_argument("--settings", required=True)
@@ -56,74 +169,68 @@ def main(argv: list[str] | None = None) -> int:
         print(f"d2slam worker: {message}", file=sys.stderr, flush=True)
         return code
 
+    import resource
+
     import numpy as np
 
-    from d2slam.data import open_sequence
     from d2slam.errors import D2SlamError
 
     try:
-        seq = open_sequence(args.sequence, camera=args.camera) if args.camera else open_sequence(args.sequence)
+        frames = store_frames(Path(args.frames)) if args.frames else _sequence_frames(args)
     except D2SlamError as exc:
         return fail(str(exc), 3)
-    config = None
-    if args.masks:
-        from d2slam.config import Config
-
-        config = Config.from_dict(json.loads(Path(args.config).read_text()))
     import pyorbslam3
 
     t0 = time.perf_counter()
+    start_s = t0 - T_START
     try:
         slam = pyorbslam3.Slam(args.vocab, args.settings, pyorbslam3.Sensor.RGBD, use_viewer=False)
     except (OSError, ValueError, RuntimeError) as exc:
         return fail(f"ORB-SLAM3 did not start: {exc}", 4)
     load_s = time.perf_counter() - t0
     (work / "loaded").write_text(f"{load_s:.3f}")
-    factor = np.float32(seq.camera.depth_factor)
-    n = len(seq) if args.max_frames <= 0 else min(len(seq), args.max_frames)
-    io_s = segment_s = mask_s = 0.0
+    n = io_s = segment_s = mask_s = 0.0
     t_loop = time.perf_counter()
     with open(work / "progress.txt", "w") as prog:
-        for i in range(n):
-            t_io = time.perf_counter()
+        i = 0
+        while True:
             try:
-                frame = seq[i]
+                item = next(frames, None)
             except D2SlamError as exc:
                 slam.shutdown()
                 return fail(str(exc), 3)
-            depth = frame.depth * factor  # back to sensor units: ORB-SLAM3 divides by RGBD.DepthMapFactor
-            io_s += time.perf_counter() - t_io
-            rgb, mask_ms = frame.rgb, 0.0
-            if config is not None:
-                try:
-                    rgb, depth, seg_i, mask_i = remove_people(seq, i, rgb, depth, args.masks, config)
-                except D2SlamError as exc:
-                    slam.shutdown()
-                    return fail(str(exc), 3)
-                segment_s, mask_s, mask_ms = segment_s + seg_i, mask_s + mask_i, mask_i * 1000.0
+            if item is None:
+                break
+            timestamp, rgb, depth, io_i, seg_i, mask_i = item
+            io_s, segment_s, mask_s = io_s + io_i, segment_s + seg_i, mask_s + mask_i
             t = time.perf_counter()
-            res = slam.track_rgbd(rgb, depth, frame.timestamp)
-            ms = (time.perf_counter() - t) * 1000.0 + mask_ms
+            res = slam.track_rgbd(rgb, depth, timestamp)
+            ms = (time.perf_counter() - t + mask_i) * 1000.0
             pose = res.pose_wc
             pose_txt = "-" if pose is None else " ".join(f"{v:.9g}" for v in np.asarray(pose).ravel())
-            prog.write(f"{i} {frame.timestamp:.6f} {int(res.state)} {ms:.3f} {int(res.num_tracked_points)} "
-                       f"{pose_txt}\n")
+            prog.write(f"{i} {timestamp:.6f} {int(res.state)} {ms:.3f} {int(res.num_tracked_points)} {pose_txt}\n")
             prog.flush()
+            i += 1
+        n = i
     loop_s = time.perf_counter() - t_loop
     t = time.perf_counter()
     slam.shutdown()
     shutdown_s = time.perf_counter() - t
     # Written before saving: SaveTrajectoryTUM can crash on odd maps; the online poses are already on disk.
-    info = {"load_s": load_s, "loop_s": loop_s, "io_s": io_s, "shutdown_s": shutdown_s, "frames": n}
-    if config is not None:
+    info = {"start_s": start_s, "load_s": load_s, "loop_s": loop_s, "io_s": io_s, "shutdown_s": shutdown_s,
+            "frames": n}
+    if args.masks:
         info.update(segment_s=segment_s, mask_s=mask_s)
     done.write_text(json.dumps(info))
     sys.stdout.flush()
+    t = time.perf_counter()
     try:
         slam.save_trajectory_tum(str(work / "final.txt"))
     except Exception as exc:  # noqa: BLE001 - recorded, the online poses remain
         info["save_error"] = str(exc)
-        done.write_text(json.dumps(info))
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    info.update(save_s=time.perf_counter() - t, cpu_s=usage.ru_utime + usage.ru_stime)
+    done.write_text(json.dumps(info))
     return 0
 
 

@@ -4,11 +4,13 @@
 
 1. resolves the vocabulary (argument, ``$PYORBSLAM3_VOCAB`` = e.g. the official ORBvoc.txt, or the one the project
    builds, :mod:`d2slam.baselines.vocab`) and checks its structure (ORB-SLAM3's loader accepts garbage and crashes
-   later); never downloads;
+   later; a file the project built is known by its manifest); never downloads;
 2. writes an ORB-SLAM3 1.0 settings YAML from the sequence's camera (fr3 from the TUM folder name, synthetic
    sequences from ``scene.json``) and the ORB / engine constants of :mod:`d2slam.config`;
-3. runs ORB-SLAM3 in a child process (:mod:`d2slam.baselines._orbslam3_worker`) with a time limit: a crash, an
-   ``exit(-1)`` on a bad settings file or a hang never takes the caller down;
+3. runs ORB-SLAM3 in a child process (:mod:`d2slam.baselines._orbslam3_worker`, a fresh one per run) with a time
+   limit: a crash, an ``exit(-1)`` on a bad settings file or a hang never takes the caller down; repeated runs read
+   the frames decoded once (a frame store, ``BaselineConfig.orbslam3_frame_store_dir``); the run JSON says where
+   each run's seconds went (``seconds``, ``cpu_s``);
 4. writes the trajectory in TUM format (``T_world_camera`` of the *tracked* frames: ORB-SLAM3's final, BA-refined
    ``SaveTrajectoryTUM`` poses at the frames whose state was OK; the online poses if that file is missing) and a run
    JSON with the keys of the engine's run JSON (``frames``, ``tracked``, ``lost``, ``fps``, ``ms_per_frame``, ...),
@@ -182,22 +184,26 @@ def _log_tail(log: Path, n: int = 6) -> str:
 
 def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: Path, camera: str | None,
                max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
-               masks: str | None = None) -> dict:
+               masks: str | None = None, store: Path | None = None) -> dict:
     """Start the worker, follow its progress, enforce the time limits. Returns raw outcome fields."""
     from tqdm import tqdm
 
     cfg = config.baseline
     log = work / "orbslam3.log"
-    cmd = [sys.executable, "-m", "d2slam.baselines._orbslam3_worker", "--sequence", str(sequence_dir),
-           "--vocab", vocab_path, "--settings", str(settings_path), "--work", str(work),
-           "--max-frames", str(max_frames)]
-    if camera:
-        cmd += ["--camera", camera]
-    if masks:
+    cmd = [sys.executable, "-m", "d2slam.baselines._orbslam3_worker", "--vocab", vocab_path, "--settings",
+           str(settings_path), "--work", str(work)]
+    if store is not None:  # frames decoded (and people removed) once by the caller
+        cmd += ["--frames", str(store)]
+    else:
+        cmd += ["--sequence", str(sequence_dir), "--max-frames", str(max_frames)] + (["--camera", camera] if camera
+                                                                                     else [])
+    if masks and store is None:
         config_path = work / "config.json"
         config_path.write_text(json.dumps(config.to_dict(), default=list))
         cmd += ["--masks", masks, "--config", str(config_path)]
-    env = dict(os.environ)
+    from d2slam.baselines import child_env
+
+    env = child_env()
     env.pop("DISPLAY", None)  # headless: Pangolin is never started (use_viewer=False)
     if timeout is None:
         timeout = cfg.orbslam3_load_timeout_s + cfg.orbslam3_frame_timeout_s * n_frames
@@ -236,6 +242,19 @@ def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: P
     return outcome
 
 
+def _seconds(wall_s: float, done: dict, ms: np.ndarray) -> dict:
+    """Where a run's wall-clock seconds went: ``track`` (the frames' ``track_rgbd`` calls, with the masking),
+    ``load`` (ORB-SLAM3's construction: the vocabulary), ``decode`` (reading the frames in the worker: mapping a
+    frame store, or decoding PNGs), ``loop`` (the whole frame loop, ``track`` and ``decode`` included), ``save``
+    (shutdown and SaveTrajectoryTUM), ``process`` (the rest: interpreter start, imports, exit)."""
+    parts = {"track": float(ms.sum()) / 1000.0 if len(ms) else 0.0}
+    for key, name in (("load_s", "load"), ("io_s", "decode"), ("loop_s", "loop")):
+        parts[name] = float(done.get(name + "_s", done.get(key, 0.0)) or 0.0)
+    parts["save"] = float(done.get("shutdown_s", 0.0)) + float(done.get("save_s", 0.0))
+    parts["process"] = max(0.0, wall_s - parts["load"] - parts["loop"] - parts["save"])
+    return {k: round(v, 3) for k, v in parts.items()}
+
+
 def _kill(proc: subprocess.Popen) -> None:
     """End the worker we started (its own process group, by id) and reap it."""
     import signal
@@ -252,14 +271,14 @@ def _kill(proc: subprocess.Popen) -> None:
 
 def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Path, camera: str | None,
               max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
-              work: Path, masks: str | None = None) -> dict:
+              work: Path, masks: str | None = None, store: Path | None = None) -> dict:
     from d2slam.data import Trajectory, read_tum_trajectory, write_tum_trajectory
 
     work.mkdir(parents=True, exist_ok=True)
     for name in ("progress.txt", "final.txt", "done.json", "loaded", "orbslam3.log"):
         (work / name).unlink(missing_ok=True)
     raw = _run_child(sequence_dir, vocab["path"], settings_path, work, camera, max_frames, n_frames, timeout,
-                     config, progress, masks)
+                     config, progress, masks, store)
     rec = _read_progress(work / "progress.txt")
     done = {}
     if (work / "done.json").is_file():
@@ -267,6 +286,13 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
             done = json.loads((work / "done.json").read_text())
         except json.JSONDecodeError:
             done = {}
+    stages = done  # per-frame stage times: the worker's, or the frame store's (decoded once, people removed once)
+    if store is not None:
+        from d2slam.baselines._orbslam3_worker import STORE_META
+
+        stages = json.loads((store / STORE_META).read_text())
+        if len(rec["ms"]):  # the masking time of each frame joins its tracking time, as when the worker masks
+            rec["ms"] = rec["ms"] + np.load(store / "mask_ms.npy")[rec["index"]]
     log = work / "orbslam3.log"
     log_text = log.read_text(errors="replace") if log.is_file() else ""
     state = rec["state"]
@@ -275,6 +301,7 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
     seg = _map_segments(state)
     maps_from_states = int(seg.max() + 1) if frames and seg.max() >= 0 else 0
     maps_from_log = log_text.count("Creation of new map with id")
+    n_stage = max(1, int(stages.get("frames") or frames))
     result = {
         "method": MASKED_METHOD if masks else METHOD,
         "sequence": str(sequence_dir),
@@ -290,13 +317,15 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
         "fps": float(1000.0 / rec["ms"].mean()) if frames and rec["ms"].mean() > 0 else None,
         "load_s": done.get("load_s"),
         "wall_s": raw["wall_s"],
-        "stage_ms": {"load": round(1000.0 * done["io_s"] / frames, 3) if frames and "io_s" in done else None,
+        "seconds": _seconds(raw["wall_s"], done, rec["ms"]),
+        "cpu_s": done.get("cpu_s"),
+        "stage_ms": {"load": round(1000.0 * stages["io_s"] / n_stage, 3) if frames and "io_s" in stages else None,
                      "track": round(float(rec["ms"].mean()), 3) if frames else None},
         "log": str(log),
     }
-    if masks and frames and "mask_s" in done:  # the worker's per-frame ms hold the masking and ORB-SLAM3's tracking
-        mask_ms = 1000.0 * done["mask_s"] / frames
-        result["stage_ms"].update(segment=round(1000.0 * done["segment_s"] / frames, 3), mask=round(mask_ms, 3),
+    if masks and frames and "mask_s" in stages:  # the per-frame ms hold the masking and ORB-SLAM3's tracking
+        mask_ms = 1000.0 * stages["mask_s"] / n_stage
+        result["stage_ms"].update(segment=round(1000.0 * stages["segment_s"] / n_stage, 3), mask=round(mask_ms, 3),
                                   track=round(float(rec["ms"].mean()) - mask_ms, 3))
     # status
     if raw["timed_out"]:
@@ -409,6 +438,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         base.update(method=MASKED_METHOD, masks=masks, masks_origin=origin,
                     masking=dataclasses.asdict(config.masking))
     work_root = Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_", dir=out_traj.parent))
+    store = None
     try:
         # vocabulary and settings problems: recorded, not raised
         try:
@@ -427,11 +457,19 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
             check_settings(settings_path)
         except D2SlamError as exc:
             return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json)
+        store = _frame_store_root(seq, n_frames, repeats, config, work_root)
+        if store is not None:
+            from d2slam.baselines._orbslam3_worker import write_frame_store
+
+            t0 = time.perf_counter()
+            meta = write_frame_store(seq, n_frames, store, masks, config, progress)
+            base["frame_store"] = dict(meta, wall_s=round(time.perf_counter() - t0, 3),
+                                       bytes=sum(f.stat().st_size for f in store.iterdir()))
         runs = []
         for r in range(repeats):
             traj_r = out_traj if repeats == 1 else out_traj.with_name(f"{out_traj.stem}.rep{r}{out_traj.suffix}")
             res = _run_once(sequence_dir, traj_r, vinfo, settings_path, camera, max_frames, n_frames, timeout,
-                            config, progress, work_root / f"rep{r}", masks)
+                            config, progress, work_root / f"rep{r}", masks, store)
             res["repeat"] = r
             if keep_work or res["status"] not in ("ok", "lost"):
                 kept = out_traj.with_name(f"{out_traj.stem}.rep{r}.orbslam3.log")
@@ -441,11 +479,32 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
             else:
                 res["log"] = None
             if evaluate and res["trajectory"] and seq.groundtruth is not None:
+                t0 = time.perf_counter()
                 res.update(evaluate_trajectory(seq, res["trajectory"]))
+                res["seconds"]["evaluate"] = round(time.perf_counter() - t0, 3)
             runs.append(res)
         return _finish(_summarise(base, runs, out_traj), metrics_json)
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
+        if store is not None:
+            shutil.rmtree(store.parent, ignore_errors=True)
+
+
+def _frame_store_root(seq, n_frames: int, repeats: int, config: Config, work_root: Path) -> Path | None:
+    """Where the frames of a repeated run are decoded once (:func:`~d2slam.baselines._orbslam3_worker.
+    write_frame_store`): a new folder in ``BaselineConfig.orbslam3_frame_store_dir`` (memory-backed ``/dev/shm``)
+    when it has room, else in the run's work folder; None (every worker decodes its frames) for a single run or when
+    the frames would exceed ``orbslam3_frame_store_mb``."""
+    size = n_frames * int(seq.camera.height) * int(seq.camera.width) * (3 + 4)  # RGB uint8 + depth float32
+    if repeats < 2 or size > config.baseline.orbslam3_frame_store_mb * 2**20:
+        return None
+    parent = Path(config.baseline.orbslam3_frame_store_dir)
+    try:
+        if not (parent.is_dir() and os.access(parent, os.W_OK) and shutil.disk_usage(parent).free > 2 * size):
+            parent = work_root
+    except OSError:
+        parent = work_root
+    return Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_frames_", dir=parent)) / "frames"
 
 
 def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool) -> str:

@@ -31,6 +31,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--repeats", type=int, default=1, help="ORB-SLAM3 runs per sequence (median, spread)")
     parser.add_argument("--vocab", default=None, help="DBoW2 text vocabulary (default: $PYORBSLAM3_VOCAB or the "
                         "project-built one)")
+    parser.add_argument("--config", default=None, metavar="FILE.yaml",
+                        help="config overrides for ORB-SLAM3's runs, e.g. `baseline: {orbslam3_frame_store_mb: 0}` "
+                        "(every repeat decodes its own frames)")
     parser.add_argument("--out", default=None, help="output folder (default: the d2slam cache)")
     parser.add_argument("--regenerate", action="store_true",
                         help="generate the sequences again (the cache is already keyed by the generator version)")
@@ -109,6 +112,9 @@ def run(args) -> int:
         raise D2SlamError("--frames must be at least 30 (RPE needs 1 s pairs)")
     from d2slam.outputs import check_output_dir
 
+    from d2slam.config import DEFAULT, load_config_file
+
+    config = load_config_file(args.config)[0] if args.config else DEFAULT
     out_root = check_output_dir(args.out, "--out") if args.out else cache_dir("bench", "orbslam3")
     out_root.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -124,7 +130,7 @@ def run(args) -> int:
                 for method in args.methods:
                     if method == "orbslam3":
                         r = run_orbslam3(seq, out / "orbslam3.txt", out / "orbslam3.json", repeats=args.repeats,
-                                         vocab=args.vocab)
+                                         vocab=args.vocab, config=config)
                     else:
                         r = _run_engine(seq, out)
                         if r.get("trajectory") and "metrics" not in r and "metrics_error" not in r:
@@ -183,9 +189,45 @@ def _print_table(rows: list[dict], args) -> None:
                   + ", ".join(f"{k} {np.median(v):.1f}" for k, v in stages.items()))
         print(f"  machine load average at the end: {', '.join(f'{x:.1f}' for x in _loadavg())} "
               "(figures are wall-clock: other processes slow both)")
+    _print_overhead(rows)
     for method in ("orbslam3", "none"):
         for variant in ("twin", "dynamic"):
             ates = [r["metrics"]["ate_rmse_m"] for r in rows if r["method"] == method and r["variant"] == variant
                     and isinstance((r.get("metrics") or {}).get("ate_rmse_m"), (int, float))]
             if ates:
                 print(f"median ATE {method:8s} {variant:7s}: {np.median(ates):.4f} m over {len(ates)} sequence(s)")
+
+
+OVERHEAD_PARTS = ("process", "load", "decode", "save", "evaluate")
+
+
+def overhead(run: dict) -> dict | None:
+    """Per-run seconds of an ORB-SLAM3 run dict (median over its repeats): ``wall`` (the child process, plus its
+    evaluation and its share of the frame store), ``track`` (the frames' ``track_rgbd`` calls), the overhead parts
+    (``process``: interpreter, imports, exit; ``load``: the vocabulary; ``decode``: frames read in the worker plus
+    the share of the frames decoded once; ``save``: shutdown and SaveTrajectoryTUM; ``evaluate``: evo) and their
+    sum ``overhead``; ``cpu``: the worker's CPU seconds (every ORB-SLAM3 thread). None without per-run seconds."""
+    reps = [r for r in run.get("runs") or [] if r.get("seconds")]
+    if not reps:
+        return None
+    share = (run.get("frame_store") or {}).get("wall_s", 0.0) / len(reps)
+    per = []
+    for r in reps:
+        sec = dict(r["seconds"])
+        sec["decode"] = sec.get("decode", 0.0) + share
+        sec["wall"] = r["wall_s"] + sec.get("evaluate", 0.0) + share
+        sec["overhead"] = sum(sec.get(k, 0.0) for k in OVERHEAD_PARTS)
+        sec["cpu"] = r.get("cpu_s") or float("nan")
+        per.append(sec)
+    keys = ("wall", "track", "overhead", *OVERHEAD_PARTS, "cpu")
+    return {k: float(np.median([p.get(k, 0.0) for p in per])) for k in keys}
+
+
+def _print_overhead(rows: list[dict]) -> None:
+    table = [(r["sequence"], o) for r in rows if r["method"] == "orbslam3" and (o := overhead(r))]
+    if not table:
+        return
+    print("\nORB-SLAM3 per-run seconds (median over repeats): wall = track + overhead + the frame loop's own time")
+    print(f"{'sequence':30s} " + " ".join(f"{k:>8s}" for k in table[0][1]))
+    for name, o in table:
+        print(f"{name:30s} " + " ".join(f"{v:8.2f}" for v in o.values()))

@@ -12,9 +12,11 @@ def register(sub) -> None:
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     b = actions.add_parser("build", help="train a vocabulary (hierarchical k-majority on ORB descriptors)",
                            description="Train a DBoW2 vocabulary (k=10, L=6, L1 scoring, TF-IDF) on ORB descriptors "
-                           "of the real TUM fr3 frames of the shared folder, of the synthetic training sequences "
-                           "(seeds 900-999, generated once into the cache) and of any --images-dir / --sequences. "
-                           "Deterministic; cached with a manifest (VOCAB.txt.json).")
+                           "of the real TUM fr3 frames of the shared folder, of synthetic training frames (seeds "
+                           "900-999, rendered once into the cache) and of any --images-dir / --sequences. "
+                           "Deterministic; cached with a manifest (VOCAB.txt.json). Announced on stderr with an "
+                           "estimate (about 30 s on 2 idle cores), with progress lines when stderr is not a "
+                           "terminal.")
     b.add_argument("--images-dir", action="append", default=[], metavar="DIR", help="a folder of training images")
     b.add_argument("--sequences", action="append", default=[], metavar="DIR", nargs="+",
                    help="TUM-layout sequences (every n-th frame is used)")
