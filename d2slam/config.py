@@ -521,6 +521,10 @@ class SynthConfig:
     depth_noise_a: float = 0.0012
     depth_noise_b: float = 0.0019
     depth_noise_c: float = 0.4
+    # The noise is spatially correlated, as a structured-light sensor's is (it matches a correlation window, so
+    # neighbouring pixels share their disparity error): white noise smoothed by a Gaussian of depth_noise_corr_px
+    # and rescaled to unit variance, so sigma(z) stays each pixel's standard deviation (0 = independent pixels).
+    depth_noise_corr_px: float = 2.0
     depth_factor: float = 5000.0
     depth_max: float = 4.5
     # RGB timestamps vs depth timestamps: depth lags by a uniform offset in this range (seconds).

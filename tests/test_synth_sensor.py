@@ -78,7 +78,22 @@ def test_depth_noise_matches_sigma_model(z):
     # quantisation adds step^2 / 12 of variance (step = 0.2 mm)
     expected = np.sqrt(sigma ** 2 + (1 / CFG.depth_factor) ** 2 / 12)
     assert abs(metres.std() / expected - 1) < 0.02
-    assert abs(metres.mean() - z) < 5 * expected / np.sqrt(metres.size) + 0.5 / CFG.depth_factor
+    n_eff = metres.size / max(1.0, 4 * np.pi * CFG.depth_noise_corr_px ** 2)  # correlated pixels: fewer samples
+    assert abs(metres.mean() - z) < 5 * expected / np.sqrt(n_eff) + 0.5 / CFG.depth_factor
+
+
+def test_depth_noise_is_correlated_between_neighbours_and_keeps_its_variance():
+    """A 3x3 median does not average the noise away, as it would with independent pixels: neighbours share it."""
+    import cv2
+
+    from d2slam.synth.sensor import correlated_noise
+
+    white = np.random.default_rng(3).standard_normal((480, 640), dtype=np.float32)
+    assert correlated_noise(white, 0.0) is white
+    n = correlated_noise(white, CFG.depth_noise_corr_px)
+    assert abs(n.std() - 1) < 0.03
+    assert np.corrcoef(n[:, :-1].ravel(), n[:, 1:].ravel())[0, 1] > 0.8
+    assert cv2.medianBlur(n, 3).std() > 0.85 and cv2.medianBlur(white, 3).std() < 0.5
 
 
 def test_sigma_formula_and_quantisation_step():
