@@ -326,6 +326,9 @@ class SegmentationConfig:
     intra_op_threads: int = 2
     # At most this many persons per frame, highest scores first.
     max_persons: int = 20
+    # The mask cache file of a sequence is rewritten after this many newly segmented frames (and when the sequence
+    # is complete); not part of the mask-cache key.
+    cache_flush_frames: int = 100
 
 
 # --------------------------------------------------------------------------------------------------

@@ -76,7 +76,7 @@ def masks_for(sequence, index: int, kind: str = "onnx", config: Config | Segment
         else:
             seg = get_segmenter(kind, sequence, cfg)
         if len(_CACHED) >= _MAX_CACHED:
-            _CACHED.pop(next(iter(_CACHED)))
+            _CACHED.pop(next(iter(_CACHED))).flush()  # its newly segmented frames, before it is dropped
         cached = _CACHED[key] = CachedSegmenter(seg, sequence)
     return cached.instances(index)
 
