@@ -2,7 +2,8 @@
 
 1. expand the grid (:func:`d2slam.study.grid.expand_grid`);
 2. generate or reuse every sequence it needs (the cache of :mod:`d2slam.study.sequences`), on the executor;
-3. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask);
+3. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask),
+   the longest first (:func:`run_cost`; sequences by their frames), so that both cores stay busy to the end;
 4. write ``runs.csv`` (grid order), ``summary.csv``, ``tables.md``, ``plots/*.png``, ``trajectories/<run>.txt``,
    ``runs/<run>.json`` (per-module keypoint metrics and stage timings) and ``manifest.json``.
 
@@ -21,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from d2slam.errors import D2SlamError
+from d2slam.study import grid as G
 from d2slam.study import tables as T
 from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
@@ -50,7 +52,6 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
     and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
     from d2slam.config import DEFAULT
-    from d2slam.study import grid as G
     from d2slam.study.manifest import build_manifest, code_info, git_info
     from d2slam.study.sequences import generator_version
 
@@ -73,7 +74,8 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     t0 = time.perf_counter()
 
     keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    prepared = map_ordered(prepare_sequence, keys, (options,), jobs, scheduler, desc="sequences", progress=progress)
+    prepared = map_ordered(prepare_sequence, keys, (options,), jobs, scheduler, desc="sequences", progress=progress,
+                           cost=sequence_cost)
     prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
     t_seq = time.perf_counter() - t0
 
@@ -89,7 +91,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
     t_seg = time.perf_counter()
     map_ordered(segment_sequence, onnx_sequence_keys(todo, options), (options,), jobs, scheduler, desc="segmentation",
-                progress=progress)
+                progress=progress, cost=sequence_cost)
     t_seg = time.perf_counter() - t_seg
     (out / "runs").mkdir(exist_ok=True)
 
@@ -97,7 +99,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
         save_run(out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
 
     done = map_ordered(execute_run, todo, (options,), jobs, scheduler, desc="study", progress=progress,
-                       on_result=checkpoint)
+                       on_result=checkpoint, cost=lambda s: run_cost(s, options))
     by_id = {s.run_id: r for s, r in zip(todo, done)}
     by_id.update(reused)
     for s in specs:
@@ -126,6 +128,21 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
     return res
+
+
+def run_cost(spec: RunSpec, options: dict) -> float:
+    """Estimated cost of a run (ms): its frames x the method's ``StudyConfig.run_cost_ms`` (the real ORB-SLAM3's
+    runs: x its repeats). Only the order of the runs depends on it (longest first)."""
+    study = options["config"].get("study") or {}
+    costs = dict(study.get("run_cost_ms") or ())
+    ms = float(costs.get(spec.method, study.get("run_cost_default_ms", 1.0)))
+    repeats = int(options.get("orbslam3_repeats") or 1) if spec.method in G.REPEATED else 1
+    return max(int(spec.frames), 1) * ms * repeats
+
+
+def sequence_cost(key: tuple) -> float:
+    """Estimated cost of generating or segmenting a sequence (``RunSpec.sequence_key``): its frames."""
+    return float(max(int(key[3]), 1))
 
 
 def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
