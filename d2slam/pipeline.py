@@ -51,6 +51,7 @@ class RunResult:
     total_s: float
     fps: float
     per_frame: list[dict] = field(default_factory=list)
+    first_frame_at: float = float("nan")  # time.time() when the first frame was done (cold-start measurements)
 
     def summary(self) -> dict:
         return {"frames": self.frames, "tracked": self.tracked, "lost": self.lost, "keyframes": self.keyframes,
@@ -89,6 +90,7 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     else:
         reader = None
     extract_adjust = 0.0  # cached extraction time minus the time the cached read took
+    first_frame_at = float("nan")
     totals = dict.fromkeys(STAGES, 0.0)
     states, per_frame = [], []
     keyframes = 0
@@ -143,6 +145,8 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
         if recorder is not None:
             last = engine.last
             recorder(i, last.kps, last.belief, getattr(keypoint_filter, "last", None))
+        if i == 0:
+            first_frame_at = time.time()
         if i % 10 == 0:
             bar.set_postfix(tracked=sum(s == "ok" for s in states), kfs=keyframes)
     if pool:
@@ -155,4 +159,5 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     return RunResult(trajectory=Trajectory(ts, poses, meta={"sequence": getattr(sequence, "name", "")}),
                      frames=n, tracked=tracked, lost=n - tracked, states=states,
                      keyframes=len(engine.map.good_keyframes()), map_points=engine.map.n_points, stage_ms=stage_ms,
-                     total_s=total, fps=n / total if total > 0 else float("inf"), per_frame=per_frame)
+                     total_s=total, fps=n / total if total > 0 else float("inf"), per_frame=per_frame,
+                     first_frame_at=first_frame_at)

@@ -39,6 +39,11 @@ def test_run_command_writes_trajectory_and_json(room_dir, tmp_path, capsys):
         assert key in rec
     assert rec["tracked"] == 20 and rec["method"] == "none"
     assert rec["metrics"]["ate_rmse_m"] < 0.02 and rec["metrics"]["rpe_rot_deg"] < 1.0
+    # from this (test) process's start to the end of the first frame: positive, within the process's lifetime
+    import psutil
+    import time
+
+    assert 0 < rec["startup_s"] < time.time() - psutil.Process().create_time()
     traj = read_tum_trajectory(out)
     assert len(traj) == 20
     # eval on the written files gives the same ATE as the run's JSON

@@ -81,6 +81,8 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
 
     if any(s.method in G.REPEATED for s in specs):
         _prepare_vocabulary(progress)
+    if ex["executor"] != "serial":
+        _prepare_kernels()
     keys_by_id = {s.run_id: run_key(s, options) for s in specs}
     reused = {}
     if resume:
@@ -179,6 +181,14 @@ def _prepare_vocabulary(progress) -> None:
         resolve_vocabulary(None, build=True, progress=bool(progress))
     except D2SlamError:
         pass
+
+
+def _prepare_kernels() -> None:
+    """Compile the engine's kernels here (or load them from numba's cache) before the workers start, so that they
+    load them instead of each compiling the same ones at once (``d2slam.warmup``)."""
+    from d2slam.warmup import warm_up
+
+    warm_up()
 
 
 def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_order: list[str], manifest: dict,
