@@ -91,3 +91,19 @@ def test_match_filters_equal_their_numpy_versions():
         b = rng.uniform(0, 360, n) * (rng.random() < 0.5)
         assert np.array_equal(rotation_consistent(a, b, 30), _rotation_ref(a, b, 30))
     assert unique_by_target(np.zeros(0), np.zeros(0, np.int64), np.zeros(0)).shape == (0,)
+
+
+def test_keypoint_grid_buckets_as_a_stable_argsort():
+    from d2slam.slam.matching import KeypointGrid
+
+    rng = np.random.default_rng(1)
+    for n in (0, 1, 7, 300):
+        kps = rng.uniform(-5, 640, (n, 2))
+        kps[: n // 3] = np.round(kps[: n // 3])  # keypoints on cell borders
+        g = KeypointGrid(kps, rng.integers(0, 8, n), rng.uniform(-1, 600, n),
+                         rng.integers(0, 256, (n, 32), dtype=np.uint8), 10.0)
+        cid = ((np.floor(g.kps[:, 1] / g.cell).astype(np.int64) - g.row0) * g.cols
+               + np.floor(g.kps[:, 0] / g.cell).astype(np.int64) - g.col0)
+        order = np.argsort(cid, kind="stable")
+        assert np.array_equal(g.order, order)
+        assert np.array_equal(g.start, np.searchsorted(cid[order], np.arange(g.rows * g.cols + 1)))

@@ -72,8 +72,24 @@ class KeypointGrid:
         self.cols = int(cx.max()) - self.col0 + 1 if n else 1
         self.rows = int(cy.max()) - self.row0 + 1 if n else 1
         cid = (cy - self.row0) * self.cols + (cx - self.col0)
-        self.order = np.argsort(cid, kind="stable").astype(np.int64)
-        self.start = np.searchsorted(cid[self.order], np.arange(self.rows * self.cols + 1)).astype(np.int64)
+        self.order, self.start = _bucket(cid, self.rows * self.cols)  # = np.argsort(cid, kind="stable") and its cells
+
+
+@njit(cache=True, nogil=True)
+def _bucket(cid, cells):
+    """Counting sort of the cell ids ``cid``: (order, start), ``order`` the stable ascending order of ``cid`` and
+    cell c's entries ``order[start[c]:start[c + 1]]``."""
+    start = np.zeros(cells + 1, np.int64)
+    for c in cid:
+        start[c + 1] += 1
+    for c in range(cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(len(cid), np.int64)
+    for i in range(len(cid)):
+        order[fill[cid[i]]] = i
+        fill[cid[i]] += 1
+    return order, start
 
 
 CHECK_DISPARITY, CHECK_CHI2 = 0, 1
