@@ -234,6 +234,21 @@ def test_the_file_is_written_every_few_frames_and_when_complete(seq):
     assert not list(cached.dir.glob(".tmp-*"))
 
 
+def test_flush_masks_writes_what_masks_for_segmented(seq, monkeypatch):
+    """Part of a sequence segmented through ``masks_for`` reaches the file with ``flush_masks``, not before."""
+    import d2slam.segmentation as S
+
+    seg = CountingSegmenter()
+    monkeypatch.setattr(S, "get_segmenter", lambda kind, sequence=None, config=None, model=None: seg)
+    monkeypatch.setattr(S, "_SESSIONS", {})
+    monkeypatch.setattr(S, "_CACHED", {})
+    S.masks_for(seq, 0, "onnx", model="m.onnx")
+    path = CachedSegmenter(seg, seq).dir / STORE_NAME
+    assert not path.exists()
+    S.flush_masks()
+    assert list(read_store(path)[1]) == [timestamp_stem(seq.timestamps[0])]
+
+
 def test_writes_of_two_processes_are_merged(seq):
     """Two readers of one sequence that segment different frames: the file ends up with both."""
     a, b = CachedSegmenter(CountingSegmenter(), seq), CachedSegmenter(CountingSegmenter(), seq)

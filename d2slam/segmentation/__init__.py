@@ -22,7 +22,7 @@ from d2slam.segmentation.cache import CachedSegmenter
 KINDS = ("onnx", "sim", "gt", "truth")
 
 __all__ = ["KINDS", "PersonInstance", "Segmenter", "stack_masks", "CachedSegmenter", "get_segmenter", "masks_for",
-           "segmentation_config", "mask_source"]
+           "flush_masks", "segmentation_config", "mask_source"]
 
 
 def segmentation_config(config: Config | SegmentationConfig | None = None) -> SegmentationConfig:
@@ -79,6 +79,14 @@ def masks_for(sequence, index: int, kind: str = "onnx", config: Config | Segment
             _CACHED.pop(next(iter(_CACHED))).flush()  # its newly segmented frames, before it is dropped
         cached = _CACHED[key] = CachedSegmenter(seg, sequence)
     return cached.instances(index)
+
+
+def flush_masks() -> None:
+    """Write the frames ``masks_for`` segmented so far into their cache files now (they are written every
+    ``SegmentationConfig.cache_flush_frames`` frames, when a sequence is complete and at exit): before another
+    process reads masks this one segmented for part of a sequence."""
+    for cached in list(_CACHED.values()):
+        cached.flush()
 
 
 def mask_source(sequence, masks_from):
