@@ -10,8 +10,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import typing
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 
 # --------------------------------------------------------------------------------------------------
@@ -267,7 +268,7 @@ class EngineConfig:
     ba_when_idle: bool = True
     # Both optimisations: "lm" (compiled Levenberg-Marquardt, d2slam.slam.lm) or "g2o" (the g2opy wheel, same
     # model; its graph is built edge by edge from Python, several times slower).
-    optimizer: str = "lm"
+    optimizer: Literal["lm", "g2o"] = "lm"
     # SearchInNeighbors (observation part, no point merging): the new keyframe and its best covisibles (+ their
     # neighbours) exchange points by projection (radius th x scale, chi-square test, Hamming <= desc_th_low).
     fuse_neighbours: int = 0  # 0 = off; 10 = ORB-SLAM (measured: docs/deviations.md)
@@ -700,34 +701,133 @@ class DataConfig:
     rotation_tolerance: float = 1e-5
     # `d2slam download`: connect/read timeout (s) so an unreachable server fails fast.
     download_timeout: float = 10.0
-    # Depth-scale check of `d2slam run`: the median valid depth (m) of the first depth_check_frames frames must lie in
-    # depth_median_range (an indoor RGB-D scene; a depth factor off by 5x, e.g. millimetres read with TUM's 5000,
-    # moves it out); otherwise a warning names the factor that would bring it in.
+    # Depth-scale check of `d2slam run` without ground truth or camera motion (else CliConfig.depth_*): the median valid
+    # depth (m) of the first depth_check_frames frames must lie in depth_median_range (an indoor RGB-D scene; metres
+    # read as 1/5000 m move it out, not every factor of 5); otherwise a warning names the factor that would bring it
+    # in.
     depth_check_frames: int = 5
     depth_median_range: tuple[float, float] = (0.7, 10.0)
     # Depth factors the warning suggests: millimetres, TUM's 1/5000 m, metres.
     depth_factor_candidates: tuple[float, ...] = (1000.0, 5000.0, 1.0)
 
 
-def _frozen(value):
-    """Lists (as JSON gives them) back to the tuples a frozen config holds, recursively."""
-    return tuple(_frozen(v) for v in value) if isinstance(value, (list, tuple)) else value
+# --------------------------------------------------------------------------------------------------
+# The command line around a run: what it announces and what it checks. Not part of ``Config``: nothing here changes
+# a run's numbers, so ``Config.hash()`` and the study's run keys do not see it.
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CliConfig:
+    # One-off costs (generating a synthetic sequence, segmenting a sequence into the mask cache) are announced with an
+    # estimate before they start and show progress: a tqdm bar on a terminal, else a line on stderr every
+    # progress_log_s seconds.
+    progress_log_s: float = 5.0
+    # The estimates: a sequence takes synth_setup_s + frames x synth_frame_s / workers to generate, a frame
+    # segment_frame_s to segment (docs/benchmarks.md: 13.4 frames/s generated and 13.1 frames/s segmented by two
+    # workers in the study).
+    synth_setup_s: float = 5.0
+    synth_frame_s: float = 0.15
+    segment_frame_s: float = 0.15
+    # Depth-scale check of `d2slam run` against the ground truth's camera motion (d2slam.data.depth_scale): among
+    # depth_candidate_frames frames spread over the sequence, up to depth_pairs pairs (one per first frame, spread over
+    # the sequence) whose ground-truth poses are depth_min_baseline_m to depth_max_baseline_m apart and turn by at most
+    # depth_max_rotation_deg (the views overlap); per frame depth_orb_features ORB keypoints with depth, cross-checked
+    # Hamming matches within depth_max_hamming; the relative pose by a 3-D/3-D RANSAC (depth_ransac_iterations
+    # hypotheses of 3 matches, seeded with depth_ransac_seed; inlier when the residual is within depth_inlier_rel of
+    # the point's depth, which does not depend on the scale) with at least depth_min_inliers inliers. The depth is off
+    # when the median ratio of the estimated to the true camera translation is beyond depth_ratio_tolerance either way
+    # (a factor 5, e.g. millimetres read with TUM's 5000, gives 0.2 or 5). Without ground truth or camera motion,
+    # DataConfig's median-depth window decides, and the depth_far_percentile of the valid depth must reach
+    # depth_far_min_m (a room's far side; millimetres read as 1/5000 m bring it within a metre).
+    depth_candidate_frames: int = 300
+    depth_pairs: int = 5
+    depth_min_baseline_m: float = 0.05
+    depth_max_baseline_m: float = 0.5
+    depth_max_rotation_deg: float = 20.0
+    depth_orb_features: int = 600
+    depth_max_hamming: int = 50
+    depth_ransac_iterations: int = 200
+    depth_ransac_seed: int = 0
+    depth_inlier_rel: float = 0.02
+    depth_min_inliers: int = 30
+    depth_ratio_tolerance: float = 2.0
+    depth_far_percentile: float = 95.0
+    depth_far_min_m: float = 1.0
+    # `d2slam eval GROUNDTRUTH TRAJ` (d2slam.eval.belongs): a trajectory belongs to a sequence folder when at least
+    # eval_min_frame_share of its timestamps are the folder's frame times (rgb.txt or depth.txt, within
+    # eval_frame_tolerance_s; synthetic sequences share a clock but each (scenario, seed) has its own frame jitter of
+    # up to 1.5 ms); a bare ground-truth file when it holds the positions of the groundtruth.txt of the sequence the
+    # trajectory's header names (within eval_same_gt_m). With neither, a trajectory whose ATE RMSE exceeds
+    # eval_ate_floor_m and eval_ate_extent_ratio x the ground truth's extent (RMS distance of its matched positions
+    # from their centroid), while its own extent is at most eval_est_extent_max x that, is refused (--force).
+    eval_frame_tolerance_s: float = 1e-4
+    eval_min_frame_share: float = 0.5
+    eval_same_gt_m: float = 1e-3
+    eval_ate_floor_m: float = 0.05
+    eval_ate_extent_ratio: float = 0.5
+    eval_est_extent_max: float = 1.5
+
+
+CLI = CliConfig()
+
+
+def _type_name(tp) -> str:
+    """``float``, ``tuple[float, float]``, ``one of 'lm', 'g2o'``: a field's type as the error message says it."""
+    if typing.get_origin(tp) is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if typing.get_origin(tp) is tuple:
+        args = typing.get_args(tp)
+        inner = f"{_type_name(args[0])}, ..." if len(args) == 2 and args[1] is Ellipsis else \
+            ", ".join(_type_name(a) for a in args)
+        return f"tuple[{inner}]"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _typed(value, tp, where: str):
+    """``value`` as a field of type ``tp`` holds it (an int for a float, a list for a tuple, recursively), or a
+    one-line ``TypeError`` naming the field (``where``), the type expected and the value given. A bool is not a
+    number (YAML's ``yes`` would otherwise be 1)."""
+    origin = typing.get_origin(tp)
+    ok = True
+    if tp is bool:
+        ok = isinstance(value, bool)
+    elif tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif tp is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif tp is str:
+        ok = isinstance(value, str)
+    elif origin is Literal:
+        ok = any(value == a and type(value) is type(a) for a in typing.get_args(tp))
+    elif origin is tuple:
+        args = typing.get_args(tp)
+        ok = isinstance(value, (list, tuple)) and (
+            (len(args) == 2 and args[1] is Ellipsis) or len(value) == len(args))
+        if ok:
+            items = args[:1] * len(value) if len(args) == 2 and args[1] is Ellipsis else args
+            return tuple(_typed(v, t, f"{where}[{i}]") for i, (v, t) in enumerate(zip(value, items)))
+    if not ok:
+        raise TypeError(f"{where} must be {_type_name(tp)}, got {value!r} ({type(value).__name__})")
+    return value
 
 
 def _section(section_cls, data: dict, name: str):
-    """One config dataclass from a (possibly partial) dict: nested sections built recursively, tuples restored."""
+    """One config dataclass from a (possibly partial) dict: nested sections built recursively, every value checked
+    against its field's type (:func:`_typed`: tuples restored from lists, ints taken for floats)."""
     known = {g.name: g for g in dataclasses.fields(section_cls)}
     unknown = set(data) - set(known)
     if unknown:
         raise ValueError(f"unknown {name} config keys: {sorted(unknown)}")
-    defaults = section_cls()
+    hints = typing.get_type_hints(section_cls)
     kwargs = {}
     for key, value in data.items():
-        default = getattr(defaults, key)
-        if dataclasses.is_dataclass(default) and isinstance(value, dict):
-            value = _section(type(default), value, f"{name}.{key}")
-        elif isinstance(default, tuple):
-            value = _frozen(value)
+        tp = hints[key]
+        if dataclasses.is_dataclass(tp):
+            if not isinstance(value, dict):
+                raise TypeError(f"{name}.{key} must be a section of fields ({tp.__name__}), got {value!r}")
+            value = _section(tp, value, f"{name}.{key}")
+        else:
+            value = _typed(value, tp, f"{name}.{key}")
         kwargs[key] = value
     return section_cls(**kwargs)
 
@@ -780,8 +880,7 @@ def with_overrides(base: Config, overrides: dict[str, Any]) -> Config:
         for key, value in fields.items():
             if key not in data[name]:
                 raise ValueError(f"unknown {name} config field {key!r}")
-            old = getattr(getattr(base, name), key)
-            data[name][key] = tuple(value) if isinstance(old, tuple) and isinstance(value, list) else value
+            data[name][key] = value
     return Config.from_dict(data)
 
 

@@ -15,6 +15,7 @@ A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and `
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 from d2slam.config import Config
@@ -35,6 +36,8 @@ class Method:
 
 
 _REGISTRY: dict[str, Method] = {}
+# The masks of a method that needs some when none are asked for: the real segmenter, everywhere.
+DEFAULT_MASKS = "onnx"
 
 
 def register(name: str, factory: Callable[[Config], object | None], needs_masks: bool = False,
@@ -43,8 +46,9 @@ def register(name: str, factory: Callable[[Config], object | None], needs_masks:
 
 
 def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | None:
-    """The masks a run of ``method`` reads: the method's own kind, else ``requested`` (``--masks``), else ``sim`` on
-    synthetic sequences and ``onnx`` otherwise when the method needs masks (None: no masks)."""
+    """The masks a run of ``method`` reads: the method's own kind, else ``requested`` (``--masks``), else the real
+    segmenter's (``onnx``, on synthetic sequences too, as the study's) when the method needs masks (None: no masks).
+    ``synthetic``: whether the sequence has the truth a method with its own ``truth``/``sim`` masks needs."""
     if method.masks is not None:
         if requested not in (None, method.masks):
             raise D2SlamError(f"--method {method.name} always uses the '{method.masks}' masks, not {requested!r}")
@@ -53,18 +57,20 @@ def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | N
                               "(made by `d2slam synth`); real data has no such truth")
         return method.masks
     if requested is None and method.needs_masks:
-        return "sim" if synthetic else "onnx"
+        return DEFAULT_MASKS
     return requested
 
 
 @dataclass
 class MethodRun:
-    """What :func:`run_method` returns: the engine's ``RunResult``, the mask kind read (None: no masks) and the
-    keypoint classification against the synthetic truth (None on other sequences)."""
+    """What :func:`run_method` returns: the engine's ``RunResult``, the mask kind read (None: no masks), the
+    keypoint classification against the synthetic truth (None on other sequences) and where the masks came from
+    (:func:`d2slam.segmentation.masks_origin`; None: no masks)."""
 
     result: Any
     masks: str | None
     keypoints: dict | None
+    masks_origin: str | None = None
 
 
 def run_method(seq, name: str, config: Config, masks: str | None = None, mask_seq=None, synthetic: bool = False,
@@ -84,12 +90,16 @@ def run_method(seq, name: str, config: Config, masks: str | None = None, mask_se
     kind = mask_kind(method, masks, synthetic=synthetic)
     if mask_seq is not None and kind is None:
         raise D2SlamError(f"--masks-from: --method {name} reads no masks")
-    provider = None
+    provider = origin = None
     if kind is not None:
-        from d2slam.segmentation import mask_source, masks_for, stack_masks
+        from d2slam.segmentation import mask_source, masks_for, masks_origin, stack_masks
 
         shape = (seq.camera.height, seq.camera.width)
         src = seq if mask_seq is None else mask_source(seq, mask_seq)
+        # the real segmenter's masks missing from the cache are computed now, announced, before the run
+        origin = masks_origin(src, kind, config, frames=len(seq), progress=progress is not False)
+        if mask_seq is not None and kind == "onnx":  # the label kinds name their folder already
+            origin = f"{origin}, of {Path(mask_seq.root).resolve()}"
 
         def provider(i):
             return stack_masks(masks_for(src, i, kind, config), shape)
@@ -97,7 +107,7 @@ def run_method(seq, name: str, config: Config, masks: str | None = None, mask_se
     recorder = keypoint_recorder(seq)
     result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=recorder,
                           progress=progress, desc=desc, features=features(kfilter) if features else None)
-    return MethodRun(result, kind, recorder.result() if recorder is not None else None)
+    return MethodRun(result, kind, recorder.result() if recorder is not None else None, origin)
 
 
 def methods() -> list[str]:

@@ -21,3 +21,13 @@ def cache_dir(*parts: str) -> Path:
     path = root.joinpath(*parts)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def checkout_root() -> Path | None:
+    """The d2slam checkout to work in (``d2slam docs``): the current folder when it is one, else the repository the
+    package is installed from (an editable install); None outside any. A checkout holds ``pyproject.toml``, the
+    ``d2slam`` package, ``docs/`` and ``results/``."""
+    for root in (Path.cwd(), REPO_ROOT):
+        if all((root / p).exists() for p in ("pyproject.toml", "d2slam/__init__.py", "docs", "results")):
+            return root.resolve()
+    return None

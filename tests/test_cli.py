@@ -38,3 +38,55 @@ def test_config_roundtrip_and_unknown_keys():
         assert "nope" in str(exc)
     else:  # pragma: no cover
         raise AssertionError("unknown key accepted")
+
+
+def test_every_help_renders(capsys):
+    """`--help` of d2slam, of every command, of bench and of every bench topic prints and exits 0 (argparse %-formats
+    help texts: an unescaped `%` in a topic's description crashed `d2slam bench --help`)."""
+    import pytest
+
+    from d2slam import bench
+
+    argvs = [[], *([c] for c in COMMANDS), *(["bench", t] for t in bench.topics())]
+    for argv in argvs:
+        with pytest.raises(SystemExit) as exit_:
+            main([*argv, "--help"])
+        assert exit_.value.code == 0, argv
+        out = capsys.readouterr().out
+        assert "usage: d2slam" in out, argv
+        assert "%%" not in out, argv  # descriptions are shown as written
+    assert "3 % of the image" in build_parser()._subparsers._group_actions[0].choices["bench"].format_help()
+
+
+def test_readme_lists_every_bench_topic():
+    import re
+    from pathlib import Path
+
+    from d2slam import bench
+
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    row = next(line for line in readme.splitlines() if line.startswith("| `d2slam bench TOPIC`"))
+    listed = re.findall(r"`(\w+)`", row.split("|")[2])
+    assert sorted(listed) == bench.topics()
+
+
+def test_docs_outside_a_checkout_says_so_first(tmp_path, monkeypatch, capsys):
+    import d2slam.paths as paths
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(paths, "REPO_ROOT", tmp_path)  # an installed package: no repository beside it
+    assert main(["docs"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("d2slam: error: `d2slam docs` runs inside a d2slam checkout")
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "docs").exists()
+
+
+def test_ctrl_c_while_the_commands_load_is_one_line(monkeypatch, capsys):
+    import d2slam.cli as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["study", "--help"]) == 130
+    assert capsys.readouterr().err == "d2slam: interrupted\n"

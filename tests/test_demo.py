@@ -13,3 +13,17 @@ def test_demo_runs_the_main_job(tmp_path, monkeypatch, capsys):
     assert len([p for p in (tmp_path / "study" / "sequences").glob("walking_xyz_s1_n12*") if p.is_dir()]) == 2
     assert not (tmp_path / "demo" / "walking_xyz").exists()  # one sequence cache: the study's
     assert (tmp_path / "demo" / "study" / "runs.csv").is_file() and (tmp_path / "demo" / "study" / "tables.md").is_file()
+    # it says where everything went, first and last
+    first, last = out.splitlines()[0], out.strip().splitlines()[-2]
+    assert first == (f"d2slam demo: sequences into {tmp_path / 'study' / 'sequences'}, results into "
+                     f"{tmp_path / 'demo' / 'study'}")
+    assert last.startswith(f"Results in {tmp_path / 'demo' / 'study'}: runs.csv, tables.md")
+
+
+def test_demo_help_says_where_outputs_go(capsys):
+    import pytest
+
+    with pytest.raises(SystemExit):
+        main(["demo", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "~/.cache/d2slam" in text and "demo/study/" in text and "study/sequences/" in text

@@ -201,7 +201,19 @@ def test_unreachable_host_fails_fast_with_manual_instructions(tmp_path):
     assert time.perf_counter() - t < 5
     text = str(err.value)
     assert "download manually" in text and f"--archive PATH/{ARCHIVE}" in text
-    assert not any(p.suffix == ".part" for p in (tmp_path / "data").iterdir())
+    assert not (tmp_path / "data").exists()  # nothing arrived: no empty --to folder left behind
+
+
+def test_offline_download_leaves_no_folder_it_made(tmp_path, capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    for to in (tmp_path / "new" / "deeper", kept):
+        assert main(["download", NAME, "--to", str(to), "--base-url", f"http://127.0.0.1:{port}"]) == 2
+        assert "cannot reach the server" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists() and kept.is_dir() and not any(kept.iterdir())
 
 
 def test_mirror_env_and_url_order(server, tmp_path, monkeypatch):
@@ -251,7 +263,7 @@ def test_corrupt_manual_archive_is_left_alone(tmp_path):
     with pytest.raises(D2SlamError, match="corrupt or truncated") as err:
         dl.download_sequence(NAME, tmp_path / "m", archive=manual, log=quiet)
     assert err.value.path == manual and manual.is_file()  # the user's file is not moved or deleted
-    assert list((tmp_path / "m").iterdir()) == [] and not dl.record_path().exists()
+    assert not (tmp_path / "m").exists() and not dl.record_path().exists()  # no folder left behind either
 
 
 def test_registry_checksum_is_enforced_when_present(server, tum_tgz, tmp_path, monkeypatch):

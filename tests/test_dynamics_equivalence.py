@@ -3,7 +3,7 @@ seeded toy scenes and a scene with persons at the image border (``tests/data/dyn
 ``tests/data/make_dynamics_reference.py`` from the default config).
 
 The reference was written on one CPU; another CPU's SIMD paths (numpy, OpenBLAS) may round the last bits
-differently, so floats are compared with a tolerance far below any modelled quantity and far above rounding
+differently, so floats are compared with a tolerance far below any modelled quantity and above float32 rounding
 (``RTOL``, ``ATOL``), decisions (booleans, integers) exactly. Byte-identity is a property of one machine: the same
 inputs computed twice give the same bytes (``test_outputs_are_byte_identical_within_one_machine``)."""
 
@@ -19,9 +19,10 @@ import make_dynamics_reference as R  # noqa: E402
 from d2slam.dynamics import MODES, get_filter  # noqa: E402
 
 
-# Floating-point reordering across CPUs changes a value by a few ulps (seen: 1.4e-17 absolute); a real change of
-# the modules changes it by orders of magnitude more.
-RTOL, ATOL = 1e-9, 1e-12
+# Another CPU's rounding changes a value by a few ulps: keypoint depth is float32, so by one float32 ulp there
+# (1.2e-7 relative, with the SIMD paths of x86-64-v2 forced) and the beliefs computed from it by up to 4e-8 relative;
+# with AVX2 instead of AVX-512, 3e-16. A real change of the modules changes them by orders of magnitude more.
+RTOL, ATOL = 1e-6, 1e-9
 
 
 @pytest.fixture(scope="module")
@@ -61,10 +62,10 @@ def test_outputs_are_byte_identical_within_one_machine(current):
 
 
 def test_the_tolerance_catches_a_real_change(reference):
-    """A change of one part in a million in any float diagnostic fails the comparison."""
+    """A change of one part in 100,000 of a float diagnostic fails the comparison."""
     key = next(k for k, v in reference.items() if np.issubdtype(v.dtype, np.floating) and np.abs(v).max() > 0)
     value = reference[key]
-    changed = value * (1 + 1e-6)
+    changed = value * (1 + 1e-5)
     with pytest.raises(AssertionError):
         np.testing.assert_allclose(changed, value, rtol=RTOL, atol=ATOL, equal_nan=True)
 

@@ -46,7 +46,7 @@ def test_registered_beside_orbslam3_with_the_default_masks_of_the_other_methods(
 
     m = get_method("orbslam3-masked")
     assert m.needs_masks and m.runner is not None and m.masks is None
-    assert mask_kind(m, None, synthetic=True) == mask_kind(get_method("d2slam"), None, synthetic=True) == "sim"
+    assert mask_kind(m, None, synthetic=True) == mask_kind(get_method("d2slam"), None, synthetic=True) == "onnx"
     assert mask_kind(m, None, synthetic=False) == "onnx" and mask_kind(m, "gt", synthetic=True) == "gt"
     names = default_methods()
     assert names.index("orbslam3-masked") == names.index("orbslam3") + 1 and "orbslam3-masked" in methods()
@@ -64,10 +64,16 @@ def test_run_command_end_to_end(tmp_path, seq, vocab, monkeypatch, capsys):
     assert {"segment", "mask", "track"} <= set(run["stage_ms"]) and run["stage_ms"]["mask"] > 0
     assert run["ms_per_frame"] >= run["stage_ms"]["mask"] and traj.is_file()
     assert "orbslam3-masked sitting_static" in capsys.readouterr().out
-    # no --masks: sim on a synthetic sequence, like the other mask-using methods
+    # no --masks: the real segmenter's, like the other mask-using methods; one summary line like `d2slam run`'s
     assert main(["run", str(seq), "--method", "orbslam3-masked", "--out", str(traj), "--metrics-json",
-                 str(run_json), "--quiet"]) in (0, 1)
-    assert json.loads(run_json.read_text())["masks"] == "sim"
+                 str(run_json)]) in (0, 1)
+    run = json.loads(run_json.read_text())
+    assert run["masks"] == "onnx" and "cached in" in run["masks_origin"] and run["camera_source"] == "scene.json"
+    summary = [x for x in capsys.readouterr().out.splitlines() if x.startswith("d2slam run:")]
+    assert len(summary) == 1 and summary[0].startswith(
+        "d2slam run: method orbslam3-masked; masks onnx (yolov8n-seg_deq_384x512.onnx, cached in ")
+    assert f"camera synthetic (scene.json); tracked {run['tracked']:.0f}/{FRAMES} frames; ATE " in summary[0]
+    assert summary[0].endswith(f"; wrote {traj}, {run_json}")
 
 
 def test_the_worker_gives_orbslam3_the_frames_without_the_people(seq):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -19,7 +20,7 @@ from d2slam.cli import main
 from d2slam.config import DEFAULT, load_config_file
 from d2slam.data import open_sequence
 from d2slam.data.intrinsics import FREIBURG1, FREIBURG3, read_camera_file
-from d2slam.data.tum import depth_scale_warning
+from d2slam.data.depth_scale import depth_scale_warning
 from d2slam.errors import D2SlamError
 from d2slam.slam.fixture import write_room_sequence
 
@@ -150,6 +151,38 @@ def test_config_file_overrides_and_is_saved(room, tmp_path, capsys):
         assert match in capsys.readouterr().err
 
 
+def test_config_values_are_type_checked(room, tmp_path, capsys):
+    """A value of the wrong type is a one-line error naming the field, the type expected and the value given, before
+    anything runs; ints are taken for floats (as floats), lists for tuples, a bool is no number."""
+    cfg = tmp_path / "cfg.yaml"
+    out = tmp_path / "x.txt"
+    for text, match in [("dynamics: {z_far: five}\n", "dynamics.z_far must be float, got 'five' (str)"),
+                        ("dynamics: {z_far: true}\n", "dynamics.z_far must be float, got True (bool)"),
+                        ("orb: {n_features: 1.5}\n", "orb.n_features must be int, got 1.5 (float)"),
+                        ("orb: {n_features: yes}\n", "orb.n_features must be int, got True (bool)"),
+                        ("dynamics: {flow: 1}\n", "dynamics.flow must be bool, got 1 (int)"),
+                        ("dynamics: {f_ransac_method: 3}\n", "dynamics.f_ransac_method must be str, got 3 (int)"),
+                        ("engine: {optimizer: gtsam}\n", "engine.optimizer must be one of 'lm', 'g2o', got 'gtsam'"),
+                        ("synth: {depth_time_offset: [0.1, 0.2, 0.3]}\n",
+                         "synth.depth_time_offset must be tuple[float, float], got [0.1, 0.2, 0.3] (list)"),
+                        ("synth: {depth_time_offset: 0.1}\n", "synth.depth_time_offset must be tuple[float, float]"),
+                        ("baseline: {vocab_train_seeds: [900, x]}\n",
+                         "baseline.vocab_train_seeds[1] must be int, got 'x' (str)"),
+                        ("synth: {body: 3}\n", "synth.body must be a section of fields (BodyConfig), got 3")]:
+        cfg.write_text(text)
+        with pytest.raises(D2SlamError, match=re.escape(match)):
+            load_config_file(cfg)
+        assert main(["run", str(room), "--camera", "fr3", "--config", str(cfg), "--out", str(out)]) == 2
+        captured = capsys.readouterr()
+        assert match in captured.err and len(captured.err.strip().splitlines()) == 1
+        assert "Traceback" not in captured.err and captured.out == "" and not out.exists()
+    cfg.write_text("dynamics: {z_far: 5}\nsynth: {depth_time_offset: [0, 0.01], body: {simplify: 3}}\n")
+    config, _ = load_config_file(cfg)
+    assert config.dynamics.z_far == 5.0 and isinstance(config.dynamics.z_far, float)
+    assert config.synth.depth_time_offset == (0.0, 0.01) and config.synth.body.simplify == 3.0
+    assert config.hash() == load_config_file(cfg)[0].hash()
+
+
 # ------------------------------------------------------------------------------------------------------------------
 # Output paths, checked before the run
 # ------------------------------------------------------------------------------------------------------------------
@@ -223,7 +256,7 @@ def test_depth_in_millimetres_is_reported_with_the_factor_to_set(room, tmp_path,
     msg = depth_scale_warning(open_sequence(mm, camera="fr3"))
     assert "depth factor 5000" in msg and "look like depth factor 1000" in msg and "DepthMapFactor" in msg
     assert main(["run", str(mm), "--camera", "fr3", "--out", str(tmp_path / "t.txt"), "--quiet"]) == 0
-    assert "warning: median valid depth" in capsys.readouterr().err
+    assert "warning: the depth does not match the ground truth's camera motion" in capsys.readouterr().err
     cam = tmp_path / "mm.yaml"
     cam.write_text(OLD_TUM3.replace("DepthMapFactor: 5000.0", "DepthMapFactor: 1000.0"))
     assert main(["run", str(mm), "--camera", str(cam), "--out", str(tmp_path / "t.txt"), "--quiet"]) == 0

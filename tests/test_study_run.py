@@ -287,3 +287,97 @@ def test_real_masks_are_segmented_once_per_sequence_before_the_runs(serial):
     assert segment_sequence(dyn.sequence_key, run_options())["error"] is None
     bad = segment_sequence(("synth", "no_such_scenario", 101, FRAMES, False), run_options())
     assert "no_such_scenario" in bad["error"]
+
+
+# ------------------------------------------------------------------------------------- worker pools, interrupts
+_HELD = []
+
+
+def _hold_memory(nbytes: int) -> int:
+    """A task of over a second (loky checks a worker's memory at most once a second) that keeps ``nbytes`` in its
+    worker (as a loaded model or a cache does); returns the worker's pid."""
+    import os
+    import time
+
+    if nbytes:
+        _HELD.append(np.ones(nbytes, np.uint8))
+    time.sleep(1.1)
+    return os.getpid()
+
+
+def test_pool_workers_keep_what_a_phase_loads_without_being_recycled(recwarn):
+    """loky recycles a worker (warning "A worker stopped while some jobs were given to the executor ... memory
+    leak") once it holds 300 MB more than after its first task. A study's workers run a light phase, then load the
+    segmenter and their runs' memory: each call has its own pool, so that the first task of the phase sets the
+    reference and no worker is recycled."""
+    from d2slam.study.executors import map_ordered
+
+    map_ordered(_hold_memory, [0, 0], jobs=2, progress=False)  # the light phase
+    pids = map_ordered(_hold_memory, [320_000_000, 320_000_000, 0, 0, 0, 0], jobs=2, progress=False)
+    assert len(set(pids)) <= 2  # no worker replaced
+    assert not [w for w in recwarn if "worker stopped" in str(w.message)]
+
+
+def _study_cli(out) -> list[str]:
+    import sys
+
+    return [sys.executable, "-m", "d2slam.cli", "study", "--out", str(out), "--scenarios", "sitting_static",
+            "--methods", "none", "d2slam", "--seeds", "101", "--frames", str(FRAMES), "--twin-methods", "--jobs", "2",
+            "--no-plots", "--quiet"]
+
+
+def test_parallel_study_ctrl_c_is_one_line_and_leaves_nothing(serial, tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while two workers run: exit status 130,
+    "d2slam: interrupted" and nothing else on stderr (no worker traceback, no leaked semaphores, no loky warning), no
+    temporary file or folder of the study's processes left anywhere; on start, the study removed a killed process's
+    leftover but not a running one's. A normal run prints no warning either."""
+    import os
+    import signal
+    import subprocess
+    import time
+    import uuid
+
+    import psutil
+
+    from d2slam.outputs import temp_tag
+    from d2slam.paths import cache_dir
+    from d2slam.study.runner import features_dir, run_options
+
+    done = subprocess.run(_study_cli(tmp_path / "normal"), capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    seqs = cache_dir("study", "sequences")
+    name = f"zz-test-{uuid.uuid4().hex[:8]}"
+    dead, alive = seqs / f"{name}.tmp-{gone.pid}", seqs / f"{name}{temp_tag()}"
+    dead.mkdir()
+    alive.mkdir()
+    out = tmp_path / "interrupted"
+    try:
+        p = subprocess.Popen(_study_cli(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             start_new_session=True)
+        pids, t0 = {p.pid}, time.monotonic()
+        while not (out / "runs").is_dir() and p.poll() is None and time.monotonic() - t0 < 300:
+            try:
+                pids.update(c.pid for c in psutil.Process(p.pid).children(recursive=True))
+            except psutil.Error:
+                pass
+            time.sleep(0.05)
+        assert p.poll() is None, "the study ended before it could be interrupted"
+        time.sleep(0.5)  # the runs' workers are starting or running
+        pids.update(c.pid for c in psutil.Process(p.pid).children(recursive=True))
+        os.killpg(p.pid, signal.SIGINT)
+        stdout, stderr = p.communicate(timeout=120)
+        assert not dead.exists() and alive.is_dir()
+    finally:
+        for d in (dead, alive):
+            if d.exists():
+                d.rmdir()
+    assert p.returncode == 130 and stderr == "d2slam: interrupted\n", stderr
+    assert not (out / "runs.csv").exists()
+    places = [seqs, features_dir(run_options()), out / "runs"] + list(cache_dir("masks").glob("*/*"))
+    left = [q for d in places for q in d.glob("*.tmp-*") if any(f".tmp-{pid}" in q.name for pid in pids)]
+    assert left == []
+    left_running = [q for q in psutil.process_iter() if q.pid in pids - {p.pid}]
+    assert psutil.wait_procs(left_running, timeout=10)[1] == []  # every process of the study ended

@@ -3,6 +3,7 @@ static twin, coverage, bad input."""
 
 from __future__ import annotations
 
+import importlib
 import json
 from pathlib import Path
 
@@ -281,3 +282,51 @@ def test_config_constants_drive_the_noise():
     cfg = SynthConfig()
     assert (cfg.depth_noise_a, cfg.depth_noise_b, cfg.depth_noise_c) == (0.0012, 0.0019, 0.4)
     assert cfg.depth_factor == 5000.0 and cfg.fps == 30.0 and cfg.gt_rate == 100.0
+
+
+def test_cli_synth_refuses_other_folders_before_any_work(tmp_path, monkeypatch, capsys):
+    from d2slam.cli import main
+
+    G = importlib.import_module("d2slam.synth.generate")  # the module (the package exports its function)
+
+    monkeypatch.setattr(G, "render_frame", lambda *a: pytest.fail("rendered before the output was checked"))
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "mine.txt").write_text("mine")
+    (tmp_path / "file").write_text("x")
+    for out in ("notes", "file"):
+        assert main(["synth", "sitting_static", "--out", str(tmp_path / out), "--frames", "3"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"d2slam: error: {tmp_path / out}: --out: ") and err.count("\n") == 1
+    assert (tmp_path / "notes" / "mine.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "notes"]
+
+
+def test_cli_synth_interrupted_leaves_nothing_half_made(tmp_path, monkeypatch, capsys):
+    """Ctrl-C after a few frames: no DIR (or the previous sequence in it, untouched) and no temporary folder."""
+    from d2slam.cli import main
+
+    G = importlib.import_module("d2slam.synth.generate")  # the module (the package exports its function)
+
+    real = G.render_frame
+    rendered = []
+
+    def interrupted(*args):
+        if len(rendered) == 3:
+            raise KeyboardInterrupt
+        rendered.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(G, "render_frame", interrupted)
+    out = tmp_path / "seq"
+    assert main(["synth", "sitting_static", "--out", str(out), "--frames", "8", "--workers", "1"]) == 130
+    err = capsys.readouterr().err
+    assert err.endswith("\nd2slam: interrupted\n") and "Traceback" not in err  # after the announcement
+    assert len(rendered) == 3 and list(tmp_path.iterdir()) == []
+
+    monkeypatch.setattr(G, "render_frame", real)
+    assert main(["synth", "sitting_static", "--out", str(out), "--frames", "2", "--workers", "1"]) == 0
+    before = _files(out)
+    rendered.clear()
+    monkeypatch.setattr(G, "render_frame", interrupted)
+    assert main(["synth", "sitting_static", "--out", str(out), "--frames", "8", "--workers", "1"]) == 130
+    assert _files(out) == before and [p.name for p in tmp_path.iterdir()] == ["seq"]

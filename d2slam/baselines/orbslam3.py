@@ -396,13 +396,18 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     seq_camera = camera_file.camera if camera_file is not None else camera
     seq = open_sequence(sequence_dir, camera=seq_camera) if seq_camera else open_sequence(sequence_dir)
     n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
+    from d2slam.data import SyntheticSequence
+
+    camera_source = (str(Path(camera).expanduser().resolve()) if camera_file is not None else
+                     "scene.json" if isinstance(seq, SyntheticSequence) else camera or "folder name")
     base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
             "repeats": repeats,
-            "camera": seq.camera.name, "camera_settings": dataclasses.asdict(seq.camera),
-            "config_hash": config.hash()}
+            "camera": seq.camera.name, "camera_source": camera_source,
+            "camera_settings": dataclasses.asdict(seq.camera), "config_hash": config.hash()}
     if masks is not None:
-        _prepare_masks(seq, masks, n_frames, config, progress)
-        base.update(method=MASKED_METHOD, masks=masks, masking=dataclasses.asdict(config.masking))
+        origin = _prepare_masks(seq, masks, n_frames, config, progress)
+        base.update(method=MASKED_METHOD, masks=masks, masks_origin=origin,
+                    masking=dataclasses.asdict(config.masking))
     work_root = Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_", dir=out_traj.parent))
     try:
         # vocabulary and settings problems: recorded, not raised
@@ -443,23 +448,22 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         shutil.rmtree(work_root, ignore_errors=True)
 
 
-def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool) -> None:
+def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool) -> str:
     """Check that the ``kind`` masks of the first ``n_frames`` frames can be had before ORB-SLAM3 starts (a clear
     :class:`D2SlamError` otherwise: no ``mask_sim/`` on a real sequence, no ONNX model, a fill name unknown); the
-    ``onnx`` ones are segmented into the mask cache here, so the worker only reads them."""
-    from tqdm import tqdm
-
+    ``onnx`` ones are segmented into the mask cache here (announced, :func:`d2slam.segmentation.masks_origin`), so
+    the worker only reads them. Returns where the masks come from."""
     from d2slam.baselines.masking import FILLS, dilate
-    from d2slam.segmentation import KINDS, masks_for
+    from d2slam.segmentation import KINDS, masks_for, masks_origin
 
     if kind not in KINDS:
         raise D2SlamError(f"unknown masks {kind!r}; choose one of {', '.join(KINDS)}")
     if config.masking.fill not in FILLS:
         raise D2SlamError(f"unknown mask fill {config.masking.fill!r}; choose one of {', '.join(FILLS)}")
     dilate(np.zeros((1, 1), bool), config.masking.dilate_px)  # a negative dilation is an error
-    frames = range(n_frames) if kind == "onnx" else range(min(1, n_frames))
-    for i in tqdm(frames, desc=f"masks {kind}", unit="frame", disable=None if progress else True):
-        masks_for(seq, i, kind, config)
+    if kind != "onnx" and n_frames:
+        masks_for(seq, 0, kind, config)  # the label folder is there
+    return masks_origin(seq, kind, config, frames=n_frames, progress=progress)
 
 
 def evaluate_trajectory(seq, traj_path: str) -> dict:
@@ -555,6 +559,8 @@ def cli_run(args) -> int:
                        repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
                        camera=getattr(args, "camera", None), progress=not getattr(args, "quiet", False),
                        masks=getattr(args, "masks", None))
+    from d2slam.commands.run import camera_text, summary_line
+
     stream = sys.stdout if run["status"] in ("ok", "lost") else sys.stderr
     v = run.get("vocabulary") or {}
     masks = f" ({run['masks']} masks)" if run.get("masks") else ""
@@ -562,7 +568,17 @@ def cli_run(args) -> int:
     if v:
         print(f"  vocabulary: {v['kind']} {v['path']} (sha256 {v['sha256'][:16]})", file=stream)
     if isinstance(run.get("ms_per_frame"), (int, float)):
-        m = run.get("metrics", {})
-        ate = f", ATE {m['ate_rmse_m']:.4f} m" if "ate_rmse_m" in m else ""
-        print(f"  tracked {run['tracked']:.0f}/{run['frames']}, {run['ms_per_frame']:.1f} ms/frame{ate}", file=stream)
+        print(f"  {run['ms_per_frame']:.1f} ms/frame", file=stream)
+    if not getattr(args, "quiet", False):
+        repeats = int(run.get("repeats", 1) or 1)
+        many = " (median of {repeats} runs)".format(repeats=repeats) if repeats > 1 else ""
+        ate = run.get("metrics", {}).get("ate_rmse_m")
+        masks = f"{run['masks']} ({run.get('masks_origin')})" if run.get("masks") else "none"
+        tracked = run.get("tracked") if isinstance(run.get("tracked"), (int, float)) else 0
+        print(summary_line(run["method"], masks,
+                           camera_text(run.get("camera", "?"), run.get("camera_source", "?"),
+                                       getattr(args, "camera", None)),
+                           tracked, run.get("frames", run.get("frames_expected", 0)), ate,
+                           [run.get("trajectory"), getattr(args, "metrics_json", None)], ate_note=many),
+              file=stream)
     return {"ok": 0, "lost": 1, "reset": 1}.get(run["status"], 2)

@@ -90,10 +90,10 @@ class _Timed:
 
 def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dict | None = None) -> list:
     """The ``FilterInput`` of frames 1 .. ``frames``-1 of a sequence as the engine gives them to the ``d2slam`` filter
-    (default config, masks as ``d2slam run --masks MASKS`` reads them; by default ``mask_sim`` on synthetic
-    sequences, the ONNX segmenter on TUM folders). ``stage`` (a dict) receives the engine's filter stage of those
-    frames, milliseconds per frame: ``wall``, ``cpu`` (thread CPU time) of the whole hook (frame-to-frame matches,
-    the inputs, the classifier) and ``filter_cpu`` of the classifier alone."""
+    (default config, masks as ``d2slam run --masks MASKS`` reads them; by default the ONNX segmenter's, through the
+    mask cache). ``stage`` (a dict) receives the engine's filter stage of those frames, milliseconds per frame:
+    ``wall``, ``cpu`` (thread CPU time) of the whole hook (frame-to-frame matches, the inputs, the classifier) and
+    ``filter_cpu`` of the classifier alone."""
     from d2slam.config import DEFAULT
     from d2slam.data import SyntheticSequence, open_sequence
     from d2slam.dynamics import get_filter

@@ -33,7 +33,8 @@ def add_arguments(parser) -> None:
                         help="development seeds (0-99; default 3)")
     parser.add_argument("--frames", type=int, default=300, help="frames of each sequence (default 300)")
     parser.add_argument("--every", type=int, default=10, help="every n-th frame is measured (default 10)")
-    parser.add_argument("--masks", choices=("sim", "gt", "truth"), default="sim", help="person masks (default sim)")
+    parser.add_argument("--masks", choices=("onnx", "sim", "gt", "truth"), default="onnx",
+                        help="person masks (default onnx, the real segmenter, as for every run)")
     parser.add_argument("--fills", nargs="+", choices=FILLS, default=list(FILLS), metavar="FILL")
     parser.add_argument("--dilate", nargs="+", type=int, default=[0, 2, 4, 8], metavar="PX",
                         help="mask dilations in pixels (default 0 2 4 8)")

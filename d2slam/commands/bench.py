@@ -11,6 +11,7 @@ def register(sub) -> None:
     topics = parser.add_subparsers(dest="topic", metavar="TOPIC", required=True)
     for name in bench.topics():
         module = bench.load(name)
-        p = topics.add_parser(name, help=module.DESCRIPTION, description=module.DESCRIPTION)
+        # argparse %-formats help texts ("3 % of the image"), not descriptions
+        p = topics.add_parser(name, help=module.DESCRIPTION.replace("%", "%%"), description=module.DESCRIPTION)
         module.add_arguments(p)
         p.set_defaults(func=module.run)

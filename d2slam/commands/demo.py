@@ -1,7 +1,7 @@
 """``d2slam demo``: the main job on built-in synthetic data, end to end and small.
 
 1. generate (or reuse) a short synthetic walking_xyz sequence and its static twin in the study's sequence cache and
-   describe them;
+   describe them (everything the demo writes is in the cache: it prints where);
 2. run the engine on both with the keypoint filter off (``none``, the ORB-SLAM3 stand-in) and with D2SLAM
    (``d2slam``, the real segmenter's masks), evaluate with evo and print the table (a tiny ``d2slam study`` grid).
    The default (development seed 1, 120 frames) is one where the unfiltered engine is dragged by the people within
@@ -17,7 +17,10 @@ def register(sub) -> None:
                        description="Generate (or reuse) a short synthetic walking_xyz sequence and its static twin "
                        "in the study's sequence cache, describe them, then run the engine with the keypoint filter "
                        "off (none) and with D2SLAM (d2slam, the real segmenter's masks) on both, evaluate with evo "
-                       "and print ATE / RPE / keypoint F1 (a tiny `d2slam study` grid).")
+                       "and print ATE / RPE / keypoint F1 (a tiny `d2slam study` grid). Everything goes into the "
+                       "cache ($D2SLAM_CACHE, default ~/.cache/d2slam): the sequences into study/sequences/, the "
+                       "results (runs.csv, tables.md, trajectories/, runs/) into demo/study/, overwritten by the next "
+                       "demo.")
     p.add_argument("--frames", type=int, default=120, help="frames to generate (default 120)")
     p.add_argument("--seed", type=int, default=1, help="synthetic seed (default 1, a development seed)")
     p.add_argument("--jobs", type=int, default=2, help="parallel runs (default 2)")
@@ -33,7 +36,8 @@ def run(args) -> int:
     from d2slam.study.sequences import ensure_sequence
 
     root = cache_dir("demo")
-    print("== 1. synthetic sequences (TUM layout + masks + scene.json)")
+    print(f"d2slam demo: sequences into {cache_dir('study', 'sequences')}, results into {root / 'study'}")
+    print("\n== 1. synthetic sequences (TUM layout + masks + scene.json)")
     for twin in (False, True):
         out = ensure_sequence("walking_xyz", args.seed, args.frames, twin, progress=True)
         seq = open_sequence(out)
@@ -50,5 +54,6 @@ def run(args) -> int:
     runs = study.runs[[c for c in cols if c in study.runs.columns]].astype({"frames_tracked": "Int64", "twin": bool})
     with pd.option_context("display.width", 160, "display.max_columns", 20):
         print(runs.to_string(index=False, float_format=lambda x: f"{x:.4f}"))
-    print(f"\nTables: {study.out / 'tables.md'}; the full study: `d2slam study --out results/` (see docs/results.md).")
+    print(f"\nResults in {study.out}: runs.csv, tables.md, trajectories/, runs/ (the next demo overwrites them).")
+    print("The full study: `d2slam study --out results/` (see docs/results.md).")
     return 0

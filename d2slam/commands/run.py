@@ -12,15 +12,17 @@ def register(sub) -> None:
         "sequence) with a keypoint-filter method, write the trajectory of the tracked frames in TUM format and, "
         "with --metrics-json, frames/tracked/lost/fps, mean milliseconds per stage, the config hash, the seconds from "
         "the process start to the end of the first frame (startup_s) and (when the sequence has ground truth) "
-        "ATE/RPE computed with evo.")
+        "ATE/RPE computed with evo. The last line printed says what was run: `d2slam run: "
+        "method M; masks KIND (where from); camera NAME (where from); tracked T/N frames; ATE X m; wrote FILES`.")
     p.add_argument("sequence", metavar="SEQUENCE_DIR")
     p.add_argument("--method", default="none", choices=methods(), help="keypoint filter (default: none)")
     p.add_argument("--out", required=True, metavar="TRAJ.txt", help="estimated trajectory (TUM format)")
     p.add_argument("--metrics-json", metavar="RUN.json", help="write run statistics and metrics as JSON")
-    p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
-                   help="person masks given to the filter (default: sim on synthetic sequences, onnx otherwise, "
-                   "when the method needs masks; never computed for --method none unless asked). truth: the "
-                   "synthetic dynamic truth (persons and moving objects), what --method oracle always uses")
+    p.add_argument("--masks", choices=["onnx", "sim", "gt", "truth"], default=None,
+                   help="person masks given to the filter when the method needs masks (default: onnx, the real "
+                   "segmenter, as in the study; its masks are computed once per sequence into the mask cache). "
+                   "sim: the simulated segmenter of a synthetic sequence (mask_sim/), gt: its person ids (mask_gt/), "
+                   "truth: its dynamic truth (persons and moving objects), what --method oracle always uses")
     p.add_argument("--masks-from", metavar="SEQUENCE_DIR", default=None,
                    help="read the masks from this sequence instead (same frames and timestamps), e.g. --method "
                    "oracle on a static twin with its dynamic sequence: the occluded twin of the study")
@@ -34,20 +36,20 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
     p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
                    "ORB-SLAM3 (default 1)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    p.add_argument("--quiet", action="store_true", help="no progress, no summary")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     import dataclasses
     import json
-    import sys
     from pathlib import Path
+
+    import numpy as np
 
     from d2slam.config import DEFAULT, load_config_file
     from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
-    from d2slam.data.tum import depth_scale_warning
     from d2slam.errors import D2SlamError
     from d2slam.methods import get_method, run_method
     from d2slam.outputs import check_output_file
@@ -57,6 +59,11 @@ def run(args) -> int:
     out = check_output_file(args.out, "--out")
     if args.metrics_json:
         check_output_file(args.metrics_json, "--metrics-json")
+    camera, camera_source, th_depth = args.camera, None, None
+    if is_camera_file(args.camera):
+        settings = read_camera_file(args.camera)
+        camera, camera_source, th_depth = settings.camera, str(Path(args.camera).expanduser().resolve()), \
+            settings.th_depth
     if method.runner is not None:  # not a keypoint filter of our engine (orbslam3[-masked]): its own command
         if args.masks_from is not None:
             raise D2SlamError(f"--masks-from does not apply to --method {args.method}")
@@ -64,21 +71,16 @@ def run(args) -> int:
             raise D2SlamError(f"--masks does not apply to --method {args.method}")
         if args.config is not None:
             raise D2SlamError(f"--config does not apply to --method {args.method}")
+        _warn_depth_scale(open_sequence(args.sequence, **({"camera": camera} if camera else {})), DEFAULT)
         return method.runner(args)
 
     config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
-    camera, camera_source = args.camera, None
-    if is_camera_file(args.camera):
-        settings = read_camera_file(args.camera)
-        camera, camera_source = settings.camera, str(Path(args.camera).expanduser().resolve())
-        if settings.th_depth is not None:
-            config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=settings.th_depth))
+    if th_depth is not None:
+        config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=th_depth))
     config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=args.seed))
     seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
     synthetic = isinstance(seq, SyntheticSequence)
-    warning = depth_scale_warning(seq, config)
-    if warning:
-        print(f"d2slam: warning: {warning}", file=sys.stderr)
+    _warn_depth_scale(seq, config)
     mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
     run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
                      progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
@@ -89,6 +91,7 @@ def run(args) -> int:
         write_tum_trajectory(out, result.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
               **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
+              **({"masks_origin": run.masks_origin} if run.masks_origin else {}),
               "seed": args.seed, "config_hash": config.hash(),
               "camera": {**dataclasses.asdict(seq.camera),
                          "source": camera_source or ("scene.json" if synthetic else args.camera or "folder name")},
@@ -97,7 +100,7 @@ def run(args) -> int:
               **result.summary(), "trajectory": str(out)}
     if run.keypoints is not None:
         record["keypoints"] = run.keypoints
-    gt = seq.groundtruth
+    gt, ate_only = seq.groundtruth, None
     if gt is None:
         record["metrics_error"] = "no ATE/RPE: the sequence has no groundtruth.txt"
     elif result.tracked < 3:
@@ -109,6 +112,11 @@ def run(args) -> int:
             record["metrics"] = evaluate(gt, result.trajectory).to_dict()
         except D2SlamError as exc:
             record["metrics_error"] = f"no ATE/RPE: {exc}"
+            if "cannot compute RPE" in str(exc):  # too short for 1-second pairs: the ATE alone, for the summary
+                from d2slam.eval.trajectory import aligned_estimate
+
+                gt_xyz, est_xyz, _ = aligned_estimate(gt, result.trajectory)
+                ate_only = float(np.sqrt(np.mean(np.sum((gt_xyz - est_xyz) ** 2, axis=1))))
     listed = getattr(seq, "n_rgb", result.frames)
     if result.frames < listed:
         record["frames_note"] = (f"{result.frames} of the {listed} frames of rgb.txt were run: the others have no "
@@ -122,18 +130,52 @@ def run(args) -> int:
         tmp.write_text(json.dumps(record, indent=2) + "\n")
         tmp.replace(args.metrics_json)
     if not args.quiet:
-        print(f"{seq.name}: {result.frames} frames, {result.tracked} tracked, {result.lost} lost, "
-              f"{result.keyframes} keyframes, {result.fps:.1f} fps")
-        print("ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
+        print(f"{seq.name}: {result.lost} lost, {result.keyframes} keyframes, {result.fps:.1f} fps; ms/frame: "
+              + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
         if "frames_note" in record:
             print(record["frames_note"])
         if "metrics" in record:
             m = record["metrics"]
-            print(f"ate_rmse_m {m['ate_rmse_m']:.4f}  rpe_trans_m {m['rpe_trans_m']:.4f}  "
-                  f"rpe_rot_deg {m['rpe_rot_deg']:.3f}")
+            print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
         else:
-            print(record["metrics_error"])
+            print(record["metrics_error"].replace("no ATE/RPE:", "no RPE:") if ate_only is not None else
+                  record["metrics_error"])
+        masks = f"{masks_kind} ({run.masks_origin})" if masks_kind else "none"
+        ate = record["metrics"]["ate_rmse_m"] if "metrics" in record else ate_only
+        print(summary_line(args.method, masks, camera_text(seq.camera.name, record["camera"]["source"], args.camera),
+                           result.tracked, result.frames, ate, [out, args.metrics_json],
+                           ate_note=" (no RPE)" if ate_only is not None else ""))
     return 0
+
+
+def _warn_depth_scale(seq, config) -> None:
+    """The depth-scale check (:mod:`d2slam.data.depth_scale`): a warning on stderr naming the factor to set."""
+    import sys
+
+    from d2slam.data.depth_scale import depth_scale_warning
+
+    warning = depth_scale_warning(seq, config)
+    if warning:
+        print(f"d2slam: warning: {warning}", file=sys.stderr)
+
+
+def camera_text(name: str, source: str, camera_arg: str | None) -> str:
+    """The camera of a run and where it came from (the run JSON's ``camera.source``: a settings file, the synthetic
+    sequence's ``scene.json``, the TUM folder name, or ``--camera NAME``), for the summary line."""
+    from d2slam.data.intrinsics import is_camera_file
+
+    named = camera_arg and source == camera_arg and not is_camera_file(camera_arg)
+    return f"{name} ({'--camera ' + source if named else source})"
+
+
+def summary_line(method: str, masks: str, camera: str, tracked: float, frames: float, ate_m: float | None,
+                 outputs, ate_note: str = "") -> str:
+    """The one line ``d2slam run`` ends with (the engine's methods and the real ORB-SLAM3 alike), easy to grep:
+    ``d2slam run: method M; masks KIND (ORIGIN); camera NAME (ORIGIN); tracked T/N frames; ATE X m; wrote FILES``."""
+    ate = f"ATE {ate_m:.4f} m{ate_note}" if ate_m is not None else "no ATE"
+    wrote = ", ".join(str(o) for o in outputs if o) or "nothing"
+    return (f"d2slam run: method {method}; masks {masks}; camera {camera}; tracked {tracked:.0f}/{frames:.0f} "
+            f"frames; {ate}; wrote {wrote}")
 
 
 def process_start() -> float:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import glob
+from pathlib import Path
+
 import numpy as np
 
 from d2slam.synth.scene import SCENARIOS, frames_arg
@@ -15,8 +18,10 @@ def register(sub) -> None:
         "sequences of the same name; 30 Hz frames, ground truth at 100 Hz. Same scenario, frames and seed give "
         "byte-identical files.")
     p.add_argument("scenario", choices=SCENARIOS)
-    p.add_argument("--out", required=True, help="output folder (created; a previous synthetic sequence there is "
-                   "replaced)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder (created; a previous synthetic sequence there is replaced, any other non-empty "
+                   "folder refused). Written into DIR.tmp-PID@HOST beside it and renamed at the end: an interrupted "
+                   "run leaves DIR as it was")
     p.add_argument("--frames", type=frames_arg, default=300, help="number of RGB-D frames at 30 Hz (default 300), "
                    "or 'tum': the duration of the TUM fr3 sequence of that name (walking_xyz 28.8 s, ...)")
     p.add_argument("--seed", type=int, default=0, help="seed of the room, people, paths and noise (default 0)")
@@ -51,13 +56,38 @@ def summarise(result: dict) -> str:
     return "\n".join(lines)
 
 
-def run(args) -> int:
+def check_sequence_out(path) -> Path:
+    """``--out`` before any work: a folder that is missing, empty or holds a synthetic sequence (``scene.json``, then
+    replaced); anything else is refused."""
+    from d2slam.errors import D2SlamError
     from d2slam.outputs import check_output_dir
+
+    path = check_output_dir(path, "--out")
+    if path.is_symlink():  # write where the link points, not over the link
+        path = path.resolve()
+    if path.is_dir() and any(path.iterdir()) and not (path / "scene.json").exists():
+        raise D2SlamError("--out: the folder is not empty and holds no synthetic sequence (scene.json); refusing to "
+                          "overwrite it", path=path)
+    return path
+
+
+def run(args) -> int:
+    from d2slam.outputs import remove_stale_temps, staged_dir
     from d2slam.synth.generate import generate
     from d2slam.synth.scene import resolve_frames
 
-    check_output_dir(args.out, "--out")
-    result = generate(args.scenario, args.out, frames=resolve_frames(args.scenario, args.frames), seed=args.seed,
-                      static_twin=args.static_twin, workers=args.workers)
-    print(summarise(result))
+    from d2slam.progress import announce
+    from d2slam.synth.generate import estimated_seconds, worker_count
+
+    out = check_sequence_out(args.out)
+    frames = resolve_frames(args.scenario, args.frames)
+    remove_stale_temps(out.parent, f"{glob.escape(out.name)}.tmp-*")  # an earlier run killed before it cleaned up
+    workers = worker_count(frames, args.workers)
+    announce(f"generating {frames} frames of {args.scenario} (seed {args.seed}"
+             f"{', static twin' if args.static_twin else ''}) into {out} with {workers} "
+             f"worker{'s' if workers > 1 else ''}", estimated_seconds(frames, args.workers))
+    with staged_dir(out) as tmp:
+        result = generate(args.scenario, tmp, frames=frames, seed=args.seed, static_twin=args.static_twin,
+                          workers=args.workers)
+    print(summarise({**result, "out": out}))
     return 0

@@ -372,15 +372,34 @@ def download_sequence(name: str, dest: str | Path, base_url: str | None = None, 
                       keep_archive: bool = False, force: bool = False, timeout: float = CONNECT_TIMEOUT,
                       log=_log.info) -> Path:
     """Download (or take ``archive``), verify and extract sequence ``name`` into ``dest``; returns the sequence
-    folder (``dest/rgbd_dataset_freiburgN_NAME``). See the module docstring for every check."""
-    from d2slam.data.tum import TumSequence
-
+    folder (``dest/rgbd_dataset_freiburgN_NAME``). See the module docstring for every check. When nothing could be
+    downloaded, the folders it created for ``dest`` are removed again."""
     info = resolve(name)
     dest = Path(dest).expanduser()
+    created = [d for d in (dest, *dest.parents) if not d.exists()]  # removed again if nothing arrives
     try:
         dest.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise D2SlamError(f"cannot create the destination folder: {exc.strerror or exc}", path=dest) from None
+    try:
+        return _download_into(info, dest, base_url, archive, keep_archive, force, timeout, log)
+    except BaseException:
+        part = dest / (info.archive + ".part")
+        if part.is_file() and part.stat().st_size == 0:
+            part.unlink()
+        for d in created:  # deepest first; a folder holding anything (a resumable .part) stays
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def _download_into(info: SequenceInfo, dest: Path, base_url, archive, keep_archive: bool, force: bool,
+                   timeout: float, log) -> Path:
+    """:func:`download_sequence` once ``dest`` exists."""
+    from d2slam.data.tum import TumSequence
+
     target = dest / info.folder
     if target.exists() and not force:
         if all((target / f).is_file() for f in EXPECTED_FILES[:2]):

@@ -492,31 +492,3 @@ class TumSequence:
     def __repr__(self) -> str:
         return (f"{type(self).__name__}({str(self.root)!r}, camera={self.camera.name}, frames={len(self)}, "
                 f"groundtruth={'yes' if self._groundtruth is not None else 'no'})")
-
-
-def depth_scale_warning(seq, config=None) -> str | None:
-    """A message when the median valid depth of the first frames is implausible for the camera's depth factor
-    (``DataConfig.depth_median_range``), naming the factor of ``depth_factor_candidates`` that makes it plausible;
-    None when it looks right (or no frame has valid depth)."""
-    from d2slam.config import DEFAULT
-
-    cfg = (config or DEFAULT).data
-    n = min(len(seq), max(1, int(cfg.depth_check_frames)))
-    values = [d[d > 0] for d in (seq.depth_image(i) for i in range(n))]
-    values = np.concatenate(values) if values else np.zeros(0)
-    if values.size == 0:
-        return None
-    median = float(np.median(values))
-    lo, hi = cfg.depth_median_range
-    if lo <= median <= hi:
-        return None
-    factor = seq.camera.depth_factor
-    raw = median * factor
-    target = np.sqrt(lo * hi)
-    fits = [f for f in cfg.depth_factor_candidates if lo <= raw / f <= hi and f != factor]
-    hint = (f"the images look like depth factor {min(fits, key=lambda f: abs(np.log(raw / f / target))):g} "
-            if fits else "check the depth factor ")
-    return (f"median valid depth of the first {n} frames is {median:.3g} m with depth factor {factor:g} (raw value "
-            f"{raw:.0f}), outside the plausible {lo:g}-{hi:g} m of an RGB-D camera: {hint}(set DepthMapFactor in "
-            "a --camera settings file)")
-

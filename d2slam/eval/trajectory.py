@@ -68,7 +68,7 @@ def evaluate(groundtruth: Trajectory, estimate: Trajectory, max_diff: float = MA
         raise D2SlamError(f"only {n} estimated poses match ground-truth timestamps within {max_diff} s "
                           "(need >= 3 for an SE(3) alignment)", path=estimate.meta.get("path"))
     est_aligned = copy.deepcopy(est_a)
-    est_aligned.align(ref_a, correct_scale=False)
+    _align(est_aligned, ref_a, estimate)
     ape = metrics.APE(PoseRelation.translation_part)
     ape.process_data((ref_a, est_aligned))
     ate = float(ape.get_statistic(metrics.StatisticsType.rmse))
@@ -133,5 +133,17 @@ def aligned_estimate(groundtruth: Trajectory, estimate: Trajectory, max_diff: fl
 
     ref_a, est_a = sync.associate_trajectories(to_evo(groundtruth, "ground truth"),
                                                to_evo(estimate, "estimated trajectory"), max_diff=max_diff)
-    est_a.align(ref_a, correct_scale=False)
+    _align(est_a, ref_a, estimate)
     return ref_a.positions_xyz, est_a.positions_xyz, ref_a.timestamps
+
+
+def _align(est, ref, estimate: Trajectory) -> None:
+    """evo's SE(3) Umeyama alignment of ``est`` onto ``ref`` in place; a :class:`D2SlamError` when the matched
+    positions are degenerate (all on one line or at one point: no rotation can be fitted)."""
+    from evo.core.geometry import GeometryException
+
+    try:
+        est.align(ref, correct_scale=False)
+    except GeometryException as exc:
+        raise D2SlamError(f"cannot align the trajectories ({exc}): the matched positions lie on a straight line or "
+                          "at one point", path=estimate.meta.get("path")) from None

@@ -1,7 +1,8 @@
 """Person segmentation: one interface (frame -> list of ``PersonInstance``), three implementations.
 
-* ``onnx``: YOLOv8n-seg through onnxruntime (``d2slam.segmentation.onnx.OnnxSegmenter``), any sequence;
-* ``sim``: the synthetic sequence's simulated segmenter output ``mask_sim/`` (the default for synthetic runs);
+* ``onnx``: YOLOv8n-seg through onnxruntime (``d2slam.segmentation.onnx.OnnxSegmenter``), any sequence: the default
+  of every run;
+* ``sim``: the synthetic sequence's simulated segmenter output ``mask_sim/``;
 * ``gt``: the synthetic sequence's ground-truth person ids in ``mask_gt/``;
 * ``truth``: the synthetic sequence's dynamic truth (persons, and moved objects while they move) from ``mask_gt/``:
   for the ``oracle`` upper bound, not a segmenter (``d2slam.segmentation.sim``).
@@ -22,7 +23,7 @@ from d2slam.segmentation.cache import CachedSegmenter
 KINDS = ("onnx", "sim", "gt", "truth")
 
 __all__ = ["KINDS", "PersonInstance", "Segmenter", "stack_masks", "CachedSegmenter", "get_segmenter", "masks_for",
-           "flush_masks", "segmentation_config", "mask_source"]
+           "cached_segmenter", "masks_origin", "flush_masks", "segmentation_config", "mask_source"]
 
 
 def segmentation_config(config: Config | SegmentationConfig | None = None) -> SegmentationConfig:
@@ -55,11 +56,10 @@ _CACHED: dict[tuple, CachedSegmenter] = {}  # the few most recent (sequence, kin
 _MAX_CACHED = 8
 
 
-def masks_for(sequence, index: int, kind: str = "onnx", config: Config | SegmentationConfig | None = None,
-              model: str | Path | None = None) -> list[PersonInstance]:
-    """Persons of frame ``index`` of ``sequence``: the pipeline's entry point. ``onnx`` goes through the mask
-    cache (filled on demand; the ONNX session is built once per process and config/model); ``sim``/``gt`` read
-    the sequence's label images."""
+def cached_segmenter(sequence, kind: str = "onnx", config: Config | SegmentationConfig | None = None,
+                     model: str | Path | None = None) -> CachedSegmenter:
+    """The :class:`CachedSegmenter` that :func:`masks_for` reads ``kind`` masks of ``sequence`` through (the ONNX
+    session is built once per process and config/model; the few most recent ones are kept)."""
     cfg = segmentation_config(config)
     model_key = None
     if kind == "onnx":  # keyed by the file it reads, so a changed $D2SLAM_SEG_MODEL gets a session of its own
@@ -78,7 +78,30 @@ def masks_for(sequence, index: int, kind: str = "onnx", config: Config | Segment
         if len(_CACHED) >= _MAX_CACHED:
             _CACHED.pop(next(iter(_CACHED))).flush()  # its newly segmented frames, before it is dropped
         cached = _CACHED[key] = CachedSegmenter(seg, sequence)
-    return cached.instances(index)
+    return cached
+
+
+def masks_for(sequence, index: int, kind: str = "onnx", config: Config | SegmentationConfig | None = None,
+              model: str | Path | None = None) -> list[PersonInstance]:
+    """Persons of frame ``index`` of ``sequence``: the pipeline's entry point. ``onnx`` goes through the mask
+    cache (filled on demand; the ONNX session is built once per process and config/model); ``sim``/``gt`` read
+    the sequence's label images."""
+    return cached_segmenter(sequence, kind, config, model).instances(index)
+
+
+LABEL_FOLDERS = {"sim": "mask_sim/", "gt": "mask_gt/", "truth": "mask_gt/ and scene.json"}
+
+
+def masks_origin(sequence, kind: str, config: Config | SegmentationConfig | None = None,
+                 frames: int | None = None, progress: bool = True) -> str:
+    """Where the ``kind`` masks of ``sequence`` come from, for a run's summary: the model file and the mask cache
+    for ``onnx`` (whose first ``frames`` frames are segmented into the cache now when missing: announced and
+    followed with ``progress``), the label folder of the sequence otherwise."""
+    if kind == "onnx":
+        cached = cached_segmenter(sequence, kind, config)
+        cached.fill(progress=progress, frames=frames, recheck=False)
+        return f"{Path(cached.segmenter.model_path).name}, cached in {cached.dir}"
+    return f"{LABEL_FOLDERS.get(kind, kind)} of {Path(sequence.root).resolve()}"
 
 
 def flush_masks() -> None:

@@ -18,7 +18,8 @@ Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/masks.npz``, one f
 Person masks cover a small part of a frame, so the file is small and a frame is decoded by unpacking its rectangles
 into zeroed masks: no decompression and no file access per frame (``d2slam bench segmentation --cache SEQ``). The file
 is read once per process and sequence (``MaskStore``). Frames segmented since are written by rewriting the file
-atomically (temporary file + rename, under a lock file, merged with what other processes added meanwhile): every
+atomically (a temporary file named after the writing process, :mod:`d2slam.outputs`, then a rename; under a lock
+file, merged with what other processes added meanwhile): every
 ``SegmentationConfig.cache_flush_frames`` new frames, when every frame of the sequence is cached, at the end of
 ``CachedSegmenter.fill`` and at exit. A corrupt or inconsistent file is reported with a warning naming it, and its
 frames are recomputed and the file rewritten (documented recovery). A folder of the earlier layout (one compressed
@@ -41,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from d2slam.errors import D2SlamError
+from d2slam.outputs import temp_tag
 from d2slam.paths import cache_dir
 from d2slam.segmentation.base import PersonInstance
 
@@ -170,7 +172,7 @@ def write_store(path: Path, shape: tuple[int, int], frames: dict[str, FrameRecor
         "offsets": np.concatenate([[0], np.cumsum([len(b) for b in chunks], dtype=np.int64)]).astype(np.int64),
         "bits": np.concatenate(chunks or [np.zeros(0, np.uint8)]).astype(np.uint8),
     }
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{temp_tag()}-", suffix=".npz")
     try:
         with os.fdopen(fd, "wb") as fh:
             np.savez_compressed(fh, **arrays)
@@ -352,7 +354,7 @@ class CachedSegmenter:
             return
         text = json.dumps({"sequence": str(Path(self.sequence.root).resolve()), "format": FORMAT,
                            "segmenter": self.segmenter.identity()}, indent=1, sort_keys=True)
-        tmp = meta.with_name(f".tmp-meta-{os.getpid()}.json")
+        tmp = meta.with_name(f"{temp_tag()}-meta.json")
         try:
             tmp.write_text(text)
             os.replace(tmp, meta)
@@ -401,22 +403,35 @@ class CachedSegmenter:
         if self.store is not None:
             self.store.flush()
 
-    def fill(self, progress: bool = True) -> tuple[int, int]:
-        """Segment every frame not yet cached (tqdm bar), then write the cache file; returns (hits, misses) of this
-        call. Cached frames are not decoded."""
-        from tqdm import tqdm
+    def missing(self, frames: int | None = None) -> list[int]:
+        """Indices of the first ``frames`` frames (all by default) whose masks are not in the cache yet."""
+        n = len(self.sequence) if frames is None else min(len(self.sequence), int(frames))
+        return [i for i in range(n) if self.sequence.timestamps[i] not in self.store]
+
+    def fill(self, progress: bool = True, frames: int | None = None, recheck: bool = True) -> tuple[int, int]:
+        """Segment the first ``frames`` frames (all by default) not yet cached, then write the cache file; ``recheck``
+        also decodes the cached ones. With ``progress`` the segmentation is announced with an estimate
+        (``CliConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Returns (hits, misses) of this
+        call."""
+        from d2slam.config import CLI
+        from d2slam.progress import announce
+        from d2slam.progress import progress as follow
 
         if not self.cacheable:
             raise D2SlamError(f"the '{self.name}' masks are read from the sequence and need no cache")
+        n = len(self.sequence) if frames is None else min(len(self.sequence), int(frames))
+        todo = self.missing(n)
+        if todo and progress:
+            model = getattr(self.segmenter, "model_path", None)
+            announce(f"segmenting {len(todo)} frames of {self.sequence.name} with "
+                     f"{Path(model).name if model else self.name} into the mask cache {self.dir} (once per "
+                     "sequence)", len(todo) * CLI.segment_frame_s)
         h0, m0 = self.hits, self.misses
-        for i in tqdm(range(len(self.sequence)), desc=f"segment {self.name}", unit="frame",
-                      disable=None if progress else True):
-            if self.sequence.timestamps[i] in self.store:
-                self.hits += 1
-            else:
-                self._compute(self.sequence[i])
+        for i in follow(range(n) if recheck else todo, desc=f"segment {self.sequence.name}",
+                        enabled=progress and bool(todo)):
+            self.instances(i)
         self.store.flush()
-        return self.hits - h0, self.misses - m0
+        return self.hits - h0 + (0 if recheck else n - len(todo)), self.misses - m0
 
 
 class RgbListSequence:

@@ -50,13 +50,13 @@ KNOWN_MODELS: dict[str, str] = {a.sha256: Path(a.path).name for a in (*DOWNLOADS
                                 if a.path.startswith("models/")}
 
 HOW_TO_GET_A_MODEL = (
-    "The YOLOv8n-seg ONNX files are read from the shared folder ($D2SLAM_SHARED/models/) or the cache "
-    "($D2SLAM_CACHE/assets/models/, filled by `d2slam assets fetch`, which `make test` and `make demo` run); "
-    "nothing is downloaded at run time. To use another copy set "
-    f"${MODEL_ENV}=/path/to/model.onnx (or pass --model). To export one yourself with Ultralytics: "
+    "Run `d2slam assets fetch` (which `make test` and `make demo` run) to put the YOLOv8n-seg ONNX files in the cache "
+    "($D2SLAM_CACHE/assets/models/; the shared folder $D2SLAM_SHARED/models/ is read too); nothing is downloaded at "
+    f"run time. To use another copy set ${MODEL_ENV}=/path/to/model.onnx (`d2slam segment` and `d2slam bench "
+    "segmentation` also take --model). To export one yourself with Ultralytics: "
     "`pip install ultralytics && yolo export model=yolov8n-seg.pt format=onnx imgsz=384,512`, then set "
     f"${MODEL_ENV} to the exported file; a file whose sha256 is not one of the three known files needs "
-    f"--allow-unknown-model (or ${ALLOW_UNKNOWN_ENV}=1)."
+    f"${ALLOW_UNKNOWN_ENV}=1 (or `d2slam segment --allow-unknown-model`)."
 )
 
 _SHA_CACHE: dict[tuple[str, int, int], str] = {}
@@ -104,7 +104,8 @@ def check_model(path: str | Path | None = None, allow_unknown: bool | None = Non
             raise D2SlamError(
                 f"unknown model file (sha256 {digest[:16]}...) is not one of the known YOLOv8n-seg files "
                 f"({', '.join(sorted(KNOWN_MODELS.values()))}); it may be corrupt or truncated. To use your own "
-                f"export anyway pass --allow-unknown-model or set {ALLOW_UNKNOWN_ENV}=1. {HOW_TO_GET_A_MODEL}",
+                f"export anyway set {ALLOW_UNKNOWN_ENV}=1 (`d2slam segment` also takes --allow-unknown-model). "
+                f"{HOW_TO_GET_A_MODEL}",
                 path=path,
             )
         warnings.warn(f"{path}: model sha256 {digest[:16]}... is not a known YOLOv8n-seg file; using it anyway "

@@ -12,19 +12,19 @@ remains the speed of a run that extracts. Without a keypoint filter such a run d
 so its ``load`` stage is shorter than a plain run's.
 
 Storage: one ``.npz`` per sequence, the per-frame arrays concatenated with per-frame offsets, the frame timestamps
-(checked on reading) and the per-frame extraction milliseconds; written to a temporary file and renamed, so
-concurrent workers never read half a file. The study names the file after the sequence and a digest of what an extraction depends on
-(:func:`d2slam.study.runner.features_path`).
+(checked on reading) and the per-frame extraction milliseconds; written to a temporary file (named after the
+writing process: :mod:`d2slam.outputs`) and renamed, so concurrent workers never read half a file. The study names
+the file after the sequence and a digest of what an extraction depends on (:func:`d2slam.study.runner.features_path`).
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from d2slam.errors import D2SlamError
+from d2slam.outputs import staged_file
 from d2slam.slam.frame import Frame
 
 FORMAT = "d2slam-features/1"
@@ -54,10 +54,9 @@ class FeatureRecorder:
         arrays = {k: np.concatenate([f[k] for f in self.frames]) for k in FIELDS}
         counts = np.array([len(f["kps"]) for f in self.frames], dtype=np.int64)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}.npz")
-        np.savez(tmp, format=np.array(FORMAT), offsets=np.r_[0, np.cumsum(counts)],
-                 timestamps=np.asarray(self.timestamps), extract_ms=np.asarray(self.extract_ms), **arrays)
-        os.replace(tmp, path)
+        with staged_file(path, ".npz") as tmp:
+            np.savez(tmp, format=np.array(FORMAT), offsets=np.r_[0, np.cumsum(counts)],
+                     timestamps=np.asarray(self.timestamps), extract_ms=np.asarray(self.extract_ms), **arrays)
         return path
 
 

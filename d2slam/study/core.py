@@ -1,6 +1,7 @@
 """``run_study``: the whole grid, end to end.
 
-1. expand the grid (:func:`d2slam.study.grid.expand_grid`);
+1. expand the grid (:func:`d2slam.study.grid.expand_grid`) and remove what killed processes left half-written in the
+   caches (:func:`remove_stale_temps`);
 2. generate or reuse every sequence it needs (the cache of :mod:`d2slam.study.sequences`), on the executor;
 3. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask),
    the longest first (:func:`run_cost`; sequences by their frames), so that both cores stay busy to the end;
@@ -22,12 +23,13 @@ import numpy as np
 import pandas as pd
 
 from d2slam.errors import D2SlamError
+from d2slam.outputs import staged_file
 from d2slam.study import grid as G
 from d2slam.study import tables as T
 from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
-from d2slam.study.runner import (base_row, execute_run, onnx_sequence_keys, prepare_sequence, run_key, run_options,
-                                 segment_sequence)
+from d2slam.study.runner import (base_row, execute_run, features_dir, onnx_sequence_keys, prepare_sequence, run_key,
+                                 run_options, segment_sequence)
 
 RETRY = ("failed", "crashed", "timeout")  # statuses never reused by --resume
 
@@ -69,13 +71,22 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     out.mkdir(parents=True, exist_ok=True)
     options = run_options(config, cache_root=cache_root, tum_root=tum_root, masks=masks,
                           orbslam3_repeats=orbslam3_repeats, orbslam3_timeout=orbslam3_timeout)
+    remove_stale_temps(options, out)
+
+    def phase(fn, items, desc, on_result=None, cost=None) -> list:  # interrupted: nothing its killed workers left
+        try:
+            return map_ordered(fn, items, (options,), jobs, scheduler, desc=desc, progress=progress,
+                               on_result=on_result, cost=cost)
+        except BaseException:
+            remove_stale_temps(options, out)
+            raise
+
     ex = {"executor": executor_name(jobs, scheduler), "jobs": int(jobs),
           "scheduler": scheduler if isinstance(scheduler, str) else (None if scheduler is None else "in-process")}
     t0 = time.perf_counter()
 
     keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    prepared = map_ordered(prepare_sequence, keys, (options,), jobs, scheduler, desc="sequences", progress=progress,
-                           cost=sequence_cost)
+    prepared = phase(prepare_sequence, keys, "sequences", cost=sequence_cost)
     prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
     t_seq = time.perf_counter() - t0
 
@@ -92,16 +103,14 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
                 reused[s.run_id] = r
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
     t_seg = time.perf_counter()
-    map_ordered(segment_sequence, onnx_sequence_keys(todo, options), (options,), jobs, scheduler, desc="segmentation",
-                progress=progress, cost=sequence_cost)
+    phase(segment_sequence, onnx_sequence_keys(todo, options), "segmentation", cost=sequence_cost)
     t_seg = time.perf_counter() - t_seg
     (out / "runs").mkdir(exist_ok=True)
 
     def checkpoint(i, r):  # each run is saved as it finishes, so that --resume recovers an interrupted study
         save_run(out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
 
-    done = map_ordered(execute_run, todo, (options,), jobs, scheduler, desc="study", progress=progress,
-                       on_result=checkpoint, cost=lambda s: run_cost(s, options))
+    done = phase(execute_run, todo, "study", on_result=checkpoint, cost=lambda s: run_cost(s, options))
     by_id = {s.run_id: r for s, r in zip(todo, done)}
     by_id.update(reused)
     for s in specs:
@@ -145,6 +154,18 @@ def run_cost(spec: RunSpec, options: dict) -> float:
 def sequence_cost(key: tuple) -> float:
     """Estimated cost of generating or segmenting a sequence (``RunSpec.sequence_key``): its frames."""
     return float(max(int(key[3]), 1))
+
+
+def remove_stale_temps(options: dict, out: Path | None = None) -> list[Path]:
+    """Remove what killed processes left half-written in the caches a study writes (sequence folders, feature files,
+    mask files: ``*.tmp-<pid>...``, :func:`d2slam.outputs.remove_stale_temps`) and in ``out/runs``; the temporaries
+    of running processes (another study sharing the cache) stay."""
+    from d2slam.outputs import remove_stale_temps as remove
+    from d2slam.paths import cache_dir
+    from d2slam.study import sequences
+
+    return (sequences.remove_stale_temps(options.get("cache_root")) + remove(features_dir(options))
+            + remove(cache_dir("masks"), "*/*/.tmp-*") + (remove(Path(out) / "runs") if out is not None else []))
 
 
 def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
@@ -222,9 +243,6 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
         ts, poses = r["trajectory"]
         write_tum_trajectory(out / "trajectories" / f"{s.run_id}.txt", Trajectory(ts, poses),
                              header=f"d2slam study {s.run_id}")
-    record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
-              "stage_ms": r.get("stage_ms")}
-    (out / "runs" / f"{s.run_id}.json").write_text(json.dumps(record, indent=1, default=_json_default) + "\n")
     arrays = {}
     if r.get("trajectory") is not None:
         arrays.update(timestamps=r["trajectory"][0], poses=r["trajectory"][1])
@@ -232,9 +250,15 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
         arrays.update(gt_xyz=r["aligned"][0], est_xyz=r["aligned"][1])
     npz = out / "runs" / f"{s.run_id}.npz"
     if arrays:
-        np.savez_compressed(npz, **arrays)
+        with staged_file(npz, ".npz") as tmp:
+            np.savez_compressed(tmp, **arrays)
     else:
         npz.unlink(missing_ok=True)
+    # the record last, whole or not at all: --resume reuses a run only when its record is there
+    record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
+              "stage_ms": r.get("stage_ms")}
+    with staged_file(out / "runs" / f"{s.run_id}.json") as tmp:
+        tmp.write_text(json.dumps(record, indent=1, default=_json_default) + "\n")
 
 
 def module_f1(specs: list[RunSpec], results: list[dict]) -> pd.DataFrame:

@@ -1,8 +1,12 @@
 """Run a list of tasks on one of three executors, with a tqdm bar, results returned in the input order.
 
 * ``serial``: in this process (``jobs=1``);
-* ``joblib``: ``jobs`` loky worker processes (``jobs > 1``), each with single-threaded BLAS/OpenMP
-  (``inner_max_num_threads=1``) and OpenCV on one thread (set per run);
+* ``joblib``: ``jobs`` worker processes of joblib's loky (``jobs > 1``), each with single-threaded BLAS/OpenMP
+  and OpenCV on one thread (set per run). One pool per call, shut down when the call returns: a worker lives for
+  the whole call and keeps what it loaded (its first task's size is the reference of loky's leak check, so a
+  worker is not recycled, with a warning, for holding the segmenter loaded by a later task). The workers ignore
+  SIGINT: a Ctrl-C reaches this process only, which kills the pool's processes and raises ``KeyboardInterrupt``
+  (no tracebacks from the workers, nothing left running);
 * ``dask``: a ``dask.distributed`` cluster (``scheduler="tcp://HOST:PORT"``, or a ``Client`` / ``LocalCluster``
   given directly). Start its workers with ``OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1`` and ``--nthreads 1``
   (one run per core; the numbers do not depend on it, the speed does).
@@ -18,7 +22,6 @@ from __future__ import annotations
 from typing import Callable, Sequence
 
 import numpy as np
-
 from tqdm import tqdm
 
 from d2slam.errors import D2SlamError
@@ -64,21 +67,60 @@ def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, 
         bar.close()
 
 
+# The workers' BLAS and OpenMP thread counts (one job per core; the numbers do not depend on them).
+WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
 def _joblib(fn, items, order, args, jobs, bar, on_result=None) -> list:
-    from joblib import Parallel, delayed, parallel_config
+    from concurrent.futures import as_completed
+
+    from joblib.externals.loky import ProcessPoolExecutor
 
     out = [None] * len(items)
-    with parallel_config(backend="loky", n_jobs=jobs, inner_max_num_threads=1):
-        # one item per task, handed out in ``order`` as workers free up (no batches: a batch of short runs would
-        # finish on one worker after the other has run dry)
-        gen = Parallel(return_as="generator_unordered", batch_size=1)(
-            delayed(_indexed)(i, fn, items[i], args) for i in order)
-        for i, res in gen:
-            out[i] = res
+    pool = ProcessPoolExecutor(max_workers=jobs, env=WORKER_ENV, initializer=_ignore_sigint)
+    try:
+        with _sigint_ignored():  # the workers start now (first submit) and inherit it from their first instruction
+            # submitted in ``order``: the pool starts them so, one per worker as it frees up
+            futures = {pool.submit(fn, items[i], *args): i for i in order}
+        for fut in as_completed(futures):
+            i = futures[fut]
+            out[i] = fut.result()
             if on_result is not None:
-                on_result(i, res)
+                on_result(i, out[i])
             bar.update(1)
+    except BaseException:
+        pool.shutdown(wait=True, kill_workers=True)
+        raise
+    pool.shutdown(wait=True)
     return out
+
+
+def _ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C is the parent's to handle (a replaced worker does not inherit it at start)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+class _sigint_ignored:
+    """SIGINT ignored in this process for the duration (processes started meanwhile inherit it); a no-op outside the
+    main thread, where signal handlers cannot be set."""
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self._prev = None
+        if threading.current_thread() is threading.main_thread():
+            self._prev = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self._prev is not None:
+            signal.signal(signal.SIGINT, self._prev)
+        return False
 
 
 def _indexed(i, fn, item, args):

@@ -1,5 +1,6 @@
 """The study's figures (PNG by Agg, drawn on matplotlib figures outside pyplot): trajectories, ATE bars with spread,
-keypoint F1 per module, runtime breakdown."""
+keypoint F1 per module, runtime breakdown. Each method has its colour in every figure and the ground truth is drawn
+above the estimates (:mod:`d2slam.eval.plots`)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from d2slam.eval.plots import GROUND_TRUTH, legend, method_colour
 from d2slam.study.grid import LABELS, SCENARIOS
 
 
@@ -26,8 +28,8 @@ def _scen(df) -> list[str]:
 
 
 def plot_trajectories(aligned: dict, out: Path, seed: int) -> Path | None:
-    """One panel per sequence (x-y, top view): ground truth and each method's SE(3)-aligned estimate, one seed.
-    ``aligned``: {(scenario, twin, method): (gt_xyz, est_xyz)}."""
+    """One panel per sequence (x-y, top view): each method's SE(3)-aligned estimate in its colour and the ground truth
+    above them, one seed. ``aligned``: {(scenario, twin, method): (gt_xyz, est_xyz)}."""
     keys = sorted({(s, t) for (s, t, _m) in aligned},
                   key=lambda k: (SCENARIOS.index(k[0]) if k[0] in SCENARIOS else 99, k[1]))
     if not keys:
@@ -39,15 +41,15 @@ def plot_trajectories(aligned: dict, out: Path, seed: int) -> Path | None:
     for ax, (s, t) in zip(axes.flat, keys):
         runs = [(m, gt, est) for (s2, t2, m), (gt, est) in aligned.items() if (s2, t2) == (s, t)]
         gt = max((g for _, g, _ in runs), key=len)  # the ground truth matched by the longest tracked run
-        ax.plot(gt[:, 0], gt[:, 1], color="0.5", lw=2, label="ground truth")
         for m, _, est in runs:
-            ax.plot(est[:, 0], est[:, 1], lw=1, label=m)
+            ax.plot(est[:, 0], est[:, 1], lw=1, color=method_colour(m), label=m)
+        ax.plot(gt[:, 0], gt[:, 1], **GROUND_TRUTH)
         ax.set_title(f"{LABELS.get(s, s)}{' twin' if t else ''} (seed {seed})")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.axis("equal")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        legend(ax, fontsize=7)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     fig.tight_layout()
@@ -83,7 +85,8 @@ def plot_summary_bars(summary: pd.DataFrame, out: Path, methods: list[str], metr
             hi.append(float(r[f"{metric}_max"].iloc[0]) if len(r) else np.nan)
         med, lo, hi = map(np.asarray, (med, lo, hi))
         yerr = np.nan_to_num(np.stack([med - lo, hi - med]))
-        ax.bar(x + (k - (len(ms) - 1) / 2) * width, med, width, yerr=yerr, capsize=2, label=m)
+        ax.bar(x + (k - (len(ms) - 1) / 2) * width, med, width, yerr=yerr, capsize=2, label=m,
+               color=method_colour(m))
     ax.set_xticks(x, [LABELS.get(s, s) for s in scen])
     ax.set_ylabel(ylabel)
     if log:
@@ -91,7 +94,7 @@ def plot_summary_bars(summary: pd.DataFrame, out: Path, methods: list[str], metr
     if ylim is not None:
         ax.set_ylim(*ylim)
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=7, ncol=min(4, len(ms)))
+    legend(ax, fontsize=7, ncol=min(4, len(ms)))
     fig.tight_layout()
     fig.savefig(out, dpi=90)
     return out
@@ -114,7 +117,7 @@ def plot_keypoint_f1(module_f1: pd.DataFrame, out: Path) -> Path | None:
     ax.set_ylim(0, 1)
     ax.set_ylabel("F1 of 'dynamic' (median over runs)")
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=7, ncol=3)
+    legend(ax, fontsize=7, ncol=3)
     fig.tight_layout()
     fig.savefig(out, dpi=90)
     return out
@@ -140,7 +143,7 @@ def plot_runtime(df: pd.DataFrame, out: Path, methods: list[str]) -> Path | None
     ax.bar(ms, np.clip(other, 0, None), bottom=bottom, label="other / ORB-SLAM3 total", color="0.7")
     ax.set_ylabel("ms per frame (median over runs)")
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=7)
+    legend(ax, fontsize=7)
     fig.tight_layout()
     fig.savefig(out, dpi=90)
     return out

@@ -93,7 +93,7 @@ def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
         return tum_sequence_dir(options["tum_root"], scenario)
     from d2slam.study.sequences import ensure_sequence
 
-    return ensure_sequence(scenario, seed, frames, twin, root=options.get("cache_root"))
+    return ensure_sequence(scenario, seed, frames, twin, root=options.get("cache_root"), progress=False)
 
 
 def execute_run(spec: RunSpec | dict, options: dict) -> dict:
@@ -231,16 +231,20 @@ def features_path(seq, path: Path, config, options: dict) -> Path:
     version, the frame and data code), under ``<cache>/study/features`` (or ``<cache_root>/features``)."""
     import cv2
 
-    from d2slam.paths import cache_dir
-
     cam = seq.camera
     ident = {"orb": dataclasses.asdict(config.orb), "engine": dataclasses.asdict(config.engine),
              "camera": [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.bf, cam.depth_factor,
                         [float(d) for d in np.asarray(cam.dist).ravel()]],
              "cv2": cv2.__version__, "code": source_digest(("slam/frame.py", "slam/features.py", "data"))}
     key = _digest(ident)
-    root = Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
-    return root / f"{Path(path).resolve().name}_n{len(seq)}-{key}.npz"
+    return features_dir(options) / f"{Path(path).resolve().name}_n{len(seq)}-{key}.npz"
+
+
+def features_dir(options: dict) -> Path:
+    """The folder of the study's feature files: ``<cache>/study/features`` (or ``<cache_root>/features``)."""
+    from d2slam.paths import cache_dir
+
+    return Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
 
 
 def _features(seq, path: Path, config, options: dict):

@@ -5,8 +5,9 @@ static twin and *generator version*.
 is a digest of the synthetic format, the package version, every ``SynthConfig`` value and the code of
 ``d2slam/synth/*.py`` (comments and docstrings left out, as in the run keys): a changed generator never feeds a study a stale sequence. A sequence counts as present only
 when its ``.complete`` marker (written last, holding the key) is there; it is generated into a temporary folder and
-renamed into place, under a lock file, so concurrent workers (processes or a Dask cluster sharing the cache)
-never read a half-written sequence and never generate the same one twice.
+renamed into place (:func:`d2slam.outputs.staged_dir`), under a lock file, so concurrent workers (processes or a Dask
+cluster sharing the cache) never read a half-written sequence and never generate the same one twice.
+:func:`remove_stale_temps` removes the temporary folders of processes that were killed before they could.
 """
 
 from __future__ import annotations
@@ -15,8 +16,6 @@ import dataclasses
 import fcntl
 import hashlib
 import json
-import os
-import shutil
 from functools import lru_cache
 from pathlib import Path
 
@@ -61,8 +60,9 @@ def is_complete(path: Path) -> bool:
 
 
 def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, root: str | Path | None = None,
-                    progress: bool = False) -> Path:
-    """The cached sequence's folder, generated (single process, deterministic) if missing or incomplete."""
+                    progress: bool = True) -> Path:
+    """The cached sequence's folder, generated (single process, deterministic) if missing or incomplete; with
+    ``progress`` the generation is announced with an estimate and followed (:mod:`d2slam.progress`)."""
     path = sequence_dir(scenario, seed, frames, twin, root)
     if is_complete(path):
         return path
@@ -73,21 +73,21 @@ def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, r
         try:
             if is_complete(path):
                 return path
+            from d2slam.outputs import staged_dir
             from d2slam.synth import generate
 
-            tmp = path.parent / f"{path.name}.tmp-{os.getpid()}"
-            shutil.rmtree(tmp, ignore_errors=True)
-            try:
+            if progress:
+                from d2slam.progress import announce
+                from d2slam.synth.generate import estimated_seconds
+
+                announce(f"generating {sequence_name(scenario, seed, frames, twin)} (once; cached in {path.parent})",
+                         estimated_seconds(int(frames), 1))
+            with staged_dir(path) as tmp:  # replaces an incomplete earlier attempt; removed if interrupted
                 generate(scenario, tmp, frames=int(frames), seed=int(seed), static_twin=bool(twin), workers=1,
                          progress=progress)
                 key = {"scenario": scenario, "seed": int(seed), "frames": int(frames), "static_twin": bool(twin),
                        "generator_version": generator_version()}
                 (tmp / MARKER).write_text(json.dumps(key) + "\n")
-                shutil.rmtree(path, ignore_errors=True)  # an incomplete earlier attempt
-                os.replace(tmp, path)
-            except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
     return path
@@ -102,3 +102,12 @@ def tum_sequence_dir(tum_root: str | Path, scenario: str) -> Path:
     if not path.is_dir():
         raise D2SlamError(f"TUM sequence {TUM_FOLDERS[scenario]} not found under the TUM root", path=root)
     return path
+
+
+def remove_stale_temps(root: str | Path | None = None) -> list[Path]:
+    """Remove the temporary sequence folders (``<name>.tmp-<pid>...``) of processes that are gone, under ``root``
+    (default: the study's sequence cache); the work of running processes is left alone."""
+    from d2slam.outputs import remove_stale_temps as remove
+    from d2slam.paths import cache_dir
+
+    return remove(Path(root) if root is not None else cache_dir("study", "sequences"))

@@ -26,17 +26,17 @@ import json
 import multiprocessing as mp
 import os
 import shutil
+import signal
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
-from tqdm import tqdm
-
 from d2slam import __version__
 from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
+from d2slam.progress import progress as _progress
 from d2slam.synth.scene import SCENARIOS, Scene
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor
@@ -124,6 +124,7 @@ def _frame_job(i: int) -> dict:
 
 
 def _init_worker(args) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it stops the pool, workers say nothing
     cv2.setNumThreads(1)
     if "scene" not in _STATE:  # a spawned worker rebuilds the (deterministic) scene instead of inheriting it
         scenario, seed, frames, static_twin, cfg, out = args
@@ -189,6 +190,22 @@ def _prepare_out(out: Path) -> None:
         (out / d).mkdir()
 
 
+def worker_count(frames: int, workers: int | None = None, cfg: SynthConfig | None = None) -> int:
+    """The processes :func:`generate` renders ``frames`` frames with: ``workers``, or by default up to two, one per
+    20 frames at most: starting a spawned worker is not free (measured: docs/deviations.md, `SynthConfig.workers`)."""
+    if workers is None:
+        return max(1, min((cfg or SynthConfig()).workers or min(2, os.cpu_count() or 1), frames // 20))
+    return max(1, min(int(workers), frames))
+
+
+def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig | None = None) -> float:
+    """What generating ``frames`` frames should take (``CliConfig.synth_setup_s``, ``synth_frame_s``), announced
+    before it starts."""
+    from d2slam.config import CLI
+
+    return CLI.synth_setup_s + frames * CLI.synth_frame_s / worker_count(frames, workers, cfg)
+
+
 def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, static_twin: bool = False,
              workers: int | None = None, cfg: SynthConfig | None = None, progress: bool = True) -> dict:
     """Generate one sequence into ``out``; returns a summary (paths, per-frame fractions and stage timings)."""
@@ -214,23 +231,19 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
                                          + "# timestamp tx ty tz qx qy qz qw\n" + lines)
     (out / "scene.json").write_text(json.dumps(scene_json(scene), indent=1) + "\n")
 
-    if workers is None:  # default: up to two, one per 20 frames at most: starting a spawned worker is not free
-        # (measured: docs/deviations.md, `SynthConfig.workers`)
-        n_workers = max(1, min(cfg.workers or min(2, os.cpu_count() or 1), frames // 20))
-    else:
-        n_workers = max(1, min(int(workers), frames))
+    n_workers = worker_count(frames, workers, cfg)
     renderer = WorldRenderer(scene) if n_workers == 1 else None  # workers make their own OpenGL contexts
     _STATE.clear()
     _STATE.update(scene=scene, renderer=renderer, out=out)
     bar = dict(total=frames, desc=f"synth {scenario}{' (static twin)' if static_twin else ''}", unit="frame",
-               disable=None if progress else True)
+               enabled=progress)
     t_frames = time.perf_counter()
     try:
         if n_workers == 1:
             prev = cv2.getNumThreads()
             cv2.setNumThreads(1)
             try:
-                stats = [_frame_job(i) for i in tqdm(range(frames), **bar)]
+                stats = [_frame_job(i) for i in _progress(range(frames), **bar)]
             finally:
                 cv2.setNumThreads(prev)
         else:
@@ -239,7 +252,7 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
             ctx = mp.get_context("spawn")
             initargs = ((scenario, seed, frames, static_twin, cfg, str(out)),)
             with ctx.Pool(n_workers, initializer=_init_worker, initargs=initargs) as pool:
-                stats = list(tqdm(pool.imap(_frame_job, range(frames), chunksize=2), **bar))
+                stats = list(_progress(pool.imap(_frame_job, range(frames), chunksize=2), **bar))
     finally:
         _STATE.clear()
         if renderer is not None:

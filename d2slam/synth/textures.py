@@ -93,6 +93,38 @@ def _truss(img, rng, bay: int, depth: int, colour, horizontal: bool = True):
         line(*second)
 
 
+def _cladding(img, rng, base, tpm: float):
+    """Profiled metal cladding of a hall wall: panels a metre or two wide in slightly different tones, each with
+    vertical ribs every 4-7 cm (a lit and a shaded edge)."""
+    h, w = img.shape[:2]
+    x = 0
+    while x < w:
+        pw = int(rng.uniform(1.0, 2.2) * tpm)
+        tone = _jitter(base, rng, 18)
+        img[:, x:x + pw] = tone
+        rib = max(int(rng.uniform(0.04, 0.07) * tpm), 5)
+        lit, shade = _jitter(tone, rng, 6), tuple(max(c - int(rng.integers(28, 45)), 0) for c in tone)
+        for rx in range(x + rib // 2, min(x + pw, w), rib):
+            cv2.line(img, (rx, 0), (rx, h), shade, 2)
+            cv2.line(img, (rx + 2, 0), (rx + 2, h), tuple(min(c + 20, 255) for c in lit), 1)
+        cv2.line(img, (x, 0), (x, h), tuple(max(c - 60, 0) for c in tone), 2)  # the panel joint
+        x += pw
+
+
+def _slats(img, rng, tpm: float):
+    """A wooden roof seen from below, as in the TUM fr3 hall: planks 6-10 cm wide along the rows, each its own tone,
+    with a dark gap between them and a faint grain."""
+    h, w = img.shape[:2]
+    wood = (int(rng.integers(170, 215)), int(rng.integers(125, 160)), int(rng.integers(70, 100)))
+    y = 0
+    while y < h:
+        ph = max(int(rng.uniform(0.06, 0.10) * tpm), 6)
+        img[y:y + ph] = _jitter(wood, rng, 22)
+        cv2.line(img, (0, y), (w, y), tuple(c // 3 for c in wood), 2)
+        y += ph
+    _lines(img, rng, (h * w) // 30000 + 4, [tuple(max(c - 35, 0) for c in wood)], (1, 1))
+
+
 def _grain(img, rng, amount):
     """Grain of standard deviation ``amount`` grey levels (uniform: cheap to draw for the large room textures)."""
     noise = rng.random(size=img.shape[:2] + (1,), dtype=np.float32)
@@ -222,6 +254,7 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, c
         tpm = texels_per_m or 220.0
         base = _colour(rng, 150, 200)
         img[:] = base
+        _slats(img, rng, tpm)
         steel = [_colour(rng, 40, 110) for _ in range(2)]
         step = int(rng.integers(30, 60))
         for y in range(0, height, step):
@@ -240,6 +273,7 @@ def make_texture(rng: np.random.Generator, kind: str, width: int, height: int, c
         img[:] = base
         steel = [_colour(rng, 50, 120) for _ in range(3)]
         col_step = int(rng.uniform(1.0, 1.5) * tpm)
+        _cladding(img, rng, base, tpm)
         # a band of windows high up: bright panes divided by mullions
         y0, y1 = int(0.08 * height), int(rng.uniform(0.3, 0.4) * height)
         cv2.rectangle(img, (0, y0), (width, y1), (235, 238, 240), -1)
