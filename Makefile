@@ -26,6 +26,8 @@ $(STAMP): environment.txt pyproject.toml
 	@# create an offscreen context, and runs on the 3.1.10 of environment.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps $(NODEPS)
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	@# compile the engine's kernels now (numba caches them on disk), not during the first run
+	$(PY) -m d2slam.warmup
 	@# the synthetic benchmark renders offscreen with Mesa's EGL and llvmpipe (system libraries)
 	@ldconfig -p 2>/dev/null | grep -q 'libEGL_mesa.so' && ldconfig -p 2>/dev/null | grep -q 'libGL.so' || \
 		echo "warning: no Mesa EGL/OpenGL for the synthetic benchmark: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri"

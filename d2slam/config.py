@@ -327,6 +327,9 @@ class SegmentationConfig:
     intra_op_threads: int = 2
     # At most this many persons per frame, highest scores first.
     max_persons: int = 20
+    # The mask cache file of a sequence is rewritten after this many newly segmented frames (and when the sequence
+    # is complete); not part of the mask-cache key.
+    cache_flush_frames: int = 100
 
 
 # --------------------------------------------------------------------------------------------------
@@ -682,6 +685,21 @@ class MaskingConfig:
 
 
 # --------------------------------------------------------------------------------------------------
+# The study's scheduler (d2slam.study): longest runs first
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StudyConfig:
+    # Estimated cost of a run, milliseconds per frame of one run of the method on two busy cores (the real ORB-SLAM3:
+    # per repeat, its vocabulary load included), from the per-method worker-seconds of the default study
+    # (docs/benchmarks.md); methods not listed cost run_cost_default_ms. Only the order of the runs depends on it:
+    # the study starts the longest first (d2slam.study.executors.map_ordered), so that no long run is left alone at
+    # the end while the other core idles. Generating or segmenting a sequence costs its frames.
+    run_cost_ms: tuple[tuple[str, float], ...] = (
+        ("orbslam3", 69.0), ("orbslam3-masked", 65.0), ("d2slam-flow", 57.0), ("d2slam", 44.0), ("oracle", 44.0),
+        ("none", 40.0))
+    run_cost_default_ms: float = 50.0
+
+
 # --------------------------------------------------------------------------------------------------
 # Data: TUM reading and downloading (DESIGN.md section 3-4)
 # --------------------------------------------------------------------------------------------------
@@ -838,6 +856,7 @@ class Config:
     baseline: BaselineConfig = field(default_factory=BaselineConfig)
     masking: MaskingConfig = field(default_factory=MaskingConfig)
     data: DataConfig = field(default_factory=DataConfig)
+    study: StudyConfig = field(default_factory=StudyConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -3,8 +3,9 @@
     result = run_sequence(open_sequence(path), keypoint_filter=None, mask_provider=None)
     result.trajectory  # tracked frames only (T_world_camera), result.tracked / result.lost, result.fps
 
-Stages timed per frame: ``load`` (waiting for the images; the next two frames are read by one prefetch thread
-while the current one is processed), ``segment`` (the mask provider, when there is one), ``extract`` (ORB + depth;
+Stages timed per frame: ``load`` (waiting for the images and masks; the next two frames and their masks are read by
+one prefetch thread while the current one is processed), ``segment`` (the mask provider's own time, when there is
+one; in the prefetch thread, overlapping the other stages, unless ``prefetch=False``), ``extract`` (ORB + depth;
 the next frame's extraction runs in the engine's worker thread while this one is tracked, so it overlaps the
 other stages and the stages add up to more than the wall time), ``filter`` (frame-to-frame matches + the hook),
 ``track`` (all tracking steps), ``local_ba`` (new keyframe + local mapping).
@@ -51,6 +52,7 @@ class RunResult:
     total_s: float
     fps: float
     per_frame: list[dict] = field(default_factory=list)
+    first_frame_at: float = float("nan")  # time.time() when the first frame was done (cold-start measurements)
 
     def summary(self) -> dict:
         return {"frames": self.frames, "tracked": self.tracked, "lost": self.lost, "keyframes": self.keyframes,
@@ -89,21 +91,30 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     else:
         reader = None
     extract_adjust = 0.0  # cached extraction time minus the time the cached read took
+    first_frame_at = float("nan")
     totals = dict.fromkeys(STAGES, 0.0)
     states, per_frame = [], []
     keyframes = 0
     t_start = time.perf_counter()
     bar = tqdm(range(n), desc=desc or f"run {getattr(sequence, 'name', '')}", unit="frame",
                disable=None if progress is None else not progress)
-    # Frames are read one and two ahead by a reader thread (PNG decoding releases the GIL), and the engine extracts
-    # frame i+1 in its worker while it tracks frame i (``Engine.process(upcoming=...)``): results identical to doing
-    # it all in order; ``load`` is the time spent waiting for the images.
+    # Frames and their masks are read one and two ahead by a reader thread (PNG decoding releases the GIL), and the
+    # engine extracts frame i+1 in its worker while it tracks frame i (``Engine.process(upcoming=...)``): results
+    # identical to doing it all in order; ``load`` is the time spent waiting for the images and masks, ``segment`` the
+    # mask provider's own time in the reader thread.
     pool = ThreadPoolExecutor(max_workers=1) if prefetch and reader is not None and n > 1 else None
     pending: dict = {}
 
+    def read(j: int):
+        frame = reader(j)
+        if mask_provider is None:
+            return frame, None, 0.0
+        t = time.perf_counter()
+        return frame, mask_provider(j), time.perf_counter() - t
+
     def fetch(j: int) -> None:
         if pool is not None and j < n and j not in pending:
-            pending[j] = pool.submit(reader, j)
+            pending[j] = pool.submit(read, j)
 
     fetch(0)
     fetch(1)
@@ -111,16 +122,17 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
         t0 = time.perf_counter()
         upcoming = None
         if pool:
-            frame = pending.pop(i).result()
+            frame, masks, segment_s = pending.pop(i).result()
             fetch(i + 2)
             if cached is None and i + 1 < n:
-                nxt = pending[i + 1].result()
+                nxt = pending[i + 1].result()[0]
                 upcoming = (nxt.gray, nxt.depth, i + 1, nxt.timestamp)
+            t1 = time.perf_counter()
         else:
             frame = reader(i) if reader is not None else None
-        t1 = time.perf_counter()
-        masks = mask_provider(i) if mask_provider is not None else None
-        t2 = time.perf_counter()
+            t1 = time.perf_counter()
+            masks = mask_provider(i) if mask_provider is not None else None
+            segment_s = time.perf_counter() - t1
         if cached is not None:  # frame is the depth image or None
             res = engine.process(None, frame, i, float(cached.timestamps[i]), masks=masks,
                                  features=cached.frame(i))
@@ -132,7 +144,7 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
             if recorder_f is not None:
                 recorder_f.add(engine.last, res.timings["extract"])
         totals["load"] += t1 - t0
-        totals["segment"] += t2 - t1
+        totals["segment"] += segment_s
         for k, v in res.timings.items():
             totals[k] += v
         states.append(res.state)
@@ -143,6 +155,8 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
         if recorder is not None:
             last = engine.last
             recorder(i, last.kps, last.belief, getattr(keypoint_filter, "last", None))
+        if i == 0:
+            first_frame_at = time.time()
         if i % 10 == 0:
             bar.set_postfix(tracked=sum(s == "ok" for s in states), kfs=keyframes)
     if pool:
@@ -155,4 +169,5 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     return RunResult(trajectory=Trajectory(ts, poses, meta={"sequence": getattr(sequence, "name", "")}),
                      frames=n, tracked=tracked, lost=n - tracked, states=states,
                      keyframes=len(engine.map.good_keyframes()), map_points=engine.map.n_points, stage_ms=stage_ms,
-                     total_s=total, fps=n / total if total > 0 else float("inf"), per_frame=per_frame)
+                     total_s=total, fps=n / total if total > 0 else float("inf"), per_frame=per_frame,
+                     first_frame_at=first_frame_at)

@@ -39,6 +39,11 @@ def test_run_command_writes_trajectory_and_json(room_dir, tmp_path, capsys):
         assert key in rec
     assert rec["tracked"] == 20 and rec["method"] == "none"
     assert rec["metrics"]["ate_rmse_m"] < 0.02 and rec["metrics"]["rpe_rot_deg"] < 1.0
+    # from this (test) process's start to the end of the first frame: positive, within the process's lifetime
+    import psutil
+    import time
+
+    assert 0 < rec["startup_s"] < time.time() - psutil.Process().create_time()
     traj = read_tum_trajectory(out)
     assert len(traj) == 20
     # eval on the written files gives the same ATE as the run's JSON
@@ -235,6 +240,38 @@ def test_run_command_dispatches_orbslam3(room_dir, tmp_path, monkeypatch):
     (args,) = seen
     assert args.sequence == str(room_dir) and args.out == str(out) and args.repeats == 2 and args.camera == "fr3"
     assert main(["run", str(room_dir), "--method", "orbslam3", "--masks", "gt", "--out", str(out)]) == 2
+
+
+def test_masks_are_read_ahead_with_the_frames(room_dir):
+    """With prefetching, the mask provider runs in the reader thread (off the tracking thread), each frame's masks
+    reach the engine with that frame, and the segment stage is the provider's own time; without, in this thread."""
+    import threading
+    import time
+
+    seq = open_sequence(room_dir, camera="fr3")
+    shape = (seq.camera.height, seq.camera.width)
+    for prefetch in (True, False):
+        threads, seen = set(), []
+
+        def provider(i):
+            threads.add(threading.current_thread())
+            time.sleep(0.002)
+            m = np.zeros((1, *shape), bool)
+            m[0, :i + 1, :] = True  # frame i's mask: i + 1 rows
+            return m
+
+        class Spy:
+            def __call__(self, inp):
+                seen.append((inp.frame_index, int(inp.masks[0].any(axis=1).sum())))
+                return np.zeros(len(inp.kps))
+
+            def reset(self):
+                pass
+
+        res = run_sequence(seq, keypoint_filter=Spy(), mask_provider=provider, prefetch=prefetch, progress=False)
+        assert (threading.main_thread() in threads) != prefetch
+        assert seen == [(i, i + 1) for i in range(len(seq))]
+        assert res.stage_ms["segment"] >= 2.0
 
 
 def test_pipelined_extraction_gives_the_same_bytes(synth_dir):

@@ -1,4 +1,5 @@
-"""The mask cache (hit, miss, invalidation, corrupt files), the sim/gt label segmenters and the factory."""
+"""The mask cache (hit, miss, invalidation, corrupt files, the one-file format, writes merged across processes,
+the earlier per-frame layout converted), the sim/gt label segmenters and the factory."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ from d2slam.errors import D2SlamError
 from d2slam.assets import asset_path, tum_frames
 from d2slam.segmentation import CachedSegmenter, get_segmenter, masks_for
 from d2slam.segmentation.base import PersonInstance
-from d2slam.segmentation.cache import RgbListSequence, load_instances, segmenter_key, sequence_key
+from d2slam.segmentation.cache import (STORE_NAME, FrameRecord, MaskStore, RgbListSequence, read_store,
+                                      segmenter_key, sequence_key, timestamp_stem)
 from d2slam.segmentation.sim import LabelSegmenter, instances_from_labels
 
 H, W = 24, 32
@@ -92,7 +94,9 @@ def test_miss_then_hit_without_reading_images(seq):
     cached = CachedSegmenter(seg, seq)
     first = [cached.instances(i) for i in range(len(seq))]
     assert seg.calls == 4 and cached.misses == 4 and cached.hits == 0
-    assert len(list(cached.dir.glob("*.npz"))) == 4 and (cached.dir / "meta.json").is_file()
+    # one file for the sequence, written once every frame was there
+    assert [p.name for p in cached.dir.glob("*.npz")] == [STORE_NAME] and (cached.dir / "meta.json").is_file()
+    assert len(read_store(cached.dir / STORE_NAME)[1]) == 4
     again = CachedSegmenter(seg, seq)  # a new run, same key
     for p in seq.rgb_paths:  # hits must not touch the images
         p.unlink()
@@ -146,41 +150,146 @@ def test_real_segmenter_key_has_model_hash_and_mask_config(real_assets):
     assert a.identity()["model_sha256"] == a.sha256
     assert len({segmenter_key(s) for s in (a, b, c)}) == 3
     assert segmenter_key(d) == segmenter_key(a)  # thread count does not change masks
+    e = get_segmenter("onnx", model=m384, config=SegmentationConfig(cache_flush_frames=7))
+    assert segmenter_key(e) == segmenter_key(a)  # nor how often the cache file is written
 
 
 @pytest.mark.parametrize("damage", ["garbage", "truncate", "empty", "wrong_arrays"])
 def test_corrupt_cache_file_is_recomputed_with_a_warning(seq, damage):
     seg = CountingSegmenter()
     cached = CachedSegmenter(seg, seq)
+    cached.fill(progress=False)
     good = cached.instances(2)
-    path = cached.path_for(seq.timestamps[2])
+    path = cached.dir / STORE_NAME
     if damage == "garbage":
         path.write_bytes(b"not an npz at all")
     elif damage == "truncate":
         path.write_bytes(path.read_bytes()[:40])
     elif damage == "empty":
         path.write_bytes(b"")
-    else:
-        np.savez_compressed(path, bits=np.zeros(3, np.uint8), shape=np.array([1, H, W]), scores=np.ones(1),
-                            boxes=np.zeros((1, 4)), timestamp=np.float64(seq.timestamps[2]))
-    fresh = CachedSegmenter(seg, seq)
+    else:  # a readable file whose arrays disagree: two frames, one instance range
+        shape, frames = read_store(path)
+        with np.load(path) as z:
+            arrays = dict(z)
+        arrays["first"] = arrays["first"][:2]
+        np.savez(path, **arrays)
     with pytest.warns(UserWarning, match=f"{path.name}.*corrupt mask cache file"):
-        got = fresh.instances(2)
-    assert seg.calls == 2 and fresh.recovered == 1 and fresh.misses == 1
+        fresh = CachedSegmenter(seg, seq)
+    assert fresh.recovered == 1
+    got = fresh.instances(2)
+    assert seg.calls == 5 and fresh.misses == 1
     assert np.array_equal(got[0].mask, good[0].mask)
-    load_instances(path, seq.timestamps[2])  # rewritten and valid
+    fresh.fill(progress=False)  # the other frames too; the file is rewritten, valid
+    assert len(read_store(path)[1]) == 4
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert CachedSegmenter(seg, seq).instances(2)[0].box == good[0].box
 
 
-def test_file_under_the_wrong_timestamp_is_rejected(seq):
-    cached = CachedSegmenter(CountingSegmenter(), seq)
-    cached.instances(0)
-    shutil.copyfile(cached.path_for(seq.timestamps[0]), cached.path_for(seq.timestamps[1]))
-    with pytest.warns(UserWarning, match="timestamp"):
-        cached.instances(1)
-    assert cached.recovered == 1
+def _random_instances(rng, shape, k):
+    out = []
+    for j in range(k):
+        mask = rng.random(shape) < 0.3
+        if j == 0:
+            mask[:] = False  # an empty mask (a person whose mask fell below the threshold)
+        elif j == 1:
+            mask[0, :] = mask[:, -1] = True  # touching the frame's borders
+        out.append(PersonInstance(mask=mask, score=float(rng.random()), box=tuple(rng.random(4).tolist())))
+    return out
+
+
+def test_store_roundtrip_is_exact(tmp_path):
+    """Masks (empty, at the borders, overlapping), scores and boxes come back exactly, in order, from the file."""
+    rng = np.random.default_rng(3)
+    shape = (13, 21)
+    frames = {t: _random_instances(rng, shape, k) for t, k in ((10.5, 3), (10.0, 0), (11.25, 4))}
+    store = MaskStore(tmp_path / STORE_NAME)
+    for t, persons in frames.items():
+        store.put(t, persons, shape)
+    store.flush()
+    again = MaskStore(tmp_path / STORE_NAME)
+    assert len(again) == 3 and again.shape == shape and 10.0 in again and 9.0 not in again
+    assert again.get(9.0) is None
+    for t, persons in frames.items():
+        got = again.get(t)
+        assert len(got) == len(persons)
+        for a, b in zip(got, persons):
+            assert a.mask.dtype == bool and a.mask.shape == shape and np.array_equal(a.mask, b.mask)
+            assert a.score == pytest.approx(b.score, rel=1e-6) and a.box == pytest.approx(b.box, rel=1e-6)
+    record = FrameRecord.from_instances(1.0, frames[11.25])
+    assert record.rects[0] == (0, 0, 0, 0) and len(record.bits[0]) == 0  # nothing stored for an empty mask
+
+
+def test_the_file_is_written_every_few_frames_and_when_complete(seq):
+    seg = CountingSegmenter()
+    cached = CachedSegmenter(seg, seq, flush_frames=3)
+    path = cached.dir / STORE_NAME
+    cached.instances(0), cached.instances(1)
+    assert not path.exists()  # two new frames: not yet written
+    cached.instances(2)
+    assert len(read_store(path)[1]) == 3  # three: written
+    assert CachedSegmenter(seg, seq).instances(1)[0].box == (1.0, 3.0, 10.0, 15.0)  # another process reads them
+    cached.instances(3)
+    assert len(read_store(path)[1]) == 4  # the last missing frame: written at once
+    assert not list(cached.dir.glob(".tmp-*"))
+
+
+def test_flush_masks_writes_what_masks_for_segmented(seq, monkeypatch):
+    """Part of a sequence segmented through ``masks_for`` reaches the file with ``flush_masks``, not before."""
+    import d2slam.segmentation as S
+
+    seg = CountingSegmenter()
+    monkeypatch.setattr(S, "get_segmenter", lambda kind, sequence=None, config=None, model=None: seg)
+    monkeypatch.setattr(S, "_SESSIONS", {})
+    monkeypatch.setattr(S, "_CACHED", {})
+    S.masks_for(seq, 0, "onnx", model="m.onnx")
+    path = CachedSegmenter(seg, seq).dir / STORE_NAME
+    assert not path.exists()
+    S.flush_masks()
+    assert list(read_store(path)[1]) == [timestamp_stem(seq.timestamps[0])]
+
+
+def test_writes_of_two_processes_are_merged(seq):
+    """Two readers of one sequence that segment different frames: the file ends up with both."""
+    a, b = CachedSegmenter(CountingSegmenter(), seq), CachedSegmenter(CountingSegmenter(), seq)
+    a.instances(0), b.instances(3)
+    a.flush()
+    b.flush()
+    assert sorted(read_store(a.dir / STORE_NAME)[1]) == [timestamp_stem(seq.timestamps[i]) for i in (0, 3)]
+    seg = CountingSegmenter()
+    c = CachedSegmenter(seg, seq)
+    c.instances(0), c.instances(3)
+    assert seg.calls == 0 and c.hits == 2
+
+
+def _write_frame_file(path: Path, persons, shape, timestamp):
+    """One file of the earlier per-frame layout."""
+    masks = np.stack([p.mask for p in persons]) if persons else np.zeros((0, *shape), bool)
+    np.savez_compressed(path, bits=np.packbits(masks, axis=None), shape=np.asarray(masks.shape, np.int64),
+                        scores=np.asarray([p.score for p in persons], np.float32),
+                        boxes=np.asarray([p.box for p in persons], np.float32).reshape(-1, 4),
+                        timestamp=np.float64(timestamp))
+
+
+def test_a_folder_of_the_earlier_layout_is_converted(seq):
+    """Per-frame files of the earlier layout become hits (a corrupt one is recomputed); they are left in place."""
+    seg = CountingSegmenter()
+    folder = CachedSegmenter(seg, seq).dir  # the same key: same sequence, same segmenter
+    (folder / STORE_NAME).unlink(missing_ok=True)
+    legacy = {}
+    for i in range(3):
+        persons = seg(seq[i]) if i else []
+        legacy[i] = persons
+        _write_frame_file(folder / f"{timestamp_stem(seq.timestamps[i])}.npz", persons, (H, W), seq.timestamps[i])
+    (folder / f"{timestamp_stem(seq.timestamps[2])}.npz").write_bytes(b"junk")
+    seg.calls = 0
+    cached = CachedSegmenter(seg, seq)
+    assert len(read_store(folder / STORE_NAME)[1]) == 2
+    assert cached.instances(0) == [] and np.array_equal(cached.instances(1)[0].mask, legacy[1][0].mask)
+    assert seg.calls == 0 and cached.hits == 2
+    cached.instances(2)
+    assert seg.calls == 1  # the corrupt file's frame
+    assert len(list(folder.glob("1*.npz"))) == 3
 
 
 def test_empty_frames_roundtrip(seq):
@@ -191,7 +300,9 @@ def test_empty_frames_roundtrip(seq):
 
     seg = Nobody()
     c = CachedSegmenter(seg, seq)
-    assert c.instances(0) == [] and CachedSegmenter(seg, seq).instances(0) == [] and seg.calls == 1
+    assert c.instances(0) == []
+    c.flush()
+    assert CachedSegmenter(seg, seq).instances(0) == [] and seg.calls == 1
 
 
 def test_sim_and_gt_label_segmenters(seq):
@@ -351,8 +462,10 @@ def test_with_the_project_readers(tmp_path):
 
 
 def test_unwritable_cache_is_a_clear_error(seq):
-    cached = CachedSegmenter(CountingSegmenter(), seq)
-    cached.path_for(seq.timestamps[0]).mkdir()  # a folder where the file should go: the write fails
-    with pytest.raises(D2SlamError, match="cannot write the mask cache.*D2SLAM_CACHE"):
+    cached = CachedSegmenter(CountingSegmenter(), seq, flush_frames=1)
+    (cached.dir / STORE_NAME).mkdir()  # a folder where the file should go: unreadable, and the write fails
+    with pytest.warns(UserWarning, match="corrupt"), \
+            pytest.raises(D2SlamError, match="cannot write the mask cache.*D2SLAM_CACHE"):
         cached.instances(0)
     assert not list(cached.dir.glob(".tmp-*"))  # no temporary file left behind
+    (cached.dir / STORE_NAME).rmdir()

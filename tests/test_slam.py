@@ -443,3 +443,30 @@ def test_keyframe_points_from_depth_up_to_the_kinect_range(room, new_points_dept
         assert made[mid].all()
     else:
         assert not made[mid].any()
+
+
+def test_the_warm_up_compiles_every_kernel_a_run_uses():
+    """After ``d2slam.warmup.warm_up`` a run of the engine with the d2slam filter on other frames compiles nothing
+    (no kernel gets a new signature): what make install and the study rely on."""
+    import importlib
+
+    from numba.core.registry import CPUDispatcher
+
+    from d2slam.dynamics import get_filter
+    from d2slam.warmup import warm_up
+
+    def signatures():
+        out = {}
+        for name in ("d2slam.slam.lm", "d2slam.slam.matching", "d2slam.dynamics.kernels"):
+            mod = importlib.import_module(name)
+            out.update({f"{name}.{k}": set(f.signatures) for k, f in vars(mod).items() if isinstance(f, CPUDispatcher)})
+        return out
+
+    warm_up()
+    after_warm_up = signatures()
+    assert after_warm_up["d2slam.slam.lm.local_ba_lm"] and after_warm_up["d2slam.dynamics.kernels.nearest_sq"]
+    frames, _, ts = room_sequence(24, seed=5)
+    mask = np.zeros((2, FR3.height, FR3.width), bool)
+    mask[0, 100:300, 50:200] = mask[1, 200:480, 400:520] = True
+    _run(frames, ts, get_filter("d2slam", DEFAULT), masks=mask)
+    assert signatures() == after_warm_up

@@ -209,6 +209,41 @@ def test_map_ordered_reports_each_result(tmp_path):
         assert out == [3, 1, 2] and sorted(seen) == [(0, 3), (1, 1), (2, 2)]
 
 
+def test_items_start_longest_first_and_results_keep_their_order():
+    from d2slam.study.executors import dispatch_order, map_ordered
+
+    assert dispatch_order([2.0, 5.0, 2.0, 9.0, 5.0]) == [3, 1, 4, 0, 2]  # ties keep their input order
+    started = []
+
+    def record(x):
+        started.append(x)
+        return -x
+
+    out = map_ordered(record, [1, 4, 2, 8], progress=False, cost=float)
+    assert started == [8, 4, 2, 1] and out == [-1, -4, -2, -8]
+    assert map_ordered(abs, [-1, 4, -2, 8], jobs=2, progress=False, cost=abs) == [1, 4, 2, 8]
+
+
+def test_the_study_orders_its_runs_by_estimated_cost():
+    """ORB-SLAM3 (three repeats) first, then the costlier engine methods; more frames cost more."""
+    from d2slam.study.core import run_cost, sequence_cost
+    from d2slam.study.executors import dispatch_order
+    from d2slam.study.grid import expand_grid
+    from d2slam.study.runner import run_options
+
+    specs = expand_grid(["walking_xyz"], ["none", "d2slam", "semantic", "d2slam-flow", "orbslam3"], [101], 300,
+                        twin_methods=("none",))
+    specs.append(RunSpec("walking_rpy", "none", 101, 900))
+    options = run_options()
+    order = [specs[i].run_id for i in dispatch_order([run_cost(s, options) for s in specs])]
+    assert order == ["walking_xyz_s101_n300_orbslam3", "walking_rpy_s101_n900_none", "walking_xyz_s101_n300_d2slam-flow",
+                     "walking_xyz_s101_n300_semantic", "walking_xyz_s101_n300_d2slam", "walking_xyz_s101_n300_none",
+                     "walking_xyz_twin_s101_n300_none"]
+    one = run_options(orbslam3_repeats=1)
+    assert run_cost(specs[4], options) == 3 * run_cost(specs[4], one)
+    assert sequence_cost(specs[-1].sequence_key) > sequence_cost(specs[0].sequence_key)
+
+
 def test_code_text_ignores_comments_docstrings_and_layout_only():
     """The run keys hash ``code_text``: a comment, docstring or layout change keeps a study resumable; any change in
     what the code does (a constant, a name, a statement) changes the key."""
@@ -232,7 +267,7 @@ def test_real_masks_are_segmented_once_per_sequence_before_the_runs(serial):
     from d2slam.data import open_sequence
     from d2slam.paths import cache_dir
     from d2slam.segmentation import get_segmenter
-    from d2slam.segmentation.cache import segmenter_key, sequence_key
+    from d2slam.segmentation.cache import STORE_NAME, read_store, segmenter_key, sequence_key
     from d2slam.study.runner import onnx_sequence_keys, run_options, segment_sequence
 
     dyn = RunSpec("sitting_static", "d2slam", 101, FRAMES)
@@ -248,7 +283,7 @@ def test_real_masks_are_segmented_once_per_sequence_before_the_runs(serial):
     assert json.loads((serial.out / "manifest.json").read_text())["timing"]["segmentation_s"] > 0
     seq = open_sequence(ensure_sequence("sitting_static", 101, FRAMES, False))
     folder = cache_dir("masks", sequence_key(seq), segmenter_key(get_segmenter("onnx", config=DEFAULT)))
-    assert len(list(folder.glob("*.npz"))) == FRAMES
+    assert len(read_store(folder / STORE_NAME)[1]) == FRAMES
     assert segment_sequence(dyn.sequence_key, run_options())["error"] is None
     bad = segment_sequence(("synth", "no_such_scenario", 101, FRAMES, False), run_options())
     assert "no_such_scenario" in bad["error"]

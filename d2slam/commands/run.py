@@ -10,8 +10,9 @@ def register(sub) -> None:
         "run", help="run the SLAM engine on a TUM or synthetic sequence",
         description="Run the ORB-SLAM3-style RGB-D engine on SEQUENCE_DIR (TUM layout, or a d2slam synthetic "
         "sequence) with a keypoint-filter method, write the trajectory of the tracked frames in TUM format and, "
-        "with --metrics-json, frames/tracked/lost/fps, mean milliseconds per stage, the config hash and (when the "
-        "sequence has ground truth) ATE/RPE computed with evo. The last line printed says what was run: `d2slam run: "
+        "with --metrics-json, frames/tracked/lost/fps, mean milliseconds per stage, the config hash, the seconds from "
+        "the process start to the end of the first frame (startup_s) and (when the sequence has ground truth) "
+        "ATE/RPE computed with evo. The last line printed says what was run: `d2slam run: "
         "method M; masks KIND (where from); camera NAME (where from); tracked T/N frames; ATE X m; wrote FILES`.")
     p.add_argument("sequence", metavar="SEQUENCE_DIR")
     p.add_argument("--method", default="none", choices=methods(), help="keypoint filter (default: none)")
@@ -123,6 +124,7 @@ def run(args) -> int:
     for k in STAGES:
         if k in result.stage_ms:
             record[f"{k}_ms"] = round(result.stage_ms[k], 3)
+    record["startup_s"] = round(result.first_frame_at - process_start(), 3)
     if args.metrics_json:
         tmp = Path(args.metrics_json).with_name(Path(args.metrics_json).name + ".tmp")
         tmp.write_text(json.dumps(record, indent=2) + "\n")
@@ -174,3 +176,11 @@ def summary_line(method: str, masks: str, camera: str, tracked: float, frames: f
     wrote = ", ".join(str(o) for o in outputs if o) or "nothing"
     return (f"d2slam run: method {method}; masks {masks}; camera {camera}; tracked {tracked:.0f}/{frames:.0f} "
             f"frames; {ate}; wrote {wrote}")
+
+
+def process_start() -> float:
+    """When this process started (epoch seconds): ``startup_s`` of the run JSON is the time from there to the end
+    of the first frame (imports, opening the sequence, loading or compiling kernels, the first frame)."""
+    import psutil
+
+    return psutil.Process().create_time()

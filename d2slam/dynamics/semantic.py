@@ -14,8 +14,9 @@ Deviation, for speed: distance transforms of the image (``cv2.distanceTransform`
 all modules (measured: docs/deviations.md, ``semantic.semantic_module``). We obtain the *same values* at the
 keypoints only: the nearest background pixel of an inside pixel is 4-adjacent to the mask, and the nearest mask
 pixel of an outside pixel is 4-adjacent to the background, so the distance transforms at the keypoints equal
-nearest-neighbour distances to the border pixels of the mask and of its complement (morphology on the mask's
-bounding box), found with ``scipy.spatial.cKDTree``. ``tests/test_dynamics_semantic.py`` checks the equality against
+nearest-neighbour distances to the edge pixels of the mask and of its complement (on the mask's bounding box),
+found by the compiled kernels of ``d2slam.dynamics.kernels`` (the edge pixels by row, searched outwards from the
+keypoint's row). ``tests/test_dynamics_semantic.py`` checks the equality against
 ``scipy.ndimage.distance_transform_edt`` on random masks. Outside points are only searched within ``margin`` px of
 the mask (the classifier passes the widest uncertainty zone and extends the search to the OIM's interaction zone
 only for the keypoints that need it, ``interaction.oim_frame``); beyond it ``d = -max(margin, distance to the mask's
@@ -23,11 +24,9 @@ bounding box)``, a lower bound of the true distance that changes neither zone no
 inside the mask area), and P_S there is below 1 / (1 + exp(beta margin)).
 
 Per frame the work is shared (``FrameMasks``): the keypoints are rounded once (``KeypointPixels``), each mask's
-edges, bounding-box distances and pixel lookups are computed once, and its edge trees are built on first use and
-reused by the OIM's zone test. Edge pixels are listed with ``np.flatnonzero`` and the trees are unbalanced with 32
-points per leaf (both faster, see ``_nonzero_xy`` and ``_tree``). ``d2slam bench dynamics`` times all modules per
-frame; ``tests/test_dynamics_equivalence.py`` checks that every output equals its stored reference
-(``tests/data/dynamics_reference.npz``).
+edges, bounding-box distances and pixel lookups are computed once and reused by the OIM's zone test.
+``d2slam bench dynamics`` times all modules per frame; ``tests/test_dynamics_equivalence.py`` checks that every
+output equals its stored reference (``tests/data/dynamics_reference.npz``).
 
 Special masks (documented recoveries):
 - no masks (``None`` or ``(0, H, W)``) or an empty mask: the mask does not exist, ``d = -inf``, P_S = 0, no zone;
@@ -41,38 +40,15 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.special import expit
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import uncertainty_width
+from d2slam.dynamics.kernels import edge_rows, nearest_sq
 from d2slam.errors import D2SlamError
 
 _DEFAULT = DynamicsConfig()
-
-
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-
-
-def _tree(pts: np.ndarray) -> cKDTree:
-    """cKDTree of edge pixels. Unbalanced, non-compacted nodes, 32 points per leaf: faster to build and to query on
-    these ~10^3 contour pixels than the defaults, with the same nearest distances (exact search either way). Each
-    edge set keeps its own tree: one tree shared by all the masks' edge sets (shifted apart) is slower (measured:
-    docs/deviations.md, ``semantic._tree``)."""
-    return cKDTree(pts, leafsize=32, balanced_tree=False, compact_nodes=False)
-
-
-def _nonzero_xy(img: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """(P, 2) float64 (x, y) + offset of the non-zero pixels of a 0/1 uint8 image, in row-major order (the order of
-    ``cv2.findNonZero``). ``np.flatnonzero`` on the boolean view, faster than findNonZero (measured:
-    docs/deviations.md, ``semantic._nonzero_xy``)."""
-    img = np.ascontiguousarray(img)
-    idx = np.flatnonzero(img.view(bool))
-    w = img.shape[1]
-    xy = np.empty((len(idx), 2))
-    xy[:, 0] = idx % w
-    xy[:, 1] = idx // w
-    return xy + offset
 
 
 class KeypointPixels:
@@ -99,11 +75,11 @@ class KeypointPixels:
 class MaskEdges:
     """Edge pixels of one person mask, built once per frame and queried for any set of keypoints.
 
-    ``inner``: mask pixels 4-adjacent to the background (the nearest mask pixel of any outside pixel is one of them);
-    ``outer``: background pixels 4-adjacent to the mask (the nearest background pixel of any inside pixel). Both are
-    found on the bounding box + 1 px only (morphology with a 3x3 cross); the image border is not an edge. The
-    cKDTrees are built lazily, on the first query that needs them, and reused by every later query of the frame
-    (the semantic module's, then the OIM's zone test)."""
+    *inner*: mask pixels 4-adjacent to the background (the nearest mask pixel of any outside pixel is one of them);
+    *outer*: background pixels 4-adjacent to the mask (the nearest background pixel of any inside pixel). Both are
+    found on the bounding box + 1 px only (morphology with a 3x3 cross) and listed by row (``kernels.edge_rows``; the
+    inner edge on first use); the image border is not an edge. ``outer`` / ``inner`` give them as (P, 2) float64
+    (x, y) in row-major order."""
 
     def __init__(self, mask: np.ndarray):
         mb = mask if mask.dtype == bool else mask != 0
@@ -116,22 +92,33 @@ class MaskEdges:
         self.bbox = (x, y, bw, bh)
         self.empty = bw == 0 or bh == 0
         self.full = False
-        self._inner_tree = self._outer_tree = None
-        self._inner = None
         if self.empty:
             return
         x0, y0, x1, y1 = max(x - 1, 0), max(y - 1, 0), min(x + bw + 1, w), min(y + bh + 1, h)
         self.crop = self.mask[y0:y1, x0:x1]
-        self.offset = np.array([x0, y0], dtype=np.float64)
-        self.outer = _nonzero_xy(cv2.dilate(self.crop, _CROSS) - self.crop, self.offset)
-        self.full = len(self.outer) == 0  # no background pixel next to the mask: it covers the whole image
+        self.origin = (x0, y0)
+        self._outer = edge_rows(cv2.dilate(self.crop, _CROSS) - self.crop)
+        self._inner = None
+        self.full = len(self._outer[1]) == 0  # no background pixel next to the mask: it covers the whole image
+
+    def _points(self, rows: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        start, xs = rows
+        y = np.repeat(np.arange(len(start) - 1), np.diff(start))
+        return np.stack([xs + self.origin[0], y + self.origin[1]], axis=1).astype(np.float64)
+
+    @property
+    def outer(self) -> np.ndarray:
+        """(P, 2) background pixels 4-adjacent to the mask."""
+        return self._points(self._outer)
 
     @property
     def inner(self) -> np.ndarray:
-        """(P, 2) mask pixels 4-adjacent to the background (computed on first use)."""
-        if self._inner is None:
-            self._inner = _nonzero_xy(self.crop - cv2.erode(self.crop, _CROSS, borderType=cv2.BORDER_REPLICATE),
-                                      self.offset)
+        """(P, 2) mask pixels 4-adjacent to the background."""
+        return self._points(self._inner_rows())
+
+    def _inner_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._inner is None:  # on first use
+            self._inner = edge_rows(self.crop - cv2.erode(self.crop, _CROSS, borderType=cv2.BORDER_REPLICATE))
         return self._inner
 
     def box_distance(self, pts: np.ndarray) -> np.ndarray:
@@ -153,17 +140,16 @@ class MaskEdges:
         if self.full:
             return np.full(n, self.diag)
         d = -np.maximum(margin, box)
+        x0, y0 = self.origin
         if inside.any():
-            if self._outer_tree is None:
-                self._outer_tree = _tree(self.outer)
-            d[inside] = self._outer_tree.query(pts[inside])[0]
+            q = pts[inside].astype(np.int64)
+            d[inside] = np.sqrt(nearest_sq(*self._outer, x0, y0, q[:, 0], q[:, 1], np.inf))
         near = (box <= margin) & ~inside
         if near.any():
-            if self._inner_tree is None:
-                self._inner_tree = _tree(self.inner)
-            q = self._inner_tree.query(pts[near], distance_upper_bound=margin)[0]
-            found = np.isfinite(q)
-            d[np.flatnonzero(near)[found]] = -q[found]
+            q = pts[near].astype(np.int64)
+            d2 = nearest_sq(*self._inner_rows(), x0, y0, q[:, 0], q[:, 1], float(margin))
+            found = np.isfinite(d2)
+            d[np.flatnonzero(near)[found]] = -np.sqrt(d2[found])
         return d
 
     def signed(self, pu: np.ndarray, pv: np.ndarray, margin: float = np.inf) -> np.ndarray:

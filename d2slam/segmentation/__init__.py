@@ -23,7 +23,7 @@ from d2slam.segmentation.cache import CachedSegmenter
 KINDS = ("onnx", "sim", "gt", "truth")
 
 __all__ = ["KINDS", "PersonInstance", "Segmenter", "stack_masks", "CachedSegmenter", "get_segmenter", "masks_for",
-           "cached_segmenter", "masks_origin", "segmentation_config", "mask_source"]
+           "cached_segmenter", "masks_origin", "flush_masks", "segmentation_config", "mask_source"]
 
 
 def segmentation_config(config: Config | SegmentationConfig | None = None) -> SegmentationConfig:
@@ -76,7 +76,7 @@ def cached_segmenter(sequence, kind: str = "onnx", config: Config | Segmentation
         else:
             seg = get_segmenter(kind, sequence, cfg)
         if len(_CACHED) >= _MAX_CACHED:
-            _CACHED.pop(next(iter(_CACHED)))
+            _CACHED.pop(next(iter(_CACHED))).flush()  # its newly segmented frames, before it is dropped
         cached = _CACHED[key] = CachedSegmenter(seg, sequence)
     return cached
 
@@ -102,6 +102,14 @@ def masks_origin(sequence, kind: str, config: Config | SegmentationConfig | None
         cached.fill(progress=progress, frames=frames, recheck=False)
         return f"{Path(cached.segmenter.model_path).name}, cached in {cached.dir}"
     return f"{LABEL_FOLDERS.get(kind, kind)} of {Path(sequence.root).resolve()}"
+
+
+def flush_masks() -> None:
+    """Write the frames ``masks_for`` segmented so far into their cache files now (they are written every
+    ``SegmentationConfig.cache_flush_frames`` frames, when a sequence is complete and at exit): before another
+    process reads masks this one segmented for part of a sequence."""
+    for cached in list(_CACHED.values()):
+        cached.flush()
 
 
 def mask_source(sequence, masks_from):

@@ -1,27 +1,41 @@
-"""Per-frame mask cache, so that runs and ablations never segment a frame twice.
+"""Mask cache, so that runs and ablations never segment a frame twice, and read a frame's masks in well under a
+millisecond.
 
-Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/<timestamp>.npz`` with
+Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/masks.npz``, one file per sequence and segmenter:
 
 * sequence key = ``<folder name>-<sha256(resolved root path + sha256(rgb.txt))[:16]>`` (the timestamps when there is no
   ``rgb.txt``): a moved or edited sequence gets a new key;
-* segmenter key = ``<kind>-<sha256(identity)[:16]>`` where ``identity()`` holds the model's sha256, the decoder
-  version and every config value that changes masks (score threshold, NMS IoU, mask threshold, dilation,
-  max persons; not the thread count): another model or config never reads stale masks;
-* one compressed ``.npz`` per frame, named by the RGB timestamp (``%.6f``): ``bits`` (``np.packbits`` of the
-  (k, H, W) masks), ``shape``, ``scores`` (k,), ``boxes`` (k, 4), ``timestamp``.
+* segmenter key = ``<kind>-<sha256(identity)[:16]>`` where ``identity()`` holds the model's sha256 (the model file,
+  which also fixes its input size), the decoder version and every config value that changes masks (score
+  threshold, NMS IoU, mask threshold, dilation, max persons; not the thread count): another model, input size or
+  config never reads stale masks;
+* ``masks.npz`` (``FORMAT``; ``np.savez_compressed``, decompressed once when read): ``format``, ``shape`` (H, W) of the frames, ``timestamps``
+  (n,) ascending (the cached frames' RGB timestamps), ``first`` (n + 1,): frame f holds instances
+  ``first[f]:first[f + 1]``; per instance ``scores`` (m,), ``boxes`` (m, 4), ``rects`` (m, 4) int32 ``x, y, w, h``
+  of the rectangle its mask is stored in (the mask's bounding rectangle: False outside it) and its bits,
+  ``bits[offsets[j]:offsets[j + 1]]``, the ``np.packbits`` of that rectangle (row-major).
 
-Files are written atomically (a temporary file named after the writing process, :mod:`d2slam.outputs`, then a
-rename). A corrupt or inconsistent file is reported with a warning naming it, recomputed and overwritten (documented
-recovery). ``meta.json`` beside the files records the keys.
+Person masks cover a small part of a frame, so the file is small and a frame is decoded by unpacking its rectangles
+into zeroed masks: no decompression and no file access per frame (``d2slam bench segmentation --cache SEQ``). The file
+is read once per process and sequence (``MaskStore``). Frames segmented since are written by rewriting the file
+atomically (a temporary file named after the writing process, :mod:`d2slam.outputs`, then a rename; under a lock
+file, merged with what other processes added meanwhile): every
+``SegmentationConfig.cache_flush_frames`` new frames, when every frame of the sequence is cached, at the end of
+``CachedSegmenter.fill`` and at exit. A corrupt or inconsistent file is reported with a warning naming it, and its
+frames are recomputed and the file rewritten (documented recovery). A folder of the earlier layout (one compressed
+``<timestamp>.npz`` per frame) is converted on first use; its files are left in place.
 """
 
 from __future__ import annotations
 
+import atexit
+import fcntl
 import hashlib
 import json
 import os
 import tempfile
 import warnings
+import weakref
 import zipfile
 from pathlib import Path
 
@@ -31,6 +45,10 @@ from d2slam.errors import D2SlamError
 from d2slam.outputs import temp_tag
 from d2slam.paths import cache_dir
 from d2slam.segmentation.base import PersonInstance
+
+FORMAT = "d2slam-masks/2"
+STORE_NAME = "masks.npz"
+_ARRAYS = ("format", "shape", "timestamps", "first", "scores", "boxes", "rects", "offsets", "bits")
 
 
 def _digest(blob: bytes) -> str:
@@ -56,17 +74,104 @@ def timestamp_stem(timestamp: float) -> str:
     return f"{float(timestamp):.6f}"
 
 
-def save_instances(path: Path, instances: list[PersonInstance], shape: tuple[int, int], timestamp: float) -> None:
-    k = len(instances)
-    masks = (np.stack([p.mask for p in instances]).astype(bool) if k else np.zeros((0, *shape), bool))
+# ---------------------------------------------------------------------------------------------- one frame's record
+def encode_mask(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
+    """``((x, y, w, h), bits)``: a (H, W) mask's bounding rectangle and the packed bits of the mask inside it
+    (``(0, 0, 0, 0)`` and no bits for an empty mask)."""
+    m = np.asarray(mask, dtype=bool)
+    rows = np.flatnonzero(m.any(axis=1))
+    if len(rows) == 0:
+        return (0, 0, 0, 0), np.zeros(0, np.uint8)
+    cols = np.flatnonzero(m.any(axis=0))
+    y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (x0, y0, x1 - x0, y1 - y0), np.packbits(m[y0:y1, x0:x1], axis=None)
+
+
+class FrameRecord:
+    """One frame's instances as stored: ``scores`` (k,) float32, ``boxes`` (k, 4) float32, ``rects`` (k tuples
+    x, y, w, h), ``bits`` (k uint8 arrays)."""
+
+    __slots__ = ("timestamp", "scores", "boxes", "rects", "bits")
+
+    def __init__(self, timestamp: float, scores: np.ndarray, boxes: np.ndarray, rects: list, bits: list):
+        self.timestamp, self.scores, self.boxes, self.rects, self.bits = float(timestamp), scores, boxes, rects, bits
+
+    @classmethod
+    def from_instances(cls, timestamp: float, instances: list[PersonInstance]) -> "FrameRecord":
+        k = len(instances)
+        encoded = [encode_mask(p.mask) for p in instances]
+        return cls(timestamp, np.asarray([p.score for p in instances], dtype=np.float32).reshape(k),
+                   np.asarray([p.box for p in instances], dtype=np.float32).reshape(k, 4),
+                   [r for r, _ in encoded], [b for _, b in encoded])
+
+    def instances(self, shape: tuple[int, int]) -> list[PersonInstance]:
+        """The frame's persons, masks at ``shape`` (one (k, H, W) array; each instance holds a view of it)."""
+        k = len(self.rects)
+        if k == 0:
+            return []
+        masks = np.zeros((k, *shape), dtype=bool)
+        for j, (x, y, w, h) in enumerate(self.rects):
+            if w:
+                masks[j, y:y + h, x:x + w] = np.unpackbits(self.bits[j], count=w * h).reshape(h, w).view(bool)
+        boxes = self.boxes.tolist()
+        return [PersonInstance(mask=masks[j], score=float(s), box=tuple(boxes[j]))
+                for j, s in enumerate(self.scores.tolist())]
+
+
+# ---------------------------------------------------------------------------------------------- the file
+def read_store(path: Path) -> tuple[tuple[int, int], dict[str, FrameRecord]]:
+    """``(shape, {timestamp stem: FrameRecord})`` of a ``masks.npz``; ``ValueError`` (or an I/O / zip error) when it
+    is corrupt or inconsistent."""
+    with np.load(path, allow_pickle=False) as data:
+        missing = [k for k in _ARRAYS if k not in data.files]
+        if missing:
+            raise ValueError(f"missing arrays {missing}")
+        a = {k: data[k] for k in _ARRAYS}
+    if str(a["format"]) != FORMAT:
+        raise ValueError(f"format {a['format']!s} is not {FORMAT}")
+    shape = tuple(int(v) for v in a["shape"].reshape(-1))
+    ts, first = a["timestamps"], a["first"]
+    scores, boxes, rects, offsets, bits = a["scores"], a["boxes"], a["rects"], a["offsets"], a["bits"]
+    n, m = len(ts), len(scores)
+    if len(shape) != 2 or min(shape) < 1:
+        raise ValueError(f"bad frame shape {shape}")
+    if ts.ndim != 1 or not np.all(np.isfinite(ts)) or np.any(np.diff(ts) <= 0):
+        raise ValueError("timestamps are not finite and strictly increasing")
+    if first.shape != (n + 1,) or first[0] != 0 or first[-1] != m or np.any(np.diff(first) < 0):
+        raise ValueError("frame ranges do not match the instances")
+    if scores.shape != (m,) or boxes.shape != (m, 4) or rects.shape != (m, 4) or offsets.shape != (m + 1,):
+        raise ValueError("instance arrays do not match in length")
+    x, y, w, h = rects.T.astype(np.int64)
+    if np.any(rects < 0) or np.any(x + w > shape[1]) or np.any(y + h > shape[0]) or np.any((w == 0) != (h == 0)):
+        raise ValueError("a mask rectangle lies outside the frame")
+    if bits.dtype != np.uint8 or offsets[0] != 0 or offsets[-1] != len(bits) or \
+            np.any(np.diff(offsets) != (w * h + 7) // 8):
+        raise ValueError("packed mask sizes do not match their rectangles")
+    rect_list, off = rects.tolist(), offsets.tolist()
+    chunks = [bits[off[j]:off[j + 1]] for j in range(m)]
+    frames = {}
+    for f, (t, a0, a1) in enumerate(zip(ts.tolist(), first[:-1].tolist(), first[1:].tolist())):
+        frames[timestamp_stem(t)] = FrameRecord(t, scores[a0:a1], boxes[a0:a1], rect_list[a0:a1], chunks[a0:a1])
+    return shape, frames
+
+
+def write_store(path: Path, shape: tuple[int, int], frames: dict[str, FrameRecord]) -> None:
+    """Write every frame of ``frames`` (sorted by timestamp) into ``path`` atomically (temporary file + rename)."""
+    recs = sorted(frames.values(), key=lambda r: r.timestamp)
+    counts = [len(r.rects) for r in recs]
+    rects = [rect for r in recs for rect in r.rects]
+    chunks = [b for r in recs for b in r.bits]
     arrays = {
-        "bits": np.packbits(masks, axis=None),
-        "shape": np.asarray(masks.shape, dtype=np.int64),
-        "scores": np.asarray([p.score for p in instances], dtype=np.float32).reshape(k),
-        "boxes": np.asarray([p.box for p in instances], dtype=np.float32).reshape(k, 4),
-        "timestamp": np.float64(timestamp),
+        "format": np.array(FORMAT),
+        "shape": np.asarray(shape, dtype=np.int64),
+        "timestamps": np.asarray([r.timestamp for r in recs], dtype=np.float64),
+        "first": np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64),
+        "scores": np.concatenate([r.scores for r in recs] or [np.zeros(0)]).astype(np.float32),
+        "boxes": np.concatenate([r.boxes for r in recs] or [np.zeros((0, 4))]).astype(np.float32).reshape(-1, 4),
+        "rects": np.asarray(rects, dtype=np.int32).reshape(-1, 4),
+        "offsets": np.concatenate([[0], np.cumsum([len(b) for b in chunks], dtype=np.int64)]).astype(np.int64),
+        "bits": np.concatenate(chunks or [np.zeros(0, np.uint8)]).astype(np.uint8),
     }
-    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{temp_tag()}-", suffix=".npz")
     try:
         with os.fdopen(fd, "wb") as fh:
@@ -77,8 +182,102 @@ def save_instances(path: Path, instances: list[PersonInstance], shape: tuple[int
         raise
 
 
-def load_instances(path: Path, timestamp: float | None = None) -> list[PersonInstance]:
-    """Read one cache file; ``ValueError`` (or an I/O error) when it is corrupt or inconsistent."""
+def _stamp(path: Path):
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+_LIVE: "weakref.WeakSet[MaskStore]" = weakref.WeakSet()
+
+
+@atexit.register
+def _flush_at_exit() -> None:
+    for store in list(_LIVE):
+        try:
+            store.flush()
+        except (D2SlamError, OSError):  # the frames are recomputed by the next run
+            pass
+
+
+class MaskStore:
+    """The cached frames of one (sequence, segmenter): ``masks.npz`` read once, frames added in memory (``put``) and
+    written by ``flush`` (see the module docstring). ``recovered`` is 1 when the file was corrupt."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.shape: tuple[int, int] | None = None
+        self.frames: dict[str, FrameRecord] = {}
+        self.pending = 0
+        self.recovered = 0
+        self._stamp = None
+        self._load()
+        _LIVE.add(self)
+
+    def _load(self) -> None:
+        stamp = _stamp(self.path)
+        if stamp is None:
+            return
+        try:
+            shape, frames = read_store(self.path)
+        except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            warnings.warn(f"{self.path}: corrupt mask cache file ({type(exc).__name__}: {exc}); recomputing its "
+                          "frames", stacklevel=4)
+            self.recovered = 1
+            self.pending = max(self.pending, 1)  # rewritten on the next flush even if nothing new is segmented
+            return
+        self.shape, self._stamp = shape, stamp
+        self.frames = {**frames, **self.frames}
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __contains__(self, timestamp: float) -> bool:
+        return timestamp_stem(timestamp) in self.frames
+
+    def get(self, timestamp: float) -> list[PersonInstance] | None:
+        """The persons of the frame at ``timestamp``, or None when it is not cached."""
+        rec = self.frames.get(timestamp_stem(timestamp))
+        return None if rec is None else rec.instances(self.shape)
+
+    def put(self, timestamp: float, instances: list[PersonInstance], shape: tuple[int, int]) -> None:
+        shape = (int(shape[0]), int(shape[1]))
+        if self.shape is None or not self.frames:
+            self.shape = shape
+        elif shape != self.shape:
+            raise D2SlamError(f"frame at {timestamp_stem(timestamp)} has size {shape}, the cached frames "
+                              f"{self.shape}", path=self.path)
+        self.frames[timestamp_stem(timestamp)] = FrameRecord.from_instances(timestamp, instances)
+        self.pending += 1
+
+    def flush(self) -> None:
+        """Write the frames added since the last write (merged with frames other processes wrote meanwhile)."""
+        if not self.pending:
+            return
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with open(self.path.with_name(self.path.name + ".lock"), "w") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+                try:
+                    if not self.recovered and _stamp(self.path) != self._stamp:
+                        self._load()  # another process wrote frames: keep them (ours take precedence)
+                    write_store(self.path, self.shape or (1, 1), self.frames)
+                    self._stamp = _stamp(self.path)
+                finally:
+                    fcntl.flock(lock, fcntl.LOCK_UN)
+        except OSError as exc:
+            raise D2SlamError(f"cannot write the mask cache ({exc.strerror or exc}); set $D2SLAM_CACHE to a "
+                              "writable folder", path=self.path) from None
+        self.pending = 0
+        self.recovered = 0
+
+
+# ---------------------------------------------------------------------------------------------- the earlier layout
+def load_frame_file(path: Path, timestamp: float | None = None) -> list[PersonInstance]:
+    """Read one ``<timestamp>.npz`` of the earlier per-frame layout (``bits``, ``shape``, ``scores``, ``boxes``,
+    ``timestamp``); ``ValueError`` (or an I/O error) when it is corrupt or inconsistent."""
     with np.load(path, allow_pickle=False) as data:
         bits, shape = data["bits"], tuple(int(v) for v in data["shape"])
         scores, boxes, ts = data["scores"], data["boxes"], float(data["timestamp"])
@@ -96,50 +295,89 @@ def load_instances(path: Path, timestamp: float | None = None) -> list[PersonIns
             for m, s, b in zip(masks, scores, boxes)]
 
 
+def convert_frame_files(folder: Path, store: MaskStore, timestamps, progress: bool = True) -> int:
+    """Add the ``<timestamp>.npz`` files of ``folder`` (earlier layout) for ``timestamps`` to ``store`` (unreadable
+    files are skipped: recomputed later); returns how many were added."""
+    from tqdm import tqdm
+
+    files = [(t, folder / f"{timestamp_stem(t)}.npz") for t in np.asarray(timestamps, dtype=np.float64).tolist()]
+    files = [(t, p) for t, p in files if t not in store and p.is_file()]
+    added = 0
+    for t, p in tqdm(files, desc="convert mask cache", unit="frame", disable=None if progress else True):
+        try:
+            persons = load_frame_file(p, t)
+        except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile):
+            continue
+        shape = persons[0].mask.shape if persons else store.shape
+        if shape is None:  # no person in the frame: the size comes from the file
+            with np.load(p, allow_pickle=False) as data:
+                shape = tuple(int(v) for v in data["shape"][1:])
+        store.put(t, persons, shape)
+        added += 1
+    return added
+
+
+# ---------------------------------------------------------------------------------------------- the segmenter
 class CachedSegmenter:
     """Wraps a segmenter for one sequence: ``instances(i)`` / ``__call__(frame)`` read the cache and segment (then
     store) only on a miss. Segmenters with ``cacheable = False`` (the label readers) are passed through.
-    ``hits``, ``misses`` and ``recovered`` count what happened."""
+    ``hits``, ``misses`` and ``recovered`` count what happened; ``flush_frames``: new frames between two writes of
+    the cache file (default ``SegmentationConfig.cache_flush_frames``)."""
 
-    def __init__(self, segmenter, sequence, root: str | Path | None = None):
+    def __init__(self, segmenter, sequence, root: str | Path | None = None, flush_frames: int | None = None):
+        from d2slam.config import DEFAULT
+
         self.segmenter = segmenter
         self.sequence = sequence
         self.name = segmenter.name
         self.cacheable = getattr(segmenter, "cacheable", True)
         self.hits = self.misses = self.recovered = 0
-        self.dir = None
+        self.flush_frames = int(flush_frames or DEFAULT.segmentation.cache_flush_frames)
+        self.dir = self.store = None
         if self.cacheable:
             seq_key, seg_key = sequence_key(sequence), segmenter_key(segmenter)
             self.dir = (Path(root) / seq_key / seg_key) if root is not None else cache_dir("masks", seq_key, seg_key)
             self.dir.mkdir(parents=True, exist_ok=True)
-            meta = self.dir / "meta.json"
-            if not meta.is_file():
-                meta.write_text(json.dumps({"sequence": str(Path(sequence.root).resolve()),
-                                            "segmenter": segmenter.identity()}, indent=1, sort_keys=True))
+            self._write_meta()
+            path = self.dir / STORE_NAME
+            fresh = not path.exists()
+            self.store = MaskStore(path)
+            self.recovered = self.store.recovered
+            self._wanted = {timestamp_stem(t) for t in np.asarray(sequence.timestamps, dtype=np.float64).tolist()}
+            if fresh and convert_frame_files(self.dir, self.store, sequence.timestamps):
+                self.store.flush()
+            self._missing = len(self._wanted - set(self.store.frames))
 
-    def path_for(self, timestamp: float) -> Path:
-        return self.dir / f"{timestamp_stem(timestamp)}.npz"
+    def _write_meta(self) -> None:
+        meta = self.dir / "meta.json"
+        if meta.is_file():
+            return
+        text = json.dumps({"sequence": str(Path(self.sequence.root).resolve()), "format": FORMAT,
+                           "segmenter": self.segmenter.identity()}, indent=1, sort_keys=True)
+        tmp = meta.with_name(f"{temp_tag()}-meta.json")
+        try:
+            tmp.write_text(text)
+            os.replace(tmp, meta)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise D2SlamError(f"cannot write the mask cache ({exc.strerror or exc}); set $D2SLAM_CACHE to a "
+                              "writable folder", path=meta) from None
 
     def _lookup(self, timestamp: float) -> list[PersonInstance] | None:
-        path = self.path_for(timestamp)
-        if not path.is_file():
-            return None
-        try:
-            return load_instances(path, timestamp)
-        except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
-            warnings.warn(f"{path}: corrupt mask cache file ({type(exc).__name__}: {exc}); recomputing", stacklevel=3)
-            self.recovered += 1
-            return None
+        found = self.store.get(timestamp)
+        if found is not None:
+            self.hits += 1
+        return found
 
     def _compute(self, frame) -> list[PersonInstance]:
         persons = self.segmenter(frame)
         self.misses += 1
-        path = self.path_for(frame.timestamp)
-        try:
-            save_instances(path, persons, frame.rgb.shape[:2], frame.timestamp)
-        except OSError as exc:
-            raise D2SlamError(f"cannot write the mask cache ({exc.strerror or exc}); set $D2SLAM_CACHE to a "
-                              "writable folder", path=path) from None
+        stem = timestamp_stem(frame.timestamp)
+        new = stem in self._wanted and stem not in self.store.frames
+        self.store.put(frame.timestamp, persons, frame.rgb.shape[:2])
+        self._missing -= int(new)
+        if self.store.pending >= self.flush_frames or self._missing <= 0:
+            self.store.flush()
         return persons
 
     def instances(self, index: int) -> list[PersonInstance]:
@@ -149,7 +387,6 @@ class CachedSegmenter:
             return inst(index) if inst is not None else self.segmenter(self.sequence[index])
         cached = self._lookup(self.sequence.timestamps[index])
         if cached is not None:
-            self.hits += 1
             return cached
         return self._compute(self.sequence[index])
 
@@ -158,18 +395,22 @@ class CachedSegmenter:
             return self.segmenter(frame)
         cached = self._lookup(frame.timestamp)
         if cached is not None:
-            self.hits += 1
             return cached
         return self._compute(frame)
+
+    def flush(self) -> None:
+        """Write the frames segmented since the last write into the cache file."""
+        if self.store is not None:
+            self.store.flush()
 
     def missing(self, frames: int | None = None) -> list[int]:
         """Indices of the first ``frames`` frames (all by default) whose masks are not in the cache yet."""
         n = len(self.sequence) if frames is None else min(len(self.sequence), int(frames))
-        return [i for i in range(n) if not self.path_for(self.sequence.timestamps[i]).is_file()]
+        return [i for i in range(n) if self.sequence.timestamps[i] not in self.store]
 
     def fill(self, progress: bool = True, frames: int | None = None, recheck: bool = True) -> tuple[int, int]:
-        """Segment the first ``frames`` frames (all by default) not yet cached; ``recheck`` also reads the cached ones
-        (a corrupt file is recomputed). With ``progress`` the segmentation is announced with an estimate
+        """Segment the first ``frames`` frames (all by default) not yet cached, then write the cache file; ``recheck``
+        also decodes the cached ones. With ``progress`` the segmentation is announced with an estimate
         (``CliConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Returns (hits, misses) of this
         call."""
         from d2slam.config import CLI
@@ -189,7 +430,9 @@ class CachedSegmenter:
         for i in follow(range(n) if recheck else todo, desc=f"segment {self.sequence.name}",
                         enabled=progress and bool(todo)):
             self.instances(i)
+        self.store.flush()
         return self.hits - h0 + (0 if recheck else n - len(todo)), self.misses - m0
+
 
 class RgbListSequence:
     """Every RGB image listed in a TUM ``rgb.txt`` (parsed by ``d2slam.data.tum.read_file_list``; no depth, no

@@ -42,6 +42,8 @@ ALLOW_UNKNOWN_ENV = "D2SLAM_SEG_ALLOW_UNKNOWN"
 DEFAULT_MODEL_NAME = "yolov8n-seg_deq_384x512.onnx"
 # Version of the decoding below: part of the mask-cache key, bump when decoding changes masks.
 DECODER_VERSION = 1
+# SegmentationConfig fields that do not change masks, left out of the mask-cache key.
+NOT_IN_KEY = ("intra_op_threads", "cache_flush_frames")
 
 #: sha256 -> file name of the three YOLOv8n-seg files (``d2slam.assets``).
 KNOWN_MODELS: dict[str, str] = {a.sha256: Path(a.path).name for a in (*DOWNLOADS, *DERIVED)
@@ -198,7 +200,8 @@ class OnnxSegmenter:
     def identity(self) -> dict:
         """Everything that changes the masks: the mask-cache key."""
         cfg = asdict(self.config)
-        cfg.pop("intra_op_threads", None)
+        for key in NOT_IN_KEY:
+            cfg.pop(key, None)
         return {"kind": self.name, "model_sha256": self.sha256, "decoder": DECODER_VERSION, "config": cfg}
 
     def __call__(self, frame) -> list[PersonInstance]:

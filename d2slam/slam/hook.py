@@ -127,7 +127,8 @@ class FilterHook:
         z = prev.depth.astype(np.float64)
         has = z > 0
         K = proj.K
-        rays = np.c_[(prev.kps[:, 0] - K[0, 2]) / K[0, 0], (prev.kps[:, 1] - K[1, 2]) / K[1, 1], np.ones(prev.n)]
+        rays = np.stack([(prev.kps[:, 0] - K[0, 2]) / K[0, 0], (prev.kps[:, 1] - K[1, 2]) / K[1, 1], np.ones(prev.n)],
+                        axis=1)
         X = rays * np.where(has, z, 1.0)[:, None]
         Xn = X @ V[:3, :3].T + np.where(has[:, None], V[:3, 3], 0.0)
         u, v, zn = proj.pixels(Xn)
@@ -135,7 +136,7 @@ class FilterHook:
         sel = np.flatnonzero((zn > EPS_Z) & proj.in_image(u, v))
         if len(sel) == 0:
             return np.zeros((0, 2), dtype=np.int64)
-        uv = np.c_[u[sel], v[sel]]
+        uv = np.stack([u[sel], v[sel]], axis=1)
         octv = prev.octave[sel]
         radius = cfg.filter_match_radius * proj.scales[octv]
         ur_proj = np.where(has[sel], u[sel] - proj.bf / zs[sel], np.nan)  # NaN: no depth, no u_R check

@@ -24,15 +24,34 @@ def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray, bins: int) -> 
         return np.zeros(0, dtype=bool)
     rot = np.mod(np.asarray(angle_a, np.float64) - np.asarray(angle_b, np.float64), 360.0)
     idx = np.minimum((rot * (bins / 360.0)).astype(np.int64), bins - 1)
-    counts = np.bincount(idx, minlength=bins)
-    order = np.argsort(-counts, kind="stable")[:3]
-    top = counts[order]
-    keep_bins = [order[0]]
-    if top[1] >= 0.1 * top[0]:
-        keep_bins.append(order[1])
-        if top[2] >= 0.1 * top[0]:
-            keep_bins.append(order[2])
-    return np.isin(idx, keep_bins)
+    return _in_top_bins(idx, int(bins))
+
+
+@njit(cache=True, nogil=True)
+def _in_top_bins(idx, bins):
+    """``rotation_consistent``'s histogram: (n,) bool, ``idx`` in the most populated bin, or the 2nd (3rd) when it
+    holds at least 10 % of the 1st's count (the 3rd only with the 2nd); ties between bins: the lower bin first."""
+    counts = np.zeros(bins, np.int64)
+    for v in idx:
+        counts[v] += 1
+    top = np.full(3, -1, np.int64)  # bins by decreasing count, the lower bin first among equal counts
+    for b in range(bins):
+        for r in range(3):
+            if top[r] < 0 or counts[b] > counts[top[r]]:
+                for q in range(2, r, -1):
+                    top[q] = top[q - 1]
+                top[r] = b
+                break
+    keep = np.zeros(bins, np.bool_)
+    keep[top[0]] = True
+    if bins > 1 and counts[top[1]] >= 0.1 * counts[top[0]]:
+        keep[top[1]] = True
+        if bins > 2 and counts[top[2]] >= 0.1 * counts[top[0]]:
+            keep[top[2]] = True
+    out = np.empty(len(idx), np.bool_)
+    for i in range(len(idx)):
+        out[i] = keep[idx[i]]
+    return out
 
 
 class KeypointGrid:
@@ -53,8 +72,24 @@ class KeypointGrid:
         self.cols = int(cx.max()) - self.col0 + 1 if n else 1
         self.rows = int(cy.max()) - self.row0 + 1 if n else 1
         cid = (cy - self.row0) * self.cols + (cx - self.col0)
-        self.order = np.argsort(cid, kind="stable").astype(np.int64)
-        self.start = np.searchsorted(cid[self.order], np.arange(self.rows * self.cols + 1)).astype(np.int64)
+        self.order, self.start = _bucket(cid, self.rows * self.cols)  # = np.argsort(cid, kind="stable") and its cells
+
+
+@njit(cache=True, nogil=True)
+def _bucket(cid, cells):
+    """Counting sort of the cell ids ``cid``: (order, start), ``order`` the stable ascending order of ``cid`` and
+    cell c's entries ``order[start[c]:start[c + 1]]``."""
+    start = np.zeros(cells + 1, np.int64)
+    for c in cid:
+        start[c + 1] += 1
+    for c in range(cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(len(cid), np.int64)
+    for i in range(len(cid)):
+        order[fill[cid[i]]] = i
+        fill[cid[i]] += 1
+    return order, start
 
 
 CHECK_DISPARITY, CHECK_CHI2 = 0, 1
@@ -148,13 +183,27 @@ def search_by_projection(grid: KeypointGrid, uv: np.ndarray, ur_proj: np.ndarray
 
 
 def unique_by_target(query: np.ndarray, target: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Boolean mask keeping, for every target index, only the query with the smallest distance (one-to-one)."""
+    """Boolean mask keeping, for every target index, only the query with the smallest distance (one-to-one; equal
+    distances: the first query; a NaN distance loses to any number), in one compiled pass."""
     if len(query) == 0:
         return np.zeros(0, dtype=bool)
-    order = np.lexsort((dist, target))
-    first = np.r_[True, target[order][1:] != target[order][:-1]]
-    keep = np.zeros(len(query), dtype=bool)
-    keep[order[first]] = True
+    return _first_per_target(np.ascontiguousarray(target, dtype=np.int64),
+                             np.ascontiguousarray(dist, dtype=np.float64))
+
+
+@njit(cache=True, nogil=True)
+def _first_per_target(target, dist):
+    lo, hi = target.min(), target.max()
+    best = np.full(hi - lo + 1, -1, np.int64)
+    for i in range(len(target)):
+        t = target[i] - lo
+        b = best[t]
+        if b < 0 or dist[i] < dist[b] or (np.isnan(dist[b]) and not np.isnan(dist[i])):
+            best[t] = i
+    keep = np.zeros(len(target), np.bool_)
+    for b in best:
+        if b >= 0:
+            keep[b] = True
     return keep
 
 

@@ -3,7 +3,8 @@
 1. expand the grid (:func:`d2slam.study.grid.expand_grid`) and remove what killed processes left half-written in the
    caches (:func:`remove_stale_temps`);
 2. generate or reuse every sequence it needs (the cache of :mod:`d2slam.study.sequences`), on the executor;
-3. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask);
+3. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask),
+   the longest first (:func:`run_cost`; sequences by their frames), so that both cores stay busy to the end;
 4. write ``runs.csv`` (grid order), ``summary.csv``, ``tables.md``, ``plots/*.png``, ``trajectories/<run>.txt``,
    ``runs/<run>.json`` (per-module keypoint metrics and stage timings) and ``manifest.json``.
 
@@ -23,6 +24,7 @@ import pandas as pd
 
 from d2slam.errors import D2SlamError
 from d2slam.outputs import staged_file
+from d2slam.study import grid as G
 from d2slam.study import tables as T
 from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
@@ -52,7 +54,6 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
     and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
     from d2slam.config import DEFAULT
-    from d2slam.study import grid as G
     from d2slam.study.manifest import build_manifest, code_info, git_info
     from d2slam.study.sequences import generator_version
 
@@ -72,10 +73,10 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
                           orbslam3_repeats=orbslam3_repeats, orbslam3_timeout=orbslam3_timeout)
     remove_stale_temps(options, out)
 
-    def phase(fn, items, desc, on_result=None) -> list:  # interrupted: nothing its killed workers wrote stays
+    def phase(fn, items, desc, on_result=None, cost=None) -> list:  # interrupted: nothing its killed workers left
         try:
             return map_ordered(fn, items, (options,), jobs, scheduler, desc=desc, progress=progress,
-                               on_result=on_result)
+                               on_result=on_result, cost=cost)
         except BaseException:
             remove_stale_temps(options, out)
             raise
@@ -85,12 +86,14 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     t0 = time.perf_counter()
 
     keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    prepared = phase(prepare_sequence, keys, "sequences")
+    prepared = phase(prepare_sequence, keys, "sequences", cost=sequence_cost)
     prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
     t_seq = time.perf_counter() - t0
 
     if any(s.method in G.REPEATED for s in specs):
         _prepare_vocabulary(progress)
+    if ex["executor"] != "serial":
+        _prepare_kernels()
     keys_by_id = {s.run_id: run_key(s, options) for s in specs}
     reused = {}
     if resume:
@@ -100,14 +103,14 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
                 reused[s.run_id] = r
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
     t_seg = time.perf_counter()
-    phase(segment_sequence, onnx_sequence_keys(todo, options), "segmentation")
+    phase(segment_sequence, onnx_sequence_keys(todo, options), "segmentation", cost=sequence_cost)
     t_seg = time.perf_counter() - t_seg
     (out / "runs").mkdir(exist_ok=True)
 
     def checkpoint(i, r):  # each run is saved as it finishes, so that --resume recovers an interrupted study
         save_run(out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
 
-    done = phase(execute_run, todo, "study", on_result=checkpoint)
+    done = phase(execute_run, todo, "study", on_result=checkpoint, cost=lambda s: run_cost(s, options))
     by_id = {s.run_id: r for s, r in zip(todo, done)}
     by_id.update(reused)
     for s in specs:
@@ -136,6 +139,21 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
     return res
+
+
+def run_cost(spec: RunSpec, options: dict) -> float:
+    """Estimated cost of a run (ms): its frames x the method's ``StudyConfig.run_cost_ms`` (the real ORB-SLAM3's
+    runs: x its repeats). Only the order of the runs depends on it (longest first)."""
+    study = options["config"].get("study") or {}
+    costs = dict(study.get("run_cost_ms") or ())
+    ms = float(costs.get(spec.method, study.get("run_cost_default_ms", 1.0)))
+    repeats = int(options.get("orbslam3_repeats") or 1) if spec.method in G.REPEATED else 1
+    return max(int(spec.frames), 1) * ms * repeats
+
+
+def sequence_cost(key: tuple) -> float:
+    """Estimated cost of generating or segmenting a sequence (``RunSpec.sequence_key``): its frames."""
+    return float(max(int(key[3]), 1))
 
 
 def remove_stale_temps(options: dict, out: Path | None = None) -> list[Path]:
@@ -184,6 +202,14 @@ def _prepare_vocabulary(progress) -> None:
         resolve_vocabulary(None, build=True, progress=bool(progress))
     except D2SlamError:
         pass
+
+
+def _prepare_kernels() -> None:
+    """Compile the engine's kernels here (or load them from numba's cache) before the workers start, so that they
+    load them instead of each compiling the same ones at once (``d2slam.warmup``)."""
+    from d2slam.warmup import warm_up
+
+    warm_up()
 
 
 def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_order: list[str], manifest: dict,

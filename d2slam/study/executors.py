@@ -12,13 +12,16 @@
   (one run per core; the numbers do not depend on it, the speed does).
 
 The function must be importable (a module-level function) and its arguments picklable. Results are placed by
-index, so the output order never depends on which worker finished first.
+index, so the output order never depends on which worker finished first. With ``cost`` the items start in
+decreasing cost (``dispatch_order``: the longest first, ties in input order), one at a time as a worker frees up:
+the last to start are the shortest, so both cores stay busy to the end instead of one finishing a long run alone.
 """
 
 from __future__ import annotations
 
 from typing import Callable, Sequence
 
+import numpy as np
 from tqdm import tqdm
 
 from d2slam.errors import D2SlamError
@@ -30,28 +33,36 @@ def executor_name(jobs: int = 1, scheduler=None) -> str:
     return "serial" if int(jobs) <= 1 else "joblib"
 
 
+def dispatch_order(costs: Sequence[float]) -> list[int]:
+    """Indices of ``costs`` by decreasing cost; equal costs keep their input order."""
+    return np.argsort(-np.asarray(costs, dtype=np.float64), kind="stable").tolist()
+
+
 def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, scheduler=None,
                 desc: str = "study", progress: bool | None = None,
-                on_result: Callable[[int, object], None] | None = None) -> list:
+                on_result: Callable[[int, object], None] | None = None,
+                cost: Callable[[object], float] | None = None) -> list:
     """``[fn(item, *args) for item in items]`` on the chosen executor (see module docstring). ``on_result(i, result)``
-    is called in this process as each result arrives (completion order), e.g. to save it at once."""
+    is called in this process as each result arrives (completion order), e.g. to save it at once. ``cost(item)``:
+    the items start longest first (``dispatch_order``); the results stay in the order of ``items``."""
     items = list(items)
     if not items:
         return []
+    order = dispatch_order([cost(it) for it in items]) if cost is not None else list(range(len(items)))
     bar = tqdm(total=len(items), desc=desc, unit="run", disable=None if progress is None else not progress)
     try:
         name = executor_name(jobs, scheduler)
         if name == "serial":
-            out = []
-            for i, it in enumerate(items):
-                out.append(fn(it, *args))
+            out = [None] * len(items)
+            for i in order:
+                out[i] = fn(items[i], *args)
                 if on_result is not None:
-                    on_result(i, out[-1])
+                    on_result(i, out[i])
                 bar.update(1)
             return out
         if name == "joblib":
-            return _joblib(fn, items, args, int(jobs), bar, on_result)
-        return _dask(fn, items, args, scheduler, bar, on_result)
+            return _joblib(fn, items, order, args, int(jobs), bar, on_result)
+        return _dask(fn, items, order, args, scheduler, bar, on_result)
     finally:
         bar.close()
 
@@ -60,7 +71,7 @@ def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, 
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-def _joblib(fn, items, args, jobs, bar, on_result=None) -> list:
+def _joblib(fn, items, order, args, jobs, bar, on_result=None) -> list:
     from concurrent.futures import as_completed
 
     from joblib.externals.loky import ProcessPoolExecutor
@@ -69,7 +80,8 @@ def _joblib(fn, items, args, jobs, bar, on_result=None) -> list:
     pool = ProcessPoolExecutor(max_workers=jobs, env=WORKER_ENV, initializer=_ignore_sigint)
     try:
         with _sigint_ignored():  # the workers start now (first submit) and inherit it from their first instruction
-            futures = {pool.submit(fn, it, *args): i for i, it in enumerate(items)}
+            # submitted in ``order``: the pool starts them so, one per worker as it frees up
+            futures = {pool.submit(fn, items[i], *args): i for i in order}
         for fut in as_completed(futures):
             i = futures[fut]
             out[i] = fut.result()
@@ -115,7 +127,7 @@ def _indexed(i, fn, item, args):
     return i, fn(item, *args)
 
 
-def _dask(fn, items, args, scheduler, bar, on_result=None) -> list:
+def _dask(fn, items, order, args, scheduler, bar, on_result=None) -> list:
     try:
         from distributed import Client, as_completed
     except ImportError as exc:  # pragma: no cover - dask/distributed are in environment.txt
@@ -134,7 +146,9 @@ def _dask(fn, items, args, scheduler, bar, on_result=None) -> list:
         except (OSError, TimeoutError) as exc:
             raise D2SlamError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
     try:
-        futures = [client.submit(_indexed, i, fn, it, args, pure=False) for i, it in enumerate(items)]
+        # Dask runs the highest priority first
+        futures = [client.submit(_indexed, i, fn, items[i], args, pure=False, priority=len(order) - rank)
+                   for rank, i in enumerate(order)]
         out = [None] * len(items)
         for fut in as_completed(futures):
             i, res = fut.result()
