@@ -1,0 +1,96 @@
+"""The notebooks' common set-up: a synthetic sequence from the study's cache, a run of one method of the engine on it
+with a given kind of masks, and the record of what the keypoint filter saw and decided in every frame.
+
+The module notebooks (02-05) measure the paper's modules on the inputs the engine really gives the filter; this
+module gets those inputs in two calls, so that a notebook explains, plots and measures and re-implements nothing::
+
+    seq = development_sequence("walking_xyz", seed=1, frames=30)
+    run = recorded_run(seq, "d2slam")           # masks: the simulated segmenter's (mask_sim/)
+    observed = run.cat("observed")              # a diagnostics field over every frame
+    err, truth = run.cat("err")[observed], run.cat("truth")[observed]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from d2slam.config import DEFAULT, Config
+
+
+@dataclass
+class FrameRecord:
+    """One frame as the keypoint filter saw it: ``inp`` the hook's input (``d2slam.slam.hook.FilterInput``: keypoints,
+    their depths, the matches to the previous frame, the masks; None for the method ``none``), ``diag`` the filter's
+    diagnostics (``d2slam.dynamics.classifier.FrameDiagnostics``, None for a filter without them) and ``truth`` (N,)
+    bool: the keypoints on something that moves (``d2slam.eval.keypoints.keypoint_truth``)."""
+
+    index: int
+    kps: np.ndarray
+    inp: object | None
+    diag: object | None
+    truth: np.ndarray
+
+
+@dataclass
+class RecordedRun:
+    """A run of ``method``: the engine's ``RunResult`` and one ``FrameRecord`` per frame."""
+
+    method: str
+    result: object = None
+    frames: list[FrameRecord] = field(default_factory=list)
+
+    def cat(self, name: str) -> np.ndarray:
+        """The diagnostics field ``name`` (``err``, ``observed``, ``belief``, ...) or ``truth``, concatenated over the
+        frames: one entry per keypoint of the run."""
+        if name == "truth":
+            return np.concatenate([f.truth for f in self.frames])
+        return np.concatenate([getattr(f.diag, name) for f in self.frames])
+
+
+def development_sequence(scenario: str, seed: int, frames: int, twin: bool = False, root=None):
+    """The synthetic sequence (``SyntheticSequence``) of ``scenario``, ``seed`` and ``frames``, generated once into the
+    study's sequence cache (``d2slam.study.sequences.ensure_sequence``, or ``root``) and read from there.
+    Notebooks use development seeds (0-99): the study's seeds are never looked at while developing."""
+    from d2slam.data import open_sequence
+    from d2slam.study.sequences import ensure_sequence
+
+    return open_sequence(ensure_sequence(scenario, seed, frames, twin=twin, root=root, progress=False))
+
+
+def mask_provider(seq, kind: str = "sim", config: Config = DEFAULT) -> Callable[[int], np.ndarray]:
+    """Frame index -> (n, H, W) bool person masks of ``seq`` (``d2slam.segmentation.masks_for``: ``sim``, ``gt``,
+    ``truth`` or ``onnx``), as the engine hands them to its keypoint filter."""
+    from d2slam.segmentation import masks_for, stack_masks
+
+    shape = (seq.camera.height, seq.camera.width)
+    return lambda i: stack_masks(masks_for(seq, i, kind, config), shape)
+
+
+def recorded_run(seq, method: str = "d2slam", config: Config = DEFAULT, masks: str | None = "sim",
+                 also: Callable | None = None) -> RecordedRun:
+    """Run ``method`` (``d2slam.methods``) of the engine on the synthetic ``seq`` with the ``masks`` of
+    :func:`mask_provider` (default the simulated segmenter's: the module notebooks study the modules, not the
+    network; None: no masks) and record every frame. ``also(index, keypoints, beliefs, diagnostics)`` is called
+    after each frame too (e.g. a ``d2slam.eval.keypoints.KeypointRecorder``)."""
+    from d2slam.eval.keypoints import keypoint_truth
+    from d2slam.methods import get_filter
+    from d2slam.pipeline import run_sequence
+    from d2slam.slam.engine import Engine
+
+    kfilter = get_filter(method, config)
+    engine = Engine(seq.camera, config, kfilter)
+    run = RecordedRun(method)
+
+    def record(i, kps, beliefs, diag):
+        run.frames.append(FrameRecord(i, np.asarray(kps), engine.last_filter_input, diag,
+                                      keypoint_truth(kps, seq.dynamic_mask(i))))
+        if also is not None:
+            also(i, kps, beliefs, diag)
+
+    provider = None if masks is None else mask_provider(seq, masks, config)
+    run.result = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=record,
+                              progress=False, engine=engine)
+    return run
