@@ -2,7 +2,8 @@
 with a given kind of masks, and the record of what the keypoint filter saw and decided in every frame.
 
 The module notebooks (02-05) measure the paper's modules on the inputs the engine really gives the filter; this
-module gets those inputs in two calls, so that a notebook explains, plots and measures and re-implements nothing::
+module gets those inputs in two calls, so that a notebook explains, plots and measures and re-implements nothing
+(and picks its sequence by what it should show, ``seed_with_moving_objects``)::
 
     seq = development_sequence("walking_xyz", seed=1, frames=30)
     run = recorded_run(seq, "d2slam")           # masks: the simulated segmenter's (mask_sim/)
@@ -18,6 +19,7 @@ from typing import Callable
 import numpy as np
 
 from d2slam.config import DEFAULT, Config
+from d2slam.errors import D2SlamError
 
 
 @dataclass
@@ -50,6 +52,12 @@ class RecordedRun:
         return np.concatenate([getattr(f.diag, name) for f in self.frames])
 
 
+def config_values(cfg, *names: str) -> str:
+    """Markdown naming fields of a config dataclass with their values ("`beta_min` = 0.05, ..."): prose that relies on
+    defaults states them from the config itself."""
+    return ", ".join(f"`{n}` = {getattr(cfg, n)}" for n in names)
+
+
 def development_sequence(scenario: str, seed: int, frames: int, twin: bool = False, root=None):
     """The synthetic sequence (``SyntheticSequence``) of ``scenario``, ``seed`` and ``frames``, generated once into the
     study's sequence cache (``d2slam.study.sequences.ensure_sequence``, or ``root``) and read from there.
@@ -58,6 +66,25 @@ def development_sequence(scenario: str, seed: int, frames: int, twin: bool = Fal
     from d2slam.study.sequences import ensure_sequence
 
     return open_sequence(ensure_sequence(scenario, seed, frames, twin=twin, root=root, progress=False))
+
+
+def seed_with_moving_objects(scenario: str, frames: int, seeds=range(10)) -> int:
+    """The seed of ``seeds`` whose ``scenario`` sequence of ``frames`` frames has its objects moving the longest
+    (the moving time summed over its objects; the lowest such seed on a tie), read from the scenes' plans (nothing is
+    rendered): a notebook about moved objects picks a sequence that shows them. A D2SlamError when no seed moves an
+    object within those frames."""
+    from d2slam.synth import Scene
+
+    def moving_time(seed: int) -> float:
+        info = Scene(scenario, seed, frames).objects_info()
+        return sum(b - a for o in info if o["kind"] == "object" for a, b in o["moving_intervals"])
+
+    times = {int(s): moving_time(int(s)) for s in seeds}
+    best = max(times, key=lambda s: (times[s], -s))
+    if times[best] <= 0:
+        raise D2SlamError(f"no object moves within {frames} frames of {scenario} for seeds {sorted(times)}: "
+                          "take more frames or other seeds")
+    return best
 
 
 def mask_provider(seq, kind: str = "sim", config: Config = DEFAULT) -> Callable[[int], np.ndarray]:
@@ -70,11 +97,12 @@ def mask_provider(seq, kind: str = "sim", config: Config = DEFAULT) -> Callable[
 
 
 def recorded_run(seq, method: str = "d2slam", config: Config = DEFAULT, masks: str | None = "sim",
-                 also: Callable | None = None) -> RecordedRun:
+                 also: Callable | None = None, inputs: bool = True) -> RecordedRun:
     """Run ``method`` (``d2slam.methods``) of the engine on the synthetic ``seq`` with the ``masks`` of
     :func:`mask_provider` (default the simulated segmenter's: the module notebooks study the modules, not the
     network; None: no masks) and record every frame. ``also(index, keypoints, beliefs, diagnostics)`` is called
-    after each frame too (e.g. a ``d2slam.eval.keypoints.KeypointRecorder``)."""
+    after each frame too (e.g. a ``d2slam.eval.keypoints.KeypointRecorder``). ``inputs=False`` keeps no hook input
+    (``FrameRecord.inp`` None): the images it holds take a few MB per frame."""
     from d2slam.eval.keypoints import keypoint_truth
     from d2slam.methods import get_filter
     from d2slam.pipeline import run_sequence
@@ -85,7 +113,7 @@ def recorded_run(seq, method: str = "d2slam", config: Config = DEFAULT, masks: s
     run = RecordedRun(method)
 
     def record(i, kps, beliefs, diag):
-        run.frames.append(FrameRecord(i, np.asarray(kps), engine.last_filter_input, diag,
+        run.frames.append(FrameRecord(i, np.asarray(kps), engine.last_filter_input if inputs else None, diag,
                                       keypoint_truth(kps, seq.dynamic_mask(i))))
         if also is not None:
             also(i, kps, beliefs, diag)

@@ -6,13 +6,16 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
+import pytest
 from test_eval_keypoints import _textured_synthetic
 
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.eval.keypoints import KeypointRecorder, keypoint_truth
 from d2slam.methods import run_method
-from d2slam.notebook import development_sequence, mask_provider, recorded_run
+from d2slam.errors import D2SlamError
+from d2slam.notebook import (config_values, development_sequence, mask_provider, recorded_run,
+                             seed_with_moving_objects)
 from d2slam.study.sequences import MARKER, sequence_dir
 
 
@@ -31,8 +34,9 @@ def test_recorded_run_is_the_library_run(tmp_path):
     n = sum(len(f.kps) for f in run.frames)
     assert run.cat("belief").shape == run.cat("truth").shape == (n,) and run.cat("truth").any()
     rec = KeypointRecorder(seq)
-    recorded_run(seq, "d2slam", also=rec)
+    light = recorded_run(seq, "d2slam", also=rec, inputs=False)
     assert rec.result()["modules"]["final"] == ref.keypoints["modules"]["final"]
+    assert all(f.inp is None for f in light.frames) and np.array_equal(light.cat("belief"), run.cat("belief"))
 
 
 def test_recorded_run_without_filter_or_masks(tmp_path):
@@ -50,3 +54,29 @@ def test_development_sequence_reads_the_cache(tmp_path):
     (path / MARKER).write_text("{}\n")  # complete: nothing is generated
     seq = development_sequence("walking_xyz", 7, 5, root=tmp_path / "cache")
     assert len(seq) == 5 and seq.root == path
+
+
+def test_config_values():
+    assert config_values(DEFAULT.dynamics, "beta_min", "z_far") == \
+        f"`beta_min` = {DEFAULT.dynamics.beta_min}, `z_far` = {DEFAULT.dynamics.z_far}"
+
+
+class _Plan:
+    """A scene plan whose objects move for a set time per seed (a stand-in for ``d2slam.synth.Scene``)."""
+
+    MOVING = {0: [], 1: [(1.0, 1.5)], 2: [(0.5, 1.0), (2.0, 2.5)], 3: [(0.0, 1.0)]}
+
+    def __init__(self, scenario, seed, frames):
+        self.seed = seed
+
+    def objects_info(self):
+        person = {"kind": "person", "moving_intervals": [(0.0, 9.0)]}  # people do not count
+        return [person] + [{"kind": "object", "moving_intervals": [iv]} for iv in self.MOVING[self.seed]]
+
+
+def test_seed_with_moving_objects(monkeypatch):
+    monkeypatch.setattr("d2slam.synth.Scene", _Plan)
+    assert seed_with_moving_objects("walking_carry", 30, seeds=[0, 1, 2]) == 2
+    assert seed_with_moving_objects("walking_carry", 30, seeds=[3, 2, 1]) == 2  # a tie: the lowest seed
+    with pytest.raises(D2SlamError, match="no object moves"):
+        seed_with_moving_objects("walking_carry", 30, seeds=[0])
