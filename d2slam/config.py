@@ -614,6 +614,10 @@ class SynthEvalConfig:
     calib_orbslam3_min_m: float = 0.1
     calib_orbslam3_static_min_m: float = 0.02
     calib_sitting_max_m: float = 0.02
+    # Notebooks pick the development seed that shows what they are about (d2slam.notebook.seed_showing): a person is
+    # in view when the point this high (m) above the floor under the pelvis (a standing adult's waist) projects into
+    # the image.
+    showing_height_m: float = 1.0
 
 
 # --------------------------------------------------------------------------------------------------

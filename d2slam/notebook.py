@@ -3,9 +3,9 @@ with a given kind of masks, and the record of what the keypoint filter saw and d
 
 The module notebooks (02-05) measure the paper's modules on the inputs the engine really gives the filter; this
 module gets those inputs in two calls, so that a notebook explains, plots and measures and re-implements nothing
-(and picks its sequence by what it should show, ``seed_with_moving_objects``)::
+(and picks its sequence by what it should show, ``seed_showing``)::
 
-    seq = development_sequence("walking_xyz", seed=1, frames=30)
+    seq = development_sequence("walking_xyz", seed_showing("walking_xyz", 30, "people"), 30)
     run = recorded_run(seq, "d2slam")           # masks: the simulated segmenter's (mask_sim/)
     observed = run.cat("observed")              # a diagnostics field over every frame
     err, truth = run.cat("err")[observed], run.cat("truth")[observed]
@@ -68,23 +68,45 @@ def development_sequence(scenario: str, seed: int, frames: int, twin: bool = Fal
     return open_sequence(ensure_sequence(scenario, seed, frames, twin=twin, root=root, progress=False))
 
 
-def seed_with_moving_objects(scenario: str, frames: int, seeds=range(10)) -> int:
-    """The seed of ``seeds`` whose ``scenario`` sequence of ``frames`` frames has its objects moving the longest
-    (the moving time summed over its objects; the lowest such seed on a tie), read from the scenes' plans (nothing is
-    rendered): a notebook about moved objects picks a sequence that shows them. A D2SlamError when no seed moves an
-    object within those frames."""
+SHOWS = ("people", "moving objects")
+
+
+def seed_showing(scenario: str, frames: int, what: str = "people", seeds=range(10), config: Config = DEFAULT) -> int:
+    """The seed of ``seeds`` whose ``scenario`` sequence of ``frames`` frames shows ``what`` the most, from the scenes'
+    plans and camera paths (nothing is rendered): ``people``, the frames x people whose body (the point
+    ``SynthEvalConfig.showing_height_m`` above the floor under the pelvis) projects into the image; ``moving
+    objects``, the frames x objects moving while their centre projects into it. A notebook picks its sequence by what
+    it should show, whatever the scenes' timing. The lowest seed on a tie; a D2SlamError when no seed shows any."""
     from d2slam.synth import Scene
 
-    def moving_time(seed: int) -> float:
-        info = Scene(scenario, seed, frames).objects_info()
-        return sum(b - a for o in info if o["kind"] == "object" for a, b in o["moving_intervals"])
-
-    times = {int(s): moving_time(int(s)) for s in seeds}
-    best = max(times, key=lambda s: (times[s], -s))
-    if times[best] <= 0:
-        raise D2SlamError(f"no object moves within {frames} frames of {scenario} for seeds {sorted(times)}: "
-                          "take more frames or other seeds")
+    if what not in SHOWS:
+        raise D2SlamError(f"seed_showing: what must be one of {', '.join(SHOWS)}, not {what!r}")
+    scores = {}
+    for seed in (int(s) for s in seeds):
+        scene = Scene(scenario, seed, frames, cfg=config.synth)
+        world_camera = np.linalg.inv(scene.camera.poses(scene.t_rel))
+        if what == "people":
+            up = np.array([0.0, 0.0, config.synth_eval.showing_height_m])  # world z is up
+            tracks = [(np.array([p.root(t)[:3, 3] + up for t in scene.t_rel]), True) for p in scene.people]
+        else:
+            tracks = [(np.array([o.pose(t)[:3, 3] for t in scene.t_rel]), np.array([o.moving(t) for t in scene.t_rel]))
+                      for o in scene.objects]
+        scores[seed] = sum(int((_in_image(scene.cfg, world_camera, xyz) & shown).sum()) for xyz, shown in tracks)
+    best = max(scores, key=lambda s: (scores[s], -s))
+    if scores[best] == 0:
+        raise D2SlamError(f"no seed of {sorted(scores)} shows {what} within {frames} frames of {scenario}: take more "
+                          "frames or other seeds")
     return best
+
+
+def _in_image(cam, world_camera: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """(N,) bool: world point ``xyz[i]`` in front of the camera ``world_camera[i]`` (4x4 T_camera_world) of frame i
+    and inside the image of the pinhole ``cam`` (fx, fy, cx, cy, width, height)."""
+    X = np.einsum("nij,nj->ni", world_camera[:, :3, :3], xyz) + world_camera[:, :3, 3]
+    z = X[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = cam.fx * X[:, 0] / z + cam.cx, cam.fy * X[:, 1] / z + cam.cy
+    return (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
 
 
 def mask_provider(seq, kind: str = "sim", config: Config = DEFAULT) -> Callable[[int], np.ndarray]:

@@ -4,6 +4,7 @@ every frame's hook input, diagnostics and keypoint truth, and reads sequences fr
 from __future__ import annotations
 
 import shutil
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,10 +13,10 @@ from test_eval_keypoints import _textured_synthetic
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.eval.keypoints import KeypointRecorder, keypoint_truth
-from d2slam.methods import run_method
 from d2slam.errors import D2SlamError
+from d2slam.methods import run_method
 from d2slam.notebook import (config_values, development_sequence, mask_provider, recorded_run,
-                             seed_with_moving_objects)
+                             seed_showing)
 from d2slam.study.sequences import MARKER, sequence_dir
 
 
@@ -62,21 +63,38 @@ def test_config_values():
 
 
 class _Plan:
-    """A scene plan whose objects move for a set time per seed (a stand-in for ``d2slam.synth.Scene``)."""
+    """A scene plan (a stand-in for ``d2slam.synth.Scene``): a camera at the origin looking along +z, one frame per
+    second; per seed, where a person stands and when and where an object moves."""
 
-    MOVING = {0: [], 1: [(1.0, 1.5)], 2: [(0.5, 1.0), (2.0, 2.5)], 3: [(0.0, 1.0)]}
+    cfg = SimpleNamespace(fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
+    IN, OUT = np.array([0.0, 0.0, 2.0]), np.array([0.0, 0.0, -2.0])  # in front of the camera, behind it
+    PEOPLE = {0: [], 1: [(0, 9)], 2: [(0, 2), (1, 9)], 3: [(5, 9)], 4: [(0, 9)]}  # frames [a, b) in view
+    OBJECTS = {0: [], 1: [(0, 9, 0, 1)], 2: [(0, 9, 0, 9)], 3: [(0, 2, 0, 9)], 4: [(0, 9, 3, 9)]}  # view, moving
 
-    def __init__(self, scenario, seed, frames):
-        self.seed = seed
+    def __init__(self, scenario, seed, frames, cfg=None):
+        self.t_rel = np.arange(frames, dtype=float)
+        self.camera = SimpleNamespace(poses=lambda t: np.repeat(np.eye(4)[None], len(t), axis=0))
+        self.people = [self._track(a, b) for a, b in self.PEOPLE[seed]]
+        self.objects = []
+        for a, b, m0, m1 in self.OBJECTS[seed]:
+            o = self._track(a, b)
+            o.moving = lambda t, m0=m0, m1=m1: m0 <= t < m1
+            self.objects.append(o)
 
-    def objects_info(self):
-        person = {"kind": "person", "moving_intervals": [(0.0, 9.0)]}  # people do not count
-        return [person] + [{"kind": "object", "moving_intervals": [iv]} for iv in self.MOVING[self.seed]]
+    def _track(self, a, b):
+        def pose(t):
+            T = np.eye(4)
+            T[:3, 3] = self.IN if a <= t < b else self.OUT
+            return T
+        return SimpleNamespace(root=pose, pose=pose)
 
 
-def test_seed_with_moving_objects(monkeypatch):
+def test_seed_showing(monkeypatch):
     monkeypatch.setattr("d2slam.synth.Scene", _Plan)
-    assert seed_with_moving_objects("walking_carry", 30, seeds=[0, 1, 2]) == 2
-    assert seed_with_moving_objects("walking_carry", 30, seeds=[3, 2, 1]) == 2  # a tie: the lowest seed
-    with pytest.raises(D2SlamError, match="no object moves"):
-        seed_with_moving_objects("walking_carry", 30, seeds=[0])
+    assert seed_showing("walking_xyz", 9, "people", seeds=[0, 1, 2, 3]) == 2  # 2 + 8 frames x people in view
+    assert seed_showing("walking_xyz", 9, "people", seeds=[4, 1]) == 1  # a tie: the lowest seed
+    assert seed_showing("walking_carry", 9, "moving objects", seeds=[1, 2, 3, 4]) == 2  # moving while in view
+    with pytest.raises(D2SlamError, match="no seed"):
+        seed_showing("walking_carry", 9, "moving objects", seeds=[0])
+    with pytest.raises(D2SlamError, match="what must be"):
+        seed_showing("walking_carry", 9, "boxes")
