@@ -1,7 +1,7 @@
 """Every constant of d2slam, in one typed config.
 
 One frozen dataclass per stage; ``Config`` composes them. Paper constants carry their equation number
-(see ``../shared/DESIGN.md`` section 1 for our reading of each). Change a value with
+(our reading of each: ``docs/design.md``). Change a value with
 ``dataclasses.replace`` or ``Config.from_dict``; ``Config.hash()`` identifies a configuration in results.
 """
 
@@ -16,7 +16,7 @@ from typing import Any, Literal
 
 
 # --------------------------------------------------------------------------------------------------
-# Dynamics: the paper's modules (DESIGN.md section 1)
+# Dynamics: the paper's modules (docs/design.md#depth-adaptive-quantities-eq-2-5-9-10 and the sections after it)
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class DynamicsConfig:
@@ -109,7 +109,7 @@ class DynamicsConfig:
     pose_depth_sigmas: float = 2.0
     # P(dynamic | a pose test exceeded) with equal priors, like p_g_exceed (measured: docs/deviations.md).
     p_pose_exceed: float = 0.9
-    # Kinect axial depth noise sigma(z) = a + b (z - c)^2 metres (Nguyen et al. 2012; DESIGN.md section 3).
+    # Kinect axial depth noise sigma(z) = a + b (z - c)^2 metres (Nguyen et al. 2012; docs/design.md#depth-noise).
     depth_sigma_a: float = 0.0012
     depth_sigma_b: float = 0.0019
     depth_sigma_c: float = 0.4
@@ -155,7 +155,7 @@ class DynamicsConfig:
 
 
 # --------------------------------------------------------------------------------------------------
-# SLAM engine (DESIGN.md section 2; ORB-SLAM3 RGB-D settings)
+# SLAM engine (docs/design.md#the-engine-and-its-one-hook; ORB-SLAM3 RGB-D settings)
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class OrbConfig:
@@ -333,7 +333,7 @@ class SegmentationConfig:
 
 
 # --------------------------------------------------------------------------------------------------
-# Synthetic benchmark (DESIGN.md section 3)
+# Synthetic benchmark (docs/design.md#the-synthetic-benchmark)
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class BodyConfig:
@@ -621,6 +621,10 @@ class SynthEvalConfig:
     calib_orbslam3_min_m: float = 0.1
     calib_orbslam3_static_min_m: float = 0.02
     calib_sitting_max_m: float = 0.02
+    # Notebooks pick the development seed that shows what they are about (d2slam.notebook.seed_showing): a person is
+    # in view when the point this high (m) above the floor under the pelvis (a standing adult's waist) projects into
+    # the image.
+    showing_height_m: float = 1.0
 
 
 # --------------------------------------------------------------------------------------------------
@@ -701,7 +705,7 @@ class StudyConfig:
 
 
 # --------------------------------------------------------------------------------------------------
-# Data: TUM reading and downloading (DESIGN.md section 3-4)
+# Data: TUM reading and downloading (docs/design.md#tum-data)
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class DataConfig:

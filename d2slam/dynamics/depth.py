@@ -1,7 +1,7 @@
 """Depth-adaptive quantities of D2SLAM (eq 2, 5, 9, 10) and the robust per-keypoint depth.
 
-The paper gives a range and a direction for each depth-adaptive quantity, not the mapping. DESIGN.md section 1
-fixes the reading used here, with the normalised depth
+The paper gives a range and a direction for each depth-adaptive quantity, not the mapping.
+docs/design.md#depth-adaptive-quantities-eq-2-5-9-10 fixes the reading used here, with the normalised depth
 
     s(z) = clip((z - z_near) / (z_far - z_near), 0, 1),      z_near = 0.5 m, z_far = 4.5 m
 

@@ -13,8 +13,9 @@ equal priors = r_dyn / (r_dyn + r_static), r_dyn and r_static the shares of matc
 that exceed alpha; ``DynamicsConfig.p_g_exceed`` = 0.7 (1.0 restores the paper; measured: docs/deviations.md,
 ``DynamicsConfig.p_g_exceed``).
 
-Eq 6 as printed is a Gaussian *density* of the error (largest at zero error); DESIGN.md reads it as a probability
-of being dynamic that is 0 at zero error and grows with the error, which is what eq 7 needs. Like alpha, its sigma is
+Eq 6 as printed is a Gaussian *density* of the error (largest at zero error); our reading
+(docs/design.md#geometric-module-eq-4-6) makes it a probability of being dynamic that is 0 at zero error and grows
+with the error, which is what eq 7 needs. Like alpha, its sigma is
 taken at the keypoint's detection scale, sigma x 1.2^octave (``DynamicsConfig.sigma_at_scale``; measured:
 docs/deviations.md): otherwise a match below its scaled threshold could still get P_g > 0.5.
 

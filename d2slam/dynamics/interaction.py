@@ -1,6 +1,7 @@
 """Object Interaction Module of D2SLAM (eq 9-10): static keypoints near people that move with them.
 
-Interaction zone of person mask n (our reading of "related to the human depth", DESIGN.md): the pixels within
+Interaction zone of person mask n (our reading of "related to the human depth",
+docs/design.md#object-interaction-module-eq-9-10): the pixels within
 ``zone_factor * delta(z_n)`` = 2 delta(z_n) px of the mask whose depth differs from the mask's median depth z_n by
 less than ``zone_depth`` = 1 m. For each keypoint p_i still static inside a zone, its neighbours are the keypoints
 p_id the geometric module marked dynamic (err > alpha, eq 5, or our pose test) with

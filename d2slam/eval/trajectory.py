@@ -1,4 +1,4 @@
-"""Trajectory metrics with evo (DESIGN.md section 4): ATE RMSE after SE(3) Umeyama alignment with 0.02 s
+"""Trajectory metrics with evo (docs/design.md#evaluation): ATE RMSE after SE(3) Umeyama alignment with 0.02 s
 association (TUM ``evaluate_ate.py`` convention), RPE translational (m) and rotational (deg) over all 1-second pairs
 (TUM ``evaluate_rpe.py --fixed_delta --delta 1 --delta_unit s``), both as RMSE.
 

@@ -2,7 +2,8 @@
 paper-format Markdown tables (Tables 1-3 of the paper: rows fr3 w/xyz, w/half, w/static, w/rpy, s/static; columns
 methods).
 
-Improvement over a baseline, as in the paper's tables (DESIGN.md section 4): ``(1 - ours / baseline) x 100`` %.
+Improvement over a baseline, as in the paper's tables: ``(1 - ours / baseline) x 100`` %
+(docs/design.md#improvement-over-a-baseline).
 In our tables both are medians over seeds (``improvement(median ours, median baseline)``); the bracket gives the
 range of the per-seed (paired: same sequence) improvements. ORB-SLAM3's per-sequence figure is already the median
 of its repeats.

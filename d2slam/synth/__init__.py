@@ -1,4 +1,4 @@
-"""The synthetic TUM-like dynamic benchmark generator (DESIGN.md section 3).
+"""The synthetic TUM-like dynamic benchmark generator (docs/design.md#the-synthetic-benchmark).
 
 ``generate(scenario, out, frames, seed, static_twin)`` writes a sequence in the TUM RGB-D layout plus
 ``mask_gt/``, ``mask_sim/`` and ``scene.json`` (format in CONTRIBUTING.md). Modules: ``scene`` (office room,
