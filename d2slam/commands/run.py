@@ -30,7 +30,10 @@ def register(sub) -> None:
     p.add_argument("--config", metavar="FILE.yaml", default=None,
                    help="override config fields (d2slam/config.py): a YAML of `section: {field: value}`, e.g. "
                    "`dynamics: {z_far: 5.0}`; saved in the metrics JSON")
-    p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation, loops)")
+    p.add_argument("--no-loop-closing", action="store_true",
+                   help="the engine without loop closing and its keyframe database (EngineConfig.loop_closing; "
+                   "relocalisation then searches the recent keyframes)")
     p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
                    "ORB-SLAM3 (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
@@ -63,6 +66,8 @@ def run(args) -> int:
             raise D2SlamError(f"--masks does not apply to --method {args.method}")
         if args.config is not None:
             raise D2SlamError(f"--config does not apply to --method {args.method}")
+        if args.no_loop_closing:
+            raise D2SlamError(f"--no-loop-closing does not apply to --method {args.method} (the real ORB-SLAM3)")
         return method.runner(args)
 
     config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
@@ -73,6 +78,8 @@ def run(args) -> int:
         if settings.th_depth is not None:
             config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=settings.th_depth))
     config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=args.seed))
+    if args.no_loop_closing:
+        config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, loop_closing=False))
     seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
     synthetic = isinstance(seq, SyntheticSequence)
     warning = depth_scale_warning(seq, config)
@@ -97,6 +104,7 @@ def run(args) -> int:
     if run.keypoints is not None:
         record["keypoints"] = run.keypoints
     gt = seq.groundtruth
+    record.update(loop_record(result, seq, gt, config))
     if gt is None:
         record["metrics_error"] = "no ATE/RPE: the sequence has no groundtruth.txt"
     elif result.tracked < 3:
@@ -125,6 +133,10 @@ def run(args) -> int:
         print("ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
         if "frames_note" in record:
             print(record["frames_note"])
+        if result.loop_closing:
+            print(f"loops: {len(record['loops'])}" + (f" ({len(record['loops_true'])} true, "
+                                                     f"{len(record['loops_false'])} false)" if gt is not None else "")
+                  + "".join(f"; frames {a} -> {b}" for a, b in record["loops"]))
         if "metrics" in record:
             m = record["metrics"]
             print(f"ate_rmse_m {m['ate_rmse_m']:.4f}  rpe_trans_m {m['rpe_trans_m']:.4f}  "
@@ -132,3 +144,27 @@ def run(args) -> int:
         else:
             print(record["metrics_error"])
     return 0
+
+
+def loop_record(result, seq, groundtruth, config) -> dict:
+    """The metrics JSON's loop-closing fields: ``loop_closing``, and when on the vocabulary, ``loops`` (the two
+    keyframes' frame indices each), with ground truth ``loops_true`` / ``loops_false`` / ``loop_errors`` ([m, deg])
+    and ``loop_closest_call`` (the wrong place-recognition candidate that went furthest, ``d2slam.eval.loops``), the
+    median detection time per keyframe (ms) and each correction's time (s)."""
+    import numpy as np
+
+    from d2slam.eval.loops import classify_loops, closest_call
+
+    if not result.loop_closing:
+        return {"loop_closing": False}
+    from d2slam.slam.orb_vocabulary import load_vocabulary
+
+    voc = load_vocabulary(config.engine.vocabulary or None)
+    out = {"loop_closing": True, "vocabulary": {"path": voc.path, "sha256": voc.sha256}}
+    out.update(classify_loops(result.loops, seq.timestamps, groundtruth, config.evaluation))
+    if groundtruth is not None:
+        out["loop_closest_call"] = closest_call(result.loop_candidates, seq.timestamps, groundtruth,
+                                                config.evaluation)
+    out["loop_detect_ms"] = round(float(np.median(result.loop_detect_ms)), 3) if result.loop_detect_ms else None
+    out["loop_correct_s"] = [lp["seconds"] for lp in result.loops]
+    return out
