@@ -146,25 +146,15 @@ def run(args) -> int:
     return 0
 
 
+
 def loop_record(result, seq, groundtruth, config) -> dict:
-    """The metrics JSON's loop-closing fields: ``loop_closing``, and when on the vocabulary, ``loops`` (the two
-    keyframes' frame indices each), with ground truth ``loops_true`` / ``loops_false`` / ``loop_errors`` ([m, deg])
-    and ``loop_closest_call`` (the wrong place-recognition candidate that went furthest, ``d2slam.eval.loops``), the
-    median detection time per keyframe (ms) and each correction's time (s)."""
-    import numpy as np
+    """``d2slam.eval.loops.loop_summary`` and, with loop closing, the vocabulary read (path, sha256)."""
+    from d2slam.eval.loops import loop_summary
 
-    from d2slam.eval.loops import classify_loops, closest_call
+    out = loop_summary(result, seq.timestamps, groundtruth, config.evaluation)
+    if result.loop_closing:
+        from d2slam.slam.orb_vocabulary import load_vocabulary
 
-    if not result.loop_closing:
-        return {"loop_closing": False}
-    from d2slam.slam.orb_vocabulary import load_vocabulary
-
-    voc = load_vocabulary(config.engine.vocabulary or None)
-    out = {"loop_closing": True, "vocabulary": {"path": voc.path, "sha256": voc.sha256}}
-    out.update(classify_loops(result.loops, seq.timestamps, groundtruth, config.evaluation))
-    if groundtruth is not None:
-        out["loop_closest_call"] = closest_call(result.loop_candidates, seq.timestamps, groundtruth,
-                                                config.evaluation)
-    out["loop_detect_ms"] = round(float(np.median(result.loop_detect_ms)), 3) if result.loop_detect_ms else None
-    out["loop_correct_s"] = [lp["seconds"] for lp in result.loops]
+        voc = load_vocabulary(config.engine.vocabulary or None)
+        out["vocabulary"] = {"path": voc.path, "sha256": voc.sha256}
     return out

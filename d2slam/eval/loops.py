@@ -100,3 +100,18 @@ def closest_call(cands: list, timestamps: np.ndarray, groundtruth: Trajectory,
     return {"frames": [best.frame, best.cand_frame], "stage": best.stage, "score": round(best.score, 6),
             "min_score": round(best.min_score, 6), "ratio": round(best.score / max(best.min_score, 1e-12), 4),
             "inliers": best.inliers}
+
+
+def loop_summary(result, timestamps: np.ndarray, groundtruth: Trajectory | None, cfg: EvalConfig = EvalConfig()) -> dict:
+    """The loop-closing fields of a run (``d2slam.pipeline.RunResult``) for its metrics JSON: ``loop_closing``, and
+    when on ``loops`` ([frame of keyframe a, frame of keyframe b] each), with ground truth ``loops_true`` /
+    ``loops_false`` / ``loop_errors`` ([m, deg]) and ``loop_closest_call`` (:func:`closest_call`), the median
+    detection time per keyframe (ms) and each correction's time (s)."""
+    if not result.loop_closing:
+        return {"loop_closing": False}
+    out = {"loop_closing": True, **classify_loops(result.loops, timestamps, groundtruth, cfg)}
+    if groundtruth is not None:
+        out["loop_closest_call"] = closest_call(result.loop_candidates, timestamps, groundtruth, cfg)
+    out["loop_detect_ms"] = round(float(np.median(result.loop_detect_ms)), 3) if result.loop_detect_ms else None
+    out["loop_correct_s"] = [lp["seconds"] for lp in result.loops]
+    return out
