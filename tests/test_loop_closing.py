@@ -203,7 +203,7 @@ def test_kabsch_recovers_a_rigid_transform():
 
 def _pair(n=300, outliers=0.3, seed=7):
     """A candidate keyframe seeing n points and the current keyframe seeing them from another pose, its own map
-    drifted (its pose in the candidate's map is unknown); a share of the matches are outliers."""
+    drifted (its pose in the candidate's map is unknown); ``bad`` marks a share ``outliers`` of the keypoints."""
     rng = np.random.default_rng(seed)
     proj = Projector(CAM, DEFAULT)
     X = np.c_[rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n), rng.uniform(2.0, 4.0, n)]
@@ -222,8 +222,7 @@ def _pair(n=300, outliers=0.3, seed=7):
                       inv_sigma2=np.ones(n), mp=np.full(n, -1, np.int64))
         m.add_keyframe(kf)
         kfs.append(kf)
-    bad = rng.random(n) < outliers
-    kfs[1].depth = np.where(bad, kfs[1].depth + rng.uniform(0.5, 1.5, n), kfs[1].depth)  # wrong 3D: outliers
+    bad = rng.random(n) < outliers  # wrong matches (see the RANSAC test)
     ids = m.add_points(X, kfs[0].desc, np.tile([0, 0, 1.0], (n, 1)), np.full(n, 0.5), np.full(n, 8.0), np.zeros(n),
                        0, np.zeros(n, np.float32), np.zeros(n, np.int64))
     m.add_observations(kfs[0], np.arange(n), ids)
@@ -235,10 +234,12 @@ def test_ransac_3d3d_recovers_the_pose_in_the_loop_map(voc):
     m, proj, (cand, cur), T_true, bad = _pair()
     lc = LoopCloser(m, proj, DEFAULT, voc, LocalMapper(m, proj, DEFAULT))
     idx = np.arange(len(cur.kps))
-    T, inl = lc.ransac(cur, cand, idx, idx)
+    wrong = idx.copy()
+    wrong[bad] = np.roll(idx[bad], 1)  # a share of the matches pair a keypoint with another point
+    T, inl = lc.ransac(cur, cand, idx, wrong)
     assert np.abs(T - T_true).max() < 0.02  # a 3D fit (refined by the pose optimisation that follows)
     assert inl[~bad].mean() > 0.95 and inl[bad].mean() < 0.05
-    T2, _ = lc.ransac(cur, cand, idx, idx)
+    T2, _ = lc.ransac(cur, cand, idx, wrong)
     np.testing.assert_array_equal(T, T2)  # seeded
 
 
@@ -397,3 +398,87 @@ def test_engine_closes_the_loop_of_a_room_and_is_deterministic(box_loop, monkeyp
     np.testing.assert_array_equal(again.trajectory()[2], on.trajectory()[2])  # same bytes
     rec = json.loads(json.dumps([x.to_dict() for x in on.loops]))
     assert rec[0]["frames"] == [lp.frame, lp.loop_frame]
+
+
+def test_run_json_has_the_loop_fields_and_the_switch_turns_them_off(vocab_file, tmp_path, monkeypatch, capsys):
+    from d2slam.cli import main
+    from d2slam.slam.fixture import write_room_sequence
+
+    monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path / "cache"))
+    room = write_room_sequence(tmp_path / "room", n=12, seed=1, fps=10.0)
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(f"engine:\n  vocabulary: {vocab_file}\n")
+
+    def run(*extra):
+        out, js = tmp_path / "t.txt", tmp_path / "t.json"
+        assert main(["run", str(room), "--camera", "fr3", "--out", str(out), "--metrics-json", str(js), "--quiet",
+                     "--config", str(cfg), *extra]) == 0
+        return out.read_bytes(), json.loads(js.read_text())
+
+    traj_on, on = run()
+    assert on["loop_closing"] is True and on["loops"] == [] and on["loops_true"] == [] and on["loops_false"] == []
+    assert on["vocabulary"]["path"] == str(vocab_file.resolve()) and on["loop_closest_call"] is None
+    assert on["loop_detect_ms"] > 0 and on["loop_correct_s"] == [] and "loop_ms" in on
+    traj_off, off = run("--no-loop-closing")
+    assert off["loop_closing"] is False and "loops" not in off and off["config"]["engine"]["loop_closing"] is False
+    assert traj_off == traj_on  # no loop, no relocalisation: the same trajectory
+    assert main(["run", str(room), "--method", "orbslam3", "--out", str(tmp_path / "o.txt"),
+                 "--no-loop-closing"]) == 2
+    assert "--no-loop-closing does not apply" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ the scenario with a return, in the study
+def test_office_loop_returns_home_after_twenty_seconds_through_every_wall():
+    from d2slam.synth.scene import LOOP_RETURN, CameraPath, default_frames, resolve_frames
+
+    n = default_frames("office_loop")
+    assert n == 1200 and resolve_frames("office_loop", None) == 1200 and resolve_frames("office_loop", "tum") == 1200
+    assert resolve_frames("walking_xyz", None) == 300
+    duration = n / 30.0
+    path = CameraPath("office_loop", np.random.default_rng([0, 3, 7]), duration)
+    t = np.arange(n) / 30.0
+    T = path.poses(t)
+    home = T[0]
+    back = int(np.argmax(path.loop_angle(t) >= 2 * np.pi))
+    assert t[back] >= 20.0 and np.isclose(t[back], LOOP_RETURN * duration, atol=0.05)
+    assert np.linalg.norm(T[back, :3, 3] - home[:3, 3]) < 0.1  # where it started (a few cm of height bob)
+    axes = T[:, :3, 2]
+    assert np.degrees(np.arccos(np.clip(axes[back] @ home[:3, 2], -1, 1))) < 8.0  # looking the same way
+    heading = np.degrees(np.arctan2(axes[:back, 0], axes[:back, 1])) % 360
+    assert np.histogram(heading, bins=8, range=(0, 360))[0].min() > 0  # it faced every direction on the way
+    assert path.loop_angle(t[-1]) > 2 * np.pi + np.radians(90)  # and goes on round the loop
+
+
+def test_study_grid_runs_the_return_scenario_with_loop_closing_on_and_off():
+    from d2slam.study.grid import expand_grid
+
+    specs = expand_grid(["office_loop"], seeds=[5], frames=40)
+    dyn = [(s.method, s.loop_closing) for s in specs if not s.twin]
+    assert sorted(dyn[:3]) == [("d2slam", True), ("none", True), ("oracle", True)]  # on, then off
+    assert sorted(dyn[3:]) == [("d2slam", False), ("none", False), ("oracle", False)]
+    assert all(s.frames == 1200 for s in specs)  # its own length, whatever --frames
+    assert {(s.method, s.loop_closing) for s in specs if s.twin} == {("none", True), ("d2slam", True),
+                                                                      ("oracle", True)}
+    ids = [s.run_id for s in specs]
+    assert len(set(ids)) == len(ids) and "office_loop_s5_n1200_d2slam_noloop" in ids
+
+
+def test_tables_have_a_loop_closing_section():
+    from d2slam.study.tables import loop_markdown, runs_frame, tables_markdown
+
+    rows = []
+    for seed in (1, 2):
+        for m, on, ate, loops in (("none", 1, 0.05, (2, 1, 1)), ("none", 0, 0.06, None),
+                                  ("d2slam", 1, 0.004, (1, 1, 0)), ("d2slam", 0, 0.008, None)):
+            row = {"scenario": "office_loop", "sequence": "loop (ours)", "twin": 0, "method": m, "seed": seed,
+                   "frames": 1200, "source": "synth", "loop_closing": on, "status": "ok", "ate_rmse_m": ate}
+            if loops:
+                row.update(loops=loops[0], loops_true=loops[1], loops_false=loops[2], loop_closest_ratio=1.5 + seed)
+            rows.append(row)
+    df = runs_frame(rows)
+    md = loop_markdown(df)
+    assert "| loop (ours) | `d2slam` | 0.0040 [0.0040, 0.0040] | 0.0080 [0.0080, 0.0080] | 0.50 [0.50, 0.50] | 2 | 2 " \
+           "| 0 | 3.50 |" in md
+    assert "| loop (ours) | `none` |" in md and "| 4 | 2 | 2 |" in md
+    full = tables_markdown(df, ["none", "d2slam"], None)
+    assert "## Loop closing: the scenario with a return (ours)" in full
