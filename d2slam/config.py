@@ -312,9 +312,12 @@ class EngineConfig:
     # by descriptor votes over the recent keyframes, relocalisation_candidates).
     loop_closing: bool = True
     # DBoW2 text vocabulary ("" = the real ORB-SLAM3's: $PYORBSLAM3_VOCAB, else the project's `d2slam vocab build`,
-    # built on first use); a keypoint the hook flags dynamic enters no bag of words.
+    # built on first use); a keypoint the hook flags dynamic enters no bag of words (loop_dynamic_keypoints).
     vocabulary: str = ""
     bow_levelsup: int = 4  # ORB-SLAM3: feature-vector nodes 4 levels above the words
+    # True (an ablation: dynamics-unaware place recognition): the keypoints the hook flags dynamic enter the bags of
+    # words and the loop's 3D-3D matches all the same (tracking and mapping still leave them out).
+    loop_dynamic_keypoints: bool = False
     # Detection (ORB-SLAM2/3 DetectLoop): not before the map has loop_min_keyframes keyframes nor within loop_gap
     # keyframes of the last loop; candidates score at least the lowest score of the keyframe's covisible keyframes
     # (those sharing >= covisibility_min_shared points, which are never candidates), share more than

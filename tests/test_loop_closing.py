@@ -482,3 +482,24 @@ def test_tables_have_a_loop_closing_section():
     assert "| loop (ours) | `none` |" in md and "| 4 | 2 | 2 |" in md
     full = tables_markdown(df, ["none", "d2slam"], None)
     assert "## Loop closing: the scenario with a return (ours)" in full
+
+
+def test_the_ablation_puts_dynamic_keypoints_back_into_words_and_matches(voc):
+    rng = np.random.default_rng(4)
+    d = rng.integers(0, 256, (200, 32), dtype=np.uint8)
+    dyn = np.zeros(200, bool)
+    dyn[:120] = True
+    m = Map()
+    db = KeyFrameDatabase(voc, m, _cfg(loop_dynamic_keypoints=True).engine)
+    m.add_keyframe(_kf(0, d, dynamic=dyn))
+    np.testing.assert_array_equal(db.add(m.keyframes[0]).words, voc.bow(d, 2)[0])
+    mp, proj, (cand, cur), _, _ = _pair(outliers=0.0)
+    cur.desc = cand.desc.copy()
+    cur.dynamic = np.zeros(len(cur.kps), bool)
+    cur.dynamic[::3] = True
+    cfg = _cfg(loop_dynamic_keypoints=True)
+    lc = LoopCloser(mp, proj, cfg, voc, LocalMapper(mp, proj, cfg))
+    lc.db.add(cand)
+    lc.db.add(cur)
+    geo, _ = lc.geometry(cur, cand)
+    assert cur.dynamic[geo.kp].any()

@@ -182,7 +182,8 @@ def loops(args) -> int:
               f"{np.percentile(detect, 90):.2f}, max {detect.max():.2f}) over {len(detect)} keyframes; target median "
               f"<= {TARGET_LOOP_DETECT_MS:g} ms")
     if stall:
-        print(f"corrections: {sum(len(r['correct_s']) for r in on_rows)}, stall per frame on average {np.mean(stall):.2f}"
+        print(f"corrections: {sum(len(r['correct_s']) for r in on_rows)}, stall per frame on average "
+              f"{np.mean(stall):.2f}"
               f" ms (max over runs {np.max(stall):.2f}); target <= one frame's budget, {rows[0]['budget_ms']:.1f} ms")
     for method in args.methods:
         on = {r["seed"]: r["ate_rmse_m"] for r in on_rows if r["method"] == method}

@@ -4,7 +4,7 @@ loop candidates and relocalisation candidates.
 
 A keyframe's bag of words is made of its static keypoints only: a keypoint the hook flags dynamic
 (``KeyFrame.dynamic``) gives no word, so a person standing in two views cannot make them look alike. Without a filter
-(``none``) every keypoint counts, as in ORB-SLAM3.
+(``none``) every keypoint counts, as in ORB-SLAM3 (and with ``EngineConfig.loop_dynamic_keypoints``, an ablation).
 
 The covisibility graph follows ORB-SLAM's ``UpdateConnections``: when a keyframe enters the database its weights
 (shared map points) to the others are counted once; a connection (at least ``covisibility_min_shared`` points) is
@@ -66,7 +66,7 @@ class KeyFrameDatabase:
 
     def add(self, kf: KeyFrame) -> Bow:
         """Enter ``kf``: its bag of words (static keypoints), the inverted file, its connections and parent."""
-        bow = self.bow(kf.desc, None if kf.dynamic is None else ~kf.dynamic)
+        bow = self.bow(kf.desc, None if kf.dynamic is None or self.cfg.loop_dynamic_keypoints else ~kf.dynamic)
         self.bows[kf.id] = bow
         m = len(bow.words)
         n0 = self.n_post

@@ -20,7 +20,8 @@ keyframe, then a full bundle adjustment.
 
 Dynamics: the keypoints the hook flagged when the keyframe was made (``KeyFrame.dynamic``) give no word and take no
 3D-3D match; the map points the hook marked dynamic (belief above ``mappoint_belief_threshold``) are left out of the
-window. Without a filter every keypoint and point takes part.
+window. Without a filter every keypoint and point takes part (and with ``EngineConfig.loop_dynamic_keypoints``, an
+ablation, every keypoint).
 """
 
 from __future__ import annotations
@@ -190,7 +191,9 @@ class LoopCloser:
         ``loop_min_matches``). The initial matches are ORB-SLAM's ``SearchByBoW`` (same vocabulary node, ratio
         ``loop_nn_ratio``, Hamming <= ``desc_th_low``, orientation check)."""
         cfg, proj, P = self.cfg, self.proj, self.map.points
-        static = np.ones(len(kf.kps), bool) if kf.dynamic is None else ~kf.dynamic
+        static = np.ones(len(kf.kps), bool)
+        if kf.dynamic is not None and not cfg.loop_dynamic_keypoints:
+            static = ~kf.dynamic
         own = kf.mp[kf.mp >= 0]
         # the keyframe's static keypoints with depth (3D) against the candidate's usable points it does not see
         na = np.where(static & (kf.depth > 0), self.db.bows[kf.id].kp_nodes, -1)
