@@ -45,7 +45,8 @@ from d2slam.slam.projection import Projector, inv
 class Loop:
     """A closed loop: the current keyframe ``kf`` and the loop keyframe ``loop_kf`` (ids and frame indices), the
     current keyframe's pose in the loop's map that the geometry found, the relative pose ``T_kf_loop``
-    (``Tcw_kf Twc_loop`` at detection, what the truth is compared with), matches and inliers, the correction's time."""
+    (``Tcw_kf Twc_loop`` at detection, what the truth is compared with), matches and inliers, the correction's time,
+    and the keyframes' poses just before and after it."""
 
     kf: int
     loop_kf: int
@@ -56,6 +57,9 @@ class Loop:
     matches: int
     T_kf_loop: np.ndarray
     seconds: float = 0.0
+    # every good keyframe's Tcw just before and just after the correction (keyframe id -> 4x4; not in to_dict)
+    poses_before: dict = field(default_factory=dict, repr=False)
+    poses_after: dict = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict:
         return {"frames": [self.frame, self.loop_frame], "keyframes": [self.kf, self.loop_kf],
@@ -113,12 +117,16 @@ class LoopCloser:
         cand, score, geo = found
         t1 = time.perf_counter()
         loop = Loop(kf.id, cand.id, kf.frame_index, cand.frame_index, score, geo.inliers, len(geo.kp),
-                    geo.Tcw @ inv(cand.Tcw))
+                    geo.Tcw @ inv(cand.Tcw), poses_before=self._poses())
         self.correct(kf, cand, geo)
         loop.seconds = time.perf_counter() - t1
+        loop.poses_after = self._poses()
         self.loops.append(loop)
         self.last_loop_kf = kf.id
         return loop
+
+    def _poses(self) -> dict:
+        return {k.id: k.Tcw.copy() for k in self.map.keyframes if not k.bad}
 
     # ================================================================== detection
     def detect(self, kf: KeyFrame):
