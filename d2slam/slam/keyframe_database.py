@@ -52,6 +52,7 @@ class KeyFrameDatabase:
         self._dense = np.zeros(vocabulary.n_nodes, np.float64)  # scratch: a query's weights by word
         self.bows: dict[int, Bow] = {}
         self.weights: dict[int, dict[int, int]] = {}  # keyframe -> {connected keyframe: shared points}
+        self._order: dict[int, list[int]] = {}  # keyframe -> its connections, most shared points first
         self.parent: dict[int, int] = {}  # spanning tree (the first keyframe has none)
 
     # ------------------------------------------------------------------ bags of words
@@ -99,10 +100,13 @@ class KeyFrameDatabase:
         for k in old:
             if k not in conn:
                 self.weights.get(k, {}).pop(kf_id, None)
+                self._order.pop(k, None)
         mine = {k: int(w[k]) for k in conn}
         self.weights[kf_id] = mine
+        self._order.pop(kf_id, None)
         for k, n in mine.items():
             self.weights.setdefault(k, {})[kf_id] = n
+            self._order.pop(k, None)
         if first and kf_id > 0:
             best = max(mine, key=lambda k: (mine[k], -k)) if mine else None
             if best is None:
@@ -113,9 +117,12 @@ class KeyFrameDatabase:
 
     def connected(self, kf_id: int) -> list[int]:
         """The good keyframes connected to ``kf_id``, most shared points first (ties: lower id first)."""
+        order = self._order.get(kf_id)
+        if order is None:
+            items = self.weights.get(kf_id, {}).items()
+            order = self._order[kf_id] = [k for k, _ in sorted(items, key=lambda x: (-x[1], x[0]))]
         kfs = self.map.keyframes
-        items = [(k, n) for k, n in self.weights.get(kf_id, {}).items() if not kfs[k].bad]
-        return [k for k, _ in sorted(items, key=lambda x: (-x[1], x[0]))]
+        return [k for k in order if not kfs[k].bad]
 
     def best_covisibles(self, kf_id: int, n: int) -> list[int]:
         return self.connected(kf_id)[:n]
