@@ -134,10 +134,12 @@ def run(args) -> int:
 def loops(args) -> int:
     """``--loops``: each method with loop closing on and off on office_loop of each seed: tracked frames, ATE,
     loops (true / false), the detection time per keyframe and the corrections' time, and the stall they add to
-    tracking on average (their total over the frames) against one frame's budget."""
+    tracking on average (their total over the frames) against one frame's budget; with loop closing on, the wrong
+    place-recognition candidates (ground-truth views apart) by the stage they reached and the closest call
+    (``d2slam.eval.loops``)."""
     from d2slam.config import DEFAULT
     from d2slam.data import open_sequence
-    from d2slam.eval.loops import classify_loops
+    from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candidates
     from d2slam.eval.trajectory import evaluate
     from d2slam.methods import run_method
     from d2slam.outputs import check_output_file
@@ -161,6 +163,10 @@ def loops(args) -> int:
                 cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, loop_closing=on))
                 res = run_method(seq, method, cfg, synthetic=True, progress=False).result
                 lp = classify_loops(res.loops, seq.timestamps, seq.groundtruth, cfg.evaluation)
+                lp["closest"] = closest_call(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
+                wrong = wrong_candidates(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
+                lp["wrong_by_stage"] = {st: int(sum(w and c.stage == st for c, w in zip(res.loop_candidates, wrong)))
+                                        for st in STAGES}
                 corr = [x["seconds"] for x in res.loops]
                 row = {"seed": seed, "method": method, "loop_closing": on, "frames": res.frames,
                        "tracked": res.tracked, "keyframes": res.keyframes, "fps": res.fps,
@@ -174,6 +180,12 @@ def loops(args) -> int:
                       f"{res.keyframes:>4} {row['ate_rmse_m']:8.4f} {len(lp['loops']):>5} "
                       f"{len(lp.get('loops_true', [])):>4} {len(lp.get('loops_false', [])):>5} {det} {cs:>14} "
                       f"{row['stall_ms_per_frame']:14.2f} {res.fps:5.1f}", flush=True)
+                if on:
+                    cc = lp["closest"]
+                    print(f"{'':>19}wrong candidates by the stage they reached: " + ", ".join(
+                        f"{k} {v}" for k, v in lp["wrong_by_stage"].items()) + "; closest call: " + (
+                        f"frames {cc['frames'][0]} -> {cc['frames'][1]}, {cc['stage']}, score {cc['ratio']:.2f} x "
+                        f"the minimum, {cc['inliers']} matches/inliers" if cc else "none"), flush=True)
     on_rows = [r for r in rows if r["loop_closing"]]
     detect = np.concatenate([r["detect_ms"] for r in on_rows] + [np.zeros(0)])
     stall = [r["stall_ms_per_frame"] for r in on_rows]
