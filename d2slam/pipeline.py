@@ -53,11 +53,12 @@ class RunResult:
     fps: float
     per_frame: list[dict] = field(default_factory=list)
     # Loop closing (``EngineConfig.loop_closing``): the loops closed (``Loop.to_dict``), every place-recognition
-    # candidate (``Candidate``), the detection time of each keyframe (ms) and each correction's (s).
+    # candidate (``Candidate``), the detection time of each keyframe (ms, wall and CPU) and each correction's (s).
     loop_closing: bool = False
     loops: list[dict] = field(default_factory=list)
     loop_candidates: list = field(default_factory=list)
     loop_detect_ms: list[float] = field(default_factory=list)
+    loop_detect_cpu_ms: list[float] = field(default_factory=list)  # the same in CPU time
 
     def summary(self) -> dict:
         return {"frames": self.frames, "tracked": self.tracked, "lost": self.lost, "keyframes": self.keyframes,
@@ -166,4 +167,5 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
                      total_s=total, fps=n / total if total > 0 else float("inf"), per_frame=per_frame,
                      loop_closing=lc is not None, loops=[x.to_dict() for x in engine.loops],
                      loop_candidates=list(lc.log) if lc is not None else [],
-                     loop_detect_ms=[1000.0 * t for t in lc.detect_s] if lc is not None else [])
+                     loop_detect_ms=[1000.0 * t for t in lc.detect_s] if lc is not None else [],
+                     loop_detect_cpu_ms=[1000.0 * t for t in lc.detect_cpu_s] if lc is not None else [])
