@@ -119,7 +119,8 @@ def run(args) -> int:
     if len(detect):
         print(f"loop detection (keyframe database and candidates): median {np.median(detect):.2f} ms per keyframe "
               f"(CPU time {np.median(cpu):.2f}), 90th percentile {np.percentile(detect, 90):.2f}, over {len(detect)} "
-              f"keyframes (target median <= {TARGET_LOOP_DETECT_MS:g} ms); loops closed: {sum(r['loops'] for r in rows)}")
+              f"keyframes (target median <= {TARGET_LOOP_DETECT_MS:g} ms); loops closed: "
+              f"{sum(r['loops'] for r in rows)}")
     walking = {r["scenario"]: r for r in rows if not r["twin"] and "error" not in r}
     if walking:
         print("walking vs twin ATE (cm): " + ", ".join(
