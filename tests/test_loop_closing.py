@@ -503,3 +503,20 @@ def test_the_ablation_puts_dynamic_keypoints_back_into_words_and_matches(voc):
     lc.db.add(cur)
     geo, _ = lc.geometry(cur, cand)
     assert cur.dynamic[geo.kp].any()
+
+
+def test_study_runs_record_loop_closing_and_its_loops():
+    from d2slam.study.grid import RunSpec
+    from d2slam.study.runner import execute_run, run_key, run_options
+    from d2slam.study.sequences import ensure_sequence
+
+    ensure_sequence("sitting_static", 101, 40, False)  # the sequence test_study_run uses (cached)
+    on, off = RunSpec("sitting_static", "none", 101, 40), RunSpec("sitting_static", "none", 101, 40, loop_closing=False)
+    assert RunSpec(**off.to_dict()) == off and off.run_id == on.run_id + "_noloop"
+    opts = run_options()
+    assert run_key(on, opts) != run_key(off, opts)
+    a, b = execute_run(on, opts), execute_run(off, opts)
+    assert a["row"]["status"] == b["row"]["status"] == "ok"
+    assert a["row"]["loop_closing"] == 1 and a["row"]["loops"] == 0 and a["row"]["loops_false"] == 0
+    assert a["loops"]["loop_closing"] is True and a["loops"]["loops"] == []
+    assert b["row"]["loop_closing"] == 0 and "loops" not in b["row"] and b["loops"] == {"loop_closing": False}
