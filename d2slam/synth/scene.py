@@ -30,9 +30,9 @@ INTERACTION_SCENARIOS = ("walking_carry", "walking_push")
 LOOP_SCENARIOS = ("office_loop",)
 SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS
 # ``--frames tum``: the durations (s) of the real TUM fr3 sequences as the dataset lists them; our interaction
-# scenarios take 30 s, about the fr3 walking sequences' mean; office_loop its default 40 s.
+# scenarios take 30 s, about the fr3 walking sequences' mean (office_loop: its default frames).
 TUM_DURATIONS = {"walking_xyz": 28.83, "walking_halfsphere": 35.81, "walking_static": 24.83, "walking_rpy": 30.61,
-                 "sitting_static": 23.63, "walking_carry": 30.0, "walking_push": 30.0, "office_loop": 40.0}
+                 "sitting_static": 23.63, "walking_carry": 30.0, "walking_push": 30.0}
 # Frames of ``d2slam synth`` without --frames: 300 (10 s), office_loop 1200 (40 s: the return after 29 s).
 DEFAULT_FRAMES = 300
 SCENARIO_FRAMES = {"office_loop": 1200}
@@ -77,8 +77,9 @@ def default_frames(scenario: str) -> int:
 
 
 def resolve_frames(scenario: str, frames: int | str | None, fps: float = 30.0) -> int:
-    """``frames`` as a number of frames for ``scenario`` (``tum``: its TUM duration; None: ``default_frames``)."""
-    if frames is None:
+    """``frames`` as a number of frames for ``scenario`` (``tum``: its TUM duration; None, or ``tum`` for a scenario
+    without one: ``default_frames``)."""
+    if frames is None or (frames == "tum" and scenario in SCENARIO_FRAMES):
         return default_frames(scenario)
     return tum_frames(scenario, fps) if frames == "tum" else int(frames)
 
