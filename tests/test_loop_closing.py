@@ -520,3 +520,22 @@ def test_study_runs_record_loop_closing_and_its_loops():
     assert a["row"]["loop_closing"] == 1 and a["row"]["loops"] == 0 and a["row"]["loops_false"] == 0
     assert a["loops"]["loop_closing"] is True and a["loops"]["loops"] == []
     assert b["row"]["loop_closing"] == 0 and "loops" not in b["row"] and b["loops"] == {"loop_closing": False}
+
+
+def test_relocalisation_takes_its_candidates_from_the_database(box_loop, monkeypatch, tmp_path):
+    monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path))
+    frames, poses, path = box_loop
+    cfg = dataclasses.replace(DEFAULT, orb=dataclasses.replace(DEFAULT.orb, n_features=500),
+                              engine=dataclasses.replace(DEFAULT.engine, vocabulary=str(path),
+                                                         init_min_keypoints=200, kf_max_frames=4))
+    eng = Engine(CAM, cfg)
+    for i in range(30):
+        assert eng.process(*frames[i], i, i / 30.0).tracked
+    asked = []
+    query = eng.loop.db.relocalisation_candidates
+    monkeypatch.setattr(eng.loop.db, "relocalisation_candidates", lambda *a: asked.append(query(*a)) or asked[-1])
+    blank = (np.full_like(frames[0][0], 128), frames[0][1])
+    assert eng.process(*blank, 30, 1.0).state == "lost"
+    r = eng.process(*frames[5], 31, 31 / 30.0)  # back at an early view
+    assert r.tracked and r.how == "relocalisation" and asked and asked[0]
+    assert eng.map.keyframes[asked[0][0]].frame_index < 15  # the database's best candidate shows that view
