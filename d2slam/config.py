@@ -308,6 +308,51 @@ class EngineConfig:
     ransac_seed: int = 0
     # OpenCV thread count, set explicitly (cv2.setNumThreads) for deterministic, reproducible timings.
     cv_threads: int = 1
+    # Loop closing (ORB-SLAM3 LoopClosing for RGB-D, run synchronously after local mapping) and place recognition
+    # (a DBoW2 keyframe database, which relocalisation also uses). False: the engine without either (relocalisation
+    # by descriptor votes over the recent keyframes, relocalisation_candidates).
+    loop_closing: bool = True
+    # DBoW2 text vocabulary ("" = the real ORB-SLAM3's: $PYORBSLAM3_VOCAB, else the project's `d2slam vocab build`,
+    # built on first use); a keypoint the hook flags dynamic enters no bag of words (loop_dynamic_keypoints).
+    vocabulary: str = ""
+    bow_levelsup: int = 4  # ORB-SLAM3: feature-vector nodes 4 levels above the words
+    # True (an ablation: dynamics-unaware place recognition): the keypoints the hook flags dynamic enter the bags of
+    # words and the loop's 3D-3D matches all the same (tracking and mapping still leave them out).
+    loop_dynamic_keypoints: bool = False
+    # Detection (ORB-SLAM2/3 DetectLoop): not before the map has loop_min_keyframes keyframes nor within loop_gap
+    # keyframes of the last loop; candidates score at least the lowest score of the keyframe's covisible keyframes
+    # (those sharing >= covisibility_min_shared points, which are never candidates), share more than
+    # loop_common_words of the best candidate's common words, and their group (with their loop_group_size best
+    # covisibles) accumulates more than loop_group_ratio of the best group's score; a candidate group must recur over
+    # loop_consistency consecutive keyframes (ORB-SLAM's covisibility consistency).
+    loop_min_keyframes: int = 10
+    loop_gap: int = 10
+    loop_common_words: float = 0.8
+    loop_group_size: int = 10
+    loop_group_ratio: float = 0.75
+    loop_consistency: int = 3
+    # Geometry (ORB-SLAM3 Sim3 with the scale fixed for RGB-D): the keyframe's static keypoints with depth matched
+    # (2-NN, ratio loop_nn_ratio, Hamming <= desc_th_low) to the points of the candidate and its loop_window best
+    # covisibles; 3-point RANSAC of the rigid transform (loop_ransac_iterations, seeded), inliers by the reprojection
+    # chi-square (loop_ransac_chi2 x sigma^2, ORB-SLAM's 9.21, in the image and in u_R); at least loop_min_inliers;
+    # then the window's points projected with that pose (radius loop_search_radius x scale) and the pose optimised
+    # (motion-only BA): at least loop_min_matches inliers accept the loop.
+    loop_nn_ratio: float = 0.75
+    loop_window: int = 10
+    loop_ransac_iterations: int = 300
+    loop_ransac_chi2: float = 9.21
+    loop_min_inliers: int = 20
+    loop_search_radius: float = 10.0
+    loop_min_matches: int = 40
+    # Correction (ORB-SLAM3 CorrectLoop): the keyframe's covisibles moved with it, the loop window's points fused
+    # into them (radius loop_fuse_radius x scale), pose-graph optimisation of the essential graph (spanning tree,
+    # covisibility edges of at least essential_min_shared points, loop edges; loop_pgo_iterations of
+    # Levenberg-Marquardt, the loop keyframe fixed), then a full BA (loop_full_ba_iterations; the first keyframe
+    # fixed).
+    loop_fuse_radius: float = 4.0
+    essential_min_shared: int = 100
+    loop_pgo_iterations: int = 20
+    loop_full_ba_iterations: int = 10
 
 
 # --------------------------------------------------------------------------------------------------
@@ -850,6 +895,21 @@ def _section(section_cls, data: dict, name: str):
 
 
 @dataclass(frozen=True)
+class EvalConfig:
+    """How a run's loops are judged against the ground truth (``d2slam.eval.loops``); nothing here changes a
+    trajectory."""
+
+    # A detected loop is true when the relative pose of its two keyframes that the loop closer estimated is within
+    # both of these of the ground truth's relative pose, false otherwise.
+    loop_true_max_m: float = 0.10
+    loop_true_max_deg: float = 5.0
+    # A place-recognition candidate is wrong (it shows another place) when the two ground-truth views do not overlap:
+    # optical axes more than loop_wrong_view_deg apart or camera centres more than loop_wrong_view_m apart.
+    loop_wrong_view_deg: float = 60.0
+    loop_wrong_view_m: float = 1.5
+
+
+@dataclass(frozen=True)
 class Config:
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     orb: OrbConfig = field(default_factory=OrbConfig)
@@ -861,6 +921,7 @@ class Config:
     masking: MaskingConfig = field(default_factory=MaskingConfig)
     data: DataConfig = field(default_factory=DataConfig)
     study: StudyConfig = field(default_factory=StudyConfig)
+    evaluation: EvalConfig = field(default_factory=EvalConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -8,7 +8,8 @@ one prefetch thread while the current one is processed), ``segment`` (the mask p
 one; in the prefetch thread, overlapping the other stages, unless ``prefetch=False``), ``extract`` (ORB + depth;
 the next frame's extraction runs in the engine's worker thread while this one is tracked, so it overlaps the
 other stages and the stages add up to more than the wall time), ``filter`` (frame-to-frame matches + the hook),
-``track`` (all tracking steps), ``local_ba`` (new keyframe + local mapping).
+``track`` (all tracking steps), ``local_ba`` (new keyframe + local mapping), ``loop`` (the keyframe database, loop
+detection and correction).
 
 ``features``: a :class:`~d2slam.slam.features.FeatureRecorder` keeps every frame's extracted features (to save them),
 a :class:`~d2slam.slam.features.CachedFeatures` gives them instead of extracting: no image is read then, except the
@@ -53,6 +54,13 @@ class RunResult:
     fps: float
     per_frame: list[dict] = field(default_factory=list)
     first_frame_at: float = float("nan")  # time.time() when the first frame was done (cold-start measurements)
+    # Loop closing (``EngineConfig.loop_closing``): the loops closed (``Loop.to_dict``), every place-recognition
+    # candidate (``Candidate``), the detection time of each keyframe (ms, wall and CPU) and each correction's (s).
+    loop_closing: bool = False
+    loops: list[dict] = field(default_factory=list)
+    loop_candidates: list = field(default_factory=list)
+    loop_detect_ms: list[float] = field(default_factory=list)
+    loop_detect_cpu_ms: list[float] = field(default_factory=list)  # the same in CPU time
 
     def summary(self) -> dict:
         return {"frames": self.frames, "tracked": self.tracked, "lost": self.lost, "keyframes": self.keyframes,
@@ -166,8 +174,13 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     _, ts, poses = engine.trajectory()
     tracked = int(sum(s == "ok" for s in states))
     stage_ms = {k: 1000.0 * v / n for k, v in totals.items() if k != "segment" or mask_provider is not None}
+    lc = engine.loop
     return RunResult(trajectory=Trajectory(ts, poses, meta={"sequence": getattr(sequence, "name", "")}),
                      frames=n, tracked=tracked, lost=n - tracked, states=states,
                      keyframes=len(engine.map.good_keyframes()), map_points=engine.map.n_points, stage_ms=stage_ms,
                      total_s=total, fps=n / total if total > 0 else float("inf"), per_frame=per_frame,
-                     first_frame_at=first_frame_at)
+                     first_frame_at=first_frame_at,
+                     loop_closing=lc is not None, loops=[x.to_dict() for x in engine.loops],
+                     loop_candidates=list(lc.log) if lc is not None else [],
+                     loop_detect_ms=[1000.0 * t for t in lc.detect_s] if lc is not None else [],
+                     loop_detect_cpu_ms=[1000.0 * t for t in lc.detect_cpu_s] if lc is not None else [])

@@ -1,10 +1,17 @@
 """`d2slam demo` (what `make demo` runs): generates, runs none and d2slam on the sequence and its twin, prints."""
 
+import numpy as np
+
+from d2slam.baselines.vocab import build_tree
 from d2slam.cli import main
 
 
 def test_demo_runs_the_main_job(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path))
+    # the engine's loop closing reads the ORB vocabulary: a small one here (an empty cache would build the project's)
+    desc = np.random.default_rng(0).integers(0, 256, (2000, 32), dtype=np.uint8)
+    build_tree(desc, np.arange(2000) // 100, k=6, L=3).save(tmp_path / "voc.txt")
+    monkeypatch.setenv("PYORBSLAM3_VOCAB", str(tmp_path / "voc.txt"))
     assert main(["demo", "--frames", "12", "--jobs", "1"]) == 0
     out = capsys.readouterr().out
     assert "12 frames of walking_xyz" in out and "static twin" in out

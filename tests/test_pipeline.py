@@ -24,7 +24,7 @@ def test_run_sequence_result_and_recorder(room_dir):
     res = run_sequence(seq, recorder=lambda i, kps, bel, diag: calls.append((i, kps.shape, bel, diag)),
                        progress=False)
     assert res.frames == 20 and res.tracked == 20 and res.lost == 0
-    assert set(res.stage_ms) == {"load", "extract", "filter", "track", "local_ba"}
+    assert set(res.stage_ms) == {"load", "extract", "filter", "track", "local_ba", "loop"}
     assert len(res.trajectory) == 20 and res.fps > 0
     assert [c[0] for c in calls] == list(range(20)) and calls[3][1][1] == 2 and calls[3][2] is None
 

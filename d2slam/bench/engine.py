@@ -1,6 +1,8 @@
 """The SLAM engine on the synthetic benchmark: accuracy on the static twins (targets ATE <= 1.5 cm, RPE <= 1.5 cm and
-<= 0.5 deg per second), ATE on the walking sequences with the filter off, speed with the per-stage breakdown, and
-(``--compare-optimisers``) g2o against gtsam on the same local-BA problem."""
+<= 0.5 deg per second), ATE on the walking sequences with the filter off, speed with the per-stage breakdown and the
+loop-detection time per keyframe, (``--loops``) loop closing on the scenario with a return (detection time, the
+corrections' stall, loops true and false, ATE with and without), and (``--compare-optimisers``) g2o against gtsam on
+the same local-BA problem."""
 
 from __future__ import annotations
 
@@ -10,15 +12,22 @@ import time
 
 import numpy as np
 
-DESCRIPTION = ("SLAM engine: ATE/RPE on static twins and walking sequences (--method none), fps and ms per stage; "
-               "--compare-optimisers: g2o vs gtsam on one local-BA problem")
+DESCRIPTION = ("SLAM engine: ATE/RPE on static twins and walking sequences (--method none), fps and ms per stage, "
+               "loop detection per keyframe; --loops: loop closing on office_loop; --compare-optimisers: g2o vs gtsam "
+               "on one local-BA problem")
 SCENARIOS = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy", "sitting_static")
 TARGET_ATE, TARGET_RPE_T, TARGET_RPE_R, TARGET_FPS = 0.015, 0.015, 0.5, 20.0
+TARGET_LOOP_DETECT_MS = 5.0  # median per keyframe; a correction's stall: at most one frame's budget per frame
+LOOP_SCENARIO = "office_loop"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--frames", type=int, default=None, help="frames per sequence (default 300; --loops: the "
+                        "scenario's own, 1200)")
     parser.add_argument("--seed", type=int, default=101, help="sequence seed (benchmark seeds: 101-103)")
+    parser.add_argument("--loops", action="store_true", help="loop closing on office_loop (the scenario with a "
+                        "return): --methods with loop closing on and off, on --seeds")
+    parser.add_argument("--seeds", type=int, nargs="+", help="--loops: sequence seeds (default: --seed)")
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
     parser.add_argument("--twins-only", action="store_true", help="skip the walking (dynamic) sequences")
     parser.add_argument("--compare-optimisers", action="store_true",
@@ -49,7 +58,8 @@ def _run_one(scenario: str, seed: int, frames: int, twin: bool) -> dict:
     cpu = time.process_time() - c0
     row = {"scenario": scenario, "twin": twin, "seed": seed, "frames": res.frames, "tracked": res.tracked,
            "lost": res.lost, "keyframes": res.keyframes, "fps": res.fps, "cpu_fps": res.frames / cpu,
-           "stage_ms": res.stage_ms, "sequence": str(path)}
+           "stage_ms": res.stage_ms, "sequence": str(path), "loop_detect_ms": res.loop_detect_ms,
+           "loop_detect_cpu_ms": res.loop_detect_cpu_ms, "loops": len(res.loops)}
     try:
         row.update(evaluate(seq.groundtruth, res.trajectory).to_dict())
     except D2SlamError as exc:
@@ -72,6 +82,9 @@ def _fmt(row: dict) -> str:
 def run(args) -> int:
     if args.compare_optimisers:
         return compare_optimisers(args)
+    if args.loops:
+        return loops(args)
+    args.frames = args.frames or 300
     if args.against:
         return against_orbslam3(args)
     from d2slam.config import DEFAULT
@@ -101,11 +114,100 @@ def run(args) -> int:
           f"{np.median(cpu):.1f} (target >= {TARGET_FPS:.0f} fps; wall fps depends on what else the machine runs)")
     mean_stage = {k: float(np.mean([r["stage_ms"].get(k, 0.0) for r in rows])) for k in rows[0]["stage_ms"]}
     print("mean ms per frame: " + ", ".join(f"{k} {v:.1f}" for k, v in mean_stage.items()))
+    detect = np.concatenate([r["loop_detect_ms"] for r in rows] + [np.zeros(0)])
+    cpu = np.concatenate([r["loop_detect_cpu_ms"] for r in rows] + [np.zeros(0)])
+    if len(detect):
+        print(f"loop detection (keyframe database and candidates): median {np.median(detect):.2f} ms per keyframe "
+              f"(CPU time {np.median(cpu):.2f}), 90th percentile {np.percentile(detect, 90):.2f}, over {len(detect)} "
+              f"keyframes (target median <= {TARGET_LOOP_DETECT_MS:g} ms); loops closed: "
+              f"{sum(r['loops'] for r in rows)}")
     walking = {r["scenario"]: r for r in rows if not r["twin"] and "error" not in r}
     if walking:
         print("walking vs twin ATE (cm): " + ", ".join(
             f"{sc} {100 * walking[sc]['ate_rmse_m']:.2f} vs {100 * t['ate_rmse_m']:.2f}"
             for sc in walking for t in twins if t["scenario"] == sc and "error" not in t))
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=1, default=float)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------- loop closing
+def loops(args) -> int:
+    """``--loops``: each method with loop closing on and off on office_loop of each seed: tracked frames, ATE,
+    loops (true / false), the detection time per keyframe and the corrections' time, and the stall they add to
+    tracking on average (their total over the frames) against one frame's budget; with loop closing on, the wrong
+    place-recognition candidates (ground-truth views apart) by the stage they reached and the closest call
+    (``d2slam.eval.loops``)."""
+    from d2slam.config import DEFAULT
+    from d2slam.data import open_sequence
+    from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candidates
+    from d2slam.eval.trajectory import evaluate
+    from d2slam.methods import run_method
+    from d2slam.outputs import check_output_file
+    from d2slam.study.sequences import ensure_sequence
+    from d2slam.synth.scene import default_frames
+
+    if args.json:
+        check_output_file(args.json, "--json")
+    frames = args.frames or default_frames(LOOP_SCENARIO)
+    seeds = args.seeds or [args.seed]
+    print(f"d2slam bench engine --loops: {LOOP_SCENARIO}, {frames} frames, seeds {' '.join(map(str, seeds))}, "
+          f"config {DEFAULT.hash()}")
+    print(f"{'seed':>4} {'method':<8} {'loops':<5} {'tracked':>9} {'KFs':>4} {'ATE m':>8} {'loops':>5} {'true':>4} "
+          f"{'false':>5} {'detect ms':>9} {'corrections s':>14} {'stall ms/frame':>14} {'fps':>5}")
+    rows = []
+    for seed in seeds:
+        seq = open_sequence(ensure_sequence(LOOP_SCENARIO, seed, frames, False))
+        budget_ms = 1000.0 * float(np.median(np.diff(seq.timestamps)))
+        for method in args.methods:
+            for on in (True, False):
+                cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, loop_closing=on))
+                res = run_method(seq, method, cfg, synthetic=True, progress=False).result
+                lp = classify_loops(res.loops, seq.timestamps, seq.groundtruth, cfg.evaluation)
+                lp["closest"] = closest_call(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
+                wrong = wrong_candidates(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
+                lp["wrong_by_stage"] = {st: int(sum(w and c.stage == st for c, w in zip(res.loop_candidates, wrong)))
+                                        for st in STAGES}
+                corr = [x["seconds"] for x in res.loops]
+                row = {"seed": seed, "method": method, "loop_closing": on, "frames": res.frames,
+                       "tracked": res.tracked, "keyframes": res.keyframes, "fps": res.fps,
+                       "ate_rmse_m": evaluate(seq.groundtruth, res.trajectory).ate_rmse_m, **lp,
+                       "detect_ms": res.loop_detect_ms, "detect_cpu_ms": res.loop_detect_cpu_ms, "correct_s": corr,
+                       "stall_ms_per_frame": 1000.0 * sum(corr) / res.frames, "budget_ms": budget_ms}
+                rows.append(row)
+                det = f"{np.median(res.loop_detect_ms):9.2f}" if res.loop_detect_ms else f"{'-':>9}"
+                cs = " ".join(f"{c:.2f}" for c in corr) or "-"
+                print(f"{seed:>4} {method:<8} {'on' if on else 'off':<5} {res.tracked:>4}/{res.frames:<4} "
+                      f"{res.keyframes:>4} {row['ate_rmse_m']:8.4f} {len(lp['loops']):>5} "
+                      f"{len(lp.get('loops_true', [])):>4} {len(lp.get('loops_false', [])):>5} {det} {cs:>14} "
+                      f"{row['stall_ms_per_frame']:14.2f} {res.fps:5.1f}", flush=True)
+                if on:
+                    cc = lp["closest"]
+                    print(f"{'':>19}wrong candidates by the stage they reached: " + ", ".join(
+                        f"{k} {v}" for k, v in lp["wrong_by_stage"].items()) + "; closest call: " + (
+                        f"frames {cc['frames'][0]} -> {cc['frames'][1]}, {cc['stage']}, score {cc['ratio']:.2f} x "
+                        f"the minimum, {cc['inliers']} matches/inliers" if cc else "none"), flush=True)
+    on_rows = [r for r in rows if r["loop_closing"]]
+    detect = np.concatenate([r["detect_ms"] for r in on_rows] + [np.zeros(0)])
+    cpu = np.concatenate([r["detect_cpu_ms"] for r in on_rows] + [np.zeros(0)])
+    stall = [r["stall_ms_per_frame"] for r in on_rows]
+    if len(detect):
+        print(f"\nloop detection: median {np.median(detect):.2f} ms per keyframe (90th percentile "
+              f"{np.percentile(detect, 90):.2f}, max {detect.max():.2f}; CPU time: median {np.median(cpu):.2f}) over "
+              f"{len(detect)} keyframes; target median <= {TARGET_LOOP_DETECT_MS:g} ms")
+    if stall:
+        print(f"corrections: {sum(len(r['correct_s']) for r in on_rows)}, stall per frame on average "
+              f"{np.mean(stall):.2f}"
+              f" ms (max over runs {np.max(stall):.2f}); target <= one frame's budget, {rows[0]['budget_ms']:.1f} ms")
+    for method in args.methods:
+        on = {r["seed"]: r["ate_rmse_m"] for r in on_rows if r["method"] == method}
+        off = {r["seed"]: r["ate_rmse_m"] for r in rows if r["method"] == method and not r["loop_closing"]}
+        ratio = [on[s] / off[s] for s in on if s in off and off[s] > 0]
+        false = sum(len(r.get("loops_false", [])) for r in on_rows if r["method"] == method)
+        print(f"{method}: ATE with / without loop closing, median over seeds {np.median(ratio):.2f} "
+              f"(per seed {', '.join(f'{x:.2f}' for x in ratio)}); false loops {false}")
+    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1, default=float)

@@ -33,7 +33,10 @@ def register(sub) -> None:
     p.add_argument("--config", metavar="FILE.yaml", default=None,
                    help="override config fields (d2slam/config.py): a YAML of `section: {field: value}`, e.g. "
                    "`dynamics: {z_far: 5.0}`; saved in the metrics JSON")
-    p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the engine's RANSAC (relocalisation, loops)")
+    p.add_argument("--no-loop-closing", action="store_true",
+                   help="the engine without loop closing and its keyframe database (EngineConfig.loop_closing; "
+                   "relocalisation then searches the recent keyframes)")
     p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
                    "ORB-SLAM3 (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress, no summary")
@@ -71,6 +74,8 @@ def run(args) -> int:
             raise D2SlamError(f"--masks does not apply to --method {args.method}")
         if args.config is not None:
             raise D2SlamError(f"--config does not apply to --method {args.method}")
+        if args.no_loop_closing:
+            raise D2SlamError(f"--no-loop-closing does not apply to --method {args.method} (the real ORB-SLAM3)")
         _warn_depth_scale(open_sequence(args.sequence, **({"camera": camera} if camera else {})), DEFAULT)
         return method.runner(args)
 
@@ -78,6 +83,8 @@ def run(args) -> int:
     if th_depth is not None:
         config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=th_depth))
     config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=args.seed))
+    if args.no_loop_closing:
+        config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, loop_closing=False))
     seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
     synthetic = isinstance(seq, SyntheticSequence)
     _warn_depth_scale(seq, config)
@@ -101,6 +108,7 @@ def run(args) -> int:
     if run.keypoints is not None:
         record["keypoints"] = run.keypoints
     gt, ate_only = seq.groundtruth, None
+    record.update(loop_record(result, seq, gt, config))
     if gt is None:
         record["metrics_error"] = "no ATE/RPE: the sequence has no groundtruth.txt"
     elif result.tracked < 3:
@@ -134,6 +142,10 @@ def run(args) -> int:
               + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
         if "frames_note" in record:
             print(record["frames_note"])
+        if result.loop_closing:
+            print(f"loops: {len(record['loops'])}" + (f" ({len(record['loops_true'])} true, "
+                                                     f"{len(record['loops_false'])} false)" if gt is not None else "")
+                  + "".join(f"; frames {a} -> {b}" for a, b in record["loops"]))
         if "metrics" in record:
             m = record["metrics"]
             print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
@@ -184,3 +196,15 @@ def process_start() -> float:
     import psutil
 
     return psutil.Process().create_time()
+
+def loop_record(result, seq, groundtruth, config) -> dict:
+    """``d2slam.eval.loops.loop_summary`` and, with loop closing, the vocabulary read (path, sha256)."""
+    from d2slam.eval.loops import loop_summary
+
+    out = loop_summary(result, seq.timestamps, groundtruth, config.evaluation)
+    if result.loop_closing:
+        from d2slam.slam.orb_vocabulary import load_vocabulary
+
+        voc = load_vocabulary(config.engine.vocabulary or None)
+        out["vocabulary"] = {"path": voc.path, "sha256": voc.sha256}
+    return out

@@ -22,8 +22,9 @@ def register(sub) -> None:
                    help="output folder (created; a previous synthetic sequence there is replaced, any other non-empty "
                    "folder refused). Written into DIR.tmp-PID@HOST beside it and renamed at the end: an interrupted "
                    "run leaves DIR as it was")
-    p.add_argument("--frames", type=frames_arg, default=300, help="number of RGB-D frames at 30 Hz (default 300), "
-                   "or 'tum': the duration of the TUM fr3 sequence of that name (walking_xyz 28.8 s, ...)")
+    p.add_argument("--frames", type=frames_arg, default=None, help="number of RGB-D frames at 30 Hz (default 300; "
+                   "office_loop 1200), or 'tum': the duration of the TUM fr3 sequence of that name (walking_xyz "
+                   "28.8 s, ...)")
     p.add_argument("--seed", type=int, default=0, help="seed of the room, people, paths and noise (default 0)")
     p.add_argument("--static-twin", action="store_true",
                    help="same camera path and room, no people and no moved objects (all masks 0)")

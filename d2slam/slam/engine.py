@@ -1,6 +1,8 @@
 """The ORB-SLAM3-style RGB-D engine, one frame at a time: extraction, the keypoint-filter hook, tracking
-(``tracking.py``, with ``relocalisation.py``), and for a new keyframe local mapping (``local_mapping.py``), run
-synchronously for determinism. The engine knows nothing of dynamics except the hook (``hook.py``)."""
+(``tracking.py``, with ``relocalisation.py``), and for a new keyframe local mapping (``local_mapping.py``) and loop
+closing (``loop_closing.py``, with the keyframe database of ``keyframe_database.py``, which relocalisation also
+uses; ``EngineConfig.loop_closing``), run synchronously for determinism. The engine knows nothing of dynamics except
+the hook (``hook.py``)."""
 
 from __future__ import annotations
 
@@ -16,12 +18,14 @@ from d2slam.errors import D2SlamError
 from d2slam.slam.frame import Frame, OrbExtractor
 from d2slam.slam.hook import FilterHook, FilterInput, KeypointFilter, update_point_beliefs
 from d2slam.slam.local_mapping import LocalMapper
-from d2slam.slam.map import Map
+from d2slam.slam.loop_closing import LoopCloser
+from d2slam.slam.map import KeyFrame, Map
+from d2slam.slam.orb_vocabulary import load_vocabulary
 from d2slam.slam.projection import Projector, inv
 from d2slam.slam.timing import StageTimer
 from d2slam.slam.tracking import LOST, NOT_INITIALIZED, OK, Tracker
 
-STAGES = ("extract", "filter", "track", "local_ba")
+STAGES = ("extract", "filter", "track", "local_ba", "loop")
 
 
 @dataclass
@@ -57,6 +61,7 @@ class Engine:
         self.proj = Projector(camera, config)
         self.extractor = OrbExtractor(config.orb, config.engine, camera)
         self.hook = FilterHook(keypoint_filter, self.proj, self.cfg) if keypoint_filter is not None else None
+        self.vocabulary = load_vocabulary(self.cfg.vocabulary or None) if self.cfg.loop_closing else None
         self._worker: ThreadPoolExecutor | None = None  # extracts the upcoming frame while this one is tracked
         self._upcoming: tuple[int, Future] | None = None
         self.reset()
@@ -66,6 +71,10 @@ class Engine:
         self.map = Map()
         self.tracker = Tracker(self.map, self.proj, self.config)
         self.mapper = LocalMapper(self.map, self.proj, self.config)
+        self.loop = None
+        if self.vocabulary is not None:
+            self.loop = LoopCloser(self.map, self.proj, self.config, self.vocabulary, self.mapper)
+            self.tracker.keyframe_db = self.loop.db
         self.last: Frame | None = None  # last processed frame (tracked or not)
         self.last_gray: np.ndarray | None = None  # its grey image (None when it came as stored features)
         self.last_depth: np.ndarray | None = None  # its depth image (None when none was given)
@@ -121,6 +130,9 @@ class Engine:
             else:
                 self._replace_culled_reference(*self.mapper.idle())
         keyframe = keyframe or (ok and how == "init")
+        with timer("loop"):
+            if keyframe and self.loop is not None:
+                self._close_loops(frame, self.map.keyframes[-1])
         with timer("track"):
             tracker.finish(frame, ok)
             if ok:
@@ -161,6 +173,30 @@ class Engine:
         if self._worker is not None:
             self._worker.shutdown()
             self._worker = None
+
+    def _close_loops(self, frame: Frame, kf: KeyFrame) -> None:
+        """The new keyframe goes to the loop closer; after a correction the frame and the last tracked frame follow
+        their reference keyframes (as ORB-SLAM's ``UpdateLastFrame``), so the motion model carries on in the
+        corrected map."""
+        tracker = self.tracker
+        follow = []
+        for f in (frame, tracker.last_tracked):
+            if f is None or f.Tcw is None:
+                continue
+            if f is frame:
+                ref = tracker.ref_kf
+                follow.append((f, ref, f.Tcw @ inv(ref.Tcw)))
+            elif f.index in self.frame_refs:
+                rid, Tcr = self.frame_refs[f.index]
+                follow.append((f, self.map.keyframes[rid], Tcr))
+        if self.loop.insert(kf) is not None:
+            for f, ref, Tcr in follow:
+                f.Tcw = Tcr @ ref.Tcw
+
+    @property
+    def loops(self) -> list:
+        """The loops closed so far (``loop_closing.Loop``; empty without loop closing)."""
+        return list(self.loop.loops) if self.loop is not None else []
 
     def _replace_culled_reference(self, kf, culled: list[int]) -> None:
         """A reference keyframe that local mapping culled is replaced by ``kf``, the keyframe that made it redundant

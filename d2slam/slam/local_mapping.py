@@ -145,7 +145,30 @@ class LocalMapper:
         if fixed.all():
             return
         keep = np.isin(obs_kf, cams)
-        rows, obs_kf = rows[keep], obs_kf[keep]
+        self.adjust(rows[keep], obs_kf[keep], cams, fixed, cfg.local_ba_iterations, erase_outliers=True)
+
+    def global_bundle_adjustment(self, iterations: int) -> None:
+        """ORB-SLAM ``GlobalBundleAdjustemnt``: every good keyframe (the first one fixed) and every live point not
+        marked dynamic, over all their observations; no observation is erased."""
+        M, cfg = self.map, self.cfg
+        P = M.points
+        pmask = P.view("alive") & (P.view("belief") <= cfg.mappoint_belief_threshold)
+        rows = M.observation_rows(pmask)
+        obs_kf = M.obs.kf[rows]
+        good = np.array([not k.bad for k in M.keyframes])
+        rows, obs_kf = rows[good[obs_kf]], obs_kf[good[obs_kf]]
+        cams = np.unique(obs_kf)
+        if len(cams) < 2:
+            return
+        self.adjust(rows, obs_kf, cams, cams == cams[0], iterations, erase_outliers=False)
+
+    def adjust(self, rows: np.ndarray, obs_kf: np.ndarray, cams: np.ndarray, fixed: np.ndarray, iterations: int,
+               erase_outliers: bool) -> None:
+        """Bundle adjustment of the keyframes ``cams`` (sorted; ``fixed`` held constant) and the points of the
+        observation ``rows`` (their keyframes ``obs_kf``), written back to the map; with ``erase_outliers`` the
+        observations above the chi2 thresholds afterwards are erased."""
+        M, cfg = self.map, self.cfg
+        P = M.points
         cam_of = np.full(len(M.keyframes), -1)
         cam_of[cams] = np.arange(len(cams))
         pts, pinv = np.unique(M.obs.pt[rows], return_inverse=True)
@@ -159,12 +182,13 @@ class LocalMapper:
             uv[s], ur[s], inv_s2[s] = k.kps[kp[s]], k.ur[kp[s]], k.inv_sigma2[kp[s]]
         poses = np.stack([M.keyframes[c].Tcw for c in cams])
         new_poses, new_X, outlier = local_bundle_adjustment(poses, fixed, P.pos[pts], cam_of[obs_kf], pinv, uv, ur,
-                                                            inv_s2, self.proj.K, self.proj.bf, cfg)
+                                                            inv_s2, self.proj.K, self.proj.bf, cfg, iterations)
         for i, c in enumerate(cams):
             if not fixed[i]:
                 M.keyframes[c].Tcw = new_poses[i]
         P.pos[pts] = new_X
-        M.erase_observations(rows[outlier])
+        if erase_outliers:
+            M.erase_observations(rows[outlier])
 
     def keyframe_culling(self, kf: KeyFrame) -> list[int]:
         """ORB-SLAM KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by

@@ -244,3 +244,50 @@ def window_cross_match(kps_a: np.ndarray, desc_a: np.ndarray, kps_b: np.ndarray,
     ok = (disp < window) & (rows[:, 2] <= max_dist)
     out = np.stack([ia[ok], ib[ok]], axis=1)
     return out[np.argsort(out[:, 0], kind="stable")]
+
+
+def search_by_bow(nodes_a: np.ndarray, desc_a: np.ndarray, nodes_b: np.ndarray, desc_b: np.ndarray, ratio: float,
+                  max_dist: int) -> np.ndarray:
+    """ORB-SLAM ``SearchByBoW`` between two keypoint sets: only keypoints under the same vocabulary node
+    (feature-vector node, ``nodes_*``; -1 = left out) are compared; for each of a the nearest of b, kept when its
+    Hamming distance is <= ``max_dist`` and below ``ratio`` x the second nearest. Returns (K, 3) int rows (index in a,
+    index in b, distance), one-to-one on b (the smallest distance wins)."""
+    ia = np.flatnonzero(nodes_a >= 0)
+    ib = np.flatnonzero(nodes_b >= 0)
+    ia = ia[np.argsort(nodes_a[ia], kind="stable")]
+    ib = ib[np.argsort(nodes_b[ib], kind="stable")]
+    da = np.ascontiguousarray(desc_a[ia], dtype=np.uint8).reshape(-1, 32).view(np.uint64)
+    db = np.ascontiguousarray(desc_b[ib], dtype=np.uint8).reshape(-1, 32).view(np.uint64)
+    best, dist = _bow_nearest(np.ascontiguousarray(nodes_a[ia]), da, np.ascontiguousarray(nodes_b[ib]), db,
+                              float(ratio), int(max_dist))
+    ok = best >= 0
+    rows = np.stack([ia[ok], ib[best[ok]], dist[ok]], axis=1).astype(np.int64)
+    keep = unique_by_target(rows[:, 0], rows[:, 1], rows[:, 2].astype(np.float64))
+    rows = rows[keep]
+    return rows[np.argsort(rows[:, 0], kind="stable")]
+
+
+@njit(cache=True, nogil=True)
+def _bow_nearest(na, da, nb, db, ratio, max_dist):
+    n = na.shape[0]
+    best = np.full(n, -1, np.int64)
+    dist = np.zeros(n, np.int64)
+    j0 = 0
+    for i in range(n):
+        while j0 < nb.shape[0] and nb[j0] < na[i]:
+            j0 += 1
+        b1, d1, d2 = -1, 1 << 20, 1 << 20
+        j = j0
+        while j < nb.shape[0] and nb[j] == na[i]:
+            d = 0
+            for w in range(4):
+                d += _popcount64(da[i, w] ^ db[j, w])
+            if d < d1:
+                d2 = d1
+                b1, d1 = j, d
+            elif d < d2:
+                d2 = d
+            j += 1
+        if b1 >= 0 and d1 <= max_dist and d1 < ratio * d2:
+            best[i], dist[i] = b1, d1
+    return best, dist

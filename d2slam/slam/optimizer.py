@@ -308,3 +308,115 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
                                           np.asarray(obs_cam, np.int64), np.asarray(obs_pt, np.int64), meas, stereo,
                                           info, delta, K[0, 0], K[1, 1], K[0, 2], K[1, 2], float(bf), n_it)
     return new_poses, new_X, _ba_outliers(new_poses, new_X, obs_cam, obs_pt, uv, ur, inv_sigma2, K, bf, cfg)
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """(N, 6) twists ``(omega, upsilon)`` of (N, 4, 4) rigid transforms (the inverse of ``lm.se3_exp``)."""
+    from scipy.spatial.transform import Rotation
+
+    w = Rotation.from_matrix(T[:, :3, :3]).as_rotvec()
+    th = np.linalg.norm(w, axis=1)
+    W = _hat(w)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 / 12.0, (1.0 - ths * np.sin(ths) / (2.0 * (1.0 - np.cos(ths)))) / ths ** 2)
+    Vinv = np.eye(3) - 0.5 * W + a[:, None, None] * (W @ W)
+    return np.concatenate([w, np.einsum("nij,nj->ni", Vinv, T[:, :3, 3])], axis=1)
+
+
+def _hat(w: np.ndarray) -> np.ndarray:
+    W = np.zeros((len(w), 3, 3))
+    W[:, 0, 1], W[:, 0, 2], W[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    W[:, 1, 0], W[:, 2, 0], W[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return W
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """(N, 6, 6) adjoints of (N, 4, 4) transforms for twists ``(omega, upsilon)``: ``[[R, 0], [t^ R, R]]``."""
+    R = T[:, :3, :3]
+    A = np.zeros((len(T), 6, 6))
+    A[:, :3, :3] = R
+    A[:, 3:, 3:] = R
+    A[:, 3:, :3] = _hat(T[:, :3, 3]) @ R
+    return A
+
+
+def _inverse(T: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(T)
+    Rt = np.transpose(T[:, :3, :3], (0, 2, 1))
+    out[:, :3, :3] = Rt
+    out[:, :3, 3] = -np.einsum("nij,nj->ni", Rt, T[:, :3, 3])
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray, ej: np.ndarray,
+                            meas: np.ndarray, iterations: int) -> np.ndarray:
+    """Pose-graph optimisation (ORB-SLAM ``OptimizeEssentialGraph`` with the scale fixed, RGB-D): poses ``Tcw``
+    (N, 4, 4), ``fixed`` (N,) held constant, edges ``(ei, ej)`` with measured relative poses ``meas`` = ``T_i
+    T_j^-1`` (E, 4, 4), identity information (as ORB-SLAM's Sim3 edges). Error ``log(meas^-1 T_i T_j^-1)``,
+    updates ``T <- exp(xi) T`` (``lm.update_pose``), first-order Jacobians ``Ad(meas^-1)`` and ``-Ad(meas^-1 T_i
+    T_j^-1)`` (g2o's ``EdgeSE3Expmap``), g2o's Levenberg-Marquardt damping (``lm``) over a sparse system (SuperLU).
+    Returns the optimised poses."""
+    from scipy.sparse import coo_matrix, identity
+    from scipy.sparse.linalg import spsolve
+
+    T = np.ascontiguousarray(poses, dtype=np.float64).copy()
+    n, E = len(T), len(ei)
+    col = np.full(n, -1, np.int64)
+    free = np.flatnonzero(~np.asarray(fixed, bool))
+    col[free] = np.arange(len(free))
+    if E == 0 or len(free) == 0:
+        return T
+    Minv = _inverse(meas)
+    Ji = adjoint(Minv)
+
+    def residual(T):
+        R = Minv @ T[ei] @ _inverse(T[ej])
+        return se3_log(R), R
+
+    e, R = residual(T)
+    chi = float(np.sum(e * e))
+    lam, nu = 0.0, 2.0
+    r6 = np.arange(6)
+    for it in range(iterations):
+        Jj = -adjoint(R)
+        blocks, brow, bcol = [], [], []
+        b = np.zeros(6 * len(free))
+        for Ja, a in ((Ji, ei), (Jj, ej)):
+            ca = col[a]
+            ok = ca >= 0
+            np.add.at(b, (6 * ca[ok])[:, None] + r6, -np.einsum("eki,ek->ei", Ja[ok], e[ok]))
+            for Jb, bb in ((Ji, ei), (Jj, ej)):
+                cb = col[bb]
+                both = ok & (cb >= 0)
+                blocks.append(np.einsum("eki,ekj->eij", Ja[both], Jb[both]))
+                brow.append(ca[both])
+                bcol.append(cb[both])
+        blk = np.concatenate(blocks)
+        rr = (6 * np.concatenate(brow))[:, None, None] + r6[None, :, None]
+        cc = (6 * np.concatenate(bcol))[:, None, None] + r6[None, None, :]
+        size = 6 * len(free)
+        H = coo_matrix((blk.ravel(), (np.broadcast_to(rr, blk.shape).ravel(), np.broadcast_to(cc, blk.shape).ravel())),
+                       shape=(size, size)).tocsc()
+        if it == 0:
+            lam = 1e-5 * float(H.diagonal().max())
+        trials, rho = 0, 0.0
+        while True:
+            dx = spsolve((H + lam * identity(size, format="csc")).tocsc(), b)
+            Tn = T.copy()
+            for f, k in enumerate(free):
+                Tn[k] = lm.update_pose(np.ascontiguousarray(dx[6 * f:6 * f + 6]), T[k])
+            en, Rn = residual(Tn)
+            new_chi = float(np.sum(en * en))
+            rho = (chi - new_chi) / (float(dx @ (lam * dx + b)) + 1e-3)
+            trials += 1
+            kept, lam, nu = lm._damping(rho, new_chi, lam, nu)
+            if kept:
+                T, e, R, chi = Tn, en, Rn, new_chi
+                break
+            if trials >= lm.MAX_TRIALS:
+                break
+        if rho <= 0 or not np.isfinite(lam):
+            break
+    return T

@@ -1,4 +1,5 @@
-"""Relocalisation (ORB-SLAM3 ``Tracking::Relocalization``) without DBoW2: candidate keyframes shortlisted by
+"""Relocalisation (ORB-SLAM3 ``Tracking::Relocalization``): candidate keyframes from the keyframe database (DBoW2,
+``keyframe_database.py``) when the engine has one (loop closing on), else the recent keyframes; shortlisted by
 descriptor votes, 2-NN matching, seeded EPnP RANSAC, motion-only BA and a projection search for more inliers."""
 
 from __future__ import annotations
@@ -17,18 +18,25 @@ if TYPE_CHECKING:
 
 
 def relocalise(tracker: Tracker, frame: Frame) -> bool:
-    """Recent keyframes (and the reference keyframe) as candidates, the best few by votes (``shortlist``) tried in
-    turn: matches, PnP RANSAC (seeded by the frame index), pose optimisation, a projection search of the
-    candidate's points when inliers are few. The first candidate with ``relocalisation_min_inliers`` wins and
-    becomes the reference keyframe."""
+    """Candidates: the keyframe database's relocalisation candidates of the frame's static keypoints (ORB-SLAM
+    ``DetectRelocalizationCandidates``), or without a database the recent keyframes and the reference keyframe; the
+    best few by votes (``shortlist``) tried in turn: matches, PnP RANSAC (seeded by the frame index), pose
+    optimisation, a projection search of the candidate's points when inliers are few. The first candidate with
+    ``relocalisation_min_inliers`` wins and becomes the reference keyframe."""
     cfg, map_ = tracker.cfg, tracker.map
     kfs = map_.good_keyframes()
     if not kfs or frame.n == 0:
         return False
-    cands = sorted(kfs, key=lambda k: -k.id)[: cfg.relocalisation_candidates]
-    ref = tracker.ref_kf
-    if ref is not None and not ref.bad and ref not in cands:
-        cands = [ref] + cands
+    if tracker.keyframe_db is not None:
+        cands = [map_.keyframes[k] for k in tracker.keyframe_db.relocalisation_candidates(frame.desc, ~frame.dynamic)]
+    else:
+        cands = sorted(kfs, key=lambda k: -k.id)[: cfg.relocalisation_candidates]
+        ref = tracker.ref_kf
+        if ref is not None and not ref.bad and ref not in cands:
+            cands = [ref] + cands
+    if not cands:
+        frame.mp[:] = -1
+        return False
     for kf in shortlist(tracker, frame, cands):
         frame.mp[:] = -1
         n = tracker.match_keyframe(frame, kf, cfg.nn_ratio_relocalisation)

@@ -60,6 +60,7 @@ class Tracker:
         self.last_tracked: Frame | None = None
         self.velocity: np.ndarray | None = None  # T_current_last of the constant-velocity model
         self.ref_kf: KeyFrame | None = None
+        self.keyframe_db = None  # the loop closer's KeyFrameDatabase (relocalisation candidates), None without it
         self.last_kf_frame = -(10 ** 9)
         self.last_reloc_frame = -(10 ** 9)
         self.n_inliers = 0

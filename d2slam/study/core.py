@@ -90,7 +90,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
     t_seq = time.perf_counter() - t0
 
-    if any(s.method in G.REPEATED for s in specs):
+    if any(s.method in G.REPEATED or (s.loop_closing and config.engine.loop_closing) for s in specs):
         _prepare_vocabulary(progress)
     if ex["executor"] != "serial":
         _prepare_kernels()
@@ -179,7 +179,7 @@ def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
     if record.get("key") != key or row.get("status") in RETRY:
         return None
     res = {"row": row, "trajectory": None, "aligned": None, "keypoints": record.get("keypoints"),
-           "stage_ms": record.get("stage_ms") or {}}
+           "stage_ms": record.get("stage_ms") or {}, "loops": record.get("loops")}
     npz = out / "runs" / f"{spec.run_id}.npz"
     if npz.is_file():
         try:
@@ -194,8 +194,8 @@ def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
 
 
 def _prepare_vocabulary(progress) -> None:
-    """Build the ORB vocabulary once, here, before ORB-SLAM3 runs start in parallel workers (each would otherwise
-    build it on first use). A failure is left to the runs, which record it."""
+    """Build the ORB vocabulary once, here, before ORB-SLAM3 runs and the engine's loop closing start in parallel
+    workers (each would otherwise build it on first use). A failure is left to the runs, which record it."""
     from d2slam.baselines.vocab import resolve_vocabulary
 
     try:
@@ -256,7 +256,7 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
         npz.unlink(missing_ok=True)
     # the record last, whole or not at all: --resume reuses a run only when its record is there
     record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
-              "stage_ms": r.get("stage_ms")}
+              "stage_ms": r.get("stage_ms"), "loops": r.get("loops")}
     with staged_file(out / "runs" / f"{s.run_id}.json") as tmp:
         tmp.write_text(json.dumps(record, indent=1, default=_json_default) + "\n")
 
@@ -283,8 +283,8 @@ def make_plots(out: Path, specs, results, df, summary, method_order) -> dict:
     pdir.mkdir(exist_ok=True)
     files = {}
     seed = min(s.seed for s in specs)
-    aligned = {(s.scenario, s.twin, s.method): r["aligned"] for s, r in zip(specs, results)
-               if s.seed == seed and r.get("aligned") is not None}
+    aligned = {(s.scenario, s.twin, s.method + ("" if s.loop_closing else " (no loop closing)")): r["aligned"]
+               for s, r in zip(specs, results) if s.seed == seed and r.get("aligned") is not None}
     for name, path in (("trajectories", P.plot_trajectories(aligned, pdir / "trajectories.png", seed)),
                        ("ate_bars", P.plot_ate_bars(summary, pdir / "ate_bars.png", method_order)),
                        ("keypoint_f1", P.plot_keypoint_f1(module_f1(specs, results), pdir / "keypoint_f1.png")),

@@ -1,9 +1,14 @@
 """The study grid: which runs a study makes, in one deterministic order.
 
-A run is a :class:`RunSpec` ``(scenario, method, seed, frames, twin)``: the engine (or real ORB-SLAM3) with one
-keypoint-filter method on the synthetic sequence ``scenario`` generated with ``seed`` and ``frames`` frames, or on
-its *static twin* (same camera path and room, no people, no moved objects) when ``twin`` is true. On a real TUM
-copy (``source="tum"``) the scenario names a fr3 folder and the seed only seeds the engine's RANSAC.
+A run is a :class:`RunSpec` ``(scenario, method, seed, frames, twin, source, loop_closing)``: the engine (or real
+ORB-SLAM3) with one keypoint-filter method on the synthetic sequence ``scenario`` generated with ``seed`` and
+``frames`` frames, or on its *static twin* (same camera path and room, no people, no moved objects) when ``twin`` is
+true, with the engine's loop closing on (the default, as ORB-SLAM3) or off. On a real TUM copy (``source="tum"``)
+the scenario names a fr3 folder and the seed only seeds the engine's RANSAC.
+
+The scenario with a return (``office_loop``, ours) runs ``none``, ``d2slam`` and ``oracle`` by default, each with loop
+closing on and off (its twin with it on), always at its own length (``d2slam.synth.scene.default_frames``: 1200
+frames; fewer would not return), whatever ``frames``.
 
 Order (rows of ``runs.csv``): scenarios in the paper's order (w/xyz, w/half, w/static, w/rpy, s/static), then the
 dynamic sequence before its twin, then seeds ascending, then methods in the order given. The order never depends
@@ -20,10 +25,11 @@ from d2slam.errors import D2SlamError
 # interaction scenarios of our own (a person carries a box / pushes a chair across the view).
 FR3_SCENARIOS = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy", "sitting_static")
 INTERACTION_SCENARIOS = ("walking_carry", "walking_push")
-SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS
+LOOP_SCENARIOS = ("office_loop",)  # with a return (ours): loop closing on and off
+SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS
 LABELS = {"walking_xyz": "w/xyz", "walking_halfsphere": "w/half", "walking_static": "w/static",
           "walking_rpy": "w/rpy", "sitting_static": "s/static", "walking_carry": "carry (ours)",
-          "walking_push": "push (ours)"}
+          "walking_push": "push (ours)", "office_loop": "loop (ours)"}
 TUM_FOLDERS = {s: f"rgbd_dataset_freiburg3_{s}" for s in FR3_SCENARIOS}
 DEFAULT_SEEDS = (101, 102, 103)  # CONTRIBUTING.md: study seeds, never tuned on
 DEFAULT_FRAMES = 300
@@ -44,6 +50,8 @@ TWIN_METHODS = (BASELINE, FULL, ORACLE)
 # the OIM and the geometric module do with objects people move, ours, and the ceiling.
 INTERACTION_METHODS = (BASELINE, ORBSLAM3, ORBSLAM3_MASKED, "semantic", "geometric", "no-oim", FULL, "d2slam-flow",
                        ORACLE)
+# The default methods of the scenario with a return, each run with the engine's loop closing on and off.
+LOOP_METHODS = (BASELINE, FULL, ORACLE)
 
 
 @dataclass(frozen=True, order=False)
@@ -54,6 +62,7 @@ class RunSpec:
     frames: int
     twin: bool = False
     source: str = "synth"  # "synth" (generated, cached) | "tum" (a real TUM folder)
+    loop_closing: bool = True  # the engine's loop closing (EngineConfig.loop_closing; ORB-SLAM3 always has its own)
 
     @property
     def label(self) -> str:
@@ -65,7 +74,8 @@ class RunSpec:
         """A file-name-safe identity, unique in a grid."""
         twin = "_twin" if self.twin else ""
         src = "tum_" if self.source == "tum" else ""
-        return f"{src}{self.scenario}{twin}_s{self.seed}_n{self.frames}_{self.method}"
+        loop = "" if self.loop_closing else "_noloop"
+        return f"{src}{self.scenario}{twin}_s{self.seed}_n{self.frames}_{self.method}{loop}"
 
     @property
     def sequence_key(self) -> tuple:
@@ -83,9 +93,10 @@ def _scenario_rank(name: str) -> int:
 def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: int = DEFAULT_FRAMES,
                 twin_methods=TWIN_METHODS, source: str = "synth") -> list[RunSpec]:
     """Every run of the study, in the documented order. ``methods`` default: every registered method plus
-    ``orbslam3`` (on the interaction scenarios those of ``INTERACTION_METHODS``). ``twin_methods``: the methods also
-    run on each static twin (only those of ``methods``; none on a real TUM copy, which has no twin). Duplicates in the
-    arguments are dropped (first occurrence kept)."""
+    ``orbslam3`` (on the interaction scenarios those of ``INTERACTION_METHODS``, on the scenario with a return those
+    of ``LOOP_METHODS``). ``twin_methods``: the methods also run on each static twin (only those of ``methods``; none
+    on a real TUM copy, which has no twin). On the scenario with a return every engine method of ``methods`` runs
+    with loop closing on, then off. Duplicates in the arguments are dropped (first occurrence kept)."""
     default = methods is None
     if methods is None:
         methods = default_methods(source)
@@ -111,17 +122,29 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     specs = []
     for scenario in sorted(scenarios, key=_scenario_rank):
         n = frames_of(scenario, frames, source)
-        keep = (lambda m: m in INTERACTION_METHODS) if default and scenario in INTERACTION_SCENARIOS else bool
+        keep = bool
+        if default and scenario in INTERACTION_SCENARIOS:
+            keep = INTERACTION_METHODS.__contains__
+        elif default and scenario in LOOP_SCENARIOS:
+            keep = LOOP_METHODS.__contains__
         for twin, ms in ((False, methods), (True, twins)):
             for seed in sorted(seeds):
                 for m in ms:
                     if keep(m):
                         specs.append(RunSpec(scenario, m, seed, n, twin, source))
+                if scenario in LOOP_SCENARIOS and not twin:
+                    specs += [RunSpec(scenario, m, seed, n, twin, source, loop_closing=False) for m in ms
+                              if keep(m) and m not in REPEATED]
     return specs
 
 
 def frames_of(scenario: str, frames: int | str, source: str = "synth") -> int:
-    """The frames of a scenario's runs: ``frames``, or with ``tum`` its TUM duration (all frames of a real copy)."""
+    """The frames of a scenario's runs: ``frames``, or with ``tum`` its TUM duration (all frames of a real copy); the
+    scenario with a return always its own length."""
+    if scenario in LOOP_SCENARIOS:
+        from d2slam.synth.scene import default_frames
+
+        return default_frames(scenario)
     if frames != "tum":
         return int(frames)
     from d2slam.synth.scene import tum_frames

@@ -102,7 +102,8 @@ def execute_run(spec: RunSpec | dict, options: dict) -> dict:
     if isinstance(spec, dict):
         spec = RunSpec(**spec)
     t0 = time.perf_counter()
-    out = {"row": base_row(spec), "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}}
+    out = {"row": base_row(spec), "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {},
+           "loops": None}
     try:
         with _single_threaded():
             path = _sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, spec.twin, options)
@@ -119,14 +120,16 @@ def execute_run(spec: RunSpec | dict, options: dict) -> dict:
 def base_row(spec: RunSpec) -> dict:
     return {"scenario": spec.scenario, "sequence": LABELS.get(spec.scenario, spec.scenario), "twin": int(spec.twin),
             "method": spec.method, "seed": int(spec.seed), "frames": int(spec.frames), "source": spec.source,
-            "status": "failed", "error": "", "deterministic": int(spec.method not in REPEATED), "repeats": 1}
+            "loop_closing": int(spec.loop_closing), "status": "failed", "error": "",
+            "deterministic": int(spec.method not in REPEATED), "repeats": 1}
 
 
 def _config(spec: RunSpec, options: dict):
     from d2slam.config import Config
 
     config = Config.from_dict(options["config"])
-    return dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=int(spec.seed)))
+    return dataclasses.replace(config, engine=dataclasses.replace(
+        config.engine, ransac_seed=int(spec.seed), loop_closing=bool(config.engine.loop_closing and spec.loop_closing)))
 
 
 class _Head:
@@ -155,6 +158,7 @@ class _Head:
 
 def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     from d2slam.data import open_sequence
+    from d2slam.eval.loops import loop_summary
     from d2slam.eval.trajectory import aligned_estimate, evaluate
     from d2slam.methods import get_method, run_method
     from d2slam.slam.engine import refills
@@ -162,6 +166,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
     config = _config(spec, options)
     row = out["row"]
     row["config_hash"] = config.hash()
+    row["loop_closing"] = int(config.engine.loop_closing)
     method = get_method(spec.method)
     seq = open_sequence(path)
     if spec.source == "synth" and len(seq) != spec.frames:
@@ -207,6 +212,13 @@ def _run_engine(spec: RunSpec, path: Path, options: dict, out: dict) -> None:
                    kp_static_precision=final.get("static_precision"),
                    kp_object_recall=kp["moved_objects"]["recall"], kp_object_keypoints=kp["moved_objects"]["keypoints"])
     gt = seq.groundtruth
+    loops = loop_summary(result, seq.timestamps, gt, config.evaluation)
+    out["loops"] = loops
+    if result.loop_closing:
+        row["loops"] = len(loops["loops"])
+        if gt is not None:
+            row.update(loops_true=len(loops["loops_true"]), loops_false=len(loops["loops_false"]),
+                       loop_closest_ratio=(loops["loop_closest_call"] or {}).get("ratio"))
     if gt is None:
         row.update(status="unevaluated", error="the sequence has no ground truth")
         return
@@ -410,7 +422,19 @@ def run_key(spec: RunSpec, options: dict) -> str:
     if orb:
         ident["repeats"] = options.get("orbslam3_repeats")
         ident["vocabulary"] = _vocabulary_sha()
+    elif spec.loop_closing and options["config"].get("engine", {}).get("loop_closing", True):
+        vocab = options["config"].get("engine", {}).get("vocabulary")
+        ident["vocabulary"] = _file_sha(vocab) if vocab else _vocabulary_sha()
     return _digest(ident)
+
+
+def _file_sha(path: str):
+    from d2slam.baselines.vocab import _sha256_file
+
+    try:
+        return _sha256_file(Path(path).expanduser())
+    except OSError:
+        return None
 
 
 def _digest(ident: dict) -> str:

@@ -16,17 +16,22 @@ import math
 import numpy as np
 import pandas as pd
 
-from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, ORACLE, ORBSLAM3,
-                               ORBSLAM3_MASKED, REPEATED, SCENARIOS)
+from d2slam.config import EvalConfig
+from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, LOOP_SCENARIOS, ORACLE,
+                               ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS)
 
 # runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
-KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source"]
+KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source", "loop_closing"]
 OUTCOME_COLUMNS = ["status", "error", "deterministic", "repeats", "config_hash"]
 METRIC_COLUMNS = ["ate_rmse_m", "rpe_trans_m", "rpe_rot_deg"]
 RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp_recall", "kp_f1",
                                    "kp_static_precision", "kp_object_recall", "kp_object_keypoints", "frames_tracked",
-                                   "frames_lost", "keyframes", "map_points"]
-OPTIONAL_COLUMNS = ["kp_object_recall", "kp_object_keypoints"]
+                                   "frames_lost", "keyframes", "map_points", "loops", "loops_true", "loops_false",
+                                   "loop_closest_ratio"]
+# loops: detected by the engine's loop closing, true / false against the ground truth; loop_closest_ratio: the score
+# of the wrong place-recognition candidate that went furthest over its keyframe's minimum score (d2slam.eval.loops).
+OPTIONAL_COLUMNS = ["kp_object_recall", "kp_object_keypoints", "loop_closing", "loops", "loops_true", "loops_false",
+                    "loop_closest_ratio"]
 # features_cached = 1: the run read the sequence's features extracted by an earlier run (its ms_extract and fps count
 # the extraction time stored with them, d2slam.slam.features).
 TIMING_COLUMNS = ["fps", "ms_per_frame", "ms_load", "ms_segment", "ms_extract", "ms_filter", "ms_track",
@@ -35,7 +40,7 @@ RUN_COLUMNS = KEY_COLUMNS + OUTCOME_COLUMNS + RESULT_COLUMNS + TIMING_COLUMNS
 SUMMARY_STATS = ("median", "min", "max")
 SUMMARY_METRICS = METRIC_COLUMNS + ["kp_precision", "kp_recall", "kp_f1", "frames_tracked", "frames_lost"]
 SUMMARY_TIMINGS = ["fps", "ms_per_frame"]
-GROUP = ["source", "scenario", "sequence", "twin", "method", "frames"]
+GROUP = ["source", "scenario", "sequence", "twin", "method", "frames", "loop_closing"]
 UNITS = {"ate_rmse_m": "m", "rpe_trans_m": "m", "rpe_rot_deg": "deg"}
 TITLES = {"ate_rmse_m": "ATE", "rpe_trans_m": "translational RPE", "rpe_rot_deg": "rotational RPE"}
 DECIMALS = {"ate_rmse_m": 4, "rpe_trans_m": 4, "rpe_rot_deg": 3}
@@ -60,7 +65,7 @@ def runs_frame(rows: list[dict]) -> pd.DataFrame:
     df = df[RUN_COLUMNS].copy()
     for c in RESULT_COLUMNS + TIMING_COLUMNS:
         df[c] = pd.to_numeric(df[c], errors="coerce").astype(np.float64)
-    for c in ("twin", "seed", "frames", "deterministic", "repeats"):
+    for c in ("twin", "seed", "frames", "deterministic", "repeats", "loop_closing"):  # no loop_closing: before it
         df[c] = pd.to_numeric(df[c], errors="coerce").fillna(0).astype(np.int64)
     for c in ("error", "config_hash"):
         df[c] = ["" if (isinstance(v, float) and math.isnan(v)) or v is None else str(v) for v in df[c]]
@@ -72,10 +77,10 @@ def sort_runs(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFram
     methods = list(methods) if methods is not None else list(dict.fromkeys(df["method"]))
     key = pd.DataFrame({
         "s": df["scenario"].map(lambda s: SCENARIOS.index(s) if s in SCENARIOS else len(SCENARIOS)),
-        "t": df["twin"], "seed": df["seed"],
+        "t": df["twin"], "seed": df["seed"], "lc": -df["loop_closing"],
         "m": df["method"].map(lambda m: methods.index(m) if m in methods else len(methods)),
         "src": df["source"]})
-    order = key.sort_values(["src", "s", "t", "seed", "m"], kind="mergesort").index
+    order = key.sort_values(["src", "s", "t", "seed", "lc", "m"], kind="mergesort").index
     return df.loc[order].reset_index(drop=True)
 
 
@@ -578,9 +583,11 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
     if manifest:
         out.append(f"Config hash `{manifest.get('config_hash', '')}`, git `{manifest.get('git', {}).get('commit', '')}`"
                    f", generator `{manifest.get('generator_version', '')}`.")
+    loops = df[df["scenario"].isin(LOOP_SCENARIOS)]
+    df = df[~(df["scenario"].isin(LOOP_SCENARIOS) & (df["loop_closing"] == 0))]  # the others: loop closing on
     have_orb = ORBSLAM3 in methods and np.isfinite(df[df["method"] == ORBSLAM3]["ate_rmse_m"]).any()
     ours = df[df["scenario"].isin(INTERACTION_SCENARIOS)]
-    df_all, df = df, df[~df["scenario"].isin(INTERACTION_SCENARIOS)]  # the paper's tables: the fr3 scenarios
+    df_all, df = df, df[~df["scenario"].isin(INTERACTION_SCENARIOS + LOOP_SCENARIOS)]  # the paper's: fr3
     n = 0
     for metric in METRIC_COLUMNS:
         n += 1
@@ -610,6 +617,8 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
                 "A person carries a box (`walking_carry`) or pushes a chair (`walking_push`) across the view while "
                 "another walks; the segmenter labels the people, not the objects. These scenarios go beyond the "
                 "paper's evaluation (no TUM counterpart).", "", interaction_markdown(ours, methods)]
+    if not loops.empty:
+        out += ["", "## Loop closing: the scenario with a return (ours)", "", LOOP_NOTE, "", loop_markdown(loops)]
     if set(OIM_METHODS) <= set(df_all["method"]):
         out += ["", "## What the OIM buys, and where", "",
                 "`d2slam` with and without the Object Interaction Module (eq 9-10): ATE (medians over seeds) and the "
@@ -646,6 +655,43 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
             keypoint_markdown(df, methods)]
     out += ["", "## Runs without metrics", "", failures_markdown(df), ""]
     return "\n".join(out)
+
+
+LOOP_NOTE = ("`office_loop`: the camera walks one loop round the office, returns to where it started and goes on "
+             "round part of the loop; people walk, stand and sit in view, also at the place of return. Each method "
+             "with the engine's loop closing on and off: ATE (m) median [min, max] over seeds, the paired ratio on / "
+             "off (median [min, max] of the per-seed ratios), loops detected, true and false (summed over seeds; "
+             f"false: the loop's relative pose is more than {100 * EvalConfig.loop_true_max_m:g} cm or "
+             f"{EvalConfig.loop_true_max_deg:g} deg off the truth), and the closest call: the highest score a wrong "
+             "place-recognition candidate reached over its keyframe's minimum score (max over seeds; none: no "
+             "wrong candidate).")
+
+
+def loop_markdown(df: pd.DataFrame) -> str:
+    """The scenario with a return: per (sequence, method), loop closing on and off (see ``LOOP_NOTE``)."""
+    rows = []
+    for s in _scenarios(df):
+        for twin in (0, 1):
+            d = df[(df["scenario"] == s) & (df["twin"] == twin)]
+            for m in _methods(d):
+                on = d[(d["method"] == m) & (d["loop_closing"] == 1)]
+                off = d[(d["method"] == m) & (d["loop_closing"] == 0)]
+                pair = on.set_index("seed")["ate_rmse_m"] / off.set_index("seed")["ate_rmse_m"] \
+                    if not on.empty and not off.empty else pd.Series(dtype=np.float64)
+                label = LABELS.get(s, s) + (" twin" if twin else "")
+
+                def count(c):
+                    v = on[c].to_numpy(np.float64)
+                    return str(int(np.nansum(v))) if np.isfinite(v).any() else "n/a"
+
+                ratio = on["loop_closest_ratio"].to_numpy(np.float64)
+                rows.append([label, f"`{m}`", spread_cell(on["ate_rmse_m"], 4, missing="failed") if len(on) else "",
+                             spread_cell(off["ate_rmse_m"], 4, missing="failed") if len(off) else "",
+                             spread_cell(pair.to_numpy(np.float64), 2) if len(pair) else "",
+                             count("loops"), count("loops_true"), count("loops_false"),
+                             f"{np.nanmax(ratio):.2f}" if np.isfinite(ratio).any() else "none"])
+    return _md(["sequence", "method", "ATE on (m)", "ATE off (m)", "on / off", "loops", "true", "false",
+                "closest call"], rows)
 
 
 BASELINE_METHODS = (ORBSLAM3, ORBSLAM3_MASKED, BASELINE, FULL, ORACLE)
@@ -735,7 +781,7 @@ def read_run_records(out) -> list[dict]:
     df = read_runs_csv(out / "runs.csv")
     records = []
     for r in df.itertuples(index=False):
-        spec = RunSpec(r.scenario, r.method, int(r.seed), int(r.frames), bool(r.twin), r.source)
+        spec = RunSpec(r.scenario, r.method, int(r.seed), int(r.frames), bool(r.twin), r.source, bool(r.loop_closing))
         path = out / "runs" / f"{spec.run_id}.json"
         if not path.is_file():
             continue

@@ -25,11 +25,20 @@ from d2slam.synth.textures import make_texture
 # the interaction scenarios are ours: a person carries a box / pushes a chair across the view (camera as w/xyz).
 FR3_SCENARIOS = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy", "sitting_static")
 INTERACTION_SCENARIOS = ("walking_carry", "walking_push")
-SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS
+# A sequence with a return (ours, for loop closing): the camera walks one loop round the office, looking across it at
+# every wall in turn, comes back to where it started and goes round part of the loop again; people as in w/xyz.
+LOOP_SCENARIOS = ("office_loop",)
+SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS
 # ``--frames tum``: the durations (s) of the real TUM fr3 sequences as the dataset lists them; our interaction
-# scenarios take 30 s, about the fr3 walking sequences' mean.
+# scenarios take 30 s, about the fr3 walking sequences' mean (office_loop: its default frames).
 TUM_DURATIONS = {"walking_xyz": 28.83, "walking_halfsphere": 35.81, "walking_static": 24.83, "walking_rpy": 30.61,
                  "sitting_static": 23.63, "walking_carry": 30.0, "walking_push": 30.0}
+# Frames of ``d2slam synth`` without --frames: 300 (10 s), office_loop 1200 (40 s: the return after 29 s).
+DEFAULT_FRAMES = 300
+SCENARIO_FRAMES = {"office_loop": 1200}
+# office_loop's path as fractions of the sequence: still at home until LOOP_START, one turn of the loop done at
+# LOOP_RETURN (29 s of 40), then on round the loop at the same speed; radius (m) of the circle the camera walks.
+LOOP_START, LOOP_RAMP, LOOP_RETURN, LOOP_RADIUS = 0.1, 0.06, 0.72, 0.6
 
 ROOM_X = 2.6  # half width (m)
 ROOM_Y = (-1.6, 4.0)
@@ -62,8 +71,16 @@ def frames_arg(value: str) -> int | str:
         raise argparse.ArgumentTypeError(f"expected a number of frames or 'tum', got {value!r}") from None
 
 
-def resolve_frames(scenario: str, frames: int | str, fps: float = 30.0) -> int:
-    """``frames`` as a number of frames for ``scenario`` (``tum``: its TUM duration)."""
+def default_frames(scenario: str) -> int:
+    """Frames of ``scenario`` when none are given (``SCENARIO_FRAMES``, else ``DEFAULT_FRAMES``)."""
+    return SCENARIO_FRAMES.get(scenario, DEFAULT_FRAMES)
+
+
+def resolve_frames(scenario: str, frames: int | str | None, fps: float = 30.0) -> int:
+    """``frames`` as a number of frames for ``scenario`` (``tum``: its TUM duration; None, or ``tum`` for a scenario
+    without one: ``default_frames``)."""
+    if frames is None or (frames == "tum" and scenario in SCENARIO_FRAMES):
+        return default_frames(scenario)
     return tum_frames(scenario, fps) if frames == "tum" else int(frames)
 
 
@@ -72,10 +89,12 @@ def resolve_frames(scenario: str, frames: int | str, fps: float = 30.0) -> int:
 # --------------------------------------------------------------------------------------------------
 class CameraPath:
     """Smooth analytic camera path of a scenario: ``poses(t)`` -> (N, 4, 4) ``T_world_camera``, t in seconds from
-    the first frame. Both the 30 Hz frames and the 100 Hz ground truth sample this same function."""
+    the first frame. Both the 30 Hz frames and the 100 Hz ground truth sample this same function. ``duration``
+    (s): the sequence's length, which office_loop's path is scaled to (its loop closes at ``LOOP_RETURN`` of it)."""
 
-    def __init__(self, scenario: str, rng: np.random.Generator):
+    def __init__(self, scenario: str, rng: np.random.Generator, duration: float | None = None):
         self.scenario = scenario
+        self.duration = duration
         self.ph = rng.uniform(0, 2 * np.pi, size=12)
         self.per = rng.uniform(0.85, 1.15, size=12)  # period factors
 
@@ -115,6 +134,10 @@ class CameraPath:
                                         self._sin(t, 2, 1.9, a) + self._sin(t, 8, 0.37, a / 3)], axis=1)
             R = look_at(CAMERA_HOME[None], CAMERA_TARGET).repeat(n, axis=0)
             yaw, pitch, roll = self._sin(t, 3, 2.1, ang), self._sin(t, 4, 1.3, ang), self._sin(t, 5, 2.9, ang)
+        elif S == "office_loop":
+            C, R = self._loop(t)
+            yaw, pitch, roll = (self._sin(t, 3, 7.0, 3 * deg), self._sin(t, 4, 5.7, 3 * deg),
+                                self._sin(t, 5, 6.3, 2 * deg))
         else:
             raise D2SlamError(f"unknown scenario {S!r}; choose one of {', '.join(SCENARIOS)}")
         # extra rotation in the camera frame: yaw about y (down), pitch about x (right), roll about z (forward)
@@ -124,6 +147,31 @@ class CameraPath:
         T[:, :3, 3] = C
         T[:, 3, 3] = 1.0
         return T
+
+    def loop_angle(self, t) -> np.ndarray:
+        """office_loop: the heading (rad, 0 = +Y, clockwise seen from above) at t: 0 until ``LOOP_START`` of the
+        duration, a smooth start over ``LOOP_RAMP``, then a constant speed that completes the turn (2 pi) at
+        ``LOOP_RETURN`` and goes on."""
+        if not self.duration:
+            raise D2SlamError("the office_loop camera path needs the sequence's duration")
+        u = np.asarray(t, float) / self.duration
+        a, r = LOOP_START, LOOP_RAMP
+        x = np.clip((u - a) / r, 0.0, 1.0)
+        # integral of the smoothstep ramp from a to u (in units of u), then linear: r (x^3 - x^4 / 2) below a + r
+        ramp = r * (x ** 3 - 0.5 * x ** 4) + np.maximum(u - a - r, 0.0)
+        return 2 * np.pi * ramp / (LOOP_RETURN - a - 0.5 * r)
+
+    def _loop(self, t):
+        """office_loop: the camera walks a circle of ``LOOP_RADIUS`` with its home on it, always looking across the
+        circle's centre, so it faces each wall in turn (the desks at home, then the right wall, the front wall, the
+        left wall, the desks again); its height bobs by a few cm."""
+        th = self.loop_angle(t)
+        look = np.stack([np.sin(th), np.cos(th), np.zeros_like(th)], axis=1)
+        centre = CAMERA_HOME + np.array([0.0, LOOP_RADIUS, 0.0])
+        C = centre - LOOP_RADIUS * look
+        C[:, 2] += self._sin(t, 2, 5.1, 0.05)
+        target = C + 3.0 * look + np.array([0.0, 0.0, -0.35])  # as CAMERA_TARGET from home: 3 m ahead, 35 cm down
+        return C, look_at(C, target)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -153,7 +201,7 @@ class Scene:
         self.depth_offset = clock.uniform(*c.depth_time_offset, size=frames)
         self.duration = frames / c.fps
         self.t0 = c.start_time
-        self.camera = CameraPath(scenario, np.random.default_rng([self.seed, 3, sidx]))
+        self.camera = CameraPath(scenario, np.random.default_rng([self.seed, 3, sidx]), self.duration)
         self.textures: list[np.ndarray] = []
         self.static_quads: list[Quad] = []
         self.floor_rects: list[tuple[float, float, float, float]] = []  # furniture on the floor (people avoid it)
