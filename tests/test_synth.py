@@ -278,6 +278,21 @@ def test_cli_synth_and_rerun_replaces(tmp_path, capsys):
     assert exc.value.code == 2
 
 
+def test_bench_synth_reports_cpu_per_frame_and_in_all(capsys):
+    """`d2slam bench synth` reports the CPU time of a frame in the steady state (median) and of the whole generation
+    (this process and its workers, start-up included), which a loaded machine does not inflate as it does wall time."""
+    import re
+
+    from d2slam.cli import main
+
+    assert main(["bench", "synth", "--scenario", "sitting_static", "--frames", "3", "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    median, mean = map(float, re.search(r"inside the workers: median ([\d.]+) ms, mean ([\d.]+) ms", out).groups())
+    total, per = map(float, re.search(r"start-up included\): ([\d.]+) s = ([\d.]+) ms per frame", out).groups())
+    assert 0 < median <= mean and abs(per - 1e3 * total / 3) <= 1e3 * 0.05 / 3 + 0.1  # total printed to 0.1 s
+    assert 1e3 * total >= 3 * median
+
+
 def test_config_constants_drive_the_noise():
     cfg = SynthConfig()
     assert (cfg.depth_noise_a, cfg.depth_noise_b, cfg.depth_noise_c) == (0.0012, 0.0019, 0.4)
