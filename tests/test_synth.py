@@ -279,8 +279,9 @@ def test_cli_synth_and_rerun_replaces(tmp_path, capsys):
 
 
 def test_bench_synth_reports_cpu_per_frame_and_in_all(capsys):
-    """`d2slam bench synth` reports the CPU time of a frame in the steady state (median) and of the whole generation
-    (this process and its workers, start-up included), which a loaded machine does not inflate as it does wall time."""
+    """`d2slam bench synth` reports the CPU time of a frame in the steady state (median), by stage, and of the whole
+    generation (this process and its workers, start-up included), which a loaded machine does not inflate as it
+    does wall time."""
     import re
 
     from d2slam.cli import main
@@ -291,6 +292,8 @@ def test_bench_synth_reports_cpu_per_frame_and_in_all(capsys):
     total, per = map(float, re.search(r"start-up included\): ([\d.]+) s = ([\d.]+) ms per frame", out).groups())
     assert 0 < median <= mean and abs(per - 1e3 * total / 3) <= 1e3 * 0.05 / 3 + 0.1  # total printed to 0.1 s
     assert 1e3 * total >= 3 * median
+    split = dict(re.findall(r"(\w+) ([\d.]+) ms", out.split("by stage (median): ")[1].splitlines()[0]))
+    assert list(split) == ["bodies", "gl", "sensor", "segmenter", "write"] and float(split["gl"]) > 0
 
 
 def test_config_constants_drive_the_noise():

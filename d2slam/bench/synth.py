@@ -3,7 +3,8 @@
 Generates a sequence (default: 300 frames of walking_xyz, 640x480) into a temporary folder with the normal process
 pool and prints frames per second over the whole run (scene set-up, worker start, rendering, sensor model,
 simulated segmenter, PNG writing), the mean per-frame time of each stage (measured inside the workers, so
-the stages of concurrent workers overlap in wall time) and the CPU time: per frame inside the workers (median: a
+the stages of concurrent workers overlap in wall time) and the CPU time: by stage (bodies: posing and uploading the
+people; gl: the two OpenGL passes; sensor; segmenter; write: the four PNGs), per frame inside the workers (median: a
 frame in the steady state; mean: with each worker's first frame, which loads the body model and compiles the
 shaders) and in all (this process and its workers, start-up included), which a loaded machine does not inflate as
 it does the wall times. Target: >= 10 frames/s on a 2-core machine."""
@@ -52,6 +53,9 @@ def run(args) -> int:
           f"(target >= {TARGET_FPS:.0f}: {'met' if fps >= TARGET_FPS else 'NOT met'})")
     print("  per frame and worker: " + ", ".join(f"{k} {v:.1f} ms" for k, v in ms.items())
           + f" = {per_frame:.1f} ms")
+    split = {k: float(np.median([s["stage_cpu_ms"][k] for s in r["stats"]])) for k in r["stats"][0]["stage_cpu_ms"]}
+    print("  CPU per frame by stage (median): " + ", ".join(f"{k} {v:.1f} ms" for k, v in split.items())
+          + " (gl: the colour and id passes, their read-back included)")
     cpu = np.array([s["cpu_ms"] for s in r["stats"]])
     print(f"  CPU time per frame inside the workers: median {np.median(cpu):.1f} ms, mean {cpu.mean():.1f} ms "
           f"(with each worker's first frame); wall/CPU ratio {per_frame / cpu.mean():.2f} (> 1 when other processes "

@@ -72,23 +72,41 @@ def blur_vector(scene: Scene, t: float, T: np.ndarray, z_centre: float) -> tuple
 
 def render_frame(scene: Scene, renderer: WorldRenderer, i: int) -> dict:
     """Everything of frame i as arrays: rgb (uint8 RGB), depth (uint16 PNG values), depth_clean (float32 m),
-    mask_gt, mask_sim (uint8), plus timings (ms)."""
+    mask_gt, mask_sim (uint8), plus the wall time (``ms``) and the CPU time of this process (``cpu_ms``: its OpenGL
+    rasteriser threads included) of each stage: posing the bodies (``bodies``), the two OpenGL passes (``gl``), the
+    sensor model, the simulated segmenter."""
     cfg = scene.cfg
     t = float(scene.t_rel[i])
     sidx = SCENARIOS.index(scene.scenario)
     rngs = [np.random.default_rng([scene.seed, sidx, i, k]) for k in (11, 12, 13)]
-    t_a = time.perf_counter()
+    clock = _Stages()
     T = scene.camera.poses([t])[0]
-    rgb, z, ids = renderer.render(t, T)
-    t_b = time.perf_counter()
+    renderer.update(t)
+    clock.lap("bodies")
+    rgb, z, ids = renderer.draw(T)
+    clock.lap("gl")
     depth = depth_to_png(z, rngs[0], cfg)
     zc = float(z[cfg.height // 2, cfg.width // 2])
     rgb_out = rgb_sensor(rgb, blur_vector(scene, t, T, zc), rngs[1], cfg, bank_seed=scene.seed)
-    t_c = time.perf_counter()
+    clock.lap("sensor")
     sim = simulate_segmenter(ids, z, scene.person_ids, scene.K, rngs[2], cfg)
-    t_d = time.perf_counter()
+    clock.lap("segmenter")
     return {"rgb": rgb_out, "depth": depth, "depth_clean": z, "mask_gt": ids, "mask_sim": sim, "pose": T,
-            "ms": {"render": 1e3 * (t_b - t_a), "sensor": 1e3 * (t_c - t_b), "segmenter": 1e3 * (t_d - t_c)}}
+            "ms": clock.ms, "cpu_ms": clock.cpu_ms}
+
+
+class _Stages:
+    """Wall and process CPU time (ms) of consecutive stages."""
+
+    def __init__(self):
+        self.ms, self.cpu_ms = {}, {}
+        self._wall, self._cpu = time.perf_counter(), time.process_time()
+
+    def lap(self, name: str) -> None:
+        wall, cpu = time.perf_counter(), time.process_time()
+        self.ms[name] = 1e3 * (wall - self._wall)
+        self.cpu_ms[name] = 1e3 * (cpu - self._cpu)
+        self._wall, self._cpu = wall, cpu
 
 
 def _write(path: Path, img: np.ndarray, compression: int, labels: bool = False) -> None:
@@ -107,7 +125,7 @@ def _frame_job(i: int) -> dict:
     scene, renderer, out = _STATE["scene"], _STATE["renderer"], _STATE["out"]
     cpu0 = time.process_time()
     f = render_frame(scene, renderer, i)
-    t_w = time.perf_counter()
+    clock = _Stages()
     comp = scene.cfg.png_compression
     name = stamp(scene.t0 + scene.t_rel[i]) + ".png"
     dname = stamp(scene.t0 + scene.t_rel[i] + scene.depth_offset[i]) + ".png"
@@ -115,11 +133,12 @@ def _frame_job(i: int) -> dict:
     _write(out / "depth" / dname, f["depth"], comp)
     _write(out / "mask_gt" / name, f["mask_gt"], comp, labels=True)
     _write(out / "mask_sim" / name, f["mask_sim"], comp, labels=True)
-    f["ms"]["write"] = 1e3 * (time.perf_counter() - t_w)
+    clock.lap("write")
     cpu_ms = 1e3 * (time.process_time() - cpu0)
     counts = np.bincount(f["mask_gt"].ravel(), minlength=256)
     n = f["mask_gt"].size
-    return {"index": i, "ms": f["ms"], "cpu_ms": cpu_ms,
+    return {"index": i, "ms": {**f["ms"], **clock.ms}, "stage_cpu_ms": {**f["cpu_ms"], **clock.cpu_ms},
+            "cpu_ms": cpu_ms,
             "person_fraction": float(sum(counts[p] for p in scene.person_ids)) / n,
             "moved_fraction": float(sum(counts[o] for o in scene.moved_object_ids)) / n,
             "sim_fraction": float(np.count_nonzero(f["mask_sim"])) / n,
