@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Iterable, Iterator, TypeVar
+from typing import Callable, Iterable, Iterator, TypeVar
 
 from d2slam.config import CLI
 
@@ -43,10 +43,13 @@ def _is_tty(stream) -> bool:
 
 
 def progress(iterable: Iterable[T], total: int | None = None, desc: str = "", unit: str = "frame",
-             enabled: bool = True, stream=None, interval: float | None = None, clock=time.monotonic) -> Iterator[T]:
+             enabled: bool = True, stream=None, interval: float | None = None, clock=time.monotonic,
+             weight: Callable[[T], float] | None = None, total_weight: float | None = None) -> Iterator[T]:
     """Iterate over ``iterable`` showing progress on stderr (or ``stream``): a tqdm bar on a terminal; otherwise
     ``d2slam: DESC: k/N UNITs, 12 s, about 30 s left`` every ``interval`` seconds (``CliConfig.progress_log_s``) and
-    a last line when it ends. ``enabled=False``: nothing is shown."""
+    a last line when it ends. ``enabled=False``: nothing is shown. Items of unequal cost (a 1200-frame sequence
+    beside 300-frame ones): ``weight(item)`` and ``total_weight`` make the time left follow the work done, not the
+    count."""
     stream = stream or sys.stderr
     if total is None and hasattr(iterable, "__len__"):
         total = len(iterable)  # type: ignore[arg-type]
@@ -60,14 +63,16 @@ def progress(iterable: Iterable[T], total: int | None = None, desc: str = "", un
         return
     every = CLI.progress_log_s if interval is None else float(interval)
     start = last = clock()
-    done = 0
+    done, done_w = 0, 0.0
     of = f"/{total}" if total else ""
     for item in iterable:
         yield item
         done += 1
+        done_w += weight(item) if weight is not None else 1.0
         now = clock()
         if now - last >= every and (not total or done < total):
             last = now
-            left = f", about {duration((now - start) / done * (total - done))} left" if total else ""
+            share = done_w / total_weight if weight is not None and total_weight else done / total if total else 0.0
+            left = f", about {duration((now - start) * (1.0 - share) / share)} left" if share > 0 else ""
             print(f"d2slam: {desc}: {done}{of} {unit}s, {duration(now - start)}{left}", file=stream, flush=True)
     print(f"d2slam: {desc}: {done}{of} {unit}s in {duration(clock() - start)}", file=stream, flush=True)

@@ -33,6 +33,17 @@ def test_log_lines_every_interval_when_not_a_terminal():
     assert CLI.progress_log_s > 0
 
 
+def test_time_left_follows_the_work_done_when_items_differ_in_cost():
+    """Four long items done first (a 1200-frame sequence each) and 12 short ones left (300 frames): the time left is
+    what the frames left take at the pace so far, not what the items left would take at the pace of the long ones."""
+    stream = io.StringIO()
+    cost = [1200.0] * 4 + [300.0] * 12
+    done = list(progress(range(16), desc="segmentation", unit="sequence", stream=stream, interval=8.0, clock=Clock(),
+                         weight=lambda i: cost[i], total_weight=sum(cost)))
+    assert done == list(range(16))
+    assert stream.getvalue().splitlines()[0] == "d2slam: segmentation: 4/16 sequences, 8 s, about 6 s left"
+
+
 def test_a_terminal_gets_a_bar():
     class Tty(io.StringIO):
         def isatty(self):

@@ -51,12 +51,14 @@ def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, 
     items = list(items)
     if not items:
         return []
-    order = dispatch_order([cost(it) for it in items]) if cost is not None else list(range(len(items)))
+    costs = [float(cost(it)) for it in items] if cost is not None else [1.0] * len(items)
+    order = dispatch_order(costs)
     run = {"serial": _serial, "joblib": _joblib, "dask": _dask}[executor_name(jobs, scheduler)]
     results = run(fn, items, order, args, jobs if scheduler is None else scheduler)
     out = [None] * len(items)
     try:
-        for i, res in follow(results, total=len(items), desc=desc, unit=unit, enabled=progress is not False):
+        for i, res in follow(results, total=len(items), desc=desc, unit=unit, enabled=progress is not False,
+                             weight=lambda r: costs[r[0]], total_weight=sum(costs)):
             out[i] = res
             if on_result is not None:
                 on_result(i, res)
