@@ -45,6 +45,7 @@ import numpy as np
 
 from d2slam.config import DEFAULT, Config
 from d2slam.errors import D2SlamError
+from d2slam.record import RunRecord
 
 METHOD = "orbslam3"
 MASKED_METHOD = "orbslam3-masked"
@@ -391,11 +392,11 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
                  repeats: int = 1, vocab: str | Path | None = None, settings: str | Path | None = None,
                  camera: str | None = None, max_frames: int = 0, timeout: float | None = None,
                  config: Config = DEFAULT, progress: bool = True, evaluate: bool = True,
-                 keep_work: bool = False, masks: str | None = None) -> dict:
+                 keep_work: bool = False, masks: str | None = None) -> RunRecord:
     """Run the real ORB-SLAM3 RGB-D on ``sequence_dir`` ``repeats`` times; write ``out_traj`` (TUM) and the run
-    JSON (``metrics_json``); return the run dict. Never raises for an ORB-SLAM3 failure: the dict's ``status``
-    says what happened and ``message`` why (see the module docstring). Bad arguments (no sequence, repeats < 1)
-    raise :class:`D2SlamError`.
+    JSON (``metrics_json``); return the run (``RunRecord``, the JSON as its ``orbslam3``). Never raises for an
+    ORB-SLAM3 failure: the record's ``status`` says what happened and ``error`` why (see the module docstring).
+    Bad arguments (no sequence, repeats < 1) raise :class:`D2SlamError`.
 
     ``vocab``: a DBoW2 text file (default ``$PYORBSLAM3_VOCAB``, else the project-built vocabulary, built on first
     use); ``settings``: an ORB-SLAM3 1.0 YAML (default: generated from the sequence's camera); ``camera``: override
@@ -403,13 +404,55 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     seconds per repeat (default load + per-frame budget of :class:`~d2slam.config.BaselineConfig`); ``masks``: the
     person masks to remove from the frames (``orbslam3-masked``, module docstring; they must exist: a synthetic
     sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`)."""
+    out_traj = Path(out_traj).expanduser()
+    report, seq = _report(sequence_dir, out_traj, metrics_json, repeats, vocab, settings, camera, max_frames, timeout,
+                          config, progress, evaluate, keep_work, masks)
+    return run_record(report, seq, evaluate)
+
+
+def run_record(report: dict, seq, evaluate: bool = True) -> RunRecord:
+    """The :class:`RunRecord` of an ORB-SLAM3 run JSON (``report``) on ``seq``: its trajectory (read back), ORB-SLAM3's
+    status (``unevaluated`` when it tracked but gave no metrics), the median ATE and RPE over the repeats with the
+    ATE's range, and the aligned positions of the trajectory written (with ``evaluate`` and ground truth)."""
+    from d2slam.data import read_tum_trajectory
+    from d2slam.eval.trajectory import Evaluation, TrajectoryMetrics, aligned_estimate
+
+    status = report.get("status", "failed")
+    metrics = report.get("metrics") or {}
+    spread = (report.get("metrics_spread") or {}).get("ate_rmse_m")
+    error = "" if status == "ok" else str(report.get("message") or report.get("metrics_error") or "")
+    if not metrics:
+        status = status if status in ("failed", "crashed", "timeout") else "unevaluated"
+        error = error or str(report.get("metrics_error") or "no metrics")
+    path = report.get("trajectory")
+    traj = read_tum_trajectory(path) if path and Path(path).is_file() else None
+    aligned = None
+    if evaluate and traj is not None and seq.groundtruth is not None:
+        try:
+            aligned = aligned_estimate(seq.groundtruth, traj)[:2]
+        except Exception:  # noqa: BLE001 - only the plot misses it
+            aligned = None
+    evaluation = Evaluation(TrajectoryMetrics(**metrics) if metrics else None, metrics.get("ate_rmse_m"),
+                            str(report.get("metrics_error") or ""), aligned)
+    ate = metrics.get("ate_rmse_m")
+    return RunRecord(
+        method=report["method"], sequence=report.get("name", ""), trajectory=traj, frames=report.get("frames"),
+        tracked=report.get("tracked"), lost=report.get("lost"), fps=report.get("fps"),
+        ms_per_frame=report.get("ms_per_frame"), config_hash=report["config_hash"], loop_closing=True, status=status,
+        error=error, evaluation=evaluation if metrics or aligned is not None else None, masks=report.get("masks"),
+        masks_origin=report.get("masks_origin"), repeats=int(report.get("repeats", 1)),
+        ate_range=(spread["min"], spread["max"]) if spread else (ate, ate) if metrics else None, orbslam3=report)
+
+
+def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, settings, camera, max_frames: int,
+            timeout, config: Config, progress: bool, evaluate: bool, keep_work: bool, masks) -> tuple[dict, object]:
+    """:func:`run_orbslam3`'s runs: (the run JSON, the sequence)."""
     from d2slam.baselines.vocab import resolve_vocabulary
     from d2slam.data import open_sequence
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
     from d2slam.outputs import check_output_file
 
     sequence_dir = Path(sequence_dir).expanduser().resolve()
-    out_traj = Path(out_traj).expanduser()
     if repeats < 1:
         raise D2SlamError(f"repeats must be >= 1, got {repeats}")
     check_output_file(out_traj, "trajectory")
@@ -445,7 +488,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
             vinfo = resolve_vocabulary(vocab, build=True, progress=progress)
         except D2SlamError as exc:
             return _finish(dict(base, status="failed", message=f"vocabulary: {exc}", vocabulary=None),
-                           metrics_json)
+                           metrics_json), seq
         base["vocabulary"] = vinfo
         if settings is None:
             settings_path = out_traj.with_name(out_traj.stem + ".orbslam3.yaml")
@@ -456,7 +499,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         try:
             check_settings(settings_path)
         except D2SlamError as exc:
-            return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json)
+            return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json), seq
         store = _frame_store_root(seq, n_frames, repeats, config, work_root)
         if store is not None:
             from d2slam.baselines._orbslam3_worker import write_frame_store
@@ -483,7 +526,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
                 res.update(evaluate_trajectory(seq, res["trajectory"]))
                 res["seconds"]["evaluate"] = round(time.perf_counter() - t0, 3)
             runs.append(res)
-        return _finish(_summarise(base, runs, out_traj), metrics_json)
+        return _finish(_summarise(base, runs, out_traj), metrics_json), seq
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
         if store is not None:
@@ -608,36 +651,3 @@ def _json_default(o):
     if isinstance(o, Path):
         return str(o)
     raise TypeError(type(o).__name__)
-
-
-def cli_run(args) -> int:
-    """``d2slam run SEQUENCE_DIR --method orbslam3 --out TRAJ [--metrics-json RUN.json] [--camera fr3]`` (for the
-    run command to call when ``args.method == "orbslam3"``; optional ``args.repeats``, ``args.vocab``). Prints the
-    outcome; exit status 0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed."""
-    run = run_orbslam3(args.sequence, args.out, getattr(args, "metrics_json", None),
-                       repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
-                       camera=getattr(args, "camera", None), progress=not getattr(args, "quiet", False),
-                       masks=getattr(args, "masks", None))
-    from d2slam.commands.run import camera_text, summary_line
-
-    stream = sys.stdout if run["status"] in ("ok", "lost") else sys.stderr
-    v = run.get("vocabulary") or {}
-    masks = f" ({run['masks']} masks)" if run.get("masks") else ""
-    print(f"{run['method']} {run.get('name', args.sequence)}{masks}: {run['status']}: {run['message']}", file=stream)
-    if v:
-        print(f"  vocabulary: {v['kind']} {v['path']} (sha256 {v['sha256'][:16]})", file=stream)
-    if isinstance(run.get("ms_per_frame"), (int, float)):
-        print(f"  {run['ms_per_frame']:.1f} ms/frame", file=stream)
-    if not getattr(args, "quiet", False):
-        repeats = int(run.get("repeats", 1) or 1)
-        many = " (median of {repeats} runs)".format(repeats=repeats) if repeats > 1 else ""
-        ate = run.get("metrics", {}).get("ate_rmse_m")
-        masks = f"{run['masks']} ({run.get('masks_origin')})" if run.get("masks") else "none"
-        tracked = run.get("tracked") if isinstance(run.get("tracked"), (int, float)) else 0
-        print(summary_line(run["method"], masks,
-                           camera_text(run.get("camera", "?"), run.get("camera_source", "?"),
-                                       getattr(args, "camera", None)),
-                           tracked, run.get("frames", run.get("frames_expected", 0)), ate,
-                           [run.get("trajectory"), getattr(args, "metrics_json", None)], ate_note=many),
-              file=stream)
-    return {"ok": 0, "lost": 1, "reset": 1}.get(run["status"], 2)

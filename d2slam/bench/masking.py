@@ -165,7 +165,7 @@ def _slam(args, options) -> None:
             for sc, sd in seqs:
                 path = ensure_sequence(sc, sd, args.frames, False)
                 run = run_orbslam3(path, Path(tmp) / "t.txt", repeats=args.repeats, config=config, progress=False,
-                                   masks=args.masks)
+                                   masks=args.masks).orbslam3
                 m, spread = run.get("metrics") or {}, (run.get("metrics_spread") or {}).get("ate_rmse_m")
                 if "ate_rmse_m" in m:
                     lo, hi = (spread["min"], spread["max"]) if spread else (m["ate_rmse_m"], m["ate_rmse_m"])
