@@ -202,6 +202,58 @@ def test_interrupted_study_keeps_finished_runs_for_resume(serial, tmp_path, monk
     _same(res.runs, serial.runs)
 
 
+def test_study_phases_say_what_they_do_on_stderr_without_a_terminal(serial, tmp_path, capsys, monkeypatch):
+    """Without a terminal (CI, nohup, a pipe: pytest's captured stderr here) each phase says what it will do, with
+    an estimate, and then logs its progress and its end on stderr; stdout stays for the results."""
+    import dataclasses
+
+    import d2slam.progress
+
+    monkeypatch.setattr(d2slam.progress, "CLI", dataclasses.replace(d2slam.progress.CLI, progress_log_s=0.0))
+    capsys.readouterr()
+    run_study(tmp_path / "out", jobs=1, plots=False, **GRID)
+    cap = capsys.readouterr()
+    err = cap.err.splitlines()
+
+    def at(prefix: str) -> int:
+        found = [k for k, line in enumerate(err) if line.startswith(prefix)]
+        assert found, (prefix, err)
+        return found[0]
+
+    order = [at("d2slam: sequences: 0 to generate on 1 worker (0 frames), 1 cached"),
+             at("d2slam: sequences: 1/1 sequences in "),
+             at("d2slam: segmentation: 1 sequence with the real segmenter on 1 worker (40 frames; masks already "
+                "in the cache are read) (about "),
+             at("d2slam: segmentation: 1/1 sequences in "),
+             at("d2slam: runs: 2 on 1 worker (about "),
+             at("d2slam: runs: 1/2 runs, "),
+             at("d2slam: runs: 2/2 runs in ")]
+    assert order == sorted(order)
+    assert "d2slam:" not in cap.out
+
+
+def test_phase_plans_count_what_is_to_do_and_estimate_it(tmp_path):
+    from d2slam.config import CLI
+    from d2slam.study.core import phase_plans, run_cost
+    from d2slam.study.runner import run_options
+    from d2slam.synth.generate import estimated_seconds
+
+    options = run_options(cache_root=tmp_path)  # an empty sequence cache
+    keys = [("synth", "walking_xyz", 101, 300, False), ("synth", "walking_xyz", 102, 300, False),
+            ("tum", "walking_xyz", 0, 0, False)]
+    what, seconds = phase_plans(options, 2)["sequences"](keys)
+    assert what == "sequences: 2 to generate on 2 workers (600 frames), 0 cached, 1 real (TUM)"
+    assert seconds == pytest.approx(estimated_seconds(300, 1))  # one each on the two workers
+    what, seconds = phase_plans(options, 2)["segmentation"](keys[:2])
+    assert "2 sequences" in what and "600 frames" in what and seconds == pytest.approx(300 * CLI.segment_frame_s)
+    assert phase_plans(options, 2)["segmentation"](keys)[1] is None  # all frames of a real sequence: unknown
+    specs = [RunSpec("walking_xyz", m, 101, 300) for m in ("none", "d2slam", "none")]
+    what, seconds = phase_plans(options, 2)["runs"](specs)
+    assert what == "runs: 3 on 2 workers"
+    assert seconds == pytest.approx(sum(run_cost(s, options) for s in specs) / 2e3)
+    assert phase_plans(options, None)["runs"](specs) == ("runs: 3", None)  # a Dask cluster: workers unknown
+
+
 def test_map_ordered_reports_each_result(tmp_path):
     from d2slam.study.executors import map_ordered
 

@@ -278,6 +278,39 @@ def test_cli_synth_and_rerun_replaces(tmp_path, capsys):
     assert exc.value.code == 2
 
 
+def test_bench_synth_reports_cpu_per_frame_and_in_all(capsys):
+    """`d2slam bench synth` reports the CPU time of a frame in the steady state (median), by stage, and of the whole
+    generation (this process and its workers, start-up included), which a loaded machine does not inflate as it
+    does wall time."""
+    import re
+
+    from d2slam.cli import main
+
+    assert main(["bench", "synth", "--scenario", "sitting_static", "--frames", "3", "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    median, mean = map(float, re.search(r"inside the workers: median ([\d.]+) ms, mean ([\d.]+) ms", out).groups())
+    total, per = map(float, re.search(r"start-up included\): ([\d.]+) s = ([\d.]+) ms per frame", out).groups())
+    assert 0 < median <= mean and abs(per - 1e3 * total / 3) <= 1e3 * 0.05 / 3 + 0.1  # total printed to 0.1 s
+    assert 1e3 * total >= 3 * median
+    split = dict(re.findall(r"(\w+) ([\d.]+) ms", out.split("by stage (median): ")[1].splitlines()[0]))
+    assert list(split) == ["bodies", "gl", "sensor", "segmenter", "write"] and float(split["gl"]) > 0
+
+
+def test_png_writer_round_trips_through_opencv(tmp_path):
+    """The generator's own PNG writer (zlib-ng, SUB filter) for RGB, 16-bit depth and 8-bit grey, odd sizes too:
+    OpenCV reads back exactly the pixels (RGB in OpenCV's BGR order)."""
+    G = importlib.import_module("d2slam.synth.generate")
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 256, (7, 5, 3), dtype=np.uint8), rng.integers(0, 65536, (9, 13), dtype=np.uint16),
+              rng.integers(0, 256, (4, 3), dtype=np.uint8), rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)]
+    for k, img in enumerate(images):
+        path = tmp_path / f"{k}.png"
+        G._write(path, img, SynthConfig().png_compression)
+        back = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        assert back.dtype == img.dtype and np.array_equal(back, img if img.ndim == 2 else img[:, :, ::-1])
+        assert path.read_bytes() == G.png_bytes(img, SynthConfig().png_compression)  # deterministic
+
+
 def test_config_constants_drive_the_noise():
     cfg = SynthConfig()
     assert (cfg.depth_noise_a, cfg.depth_noise_b, cfg.depth_noise_c) == (0.0012, 0.0019, 0.4)

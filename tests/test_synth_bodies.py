@@ -105,6 +105,26 @@ def test_renderer_metric_depth_ids_and_determinism():
     assert 18 * 18 <= (ids == 7).sum() <= 22 * 22
 
 
+def test_colour_pass_culls_back_faces_like_the_id_pass():
+    """A textured surface seen from behind is drawn in neither pass: the colour image and the id mask agree (the id
+    pass always culls back faces; the colour pass must too, or silhouettes would show the far side of a body)."""
+    r = _plane_renderer()
+    near = np.array([[-0.3, 1.5, -0.3], [0.3, 1.5, -0.3], [0.3, 1.5, 0.3], [-0.3, 1.5, 0.3]], float)
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    front, back = np.array([[0, 1, 2], [0, 2, 3]]), np.array([[0, 2, 1], [0, 3, 2]])  # the wall's winding, reversed
+    out = {}
+    for name, tri in (("front", front), ("back", back)):
+        r.set_dynamic([(7, near, tri, np.full((4, 3), 0.2), uv)])
+        out[name] = r.render(_camera())
+    r.set_dynamic([])
+    wall = r.render(_camera())
+    r.close()
+    rgb, _, ids = out["front"]
+    assert (ids == 7).sum() > 300 and not np.array_equal(rgb, wall[0])  # seen from the front: drawn in both
+    rgb, depth, ids = out["back"]
+    assert not (ids == 7).any() and np.array_equal(rgb, wall[0]) and np.array_equal(depth, wall[1])
+
+
 def test_missing_body_package_is_one_clear_error(monkeypatch):
     import importlib.util
 

@@ -121,6 +121,22 @@ def test_depth_beyond_range_is_a_hole_and_blob_fraction_matches():
     assert n > 5 and np.median(sizes) > 10 and sizes.max() < 0.01 * png.size
 
 
+def test_kth_smallest_is_exactly_the_partition_value():
+    """The blob threshold: the same value as a full partition, with ties, skewed data and small arrays (the full
+    partition's path)."""
+    from d2slam.synth.sensor import kth_smallest
+
+    rng = np.random.default_rng(4)
+    cases = [rng.random((480, 640), dtype=np.float32), np.round(rng.random((200, 300)) * 50).astype(np.float32),
+             np.sort(rng.random(100_000)), rng.random((20, 10)), np.full((300, 300), 0.5, np.float32)]
+    adverse = np.ones(100_000)
+    adverse[::16] = rng.random(6250) * 0.5  # the sample holds all the small values: its bound is too low
+    cases.append(adverse)
+    for a in cases:
+        for k in (0, 1, 7, a.size // 100, a.size // 3):
+            assert kth_smallest(a, k) == np.partition(a.ravel(), k)[k]
+
+
 def test_holes_concentrate_at_depth_edges():
     z = np.full((480, 640), 3.0, np.float32)
     z[:, :320] = 1.0  # a vertical depth step at column 320

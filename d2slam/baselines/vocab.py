@@ -460,7 +460,7 @@ def _render_main(jobs: list[dict]) -> None:
             for i in range(0, job["frames"], job["stride"]):
                 rgb = render_frame(scene, renderer, i)["rgb"]
                 name = stamp(scene.t0 + scene.t_rel[i]) + ".png"
-                _write(tmp / name, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), synth.png_compression)
+                _write(tmp / name, rgb, synth.png_compression)
                 print("frame", flush=True)
         finally:
             renderer.close()

@@ -36,7 +36,7 @@ from d2slam.slam.keyframe_database import KeyFrameDatabase
 from d2slam.slam.local_mapping import LocalMapper
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import rotation_consistent, search_by_bow, search_by_projection, unique_by_target
-from d2slam.slam.optimizer import pose_graph_optimization, pose_optimization
+from d2slam.slam.optimizer import inverse_batch, pose_graph_optimization, pose_optimization
 from d2slam.slam.orb_vocabulary import BowVocabulary
 from d2slam.slam.projection import Projector, inv
 
@@ -369,7 +369,7 @@ class LoopCloser:
         from_corr = np.array([p[2] for p in pairs], bool)
         src = np.where(from_corr[:, None, None], start[ei], uncorrected[ei]), \
             np.where(from_corr[:, None, None], start[ej], uncorrected[ej])
-        meas = src[0] @ _inv_batch(src[1])  # T_i T_j^-1
+        meas = src[0] @ inverse_batch(src[1])  # T_i T_j^-1
         fixed = np.zeros(len(good), bool)
         fixed[idx[loop_kf.id]] = True
         poses = pose_graph_optimization(start, fixed, ei, ej, meas, cfg.loop_pgo_iterations)
@@ -383,7 +383,7 @@ class LoopCloser:
         alive = np.flatnonzero(P.view("alive") & (ref < len(kfs)) & (ref >= 0))
         alive = alive[idx[ref[alive]] >= 0]
         r = idx[ref[alive]]
-        D = _inv_batch(poses[r]) @ start[r]
+        D = inverse_batch(poses[r]) @ start[r]
         P.pos[alive] = np.einsum("nij,nj->ni", D[:, :3, :3], P.pos[alive]) + D[:, :3, 3]
         P.normal[alive] = np.einsum("nij,nj->ni", D[:, :3, :3], P.normal[alive])
         for n, k in enumerate(good.tolist()):
@@ -426,12 +426,3 @@ def _sq_error(Xc: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.ndarray:
     du = K[0, 0] * Xc[..., 0] / z + K[0, 2] - uv[:, 0]
     dv = K[1, 1] * Xc[..., 1] / z + K[1, 2] - uv[:, 1]
     return du * du + dv * dv
-
-
-def _inv_batch(T: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(T)
-    Rt = np.transpose(T[:, :3, :3], (0, 2, 1))
-    out[:, :3, :3] = Rt
-    out[:, :3, 3] = -np.einsum("nij,nj->ni", Rt, T[:, :3, 3])
-    out[:, 3, 3] = 1.0
-    return out

@@ -341,7 +341,8 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     return A
 
 
-def _inverse(T: np.ndarray) -> np.ndarray:
+def inverse_batch(T: np.ndarray) -> np.ndarray:
+    """The inverses of (N, 4, 4) rigid transforms."""
     out = np.zeros_like(T)
     Rt = np.transpose(T[:, :3, :3], (0, 2, 1))
     out[:, :3, :3] = Rt
@@ -368,11 +369,11 @@ def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray
     col[free] = np.arange(len(free))
     if E == 0 or len(free) == 0:
         return T
-    Minv = _inverse(meas)
+    Minv = inverse_batch(meas)
     Ji = adjoint(Minv)
 
     def residual(T):
-        R = Minv @ T[ei] @ _inverse(T[ej])
+        R = Minv @ T[ei] @ inverse_batch(T[ej])
         return se3_log(R), R
 
     e, R = residual(T)

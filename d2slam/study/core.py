@@ -3,10 +3,15 @@
 1. expand the grid (:func:`d2slam.study.grid.expand_grid`) and remove what killed processes left half-written in the
    caches (:func:`remove_stale_temps`);
 2. generate or reuse every sequence it needs (the cache of :mod:`d2slam.study.sequences`), on the executor;
-3. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask),
+3. segment the sequences whose runs read the real segmenter's masks into the mask cache, on the executor;
+4. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask),
    the longest first (:func:`run_cost`; sequences by their frames), so that both cores stay busy to the end;
-4. write ``runs.csv`` (grid order), ``summary.csv``, ``tables.md``, ``plots/*.png``, ``trajectories/<run>.txt``,
+5. write ``runs.csv`` (grid order), ``summary.csv``, ``tables.md``, ``plots/*.png``, ``trajectories/<run>.txt``,
    ``runs/<run>.json`` (per-module keypoint metrics and stage timings) and ``manifest.json``.
+
+Each phase (sequences, segmentation, runs) says on stderr what it will do before it starts (how many items, how
+many are cached, an estimate: :func:`phase_plans`) and is followed there (:mod:`d2slam.progress`: a line every few
+seconds when stderr is not a terminal), unless ``progress`` is False.
 
 Same inputs give the same deterministic columns whichever executor ran them (tests/test_study_run.py).
 """
@@ -24,6 +29,7 @@ import pandas as pd
 
 from d2slam.errors import D2SlamError
 from d2slam.outputs import staged_file
+from d2slam.progress import announce
 from d2slam.study import grid as G
 from d2slam.study import tables as T
 from d2slam.study.executors import executor_name, map_ordered
@@ -75,10 +81,12 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
                           orbslam3_repeats=orbslam3_repeats, orbslam3_timeout=orbslam3_timeout)
     remove_stale_temps(options, out)
 
-    def phase(fn, items, desc, on_result=None, cost=None) -> list:  # interrupted: nothing its killed workers left
+    def phase(fn, items, desc, unit, on_result=None, cost=None) -> list:  # interrupted: nothing its killed workers left
+        if progress is not False and items:
+            announce(*plans[desc](items))
         try:
             return map_ordered(fn, items, (options,), jobs, scheduler, desc=desc, progress=progress,
-                               on_result=on_result, cost=cost)
+                               on_result=on_result, cost=cost, unit=unit)
         except BaseException:
             remove_stale_temps(options, out)
             raise
@@ -87,13 +95,14 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
           "scheduler": scheduler if isinstance(scheduler, str) else (None if scheduler is None else "in-process")}
     t0 = time.perf_counter()
 
+    plans = phase_plans(options, None if scheduler is not None else int(jobs))
     keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    prepared = phase(prepare_sequence, keys, "sequences", cost=sequence_cost)
+    prepared = phase(prepare_sequence, keys, "sequences", "sequence", cost=sequence_cost)
     prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
     t_seq = time.perf_counter() - t0
 
     if any(s.method in G.REPEATED or (s.loop_closing and config.engine.loop_closing) for s in specs):
-        _prepare_vocabulary(progress)
+        _prepare_vocabulary(progress is not False)
     if ex["executor"] != "serial":
         _prepare_kernels()
     keys_by_id = {s.run_id: run_key(s, options) for s in specs}
@@ -105,14 +114,16 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
                 reused[s.run_id] = r
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
     t_seg = time.perf_counter()
-    phase(segment_sequence, onnx_sequence_keys(todo, options), "segmentation", cost=sequence_cost)
+    phase(segment_sequence, onnx_sequence_keys(todo, options), "segmentation", "sequence", cost=sequence_cost)
     t_seg = time.perf_counter() - t_seg
     (out / "runs").mkdir(exist_ok=True)
 
     def checkpoint(i, r):  # each run is saved as it finishes, so that --resume recovers an interrupted study
         save_run(out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
 
-    done = phase(execute_run, todo, "study", on_result=checkpoint, cost=lambda s: run_cost(s, options))
+    if progress is not False and reused:
+        announce(f"runs: {len(reused)} reused from {out / 'runs'} (--resume)")
+    done = phase(execute_run, todo, "runs", "run", on_result=checkpoint, cost=lambda s: run_cost(s, options))
     by_id = {s.run_id: r for s, r in zip(todo, done)}
     by_id.update(reused)
     for s in specs:
@@ -150,6 +161,43 @@ def run_cost(spec: RunSpec, options: dict) -> float:
     ms = float(costs.get(spec.method, study.get("run_cost_default_ms", 1.0)))
     repeats = int(options.get("orbslam3_repeats") or 1) if spec.method in G.REPEATED else 1
     return max(int(spec.frames), 1) * ms * repeats
+
+
+def phase_plans(options: dict, workers: int | None) -> dict:
+    """For each phase of the study (``sequences``, ``segmentation``, ``runs``), a function of its items giving what
+    to announce before it starts: (what it will do, estimated seconds on ``workers`` processes, or None when the
+    number of workers is not known: a Dask cluster). Estimates: ``CliConfig.synth_setup_s`` + frames x
+    ``synth_frame_s`` per sequence to generate, frames x ``segment_frame_s`` to segment (an upper bound: masks
+    already in the cache are read), :func:`run_cost` per run."""
+    from d2slam.config import CLI
+    from d2slam.synth.generate import estimated_seconds
+    from d2slam.study.sequences import is_complete, sequence_dir
+
+    on = "" if workers is None else f" on {workers} worker{'s' if workers > 1 else ''}"
+
+    def spread(seconds: list[float]) -> float | None:  # the longest item bounds it from below
+        return None if workers is None or not seconds else max(sum(seconds) / max(workers, 1), max(seconds))
+
+    def sequences(keys):
+        synth = [k for k in keys if k[0] == "synth"]
+        todo = [k for k in synth if not is_complete(sequence_dir(*k[1:], root=options.get("cache_root")))]
+        what = (f"sequences: {len(todo)} to generate{on} ({sum(int(k[3]) for k in todo)} frames), "
+                f"{len(synth) - len(todo)} cached" + (f", {len(keys) - len(synth)} real (TUM)" if len(synth) < len(keys)
+                                                      else ""))
+        return what, spread([estimated_seconds(int(k[3]), 1) for k in todo])
+
+    def segmentation(keys):
+        frames = [int(k[3]) for k in keys]
+        known = all(f > 0 for f in frames)  # a real sequence's frames may be "all" (0)
+        return (f"segmentation: {len(keys)} sequence{'s' if len(keys) > 1 else ''} with the real segmenter{on}"
+                + (f" ({sum(frames)} frames; masks already in the cache are read)" if known else ""),
+                spread([f * CLI.segment_frame_s for f in frames]) if known else None)
+
+    def runs(specs):
+        known = all(int(s.frames) > 0 for s in specs)
+        return f"runs: {len(specs)}{on}", spread([run_cost(s, options) / 1e3 for s in specs]) if known else None
+
+    return {"sequences": sequences, "segmentation": segmentation, "runs": runs}
 
 
 def sequence_cost(key: tuple) -> float:

@@ -1,4 +1,4 @@
-"""Run a list of tasks on one of three executors, with a tqdm bar, results returned in the input order.
+"""Run a list of tasks on one of three executors, with progress on stderr, results returned in the input order.
 
 * ``serial``: in this process (``jobs=1``);
 * ``joblib``: ``jobs`` worker processes of joblib's loky (``jobs > 1``), each with single-threaded BLAS/OpenMP
@@ -12,7 +12,8 @@
   (one run per core; the numbers do not depend on it, the speed does).
 
 The function must be importable (a module-level function) and its arguments picklable. Results are placed by
-index, so the output order never depends on which worker finished first. With ``cost`` the items start in
+index, so the output order never depends on which worker finished first. Progress (:func:`d2slam.progress.progress`):
+a tqdm bar on a terminal, else a line on stderr every few seconds (CI, ``nohup``, a pipe). With ``cost`` the items start in
 decreasing cost (``dispatch_order``: the longest first, ties in input order), one at a time as a worker frees up:
 the last to start are the shortest, so both cores stay busy to the end instead of one finishing a long run alone.
 """
@@ -22,7 +23,6 @@ from __future__ import annotations
 from typing import Callable, Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from d2slam.errors import D2SlamError
 
@@ -41,58 +41,57 @@ def dispatch_order(costs: Sequence[float]) -> list[int]:
 def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, scheduler=None,
                 desc: str = "study", progress: bool | None = None,
                 on_result: Callable[[int, object], None] | None = None,
-                cost: Callable[[object], float] | None = None) -> list:
+                cost: Callable[[object], float] | None = None, unit: str = "run") -> list:
     """``[fn(item, *args) for item in items]`` on the chosen executor (see module docstring). ``on_result(i, result)``
     is called in this process as each result arrives (completion order), e.g. to save it at once. ``cost(item)``:
-    the items start longest first (``dispatch_order``); the results stay in the order of ``items``."""
+    the items start longest first (``dispatch_order``); the results stay in the order of ``items``. ``progress``:
+    False shows nothing; otherwise ``desc: k/N units`` on stderr (:func:`d2slam.progress.progress`)."""
+    from d2slam.progress import progress as follow
+
     items = list(items)
     if not items:
         return []
     order = dispatch_order([cost(it) for it in items]) if cost is not None else list(range(len(items)))
-    bar = tqdm(total=len(items), desc=desc, unit="run", disable=None if progress is None else not progress)
+    run = {"serial": _serial, "joblib": _joblib, "dask": _dask}[executor_name(jobs, scheduler)]
+    results = run(fn, items, order, args, jobs if scheduler is None else scheduler)
+    out = [None] * len(items)
     try:
-        name = executor_name(jobs, scheduler)
-        if name == "serial":
-            out = [None] * len(items)
-            for i in order:
-                out[i] = fn(items[i], *args)
-                if on_result is not None:
-                    on_result(i, out[i])
-                bar.update(1)
-            return out
-        if name == "joblib":
-            return _joblib(fn, items, order, args, int(jobs), bar, on_result)
-        return _dask(fn, items, order, args, scheduler, bar, on_result)
+        for i, res in follow(results, total=len(items), desc=desc, unit=unit, enabled=progress is not False):
+            out[i] = res
+            if on_result is not None:
+                on_result(i, res)
     finally:
-        bar.close()
+        results.close()  # an error here (or Ctrl-C) stops the executor's workers
+    return out
+
+
+def _serial(fn, items, order, args, _jobs):
+    for i in order:
+        yield i, fn(items[i], *args)
 
 
 # The workers' BLAS and OpenMP thread counts (one job per core; the numbers do not depend on them).
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-def _joblib(fn, items, order, args, jobs, bar, on_result=None) -> list:
+def _joblib(fn, items, order, args, jobs):
+    """(index, result) in completion order from ``jobs`` loky processes; the pool is shut down when the generator
+    ends or is closed (its workers killed unless every result came)."""
     from concurrent.futures import as_completed
 
     from joblib.externals.loky import ProcessPoolExecutor
 
-    out = [None] * len(items)
-    pool = ProcessPoolExecutor(max_workers=jobs, env=WORKER_ENV, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=int(jobs), env=WORKER_ENV, initializer=_ignore_sigint)
     try:
         with _sigint_ignored():  # the workers start now (first submit) and inherit it from their first instruction
             # submitted in ``order``: the pool starts them so, one per worker as it frees up
             futures = {pool.submit(fn, items[i], *args): i for i in order}
         for fut in as_completed(futures):
-            i = futures[fut]
-            out[i] = fut.result()
-            if on_result is not None:
-                on_result(i, out[i])
-            bar.update(1)
+            yield futures[fut], fut.result()
     except BaseException:
         pool.shutdown(wait=True, kill_workers=True)
         raise
     pool.shutdown(wait=True)
-    return out
 
 
 def _ignore_sigint() -> None:
@@ -127,7 +126,8 @@ def _indexed(i, fn, item, args):
     return i, fn(item, *args)
 
 
-def _dask(fn, items, order, args, scheduler, bar, on_result=None) -> list:
+def _dask(fn, items, order, args, scheduler):
+    """(index, result) in completion order from a Dask cluster (the client closed at the end if made here)."""
     try:
         from distributed import Client, as_completed
     except ImportError as exc:  # pragma: no cover - dask/distributed are in environment.txt
@@ -149,14 +149,8 @@ def _dask(fn, items, order, args, scheduler, bar, on_result=None) -> list:
         # Dask runs the highest priority first
         futures = [client.submit(_indexed, i, fn, items[i], args, pure=False, priority=len(order) - rank)
                    for rank, i in enumerate(order)]
-        out = [None] * len(items)
         for fut in as_completed(futures):
-            i, res = fut.result()
-            out[i] = res
-            if on_result is not None:
-                on_result(i, res)
-            bar.update(1)
-        return out
+            yield fut.result()
     finally:
         if own:
             client.close()

@@ -211,8 +211,8 @@ def incidence(triangles: np.ndarray, n_vertices: int):
 def vertex_normals(V: np.ndarray, triangles: np.ndarray, A=None) -> np.ndarray:
     """Area-weighted unit vertex normals of a triangle mesh; ``A``: its ``incidence`` matrix (built if None)."""
     tri = np.asarray(triangles, np.int64)
-    a, b, c = V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]]
-    fn = np.cross(b - a, c - a)
+    P = V.take(tri, axis=0)  # (F, 3 corners, 3)
+    fn = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
     n = (A if A is not None else incidence(tri, len(V))) @ fn
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 

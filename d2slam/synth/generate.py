@@ -27,12 +27,14 @@ import multiprocessing as mp
 import os
 import shutil
 import signal
+import struct
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
+from zlib_ng import zlib_ng
 from d2slam import __version__
 from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
@@ -72,30 +74,78 @@ def blur_vector(scene: Scene, t: float, T: np.ndarray, z_centre: float) -> tuple
 
 def render_frame(scene: Scene, renderer: WorldRenderer, i: int) -> dict:
     """Everything of frame i as arrays: rgb (uint8 RGB), depth (uint16 PNG values), depth_clean (float32 m),
-    mask_gt, mask_sim (uint8), plus timings (ms)."""
+    mask_gt, mask_sim (uint8), plus the wall time (``ms``) and the CPU time of this process (``cpu_ms``: its OpenGL
+    rasteriser threads included) of each stage: posing the bodies (``bodies``), the two OpenGL passes (``gl``), the
+    sensor model, the simulated segmenter."""
     cfg = scene.cfg
     t = float(scene.t_rel[i])
     sidx = SCENARIOS.index(scene.scenario)
     rngs = [np.random.default_rng([scene.seed, sidx, i, k]) for k in (11, 12, 13)]
-    t_a = time.perf_counter()
+    clock = _Stages()
     T = scene.camera.poses([t])[0]
-    rgb, z, ids = renderer.render(t, T)
-    t_b = time.perf_counter()
+    renderer.update(t)
+    clock.lap("bodies")
+    rgb, z, ids = renderer.draw(T)
+    clock.lap("gl")
     depth = depth_to_png(z, rngs[0], cfg)
     zc = float(z[cfg.height // 2, cfg.width // 2])
     rgb_out = rgb_sensor(rgb, blur_vector(scene, t, T, zc), rngs[1], cfg, bank_seed=scene.seed)
-    t_c = time.perf_counter()
+    clock.lap("sensor")
     sim = simulate_segmenter(ids, z, scene.person_ids, scene.K, rngs[2], cfg)
-    t_d = time.perf_counter()
+    clock.lap("segmenter")
     return {"rgb": rgb_out, "depth": depth, "depth_clean": z, "mask_gt": ids, "mask_sim": sim, "pose": T,
-            "ms": {"render": 1e3 * (t_b - t_a), "sensor": 1e3 * (t_c - t_b), "segmenter": 1e3 * (t_d - t_c)}}
+            "ms": clock.ms, "cpu_ms": clock.cpu_ms}
 
 
-def _write(path: Path, img: np.ndarray, compression: int) -> None:
-    # zlib RLE strategy with the SUB filter: faster than the default on noisy images at a similar size (measured:
-    # docs/deviations.md, `SynthConfig.png_compression`)
-    params = [cv2.IMWRITE_PNG_COMPRESSION, int(compression), cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
-              cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
+class _Stages:
+    """Wall and process CPU time (ms) of consecutive stages."""
+
+    def __init__(self):
+        self.ms, self.cpu_ms = {}, {}
+        self._wall, self._cpu = time.perf_counter(), time.process_time()
+
+    def lap(self, name: str) -> None:
+        wall, cpu = time.perf_counter(), time.process_time()
+        self.ms[name] = 1e3 * (wall - self._wall)
+        self.cpu_ms[name] = 1e3 * (cpu - self._cpu)
+        self._wall, self._cpu = wall, cpu
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_bytes(img: np.ndarray, compression: int) -> bytes:
+    """A PNG file of ``img``: uint8 RGB (H, W, 3), uint8 or uint16 grey (H, W). Every row is SUB-filtered (each
+    byte minus the one a pixel to its left) and compressed by zlib-ng with the Huffman-only strategy: on the noisy RGB
+    and depth images about twice as fast as OpenCV's zlib with the same strategy, at the same size (measured:
+    docs/deviations.md, `SynthConfig.png_compression`); any PNG reader decodes it."""
+    h, w = img.shape[:2]
+    rows = img.astype(">u2") if img.dtype == np.uint16 else np.ascontiguousarray(img, np.uint8)  # PNG: big-endian
+    rows = rows.view(np.uint8).reshape(h, -1)
+    bpp = rows.shape[1] // w  # bytes per pixel
+    data = np.empty((h, rows.shape[1] + 1), np.uint8)
+    data[:, 0] = 1  # filter type SUB
+    data[:, 1:bpp + 1] = rows[:, :bpp]
+    np.subtract(rows[:, bpp:], rows[:, :-bpp], out=data[:, bpp + 1:])
+    z = zlib_ng.compressobj(int(compression), zlib_ng.DEFLATED, 15, 9, zlib_ng.Z_HUFFMAN_ONLY)
+    idat = z.compress(data) + z.flush()
+    head = struct.pack(">IIBBBBB", w, h, 8 * img.itemsize, 0 if img.ndim == 2 else 2, 0, 0, 0)
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib_ng.crc32(kind + body))
+
+    return PNG_SIGNATURE + chunk(b"IHDR", head) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+def _write(path: Path, img: np.ndarray, compression: int, labels: bool = False) -> None:
+    """Write ``img`` (RGB order) as a PNG: the noisy images (RGB, depth) by :func:`png_bytes`, label images (masks)
+    by OpenCV with zlib's default strategy and no filter (long runs of equal values: smaller, and faster to write
+    and read than filtered)."""
+    if not labels:
+        path.write_bytes(png_bytes(img, compression))
+        return
+    params = [cv2.IMWRITE_PNG_COMPRESSION, int(compression), cv2.IMWRITE_PNG_STRATEGY,
+              cv2.IMWRITE_PNG_STRATEGY_DEFAULT, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE]
     if not cv2.imwrite(str(path), img, params):
         raise D2SlamError("could not write image", path=path)
 
@@ -104,19 +154,20 @@ def _frame_job(i: int) -> dict:
     scene, renderer, out = _STATE["scene"], _STATE["renderer"], _STATE["out"]
     cpu0 = time.process_time()
     f = render_frame(scene, renderer, i)
-    t_w = time.perf_counter()
+    clock = _Stages()
     comp = scene.cfg.png_compression
     name = stamp(scene.t0 + scene.t_rel[i]) + ".png"
     dname = stamp(scene.t0 + scene.t_rel[i] + scene.depth_offset[i]) + ".png"
-    _write(out / "rgb" / name, cv2.cvtColor(f["rgb"], cv2.COLOR_RGB2BGR), comp)
+    _write(out / "rgb" / name, f["rgb"], comp)
     _write(out / "depth" / dname, f["depth"], comp)
-    _write(out / "mask_gt" / name, f["mask_gt"], comp)
-    _write(out / "mask_sim" / name, f["mask_sim"], comp)
-    f["ms"]["write"] = 1e3 * (time.perf_counter() - t_w)
+    _write(out / "mask_gt" / name, f["mask_gt"], comp, labels=True)
+    _write(out / "mask_sim" / name, f["mask_sim"], comp, labels=True)
+    clock.lap("write")
     cpu_ms = 1e3 * (time.process_time() - cpu0)
     counts = np.bincount(f["mask_gt"].ravel(), minlength=256)
     n = f["mask_gt"].size
-    return {"index": i, "ms": f["ms"], "cpu_ms": cpu_ms,
+    return {"index": i, "ms": {**f["ms"], **clock.ms}, "stage_cpu_ms": {**f["cpu_ms"], **clock.cpu_ms},
+            "cpu_ms": cpu_ms,
             "person_fraction": float(sum(counts[p] for p in scene.person_ids)) / n,
             "moved_fraction": float(sum(counts[o] for o in scene.moved_object_ids)) / n,
             "sim_fraction": float(np.count_nonzero(f["mask_sim"])) / n,

@@ -4,10 +4,13 @@ One ``GLRenderer`` per process holds a pyrender scene: the static room (one text
 atlas) and, per frame, the dynamic meshes (people with baked vertex colours, moved objects textured from the atlas).
 ``render(T_world_camera)`` makes two passes:
 
-1. colour: flat shading (colours are baked: vertex colours times texture), 4x multisampling (anti-aliased edges);
-2. segmentation: multisampling off, every mesh drawn in the colour (object id, 0, 0), the room in black; its depth
-   buffer gives the metric depth (pyrender linearises it) and its red channel the per-pixel object id, both
-   sampled at pixel centres so that the truth mask and the depth agree pixel for pixel.
+1. colour: flat shading (colours are baked: vertex colours times texture), 4x multisampling (anti-aliased edges),
+   back faces culled (every surface is seen from its front: closed bodies and boxes, the room from inside), as in
+   the id pass, so that no sample on a silhouette shows the far side of a body and half of the small body triangles
+   are never rasterised;
+2. segmentation: into a single-sample framebuffer (pixel centres; no multisample buffer to resolve), every mesh
+   drawn in the colour (object id, 0, 0), the room in black; its depth buffer gives the metric depth (linearised
+   here) and its red channel the per-pixel object id, so that the truth mask and the depth agree pixel for pixel.
 
 ``PYOPENGL_PLATFORM`` must be set before OpenGL is imported: ``import_pyrender`` sets it to ``egl`` unless the user
 chose another platform (``osmesa`` needs Debian's ``libosmesa6``).
@@ -47,9 +50,9 @@ _READER: dict = {}
 
 
 def _reader_class(pr):
-    """pyrender's ``Renderer`` with a fixed drawing order and a leaner read-back: the colour pass reads colour only,
-    the id pass reads its colour and its depth, linearised in float32 without boolean indexing (pyrender reads and linearises the depth
-    after every pass, about half of a frame's time here)."""
+    """pyrender's ``Renderer`` with a fixed drawing order and a leaner id pass: the colour pass resolves and reads its
+    colour only; the id pass draws into the single-sample framebuffer and reads its red channel and its depth,
+    linearised in float32 without boolean indexing (pyrender reads and linearises the depth after every pass)."""
     if "cls" in _READER:
         return _READER["cls"]
     from OpenGL import GL
@@ -60,26 +63,30 @@ def _reader_class(pr):
             # floor) resolve the same way whatever the context's history (pyrender iterates a set of nodes)
             return sorted(scene.mesh_nodes, key=lambda n: n.name)
 
+        def _configure_forward_pass_viewport(self, flags):
+            super()._configure_forward_pass_viewport(flags)
+            if flags & pr.RenderFlags.SEG:  # pixel centres only: the single-sample framebuffer, nothing to resolve
+                GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
+
         def _read_main_framebuffer(self, scene, flags):
             w, h = self._main_fb_dims
-            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb_ms)
-            GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
-            GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
-            seg = bool(flags & pr.RenderFlags.SEG)
-            if seg:
-                GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
+            GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+            if not flags & pr.RenderFlags.SEG:
+                GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb_ms)
+                GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
+                GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
+                GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
+                colour = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE), np.uint8)
+                return colour.reshape(h, w, 3)[::-1], None
             GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
-            colour = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE), np.uint8)
-            colour = colour.reshape(h, w, 3)[::-1]
-            if not seg:
-                return colour, None
+            ids = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_RED, GL.GL_UNSIGNED_BYTE), np.uint8)
             d = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT), np.float32)
             d = d.reshape(h, w)[::-1]
             cam = scene.main_camera_node.camera
             n, f = np.float32(cam.znear), np.float32(cam.zfar)
             ndc = np.float32(2.0) * d - np.float32(1.0)
             z = (np.float32(2.0) * n * f) / (f + n - ndc * (f - n))
-            return colour, np.where(d < np.float32(1.0), z, np.float32(0.0))
+            return ids.reshape(h, w)[::-1], np.where(d < np.float32(1.0), z, np.float32(0.0))
 
     _READER["cls"] = Reader
     return Reader
@@ -109,7 +116,7 @@ class GLRenderer:
                              wrapS=pr.constants.GLTF.CLAMP_TO_EDGE, wrapT=pr.constants.GLTF.CLAMP_TO_EDGE)
         tex = pr.Texture(source=np.ascontiguousarray(atlas), source_channels="RGB", sampler=sampler)
         self.material = pr.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], baseColorTexture=tex,
-                                                     doubleSided=True)
+                                                     doubleSided=False)
         self.plain = pr.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], doubleSided=False)
         self.static_nodes: list = []
         self.dynamic: list = []
@@ -142,9 +149,9 @@ class GLRenderer:
         rgb, _ = self.renderer.render(self.scene, flags=pr.RenderFlags.FLAT)
         seg_map = {n: (0, 0, 0) for n in self.static_nodes}
         seg_map.update({n: (int(oid), 0, 0) for oid, n in self.dynamic})
-        seg, depth = self.renderer.render(self.scene, flags=pr.RenderFlags.SEG, seg_node_map=seg_map)
+        ids, depth = self.renderer.render(self.scene, flags=pr.RenderFlags.SEG, seg_node_map=seg_map)
         return (np.ascontiguousarray(rgb), np.ascontiguousarray(depth, dtype=np.float32),
-                np.ascontiguousarray(seg[:, :, 0]))
+                np.ascontiguousarray(ids))
 
     def close(self) -> None:
         self.renderer.delete()

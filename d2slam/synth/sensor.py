@@ -30,10 +30,11 @@ def depth_holes(z: np.ndarray, rng: np.random.Generator, cfg: SynthConfig) -> tu
     H, W = z.shape
     far = z > cfg.depth_max
     # depth edges: local max - local min over 3x3 above a depth-dependent jump
-    zz = np.where(z > 0, z, np.float32(cfg.depth_max * 2)).astype(np.float32)
+    zz = np.where(z > 0, z, np.float32(cfg.depth_max * 2)).astype(np.float32, copy=False)
     k = np.ones((3, 3), np.uint8)
-    jump = cv2.dilate(zz, k) - cv2.erode(zz, k)
-    edge = (jump > cfg.hole_edge_jump_a + cfg.hole_edge_jump_b * zz).astype(np.uint8)
+    jump = cv2.dilate(zz, k)
+    jump -= cv2.erode(zz, k)
+    edge = (jump > cfg.hole_edge_jump_a + cfg.hole_edge_jump_b * zz).view(np.uint8)
     if cfg.hole_edge_dilate > 0:
         edge = cv2.dilate(edge, np.ones((2 * cfg.hole_edge_dilate + 1,) * 2, np.uint8))
     edge = (edge != 0) & (rng.random((H, W), dtype=np.float32) < cfg.hole_edge_prob)
@@ -46,9 +47,22 @@ def depth_holes(z: np.ndarray, rng: np.random.Generator, cfg: SynthConfig) -> tu
                                                                                               cell:cell + W]
         kth = int(cfg.hole_blob_fraction * H * W)
         if kth > 0:
-            thr = np.partition(up.ravel(), kth)[kth]
-            blob = up < thr
+            blob = up < kth_smallest(up, kth)
     return far, edge, blob
+
+
+def kth_smallest(a: np.ndarray, k: int) -> float:
+    """The value ``np.partition(a.ravel(), k)[k]`` (0-based), partitioning only the values below a bound taken from
+    a strided sample when at least k + 1 of them are below it (else the whole array)."""
+    flat = a.ravel()
+    n = flat.size
+    if n > 64 * (k + 1):
+        sample = flat[::16]
+        j = min(len(sample) - 1, 2 * (k + 1) * len(sample) // n + 8)
+        below = flat[flat <= np.partition(sample, j)[j]]
+        if below.size > k:
+            return below[np.argpartition(below, k)[k]]
+    return np.partition(flat, k)[k]
 
 
 def correlated_noise(white: np.ndarray, corr_px: float) -> np.ndarray:
@@ -66,14 +80,23 @@ def depth_to_png(z: np.ndarray, rng: np.random.Generator, cfg: SynthConfig | Non
     """Clean depth (float32 m, 0 = nothing) -> noisy, quantised, holed uint16 image (value = metres * factor)."""
     cfg = cfg or SynthConfig()
     z = np.asarray(z, np.float32)
-    valid = z > 0
-    sigma = (cfg.depth_noise_a + cfg.depth_noise_b * (z - cfg.depth_noise_c) ** 2).astype(np.float32)
-    zn = z + sigma * correlated_noise(rng.standard_normal(z.shape, dtype=np.float32), cfg.depth_noise_corr_px)
-    out = np.clip(np.rint(zn * np.float32(cfg.depth_factor)), 0, 65535).astype(np.uint16)
-    out[~valid] = 0
+    sigma = z - np.float32(cfg.depth_noise_c)
+    np.square(sigma, out=sigma)
+    sigma *= np.float32(cfg.depth_noise_b)
+    sigma += np.float32(cfg.depth_noise_a)
+    zn = correlated_noise(rng.standard_normal(z.shape, dtype=np.float32), cfg.depth_noise_corr_px)
+    zn *= sigma
+    zn += z
+    zn *= np.float32(cfg.depth_factor)
+    np.rint(zn, out=zn)
+    out = np.clip(zn, 0, 65535, out=zn).astype(np.uint16)
+    hole = z <= 0
     if holes:
         far, edge, blob = depth_holes(z, rng, cfg)
-        out[far | edge | blob] = 0
+        hole |= far
+        hole |= edge
+        hole |= blob
+    out[hole] = 0
     return out
 
 

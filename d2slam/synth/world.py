@@ -76,8 +76,8 @@ class WorldRenderer:
         self.gl = GLRenderer(scene.K, c.width, c.height, atlas, c.near_plane, c.far_plane, c.gl_threads)
         self.gl.set_static(*quad_mesh(scene.static_set, self.rects))
 
-    def render(self, t: float, T_world_camera: np.ndarray):
-        """``rgb`` uint8, ``depth`` float32 m (0 = nothing), ``ids`` uint8 object ids at time t (s)."""
+    def update(self, t: float) -> None:
+        """Pose the people and move the objects to time t (s): this frame's dynamic meshes, uploaded."""
         meshes = []
         for oid, item in self.scene.dynamic_meshes(t):
             if isinstance(item, QuadSet):
@@ -86,7 +86,15 @@ class WorldRenderer:
                 V, tri, shading, (uv, tex) = item
                 meshes.append((oid, V, tri, shading, atlas_uv(uv, tex, self.rects)))
         self.gl.set_dynamic(meshes)
+
+    def draw(self, T_world_camera: np.ndarray):
+        """``rgb`` uint8, ``depth`` float32 m (0 = nothing), ``ids`` uint8 object ids of the world as last updated."""
         return self.gl.render(T_world_camera)
+
+    def render(self, t: float, T_world_camera: np.ndarray):
+        """``rgb`` uint8, ``depth`` float32 m (0 = nothing), ``ids`` uint8 object ids at time t (s)."""
+        self.update(t)
+        return self.draw(T_world_camera)
 
     def close(self) -> None:
         self.gl.close()
