@@ -16,11 +16,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from d2slam.config import Config
 from d2slam.errors import D2SlamError
-from d2slam.record import RunRecord
+
+if TYPE_CHECKING:  # the records' module loads numpy and the data readers: not for listing the methods
+    from d2slam.record import RunRecord
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,7 @@ def run_method(seq, name: str, config: Config, masks: str | None = None, mask_se
     from d2slam.eval.loops import loop_summary
     from d2slam.eval.trajectory import evaluate_run
     from d2slam.pipeline import run_sequence
+    from d2slam.record import RunRecord
 
     method = get_method(name)
     if method.runner is not None:
