@@ -128,7 +128,7 @@ def test_flow_matches_new_depth():
     args = (q, prev_kps, np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.9]), matches)
     pz = flow_matches(*args, prev_depth=depth)[1]
     np.testing.assert_array_equal(pz[:3], [1, 2, 3])
-    np.testing.assert_array_equal(pz[3:], keypoint_depth(depth, q[2:]))
+    np.testing.assert_array_equal(pz[3:], keypoint_depth(depth, q[2:], 1))
     assert np.all(pz[3:] > 0) and pz[3] == np.median(np.delete(depth[19:22, 29:32].ravel(), 4))
     np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, cfg=DynamicsConfig(flow_new_depth=False))[1],
                                   [1, 2, 3, 0, 0])

@@ -12,7 +12,7 @@ from d2slam.config import DEFAULT, EngineConfig
 from d2slam.errors import D2SlamError
 from d2slam.slam.engine import Engine
 from d2slam.slam.fixture import FR3, room_sequence
-from d2slam.slam.frame import OrbExtractor, bucket_select, level_quotas
+from d2slam.slam.extractor import OrbExtractor, bucket_select, level_quotas
 from d2slam.slam.matching import hamming, rotation_consistent, unique_by_target
 from d2slam.slam.optimizer import local_bundle_adjustment, pose_optimization, reprojection_chi2
 
@@ -88,11 +88,11 @@ def test_extractor_settings_depth_and_virtual_right(room):
 
 
 def test_keypoint_depth_ignores_invalid_pixels():
-    from d2slam.slam.frame import keypoint_depth
+    from d2slam.slam.depth import keypoint_depth
 
     d = np.zeros((20, 20), np.float32)
     d[10, 10], d[10, 11], d[11, 10] = 2.0, 2.2, 2.1
-    z = keypoint_depth(d, np.array([[10.0, 10.0], [3.0, 3.0]]), 1, DEFAULT.engine)
+    z = keypoint_depth(d, np.array([[10.0, 10.0], [3.0, 3.0]]), 1)
     assert z[0] == pytest.approx(2.1) and z[1] == 0
 
 

@@ -119,8 +119,9 @@ def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dic
 
 
 def run(args) -> int:
+    from d2slam.config import DEFAULT
     from d2slam.dynamics import MODES
-    from d2slam.dynamics.depth import keypoint_depth
+    from d2slam.slam.depth import keypoint_depth
     from d2slam.dynamics.toy import two_view_scene
 
     cv2.setNumThreads(args.threads)
@@ -150,7 +151,7 @@ def run(args) -> int:
     for i in range(args.frames):
         inp = scenes[i % len(scenes)]
         t0 = time.perf_counter()
-        keypoint_depth(inp.depth, inp.kps)
+        keypoint_depth(inp.depth, inp.kps, DEFAULT.orb.depth_patch_radius)
         kd.append((time.perf_counter() - t0) * 1e3)
     modes = MODES if args.method == "all" else [args.method]
     if args.method not in MODES and args.method != "all":

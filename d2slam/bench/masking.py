@@ -86,7 +86,7 @@ def run(args) -> int:
     from d2slam.data import open_sequence
     from d2slam.errors import D2SlamError
     from d2slam.segmentation import masks_for, stack_masks
-    from d2slam.slam.frame import OrbExtractor
+    from d2slam.slam.extractor import OrbExtractor
     from d2slam.study.sequences import ensure_sequence
 
     bad = [s for s in args.seeds if not 0 <= s <= 99]

@@ -232,6 +232,10 @@ def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bo
     return record, save_to is None and features is not None
 
 
+# Source that decides a frame's extracted features (``features_path``).
+FEATURES_CODE = ("slam/frame.py", "slam/extractor.py", "slam/depth.py", "slam/features.py", "data")
+
+
 def features_path(seq, path: Path, config, options: dict, frames: int | None = None) -> Path:
     """Where the study keeps the extracted features of a sequence's first ``frames`` frames (default: all;
     ``d2slam.slam.features``): named after the sequence folder, its frame count and a digest of what an extraction
@@ -243,7 +247,7 @@ def features_path(seq, path: Path, config, options: dict, frames: int | None = N
     ident = {"orb": dataclasses.asdict(config.orb), "engine": dataclasses.asdict(config.engine),
              "camera": [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.bf, cam.depth_factor,
                         [float(d) for d in np.asarray(cam.dist).ravel()]],
-             "cv2": cv2.__version__, "code": source_digest(("slam/frame.py", "slam/features.py", "data"))}
+             "cv2": cv2.__version__, "code": source_digest(FEATURES_CODE)}
     n = len(seq) if frames is None else frames
     return features_dir(options) / f"{Path(path).resolve().name}_n{n}-{digest(ident)}.npz"
 
