@@ -3,9 +3,9 @@
 ``none`` is the engine with the hook off (our in-engine stand-in for ORB-SLAM3). The dynamics methods (``d2slam``,
 ``no-depth``, ``no-oim``, ``no-bayes``, ``semantic``, ``geometric``), the real ``orbslam3`` baseline and
 ``orbslam3-masked`` (the real ORB-SLAM3 on frames with the people's pixels removed) plug in here
-with :func:`register` (one line each, e.g. from ``d2slam/dynamics/classifier.py``)::
+with :func:`register` (one line each; the dynamics methods are the classifier with its switches, :data:`DYNAMICS`)::
 
-    register("d2slam", lambda config: D2SlamFilter("d2slam", config), needs_masks=True)
+    register("no-oim", _Dynamics("no-oim", switches=Switches(oim=False)), needs_masks=True)
 
 A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and ``reset()``, or None (hook off).
 ``oracle`` (the keypoint truth as the filter: the upper bound of every method) always runs on the ``truth`` masks
@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from d2slam.config import Config
+from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
 
 if TYPE_CHECKING:  # the records' module loads numpy and the data readers: not for listing the methods
@@ -133,8 +134,9 @@ def get_method(name: str) -> Method:
     return _REGISTRY[name]
 
 
-def get_filter(name: str, config: Config):
-    """The keypoint filter of method ``name`` (None for ``none``)."""
+def get_filter(name: str, config: Config | None = None):
+    """The keypoint filter of method ``name`` (None for ``none``); ``config``: a ``Config`` or, for the dynamics
+    methods, a ``DynamicsConfig`` (default: the defaults)."""
     return get_method(name).factory(config)
 
 
@@ -181,11 +183,47 @@ register("oracle", _oracle, needs_masks=True, masks="truth",
          help="upper bound, not a method: the keypoint truth (persons, moved objects while they move) as the filter; "
               "synthetic sequences only")
 
-# The dynamics modes (d2slam, no-depth, no-oim, no-bayes, semantic, geometric): a light import, the classifier loads
-# when a filter is built.
-from d2slam.dynamics import register_methods as _register_dynamics  # noqa: E402
+class _Dynamics:
+    """config -> a filter of ``d2slam.dynamics.classifier`` (``kind``: its class name; ``switches`` for
+    ``D2SlamFilter``), imported when a filter is built: the command line lists the methods without loading it."""
 
-_register_dynamics(register)
+    def __init__(self, name: str, kind: str = "D2SlamFilter", switches: Switches | None = None):
+        self.name, self.kind, self.switches = name, kind, switches
+
+    def __call__(self, config=None):
+        from d2slam.dynamics import classifier
+
+        cls = getattr(classifier, self.kind)
+        if self.switches is None:
+            return cls(config, name=self.name)
+        return cls(config, self.switches, name=self.name)
+
+    def __repr__(self) -> str:
+        return f"dynamics filter factory {self.name!r}"
+
+
+# The paper's method and its ablations (the classifier with one switch off), and the two single-module baselines:
+# name -> (factory, needs masks, ``d2slam run --help`` text).
+DYNAMICS = {
+    "d2slam": (_Dynamics("d2slam", switches=Switches()), True,
+               "full D2SLAM: semantic + geometric + Bayesian fusion + object interaction (eq 1-10)"),
+    "d2slam-flow": (_Dynamics("d2slam-flow", switches=Switches(flow=True)), True,
+                    "ours: d2slam with sub-pixel LK flow correspondences for eq 5 and the edge band "
+                    "(DynamicsConfig.flow, flow_edge_band)"),
+    "no-depth": (_Dynamics("no-depth", switches=Switches(depth=False)), True,
+                 "D2SLAM with every depth-adaptive quantity at its midpoint and no OIM depth test"),
+    "no-oim": (_Dynamics("no-oim", switches=Switches(oim=False)), True,
+               "D2SLAM without the object interaction module (eq 9-10)"),
+    "no-bayes": (_Dynamics("no-bayes", switches=Switches(bayes=False)), True,
+                 "D2SLAM with the eq 7 probability used directly (no eq 8 filter)"),
+    "semantic": (_Dynamics("semantic", "SemanticFilter"), True,
+                 "masks only, DynaSLAM-like: keypoints inside a person mask are dynamic"),
+    "geometric": (_Dynamics("geometric", "EpipolarFilter"), False,
+                  "epipolar check only (fixed threshold), no masks, no filter"),
+}
+FILTER_HELP = {name: text for name, (_, _, text) in DYNAMICS.items()}
+for _name, (_factory, _needs_masks, _help) in DYNAMICS.items():
+    register(_name, _factory, needs_masks=_needs_masks, help=_help)
 
 
 def _d2slam(config: Config):

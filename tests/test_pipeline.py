@@ -96,7 +96,7 @@ def test_d2slam_flow_runs_the_flow_through_the_engine(synth_dir, tmp_path):
     """--method d2slam-flow: the engine hands the previous grey image to the hook, the flow runs on every frame after
     the first, and two runs give the same trajectory."""
     from d2slam.config import DEFAULT
-    from d2slam.dynamics import get_filter as dyn_filter
+    from d2slam.methods import get_filter as dyn_filter
     from d2slam.segmentation import masks_for, stack_masks
 
     seq = open_sequence(synth_dir)
@@ -281,7 +281,7 @@ def test_pipelined_extraction_gives_the_same_bytes(synth_dir):
     output sets (refill): same trajectory and beliefs, byte for byte, as a run that does everything in order, and
     as a second pipelined run."""
     from d2slam.config import DEFAULT
-    from d2slam.dynamics import get_filter as dyn_filter
+    from d2slam.methods import get_filter as dyn_filter
 
     seq = open_sequence(synth_dir)
     runs = []

@@ -452,7 +452,7 @@ def test_the_warm_up_compiles_every_kernel_a_run_uses():
 
     from numba.core.registry import CPUDispatcher
 
-    from d2slam.dynamics import get_filter
+    from d2slam.methods import get_filter
     from d2slam.warmup import warm_up
 
     def signatures():
