@@ -188,7 +188,8 @@ def test_corrupt_frame_with_repeats_is_recorded_as_without(tmp_path, seq_dir, bu
     shutil.copytree(seq_dir, broken)
     seq = open_sequence(broken)
     seq.rgb_files[5].write_bytes(b"not a png")
-    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False, repeats=2, evaluate=False).orbslam3
+    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False, repeats=2,
+                         evaluate=False).orbslam3
     assert run["statuses"] == ["failed", "failed"] and seq.rgb_files[5].name in run["message"]
     assert run["frames"] == 5 and run["tracked"] == 5
 
