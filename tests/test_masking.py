@@ -13,7 +13,7 @@ from d2slam.baselines import masking as M
 from d2slam.config import DEFAULT
 from d2slam.data.base import Camera
 from d2slam.errors import D2SlamError
-from d2slam.slam.extractor import OrbExtractor
+from d2slam.slam.frame import OrbExtractor
 
 H, W = 240, 320
 

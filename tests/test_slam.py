@@ -12,7 +12,7 @@ from d2slam.config import DEFAULT, EngineConfig
 from d2slam.errors import D2SlamError
 from d2slam.slam.engine import Engine
 from d2slam.slam.fixture import FR3, room_sequence
-from d2slam.slam.extractor import OrbExtractor, bucket_select, level_quotas
+from d2slam.slam.frame import OrbExtractor, bucket_select, level_quotas
 from d2slam.slam.matching import hamming, rotation_consistent, unique_by_target
 from d2slam.slam.optimizer import local_bundle_adjustment, pose_optimization, reprojection_chi2
 

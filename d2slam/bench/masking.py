@@ -86,7 +86,7 @@ def run(args) -> int:
     from d2slam.data import open_sequence
     from d2slam.errors import D2SlamError
     from d2slam.segmentation import masks_for, stack_masks
-    from d2slam.slam.extractor import OrbExtractor
+    from d2slam.slam.frame import OrbExtractor
     from d2slam.study.sequences import ensure_sequence
 
     bad = [s for s in args.seeds if not 0 <= s <= 99]
@@ -165,7 +165,7 @@ def _slam(args, options) -> None:
             for sc, sd in seqs:
                 path = ensure_sequence(sc, sd, args.frames, False)
                 run = run_orbslam3(path, Path(tmp) / "t.txt", repeats=args.repeats, config=config, progress=False,
-                                   masks=args.masks).orbslam3
+                                   masks=args.masks)
                 m, spread = run.get("metrics") or {}, (run.get("metrics_spread") or {}).get("ate_rmse_m")
                 if "ate_rmse_m" in m:
                     lo, hi = (spread["min"], spread["max"]) if spread else (m["ate_rmse_m"], m["ate_rmse_m"])

@@ -1,5 +1,5 @@
 """Per-keypoint depth from the depth image: which depths are valid, and the robust depth of a keypoint (the median
-of its patch). The engine reads it for every frame (``slam/extractor.py``); the dynamics modules read the same."""
+of its patch). The engine reads it for every frame (``slam/frame.py``); the dynamics modules read the same."""
 
 from __future__ import annotations
 

@@ -15,8 +15,7 @@ import numpy as np
 from d2slam.config import DEFAULT, Config
 from d2slam.data.base import Camera
 from d2slam.errors import D2SlamError
-from d2slam.slam.extractor import OrbExtractor
-from d2slam.slam.frame import Frame
+from d2slam.slam.frame import Frame, OrbExtractor
 from d2slam.slam.hook import FilterHook, FilterInput, KeypointFilter, update_point_beliefs
 from d2slam.slam.local_mapping import LocalMapper
 from d2slam.slam.loop_closing import LoopCloser

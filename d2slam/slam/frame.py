@@ -1,5 +1,12 @@
-"""Frames: one tracked frame's keypoints as arrays (:class:`Frame`), with their depth and the RGB-D "virtual stereo"
-coordinate (:func:`virtual_right`); the extractor that makes them is ``d2slam.slam.extractor``."""
+"""Frames: bucketed ORB features (ORB-SLAM settings), per-keypoint depth and the RGB-D "virtual stereo" coordinate.
+
+ORB-SLAM distributes features over the image with a per-level quadtree and re-runs FAST at 7 in cells where the
+20 threshold finds nothing. Our equivalent (vectorised): OpenCV's ORB detects ``oversample`` times more corners
+than needed at FAST 20 (plus FAST 7 when the image yields fewer than ``n_features`` corners at 20), the corners
+are binned in a grid per pyramid level (cells ``cell_size * scale^level`` pixels), and the features are taken
+round-robin over cells by decreasing Harris response (each cell's best, then each cell's second best, ...) until
+the level's ORB-SLAM quota ``n_l ∝ scale^-l`` is filled. Only the kept corners get a descriptor.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +15,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from d2slam.config import EngineConfig
+from d2slam.config import EngineConfig, OrbConfig
 from d2slam.data.base import Camera
+from d2slam.slam.depth import keypoint_depth
 from d2slam.slam.matching import Gridded
 
 
@@ -50,6 +58,100 @@ class Frame(Gridded):
         if self.belief is None:
             return np.zeros(self.n, dtype=bool)
         return self.belief > 0.5
+
+
+def level_quotas(orb: OrbConfig, n_features: int | None = None) -> np.ndarray:
+    """ORB-SLAM's features per level: geometric with ratio 1/scale, summing to ``n_features`` (default
+    ``orb.n_features``)."""
+    n = orb.n_features if n_features is None else int(n_features)
+    f = 1.0 / orb.scale_factor
+    n0 = n * (1 - f) / (1 - f ** orb.n_levels)
+    q = np.round(n0 * f ** np.arange(orb.n_levels)).astype(int)
+    q[-1] = max(n - q[:-1].sum(), 0)
+    return q
+
+
+def bucket_select(pts: np.ndarray, level: np.ndarray, response: np.ndarray, orb: OrbConfig,
+                  width: int, height: int, n_features: int | None = None) -> np.ndarray:
+    """Indices of the kept corners: per level, round-robin over grid cells by decreasing response (vectorised)."""
+    if len(pts) == 0:
+        return np.zeros(0, dtype=np.int64)
+    quotas = level_quotas(orb, n_features)
+    cell = orb.cell_size * orb.scale_factor ** level.astype(np.float64)
+    ncols = np.ceil(width / cell).astype(np.int64)
+    cx = np.minimum((pts[:, 0] / cell).astype(np.int64), ncols - 1)
+    cy = (pts[:, 1] / cell).astype(np.int64)
+    cell_id = (level.astype(np.int64) << 32) | (cy * ncols + cx)
+    order = np.lexsort((-response, cell_id))
+    sorted_cells = cell_id[order]
+    start = np.r_[0, np.flatnonzero(np.diff(sorted_cells)) + 1]
+    group_len = np.diff(np.r_[start, len(order)])
+    rank = np.arange(len(order)) - np.repeat(start, group_len)
+    # Per level: take by (rank, -response) until the quota is filled.
+    lv = level[order]
+    key = np.lexsort((-response[order], rank, lv))
+    lv_sorted = lv[key]
+    lstart = np.searchsorted(lv_sorted, np.arange(orb.n_levels))
+    pos_in_level = np.arange(len(key)) - lstart[lv_sorted]
+    keep = pos_in_level < quotas[lv_sorted]
+    return np.sort(order[key[keep]])
+
+
+class OrbExtractor:
+    """Bucketed ORB with ORB-SLAM's settings; returns arrays (no per-keypoint Python objects kept)."""
+
+    def __init__(self, orb: OrbConfig, engine: EngineConfig, camera: Camera):
+        self.cfg = orb
+        self.engine = engine
+        self.camera = camera
+        n_detect = int(orb.n_features * orb.oversample)
+
+        def make(th):
+            return cv2.ORB_create(nfeatures=n_detect, scaleFactor=orb.scale_factor, nlevels=orb.n_levels,
+                                  edgeThreshold=orb.edge_threshold, firstLevel=0, WTA_K=2,
+                                  scoreType=cv2.ORB_HARRIS_SCORE, patchSize=orb.patch_size, fastThreshold=th)
+
+        self._orb_high = make(orb.fast_threshold)
+        self._orb_low = make(orb.fast_min_threshold)
+        self.scales = orb.scale_factor ** np.arange(orb.n_levels)
+        self.inv_level_sigma2 = 1.0 / self.scales ** 2
+        self.th_depth_m = close_depth(camera, engine)
+
+    def detect(self, gray: np.ndarray, n_features: int):
+        n_detect = int(n_features * self.cfg.oversample)
+        for orb in (self._orb_high, self._orb_low):
+            orb.setMaxFeatures(n_detect)
+        kps = self._orb_high.detect(gray, None)
+        if len(kps) < n_features:
+            kps = self._orb_low.detect(gray, None)
+        return kps
+
+    def __call__(self, gray: np.ndarray, depth: np.ndarray, index: int = 0, timestamp: float = 0.0,
+                 n_features: int | None = None) -> Frame:
+        h, w = gray.shape[:2]
+        n_features = self.cfg.n_features if n_features is None else int(n_features)
+        kps = self.detect(gray, n_features)
+        if kps:
+            attrs = np.array([(k.pt[0], k.pt[1], k.response, k.octave) for k in kps], dtype=np.float64)
+            keep = bucket_select(attrs[:, :2], attrs[:, 3].astype(np.int64), attrs[:, 2], self.cfg, w, h,
+                                 n_features)
+            kps = [kps[i] for i in keep]
+        desc = None
+        if kps:
+            kps, desc = self._orb_high.compute(gray, kps)
+        if not kps or desc is None:
+            return empty_frame(index, timestamp)
+        attrs = np.array([(k.pt[0], k.pt[1], k.octave, k.angle) for k in kps], dtype=np.float64)
+        raw = attrs[:, :2].copy()
+        octave = attrs[:, 2].astype(np.int64)
+        angle = attrs[:, 3].astype(np.float32)
+        pts = undistort(raw, self.camera)
+        z = keypoint_depth(depth, raw, self.cfg.depth_patch_radius).astype(np.float64)
+        z[(z < self.engine.min_depth) | (z > self.engine.max_depth)] = 0.0  # outside the sensor's range: no depth
+        ur = virtual_right(pts[:, 0], z, self.camera.bf,
+                           np.inf if self.engine.stereo_far_points else self.th_depth_m)
+        return Frame(index=index, timestamp=timestamp, kps=pts, kps_raw=raw, octave=octave, angle=angle,
+                     desc=np.ascontiguousarray(desc), depth=z, ur=ur, inv_sigma2=self.inv_level_sigma2[octave])
 
 
 def empty_frame(index: int, timestamp: float) -> Frame:

@@ -233,7 +233,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bo
 
 
 # Source that decides a frame's extracted features (``features_path``).
-FEATURES_CODE = ("slam/frame.py", "slam/extractor.py", "slam/depth.py", "slam/features.py", "data")
+FEATURES_CODE = ("slam/frame.py", "slam/depth.py", "slam/features.py", "data")
 
 
 def features_path(seq, path: Path, config, options: dict, frames: int | None = None) -> Path:

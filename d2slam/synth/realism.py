@@ -6,7 +6,7 @@ person's keypoints leaves too few for tracking), a textureless person tests noth
 
 - ``area``: fraction of the image covered by the mask (people; for synthetic frames also "dynamic" = people plus
   moved objects while they move);
-- ``kp``: fraction of the engine's keypoints (``d2slam.slam.extractor.OrbExtractor``: ORB-SLAM settings, bucketing)
+- ``kp``: fraction of the engine's keypoints (``d2slam.slam.frame.OrbExtractor``: ORB-SLAM settings, bucketing)
   whose pixel lies in the mask;
 - ``ratio = kp / area`` (1 = a person is as feature-rich as the rest of the frame), defined for frames where the
   mask covers at least ``MIN_AREA`` of the image.
@@ -62,7 +62,7 @@ def ratio(kp: np.ndarray, area: np.ndarray) -> np.ndarray:
 def extractor(camera=None, config: Config | None = None):
     """The engine's ORB extractor (ORB-SLAM settings) for a 640x480 fr3-like camera."""
     from d2slam.data.base import Camera
-    from d2slam.slam.extractor import OrbExtractor
+    from d2slam.slam.frame import OrbExtractor
 
     cfg = config or DEFAULT
     if camera is None:
