@@ -1,5 +1,7 @@
 """`d2slam demo` (what `make demo` runs): generates, runs none and d2slam on the sequence and its twin, prints."""
 
+import re
+
 import numpy as np
 
 from d2slam.baselines.vocab import build_tree
@@ -14,11 +16,13 @@ def test_demo_runs_the_main_job(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("PYORBSLAM3_VOCAB", str(tmp_path / "voc.txt"))
     assert main(["demo", "--frames", "12", "--jobs", "1"]) == 0
     out = capsys.readouterr().out
-    assert "12 frames of walking_xyz" in out and "static twin" in out
+    assert "12 frames of walking_halfsphere" in out and "static twin" in out
     table = out.split("== 2.")[1]
     assert table.count("none") >= 2 and table.count("d2slam") >= 2  # both methods on the sequence and its twin
-    assert len([p for p in (tmp_path / "study" / "sequences").glob("walking_xyz_s1_n12*") if p.is_dir()]) == 2
-    assert not (tmp_path / "demo" / "walking_xyz").exists()  # one sequence cache: the study's
+    summary = r"^ATE: none \d\.\d{4} m, d2slam \d\.\d{4} m; the static twin without people: none \d\.\d{4} m\.$"
+    assert re.search(summary, out, re.M)
+    assert len([p for p in (tmp_path / "study" / "sequences").glob("walking_halfsphere_s0_n12*") if p.is_dir()]) == 2
+    assert not (tmp_path / "demo" / "walking_halfsphere").exists()  # one sequence cache: the study's
     assert (tmp_path / "demo" / "study" / "runs.csv").is_file() and (tmp_path / "demo" / "study" / "tables.md").is_file()
     # it says where everything went, first and last
     first, last = out.splitlines()[0], out.strip().splitlines()[-2]

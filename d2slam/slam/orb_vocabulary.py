@@ -21,7 +21,7 @@ from numba import njit
 
 from d2slam.config import EngineConfig
 from d2slam.errors import D2SlamError
-from d2slam.slam.matching import _popcount64
+from d2slam.slam.matching import _hamming
 
 
 @dataclass(frozen=True)
@@ -68,9 +68,7 @@ def _descend(children, node_desc, desc, fv_depth):
                 c = children[cur, j]
                 if c < 0:
                     break
-                d = 0
-                for w in range(4):
-                    d += _popcount64(node_desc[c, w] ^ desc[i, w])
+                d = _hamming(node_desc, c, desc, i)
                 if d < best_d:
                     best, best_d = c, d
             if best < 0:
