@@ -6,7 +6,7 @@ downloads unless :func:`fetch_assets` (``d2slam assets fetch``) is called.
 
 ``d2slam assets fetch`` downloads the files of :data:`DOWNLOADS` from pinned commits of public GitHub repositories
 (``$D2SLAM_ASSETS_MIRROR`` replaces ``https://raw.githubusercontent.com/``), checks their sha256, and derives the two
-float models of :data:`DERIVED` from the int8 one with :func:`d2slam.segmentation.dequantize.dequantize` (the
+float models of :data:`DERIVED` from the int8 one with :func:`d2slam.dequantize.dequantize` (the
 result has the same sha256 as the shared files). Files already found (shared folder or cache) are not fetched again.
 """
 
@@ -143,7 +143,7 @@ def fetch_assets(timeout: float | None = None, echo=_log.info) -> list[Path]:
     for model in DERIVED:
         if find(model.path) is not None:
             continue
-        from d2slam.segmentation.dequantize import dequantize_file
+        from d2slam.dequantize import dequantize_file
 
         dest = root / model.path
         dest.parent.mkdir(parents=True, exist_ok=True)

@@ -38,7 +38,7 @@ class FrameRecord:
 
 @dataclass
 class RecordedRun:
-    """A run of ``method``: the engine's ``RunResult`` and one ``FrameRecord`` per frame."""
+    """A run of ``method``: the engine's ``EngineRun`` and one ``FrameRecord`` per frame."""
 
     method: str
     result: object = None

@@ -1,7 +1,7 @@
 """Run a sequence through the SLAM engine: one function, a progress bar, per-stage timings, a result object.
 
-    result = run_sequence(open_sequence(path), keypoint_filter=None, mask_provider=None)
-    result.trajectory  # tracked frames only (T_world_camera), result.tracked / result.lost, result.fps
+    run = run_sequence(open_sequence(path), keypoint_filter=None, mask_provider=None)
+    run.trajectory  # tracked frames only (T_world_camera), run.tracked / run.lost, run.fps (d2slam.record.EngineRun)
 
 Stages timed per frame: ``load`` (waiting for the images and masks; the next two frames and their masks are read by
 one prefetch thread while the current one is processed), ``segment`` (the mask provider's own time, when there is
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -32,6 +31,7 @@ from tqdm import tqdm
 from d2slam.config import DEFAULT, Config
 from d2slam.data.base import Trajectory
 from d2slam.errors import D2SlamError
+from d2slam.record import EngineRun
 from d2slam.slam.engine import STAGES as ENGINE_STAGES
 from d2slam.slam.engine import Engine
 
@@ -40,42 +40,15 @@ STAGES = ("load", "segment") + ENGINE_STAGES
 Recorder = Callable[[int, np.ndarray, "np.ndarray | None", object], None]
 
 
-@dataclass
-class RunResult:
-    trajectory: Trajectory  # tracked frames only
-    frames: int
-    tracked: int
-    lost: int
-    states: list[str]  # per frame: "ok" | "lost" | "not_initialized"
-    keyframes: int
-    map_points: int
-    stage_ms: dict[str, float]  # mean milliseconds per frame and stage
-    total_s: float
-    fps: float
-    per_frame: list[dict] = field(default_factory=list)
-    first_frame_at: float = float("nan")  # time.time() when the first frame was done (cold-start measurements)
-    # Loop closing (``EngineConfig.loop_closing``): the loops closed (``Loop.to_dict``), every place-recognition
-    # candidate (``Candidate``), the detection time of each keyframe (ms, wall and CPU) and each correction's (s).
-    loop_closing: bool = False
-    loops: list[dict] = field(default_factory=list)
-    loop_candidates: list = field(default_factory=list)
-    loop_detect_ms: list[float] = field(default_factory=list)
-    loop_detect_cpu_ms: list[float] = field(default_factory=list)  # the same in CPU time
-
-    def summary(self) -> dict:
-        return {"frames": self.frames, "tracked": self.tracked, "lost": self.lost, "keyframes": self.keyframes,
-                "map_points": self.map_points, "fps": round(self.fps, 2),
-                "stage_ms": {k: round(v, 3) for k, v in self.stage_ms.items()}}
-
-
 def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
                  mask_provider: Callable[[int], "np.ndarray | None"] | None = None,
                  recorder: Recorder | None = None, progress: bool | None = None, desc: str | None = None,
-                 engine: Engine | None = None, prefetch: bool = True, features=None) -> RunResult:
-    """Run every frame of ``sequence`` through the engine (see module docstring). ``recorder(frame index, keypoints
-    (N, 2), beliefs (N,) or None, diagnostics)`` is called after each frame (diagnostics: the filter's ``last``
-    attribute when it has one)."""
-    n = len(sequence)
+                 engine: Engine | None = None, prefetch: bool = True, features=None,
+                 frames: int | None = None) -> EngineRun:
+    """Run every frame of ``sequence`` (the first ``frames`` when given) through the engine (see module docstring).
+    ``recorder(frame index, keypoints (N, 2), beliefs (N,) or None, diagnostics)`` is called after each frame
+    (diagnostics: the filter's ``last`` attribute when it has one)."""
+    n = len(sequence) if frames is None else min(len(sequence), int(frames))
     if n == 0:
         raise D2SlamError("sequence has no frames", path=getattr(sequence, "root", None))
     engine = engine or Engine(sequence.camera, config, keypoint_filter)
@@ -175,7 +148,7 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     tracked = int(sum(s == "ok" for s in states))
     stage_ms = {k: 1000.0 * v / n for k, v in totals.items() if k != "segment" or mask_provider is not None}
     lc = engine.loop
-    return RunResult(trajectory=Trajectory(ts, poses, meta={"sequence": getattr(sequence, "name", "")}),
+    return EngineRun(trajectory=Trajectory(ts, poses, meta={"sequence": getattr(sequence, "name", "")}),
                      frames=n, tracked=tracked, lost=n - tracked, states=states,
                      keyframes=len(engine.map.good_keyframes()), map_points=engine.map.n_points, stage_ms=stage_ms,
                      total_s=total, fps=n / total if total > 0 else float("inf"), per_frame=per_frame,

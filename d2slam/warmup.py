@@ -26,7 +26,7 @@ WARM_UP_FRAMES = 24
 def warm_up(frames: int = WARM_UP_FRAMES) -> float:
     """Compile (or load from the cache) every compiled kernel; returns the seconds it took."""
     from d2slam.config import DEFAULT
-    from d2slam.dynamics import get_filter
+    from d2slam.methods import get_filter
     from d2slam.slam.engine import Engine
     from d2slam.slam.fixture import FR3, room_sequence
 

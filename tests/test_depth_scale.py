@@ -121,12 +121,14 @@ def test_run_warns_once_with_the_factor_and_runs(moving, tmp_path, capsys):
 
 def test_orbslam3_runs_are_checked_too(moving, tmp_path, monkeypatch, capsys):
     """The real ORB-SLAM3 has its own runner; the depth is checked before it starts all the same."""
+    import d2slam.commands.run as run_command
     from d2slam import methods
 
     ran = []
     for name in ("orbslam3", "orbslam3-masked"):
-        monkeypatch.setitem(methods._REGISTRY, name, dataclasses.replace(methods.get_method(name),
-                                                                         runner=lambda args: ran.append(args) or 0))
+        monkeypatch.setitem(methods._REGISTRY, name, dataclasses.replace(
+            methods.get_method(name), runner=lambda args: ran.append(args) or "record"))
+    monkeypatch.setattr(run_command, "print_orbslam3", lambda record, args: 0 if record == "record" else 2)
     cam = tmp_path / "mm.yaml"
     cam.write_text("%YAML:1.0\nCamera.fx: 535.4\nCamera.fy: 539.2\nCamera.cx: 320.1\nCamera.cy: 247.6\n"
                    "Camera.width: 640\nCamera.height: 480\nCamera.bf: 40.0\nDepthMapFactor: 25000.0\n")

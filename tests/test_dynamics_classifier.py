@@ -6,24 +6,32 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from d2slam.config import Config, DynamicsConfig
-from d2slam.dynamics import METHODS, MODES, D2SlamFilter, get_filter
+from d2slam.dynamics.classifier import D2SlamFilter, EpipolarFilter, SemanticFilter
+from d2slam.dynamics.switches import Switches
 from d2slam.dynamics.toy import two_view_scene
 from d2slam.errors import D2SlamError
 from d2slam.eval.keypoints import ModuleMetrics
+from d2slam.methods import DYNAMICS, get_filter, methods
 from d2slam.slam.hook import FilterInput, KeypointFilter
 
 H, W = 48, 64
+MODES = tuple(DYNAMICS)
 
 
 def test_factory_and_protocol():
     assert get_filter("none") is None
-    assert set(METHODS) == set(MODES) | {"none"}
+    assert set(MODES) < set(methods())
+    kinds = {"semantic": SemanticFilter, "geometric": EpipolarFilter}
     for m in MODES:
         f = get_filter(m, Config())
-        assert isinstance(f, D2SlamFilter) and f.mode == m
+        assert isinstance(f, kinds.get(m, D2SlamFilter)) and f.mode == m
         hook: KeypointFilter = f  # the engine's protocol: __call__ and reset
         hook.reset()
-    with pytest.raises(D2SlamError, match="unknown dynamics method"):
+    # the ablations are the full method with one switch off (the flow: one on)
+    assert {m: get_filter(m).switches for m in MODES if m not in kinds} == {
+        "d2slam": Switches(), "d2slam-flow": Switches(flow=True), "no-depth": Switches(depth=False),
+        "no-oim": Switches(oim=False), "no-bayes": Switches(bayes=False)}
+    with pytest.raises(D2SlamError, match="unknown method"):
         get_filter("dynaslam")
 
 

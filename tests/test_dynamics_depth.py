@@ -56,7 +56,7 @@ def test_keypoint_depth_matches_brute_force():
     depth[3, 3] = np.nan
     depth[5, 5] = np.inf
     kps = np.column_stack([rng.uniform(-1, 40, 200), rng.uniform(-1, 30, 200)])
-    got = dz.keypoint_depth(depth, kps)
+    got = dz.keypoint_depth(depth, kps, 1)
     for (u, v), g in zip(kps, got):
         cu, cv = int(np.rint(u)), int(np.rint(v))
         patch = depth[max(cv - 1, 0):cv + 2, max(cu - 1, 0):cu + 2].ravel() if 0 <= cu + 1 and 0 <= cv + 1 else []
@@ -66,7 +66,7 @@ def test_keypoint_depth_matches_brute_force():
 
 def test_keypoint_depth_edge_cases():
     depth = np.zeros((10, 10), np.float32)
-    assert dz.keypoint_depth(depth, np.zeros((0, 2))).shape == (0,)
-    np.testing.assert_array_equal(dz.keypoint_depth(depth, [[5, 5], [np.nan, 1], [100, 100]]), 0.0)
+    assert dz.keypoint_depth(depth, np.zeros((0, 2)), 1).shape == (0,)
+    np.testing.assert_array_equal(dz.keypoint_depth(depth, [[5, 5], [np.nan, 1], [100, 100]], 1), 0.0)
     depth[4:7, 4:7] = [[1, 2, 3], [4, 5, 6], [7, 8, 0]]
-    assert dz.keypoint_depth(depth, [[5, 5]])[0] == pytest.approx(4.5)  # 8 valid values: mean of the middle two
+    assert dz.keypoint_depth(depth, [[5, 5]], 1)[0] == pytest.approx(4.5)  # 8 valid values: mean of the middle two

@@ -16,7 +16,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent / "data"))
 import make_dynamics_reference as R  # noqa: E402
 
-from d2slam.dynamics import MODES, get_filter  # noqa: E402
+from d2slam.methods import DYNAMICS, get_filter  # noqa: E402
+
+MODES = tuple(DYNAMICS)
 
 
 # Another CPU's rounding changes a value by a few ulps: keypoint depth is float32, so by one float32 ulp there

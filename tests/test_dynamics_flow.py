@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from d2slam.config import DynamicsConfig
-from d2slam.dynamics import get_filter
+from d2slam.methods import get_filter
 from d2slam.dynamics.depth import keypoint_depth
 from d2slam.dynamics.flow import flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import geometric_module
@@ -128,7 +128,7 @@ def test_flow_matches_new_depth():
     args = (q, prev_kps, np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.9]), matches)
     pz = flow_matches(*args, prev_depth=depth)[1]
     np.testing.assert_array_equal(pz[:3], [1, 2, 3])
-    np.testing.assert_array_equal(pz[3:], keypoint_depth(depth, q[2:]))
+    np.testing.assert_array_equal(pz[3:], keypoint_depth(depth, q[2:], 1))
     assert np.all(pz[3:] > 0) and pz[3] == np.median(np.delete(depth[19:22, 29:32].ravel(), 4))
     np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, cfg=DynamicsConfig(flow_new_depth=False))[1],
                                   [1, 2, 3, 0, 0])

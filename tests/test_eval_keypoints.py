@@ -71,7 +71,7 @@ class _ToySequence:
 def test_recorder_matches_direct_module_metrics_and_is_strict_json():
     import json
 
-    from d2slam.dynamics import get_filter
+    from d2slam.methods import get_filter
     from d2slam.eval.keypoints import KeypointRecorder
 
     seq = _ToySequence([0, 1, 2])
@@ -96,7 +96,7 @@ def test_recorder_matches_direct_module_metrics_and_is_strict_json():
 def test_recorder_stale_diagnostics_none_method_and_nan_to_null():
     import json
 
-    from d2slam.dynamics import get_filter
+    from d2slam.methods import get_filter
     from d2slam.eval.keypoints import KeypointRecorder
 
     seq = _ToySequence([3, 4])

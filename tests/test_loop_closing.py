@@ -507,7 +507,8 @@ def test_the_ablation_puts_dynamic_keypoints_back_into_words_and_matches(voc):
 
 def test_study_runs_record_loop_closing_and_its_loops():
     from d2slam.study.grid import RunSpec
-    from d2slam.study.runner import execute_run, run_key, run_options
+    from d2slam.study.keys import run_key
+    from d2slam.study.runner import execute_run, run_options
     from d2slam.study.sequences import ensure_sequence
 
     ensure_sequence("sitting_static", 101, 40, False)  # the sequence test_study_run uses (cached)

@@ -26,7 +26,7 @@ def test_recorded_run_is_the_library_run(tmp_path):
     seen = []
     run = recorded_run(seq, "d2slam", also=lambda i, kps, beliefs, diag: seen.append(i))
     ref = run_method(seq, "d2slam", DEFAULT, masks="sim", synthetic=True, progress=False)
-    assert np.array_equal(run.result.trajectory.poses, ref.result.trajectory.poses)
+    assert np.array_equal(run.result.trajectory.poses, ref.trajectory.poses)
     assert [f.index for f in run.frames] == seen == list(range(len(seq)))
     for f in run.frames:
         assert f.inp.frame_index == f.diag.frame_index == f.index

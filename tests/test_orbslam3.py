@@ -97,8 +97,14 @@ def test_map_segments_from_states():
 
 def test_built_vocabulary_loads_in_orbslam3_and_tracks(tmp_path, seq_dir, built_vocab):
     out = tmp_path / "traj.txt"
-    run = O.run_orbslam3(seq_dir, out, tmp_path / "run.json", vocab=built_vocab, progress=False)
+    record = O.run_orbslam3(seq_dir, out, tmp_path / "run.json", vocab=built_vocab, progress=False)
+    run = record.orbslam3
     assert run["status"] == "ok", run["message"]
+    # the record every method returns: ORB-SLAM3's outcome and figures, its trajectory, evaluated
+    assert (record.method, record.status, record.error, record.tracked, record.repeats) == ("orbslam3", "ok", "", 36, 1)
+    assert len(record.trajectory) == 36 and record.stage_ms == {} and record.loops is None
+    assert record.evaluation.metrics.ate_rmse_m == run["metrics"]["ate_rmse_m"] == record.ate_range[0]
+    assert record.evaluation.aligned[0].shape == (36, 3)
     assert run["frames"] == 36 and run["tracked"] == 36 and run["lost"] == 0 and run["resets"] == 0
     assert run["vocabulary"]["kind"] == "built" and run["vocabulary"]["path"] == str(built_vocab.resolve())
     assert run["ms_per_frame"] > 0 and run["fps"] > 0 and run["method"] == "orbslam3"
@@ -123,7 +129,7 @@ def _stores() -> set:
 def test_repeats_report_median_and_spread(tmp_path, seq_dir, built_vocab):
     before = _stores()
     run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", repeats=2, vocab=built_vocab, max_frames=6, progress=False,
-                         evaluate=False)
+                         evaluate=False).orbslam3
     assert len(run["runs"]) == 2 and run["statuses"] == ["ok", "ok"]
     assert run["tracked"] == 6 and run["tracked_spread"]["values"] == [6, 6]
     lo, hi = run["ms_per_frame_spread"]["min"], run["ms_per_frame_spread"]["max"]
@@ -136,7 +142,7 @@ def test_repeats_report_median_and_spread(tmp_path, seq_dir, built_vocab):
 
 
 def test_run_seconds_say_where_the_time_went(tmp_path, seq_dir, built_vocab):
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, progress=False)
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, progress=False).orbslam3
     sec = run["seconds"]
     assert set(sec) == {"track", "load", "decode", "loop", "save", "process", "evaluate"}
     assert sec["load"] > 0 and sec["decode"] > 0 and sec["evaluate"] > 0
@@ -182,7 +188,8 @@ def test_corrupt_frame_with_repeats_is_recorded_as_without(tmp_path, seq_dir, bu
     shutil.copytree(seq_dir, broken)
     seq = open_sequence(broken)
     seq.rgb_files[5].write_bytes(b"not a png")
-    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False, repeats=2, evaluate=False)
+    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False, repeats=2,
+                         evaluate=False).orbslam3
     assert run["statuses"] == ["failed", "failed"] and seq.rgb_files[5].name in run["message"]
     assert run["frames"] == 5 and run["tracked"] == 5
 
@@ -191,11 +198,11 @@ def test_corrupt_vocabulary_is_a_failed_run_not_a_crash(tmp_path, seq_dir):
     bad = tmp_path / "ORBvoc.txt"
     bad.write_text("10 6 0 0\n0 1 1 2 3")  # ORB-SLAM3's own loader would accept this and crash later
     (tmp_path / "t.txt").write_text("stale\n")
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", tmp_path / "r.json", vocab=bad, progress=False)
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", tmp_path / "r.json", vocab=bad, progress=False).orbslam3
     assert run["status"] == "failed" and "vocabulary" in run["message"] and str(bad) in run["message"]
     assert json.loads((tmp_path / "r.json").read_text())["status"] == "failed"
     assert not (tmp_path / "t.txt").exists()
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=tmp_path / "missing.txt", progress=False)
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=tmp_path / "missing.txt", progress=False).orbslam3
     assert run["status"] == "failed" and "not found" in run["message"]
 
 
@@ -204,16 +211,16 @@ def test_settings_orbslam3_rejects_is_a_failed_run(tmp_path, seq_dir, built_voca
     cam = open_sequence(seq_dir).camera
     p = tmp_path / "kb.yaml"
     p.write_text(O.settings_yaml(cam).replace('"PinHole"', '"KannalaBrandt8"'))
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False)
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False).orbslam3
     assert run["status"] == "failed" and "aborting" in run["message"]
     assert Path(run["log"]).is_file()
     p.write_text(O.settings_yaml(cam).replace("ORBextractor.nFeatures: 1000\n", ""))
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False)
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False).orbslam3
     assert run["status"] == "failed" and "nFeatures" in run["message"]
 
 
 def test_timeout_kills_the_child(tmp_path, seq_dir, built_vocab):
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, timeout=0.2, progress=False)
+    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, timeout=0.2, progress=False).orbslam3
     assert run["status"] == "timeout" and "limit" in run["message"]
     assert run["frames"] < 36
 
@@ -225,7 +232,7 @@ def test_corrupt_frame_mid_sequence_is_recorded(tmp_path, seq_dir, built_vocab):
     shutil.copytree(seq_dir, broken)
     seq = open_sequence(broken)
     seq.rgb_files[5].write_bytes(b"not a png")
-    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False)
+    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False).orbslam3
     assert run["status"] == "failed" and seq.rgb_files[5].name in run["message"]
     assert run["frames"] == 5 and run["tracked"] == 5  # what ran before it is kept
     assert len(read_tum_trajectory(tmp_path / "t.txt")) == 5
@@ -268,16 +275,21 @@ def test_bench_helpers_and_topic_registered(capsys):
     assert "= 2.5x" in out
 
 
-def test_cli_run_entry_for_the_run_command(tmp_path, seq_dir, built_vocab, capsys):
+def test_run_command_entry_prints_the_outcome(tmp_path, seq_dir, built_vocab, capsys):
     from argparse import Namespace
+
+    from d2slam.commands.run import print_orbslam3
+    from d2slam.methods import get_method
 
     args = Namespace(sequence=str(seq_dir), out=str(tmp_path / "t.txt"), metrics_json=str(tmp_path / "r.json"),
                      camera=None, quiet=True, vocab=str(built_vocab))
-    assert O.cli_run(args) == 0
+    runner = get_method("orbslam3").runner
+    assert print_orbslam3(runner(args), args) == 0
     out = capsys.readouterr().out
     assert "orbslam3 rgbd_dataset_freiburg3_shift: ok" in out and "vocabulary: built" in out
     args.vocab = str(tmp_path / "missing.txt")
-    assert O.cli_run(args) == 2
+    record = runner(args)
+    assert print_orbslam3(record, args) == 2 and (record.status, record.trajectory) == ("failed", None)
     assert "failed" in capsys.readouterr().err
 
 
@@ -290,7 +302,7 @@ def test_a_camera_file_gives_orbslam3_its_th_depth(tmp_path, seq_dir, built_voca
                                                       "Stereo.ThDepth: 35.000000"))
     assert read_camera_file(cam).th_depth == 35.0
     out = tmp_path / "traj.txt"
-    run = O.run_orbslam3(seq_dir, out, vocab=built_vocab, camera=str(cam), max_frames=5, progress=False)
+    run = O.run_orbslam3(seq_dir, out, vocab=built_vocab, camera=str(cam), max_frames=5, progress=False).orbslam3
     assert run["status"] in ("ok", "lost"), run["message"]
     written = read_camera_file(run["settings"])
     assert written.th_depth == 35.0 and written.camera.fx == FREIBURG3.fx
@@ -303,7 +315,7 @@ def test_the_worker_imports_this_d2slam_from_any_folder(tmp_path, seq_dir, built
     (fake / "__init__.py").write_text("raise ImportError('the d2slam of the working folder')\n")
     monkeypatch.chdir(fake.parent)
     run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, max_frames=3, progress=False,
-                         evaluate=False)
+                         evaluate=False).orbslam3
     assert run["status"] == "ok", run["message"]
 
 

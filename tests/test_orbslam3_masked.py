@@ -112,7 +112,7 @@ def test_repeats_share_frames_masked_once(seq, vocab, tmp_path):
     want = W.sequence_frame(s, i, "gt", DEFAULT)
     assert np.array_equal(got[1], want[1]) and np.array_equal(got[2], want[2]) and (got[2] == 0).any()
     run = run_orbslam3(seq, tmp_path / "t.txt", repeats=2, vocab=vocab, masks="gt", max_frames=12, progress=False,
-                       evaluate=False)
+                       evaluate=False).orbslam3
     assert run["frame_store"]["mask_s"] > 0 and run["frame_store"]["frames"] == 12
     for r in run["runs"]:
         assert r["status"] in ("ok", "lost") and r["stage_ms"]["mask"] > 0
@@ -121,7 +121,8 @@ def test_repeats_share_frames_masked_once(seq, vocab, tmp_path):
 
 def test_study_runs_it_with_repeats(seq, vocab, monkeypatch):
     from d2slam.study.grid import RunSpec
-    from d2slam.study.runner import execute_run, run_key, run_options
+    from d2slam.study.keys import run_key
+    from d2slam.study.runner import execute_run, run_options
 
     monkeypatch.setenv("PYORBSLAM3_VOCAB", str(vocab))
     spec = RunSpec("sitting_static", "orbslam3-masked", 101, FRAMES)

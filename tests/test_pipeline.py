@@ -96,7 +96,7 @@ def test_d2slam_flow_runs_the_flow_through_the_engine(synth_dir, tmp_path):
     """--method d2slam-flow: the engine hands the previous grey image to the hook, the flow runs on every frame after
     the first, and two runs give the same trajectory."""
     from d2slam.config import DEFAULT
-    from d2slam.dynamics import get_filter as dyn_filter
+    from d2slam.methods import get_filter as dyn_filter
     from d2slam.segmentation import masks_for, stack_masks
 
     seq = open_sequence(synth_dir)
@@ -230,15 +230,17 @@ def test_run_command_onnx_masks_go_through_masks_for(room_dir, tmp_path, monkeyp
 
 def test_run_command_dispatches_orbslam3(room_dir, tmp_path, monkeypatch):
     import d2slam.baselines.orbslam3 as orb
+    import d2slam.commands.run as run_command
 
     seen = []
-    monkeypatch.setattr(orb, "cli_run", lambda args: seen.append(args) or 0)
+    monkeypatch.setattr(orb, "run_orbslam3", lambda *a, **k: seen.append((a, k)) or "record")
+    monkeypatch.setattr(run_command, "print_orbslam3", lambda record, args: 0 if record == "record" else 2)
     out = tmp_path / "t.txt"
     assert "orbslam3" in methods() and get_method("orbslam3").runner is not None
     assert main(["run", str(room_dir), "--camera", "fr3", "--method", "orbslam3", "--out", str(out),
                  "--repeats", "2", "--quiet"]) == 0
-    (args,) = seen
-    assert args.sequence == str(room_dir) and args.out == str(out) and args.repeats == 2 and args.camera == "fr3"
+    ((a, k),) = seen
+    assert a == (str(room_dir), str(out), None) and k["repeats"] == 2 and k["camera"] == "fr3" and k["masks"] is None
     assert main(["run", str(room_dir), "--method", "orbslam3", "--masks", "gt", "--out", str(out)]) == 2
 
 
@@ -279,7 +281,7 @@ def test_pipelined_extraction_gives_the_same_bytes(synth_dir):
     output sets (refill): same trajectory and beliefs, byte for byte, as a run that does everything in order, and
     as a second pipelined run."""
     from d2slam.config import DEFAULT
-    from d2slam.dynamics import get_filter as dyn_filter
+    from d2slam.methods import get_filter as dyn_filter
 
     seq = open_sequence(synth_dir)
     runs = []

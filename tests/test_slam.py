@@ -88,11 +88,11 @@ def test_extractor_settings_depth_and_virtual_right(room):
 
 
 def test_keypoint_depth_ignores_invalid_pixels():
-    from d2slam.slam.frame import keypoint_depth
+    from d2slam.slam.depth import keypoint_depth
 
     d = np.zeros((20, 20), np.float32)
     d[10, 10], d[10, 11], d[11, 10] = 2.0, 2.2, 2.1
-    z = keypoint_depth(d, np.array([[10.0, 10.0], [3.0, 3.0]]), 1, DEFAULT.engine)
+    z = keypoint_depth(d, np.array([[10.0, 10.0], [3.0, 3.0]]), 1)
     assert z[0] == pytest.approx(2.1) and z[1] == 0
 
 
@@ -452,7 +452,7 @@ def test_the_warm_up_compiles_every_kernel_a_run_uses():
 
     from numba.core.registry import CPUDispatcher
 
-    from d2slam.dynamics import get_filter
+    from d2slam.methods import get_filter
     from d2slam.warmup import warm_up
 
     def signatures():

@@ -143,8 +143,10 @@ def test_runspec_roundtrip():
 def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     import d2slam.study.core as core
     import d2slam.study.manifest as manifest
+    from d2slam.digests import source_digest
     from d2slam.study.core import load_run
-    from d2slam.study.runner import _ENGINE_CODE, _ORBSLAM3_CODE, run_key, run_options, source_digest
+    from d2slam.study.keys import ENGINE_CODE, ORBSLAM3_CODE, run_key
+    from d2slam.study.runner import run_options
 
     out = tmp_path / "resumed"
     shutil.copytree(serial.out, out)
@@ -160,8 +162,8 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     # the manifest records the checkout and the run keys' code digests as they were when the study started
     m = json.loads((out / "manifest.json").read_text())
     assert m["git"] == {"commit": "a" * 40, "dirty": False}
-    assert m["code"] == {"engine": source_digest(_ENGINE_CODE), "orbslam3": source_digest(_ORBSLAM3_CODE),
-                         "orbslam3-masked": source_digest(_ORBSLAM3_CODE + ("segmentation",))}
+    assert m["code"] == {"engine": source_digest(ENGINE_CODE), "orbslam3": source_digest(ORBSLAM3_CODE),
+                         "orbslam3-masked": source_digest(ORBSLAM3_CODE + ("segmentation",))}
     pd.testing.assert_frame_equal(res.runs, serial.runs, check_exact=True)  # timings too: nothing re-ran
     spec = RunSpec("sitting_static", "none", 101, FRAMES)
     key = run_key(spec, run_options())
@@ -299,7 +301,7 @@ def test_the_study_orders_its_runs_by_estimated_cost():
 def test_code_text_ignores_comments_docstrings_and_layout_only():
     """The run keys hash ``code_text``: a comment, docstring or layout change keeps a study resumable; any change in
     what the code does (a constant, a name, a statement) changes the key."""
-    from d2slam.study.runner import code_text
+    from d2slam.digests import code_text
 
     base = 'x = 1\n\n\ndef f(a):\n    return a + x\n'
     doc = ('"""Module doc."""\n# a comment\nx = 1  # one\n\n\ndef f(a):\n    """Adds x."""\n'

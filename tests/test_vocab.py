@@ -244,7 +244,7 @@ def test_training_jobs_are_keyed_by_generator_and_need_training_seeds(tmp_path, 
     from dataclasses import replace
 
     from d2slam.config import DEFAULT
-    from d2slam.study.sequences import generator_version
+    from d2slam.digests import generator_version
 
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path))
     cfg = replace(DEFAULT.baseline, vocab_train_seeds=(900,), vocab_train_scenarios=("walking_xyz",))

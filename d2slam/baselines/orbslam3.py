@@ -45,6 +45,7 @@ import numpy as np
 
 from d2slam.config import DEFAULT, Config
 from d2slam.errors import D2SlamError
+from d2slam.record import RunRecord
 
 METHOD = "orbslam3"
 MASKED_METHOD = "orbslam3-masked"
@@ -269,11 +270,47 @@ def _kill(proc: subprocess.Popen) -> None:
         pass
 
 
+@dataclasses.dataclass(frozen=True)
+class Attempt:
+    """One ORB-SLAM3 run of a sequence (a repeat of :func:`run_orbslam3`), as its run JSON lists it (``runs``):
+    frames run and expected, tracked / lost / not initialised, the maps it started (``resets`` = maps - 1), its
+    timings (per frame, the worker's load, wall, the split of ``_seconds``, CPU, per stage), the log kept (None:
+    removed), its outcome (``status``, ``message``: see the module docstring) and the trajectory written."""
+
+    method: str
+    sequence: str
+    frames: int
+    frames_expected: int
+    tracked: int
+    lost: int
+    not_initialized: int
+    resets: int
+    maps: int
+    ms_per_frame: float | None
+    ms_per_frame_median: float | None
+    fps: float | None
+    load_s: float | None
+    wall_s: float
+    seconds: dict
+    cpu_s: float | None
+    stage_ms: dict
+    log: str | None
+    status: str
+    message: str
+    trajectory: str | None  # the TUM file written (None: no frame tracked)
+    trajectory_source: str | None  # "SaveTrajectoryTUM" (ORB-SLAM3's final poses) or "online" (track_rgbd's)
+    trajectory_poses: int
+    repeat: int = 0
+    evaluation: dict | None = None  # ``evaluate_trajectory``'s {"metrics": ...} or {"metrics_error": ...}
+
+    def to_dict(self) -> dict:
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "evaluation"}
+        return {**out, **(self.evaluation or {})}
+
+
 def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Path, camera: str | None,
               max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
-              work: Path, masks: str | None = None, store: Path | None = None) -> dict:
-    from d2slam.data import Trajectory, read_tum_trajectory, write_tum_trajectory
-
+              work: Path, masks: str | None = None, store: Path | None = None, repeat: int = 0) -> Attempt:
     work.mkdir(parents=True, exist_ok=True)
     for name in ("progress.txt", "final.txt", "done.json", "loaded", "orbslam3.log"):
         (work / name).unlink(missing_ok=True)
@@ -294,40 +331,45 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
         if len(rec["ms"]):  # the masking time of each frame joins its tracking time, as when the worker masks
             rec["ms"] = rec["ms"] + np.load(store / "mask_ms.npy")[rec["index"]]
     log = work / "orbslam3.log"
-    log_text = log.read_text(errors="replace") if log.is_file() else ""
     state = rec["state"]
     frames = int(len(state))
     ok = np.isin(state, STATE_OK)
+    lost_state = np.isin(state, (STATE_RECENTLY_LOST, STATE_LOST))
     seg = _map_segments(state)
-    maps_from_states = int(seg.max() + 1) if frames and seg.max() >= 0 else 0
-    maps_from_log = log_text.count("Creation of new map with id")
+    maps = max(log.read_text(errors="replace").count("Creation of new map with id") if log.is_file() else 0,
+               int(seg.max() + 1) if frames and seg.max() >= 0 else 0)
+    tracked, lost, resets = int(ok.sum()), int(lost_state.sum()), maps - 1 if frames else 0
+    status, message = _outcome(raw, done, work, log, frames, n_frames, tracked, lost, resets)
+    traj, source = _trajectory(rec, ok, work / "final.txt", out_traj, sequence_dir)
+    ms = rec["ms"]
+    return Attempt(
+        method=MASKED_METHOD if masks else METHOD, sequence=str(sequence_dir), frames=frames,
+        frames_expected=int(n_frames), tracked=tracked, lost=lost, not_initialized=int((~ok & ~lost_state).sum()),
+        resets=resets, maps=maps, ms_per_frame=float(ms.mean()) if frames else None,
+        ms_per_frame_median=float(np.median(ms)) if frames else None,
+        fps=float(1000.0 / ms.mean()) if frames and ms.mean() > 0 else None, load_s=done.get("load_s"),
+        wall_s=raw["wall_s"], seconds=_seconds(raw["wall_s"], done, ms), cpu_s=done.get("cpu_s"),
+        stage_ms=_stage_ms(stages, frames, ms, masks), log=str(log), status=status, message=message,
+        trajectory=str(out_traj) if traj is not None else None, trajectory_source=source,
+        trajectory_poses=int(len(traj)) if traj is not None else 0, repeat=repeat)
+
+
+def _stage_ms(stages: dict, frames: int, ms: np.ndarray, masks: str | None) -> dict:
+    """Milliseconds per frame of loading (the worker's I/O) and tracking; with masks, of segmenting and masking too
+    (the per-frame ``ms`` hold the masking and ORB-SLAM3's tracking)."""
     n_stage = max(1, int(stages.get("frames") or frames))
-    result = {
-        "method": MASKED_METHOD if masks else METHOD,
-        "sequence": str(sequence_dir),
-        "frames": frames,
-        "frames_expected": int(n_frames),
-        "tracked": int(ok.sum()),
-        "lost": int(np.isin(state, (STATE_RECENTLY_LOST, STATE_LOST)).sum()),
-        "not_initialized": int((~ok & ~np.isin(state, (STATE_RECENTLY_LOST, STATE_LOST))).sum()),
-        "resets": max(maps_from_log, maps_from_states) - 1 if frames else 0,
-        "maps": max(maps_from_log, maps_from_states),
-        "ms_per_frame": float(rec["ms"].mean()) if frames else None,
-        "ms_per_frame_median": float(np.median(rec["ms"])) if frames else None,
-        "fps": float(1000.0 / rec["ms"].mean()) if frames and rec["ms"].mean() > 0 else None,
-        "load_s": done.get("load_s"),
-        "wall_s": raw["wall_s"],
-        "seconds": _seconds(raw["wall_s"], done, rec["ms"]),
-        "cpu_s": done.get("cpu_s"),
-        "stage_ms": {"load": round(1000.0 * stages["io_s"] / n_stage, 3) if frames and "io_s" in stages else None,
-                     "track": round(float(rec["ms"].mean()), 3) if frames else None},
-        "log": str(log),
-    }
-    if masks and frames and "mask_s" in stages:  # the per-frame ms hold the masking and ORB-SLAM3's tracking
+    out = {"load": round(1000.0 * stages["io_s"] / n_stage, 3) if frames and "io_s" in stages else None,
+           "track": round(float(ms.mean()), 3) if frames else None}
+    if masks and frames and "mask_s" in stages:
         mask_ms = 1000.0 * stages["mask_s"] / n_stage
-        result["stage_ms"].update(segment=round(1000.0 * stages["segment_s"] / n_stage, 3), mask=round(mask_ms, 3),
-                                  track=round(float(rec["ms"].mean()) - mask_ms, 3))
-    # status
+        out.update(segment=round(1000.0 * stages["segment_s"] / n_stage, 3), mask=round(mask_ms, 3),
+                   track=round(float(ms.mean()) - mask_ms, 3))
+    return out
+
+
+def _outcome(raw: dict, done: dict, work: Path, log: Path, frames: int, n_frames: int, tracked: int, lost: int,
+             resets: int) -> tuple[str, str]:
+    """(status, message) of one run (the module docstring lists the statuses)."""
     if raw["timed_out"]:
         status, message = "timeout", f"ORB-SLAM3 stopped: {raw['timed_out']} (after {frames} frames)"
     elif "error" in done:
@@ -339,22 +381,27 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
         status = "crashed"
         message = (f"ORB-SLAM3 died after {frames} of {n_frames} frames (exit {raw['returncode']}): "
                    f"{_log_tail(log)}")
-    elif result["resets"] > 0:
+    elif resets > 0:
         status = "reset"
-        message = (f"ORB-SLAM3 lost tracking and started {result['resets']} new map(s); the trajectory spans "
-                   f"several maps (tracked {result['tracked']}/{frames})")
-    elif result["lost"] > 0 or result["tracked"] == 0:
+        message = (f"ORB-SLAM3 lost tracking and started {resets} new map(s); the trajectory spans "
+                   f"several maps (tracked {tracked}/{frames})")
+    elif lost > 0 or tracked == 0:
         status = "lost"
-        message = f"ORB-SLAM3 lost tracking on {result['lost']} frames (tracked {result['tracked']}/{frames})"
+        message = f"ORB-SLAM3 lost tracking on {lost} frames (tracked {tracked}/{frames})"
     else:
-        status, message = "ok", f"tracked {result['tracked']}/{frames} frames"
+        status, message = "ok", f"tracked {tracked}/{frames} frames"
     if raw["returncode"] not in (0, None) and status in ("ok", "lost", "reset"):
         message += f"; ORB-SLAM3 exited with {raw['returncode']} after the last frame"
-    result["status"], result["message"] = status, message
-    # trajectory: tracked frames only, final poses where ORB-SLAM3 saved them
+    return status, message
+
+
+def _trajectory(rec: dict, ok: np.ndarray, final_path: Path, out_traj: Path, sequence_dir: Path):
+    """Write the tracked frames' poses to ``out_traj`` (ORB-SLAM3's final poses where it saved them, else the
+    online ones) and the online poses beside it (``.online.txt``); returns (the trajectory or None, its source)."""
+    from d2slam.data import Trajectory, read_tum_trajectory, write_tum_trajectory
+
     source, traj = None, None
     tracked_ts = rec["timestamp"][ok]
-    final_path = work / "final.txt"
     if tracked_ts.size and final_path.is_file() and final_path.stat().st_size > 0:
         try:
             final = read_tum_trajectory(final_path)
@@ -378,10 +425,7 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
         online = Trajectory(tracked_ts, rec["pose"][ok])
         write_tum_trajectory(out_traj.with_name(out_traj.stem + ".online.txt"), online,
                              header="d2slam orbslam3 online poses (track_rgbd) of tracked frames")
-    result["trajectory"] = str(out_traj) if traj is not None else None
-    result["trajectory_source"] = source
-    result["trajectory_poses"] = int(len(traj)) if traj is not None else 0
-    return result
+    return traj, source
 
 
 # --------------------------------------------------------------------------------------------------
@@ -391,11 +435,11 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
                  repeats: int = 1, vocab: str | Path | None = None, settings: str | Path | None = None,
                  camera: str | None = None, max_frames: int = 0, timeout: float | None = None,
                  config: Config = DEFAULT, progress: bool = True, evaluate: bool = True,
-                 keep_work: bool = False, masks: str | None = None) -> dict:
+                 keep_work: bool = False, masks: str | None = None) -> RunRecord:
     """Run the real ORB-SLAM3 RGB-D on ``sequence_dir`` ``repeats`` times; write ``out_traj`` (TUM) and the run
-    JSON (``metrics_json``); return the run dict. Never raises for an ORB-SLAM3 failure: the dict's ``status``
-    says what happened and ``message`` why (see the module docstring). Bad arguments (no sequence, repeats < 1)
-    raise :class:`D2SlamError`.
+    JSON (``metrics_json``); return the run (``RunRecord``, the JSON as its ``orbslam3``). Never raises for an
+    ORB-SLAM3 failure: the record's ``status`` says what happened and ``error`` why (see the module docstring).
+    Bad arguments (no sequence, repeats < 1) raise :class:`D2SlamError`.
 
     ``vocab``: a DBoW2 text file (default ``$PYORBSLAM3_VOCAB``, else the project-built vocabulary, built on first
     use); ``settings``: an ORB-SLAM3 1.0 YAML (default: generated from the sequence's camera); ``camera``: override
@@ -403,13 +447,55 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     seconds per repeat (default load + per-frame budget of :class:`~d2slam.config.BaselineConfig`); ``masks``: the
     person masks to remove from the frames (``orbslam3-masked``, module docstring; they must exist: a synthetic
     sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`)."""
+    out_traj = Path(out_traj).expanduser()
+    report, seq = _report(sequence_dir, out_traj, metrics_json, repeats, vocab, settings, camera, max_frames, timeout,
+                          config, progress, evaluate, keep_work, masks)
+    return run_record(report, seq, evaluate)
+
+
+def run_record(report: dict, seq, evaluate: bool = True) -> RunRecord:
+    """The :class:`RunRecord` of an ORB-SLAM3 run JSON (``report``) on ``seq``: its trajectory (read back), ORB-SLAM3's
+    status (``unevaluated`` when it tracked but gave no metrics), the median ATE and RPE over the repeats with the
+    ATE's range, and the aligned positions of the trajectory written (with ``evaluate`` and ground truth)."""
+    from d2slam.data import read_tum_trajectory
+    from d2slam.eval.trajectory import Evaluation, TrajectoryMetrics, aligned_estimate
+
+    status = report.get("status", "failed")
+    metrics = report.get("metrics") or {}
+    spread = (report.get("metrics_spread") or {}).get("ate_rmse_m")
+    error = "" if status == "ok" else str(report.get("message") or report.get("metrics_error") or "")
+    if not metrics:
+        status = status if status in ("failed", "crashed", "timeout") else "unevaluated"
+        error = error or str(report.get("metrics_error") or "no metrics")
+    path = report.get("trajectory")
+    traj = read_tum_trajectory(path) if path and Path(path).is_file() else None
+    aligned = None
+    if evaluate and traj is not None and seq.groundtruth is not None:
+        try:
+            aligned = aligned_estimate(seq.groundtruth, traj)[:2]
+        except Exception:  # noqa: BLE001 - only the plot misses it
+            aligned = None
+    evaluation = Evaluation(TrajectoryMetrics(**metrics) if metrics else None, metrics.get("ate_rmse_m"),
+                            str(report.get("metrics_error") or ""), aligned)
+    ate = metrics.get("ate_rmse_m")
+    return RunRecord(
+        method=report["method"], sequence=report.get("name", ""), trajectory=traj, frames=report.get("frames"),
+        tracked=report.get("tracked"), lost=report.get("lost"), fps=report.get("fps"),
+        ms_per_frame=report.get("ms_per_frame"), config_hash=report["config_hash"], loop_closing=True, status=status,
+        error=error, evaluation=evaluation if metrics or aligned is not None else None, masks=report.get("masks"),
+        masks_origin=report.get("masks_origin"), repeats=int(report.get("repeats", 1)),
+        ate_range=(spread["min"], spread["max"]) if spread else (ate, ate) if metrics else None, orbslam3=report)
+
+
+def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, settings, camera, max_frames: int,
+            timeout, config: Config, progress: bool, evaluate: bool, keep_work: bool, masks) -> tuple[dict, object]:
+    """:func:`run_orbslam3`'s runs: (the run JSON, the sequence)."""
     from d2slam.baselines.vocab import resolve_vocabulary
     from d2slam.data import open_sequence
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
     from d2slam.outputs import check_output_file
 
     sequence_dir = Path(sequence_dir).expanduser().resolve()
-    out_traj = Path(out_traj).expanduser()
     if repeats < 1:
         raise D2SlamError(f"repeats must be >= 1, got {repeats}")
     check_output_file(out_traj, "trajectory")
@@ -445,7 +531,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
             vinfo = resolve_vocabulary(vocab, build=True, progress=progress)
         except D2SlamError as exc:
             return _finish(dict(base, status="failed", message=f"vocabulary: {exc}", vocabulary=None),
-                           metrics_json)
+                           metrics_json), seq
         base["vocabulary"] = vinfo
         if settings is None:
             settings_path = out_traj.with_name(out_traj.stem + ".orbslam3.yaml")
@@ -456,7 +542,7 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         try:
             check_settings(settings_path)
         except D2SlamError as exc:
-            return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json)
+            return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json), seq
         store = _frame_store_root(seq, n_frames, repeats, config, work_root)
         if store is not None:
             from d2slam.baselines._orbslam3_worker import write_frame_store
@@ -468,22 +554,21 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
         runs = []
         for r in range(repeats):
             traj_r = out_traj if repeats == 1 else out_traj.with_name(f"{out_traj.stem}.rep{r}{out_traj.suffix}")
-            res = _run_once(sequence_dir, traj_r, vinfo, settings_path, camera, max_frames, n_frames, timeout,
-                            config, progress, work_root / f"rep{r}", masks, store)
-            res["repeat"] = r
-            if keep_work or res["status"] not in ("ok", "lost"):
-                kept = out_traj.with_name(f"{out_traj.stem}.rep{r}.orbslam3.log")
-                if Path(res["log"]).is_file():
-                    shutil.copyfile(res["log"], kept)
-                res["log"] = str(kept)
-            else:
-                res["log"] = None
-            if evaluate and res["trajectory"] and seq.groundtruth is not None:
+            run = _run_once(sequence_dir, traj_r, vinfo, settings_path, camera, max_frames, n_frames, timeout,
+                            config, progress, work_root / f"rep{r}", masks, store, repeat=r)
+            kept = None  # the log is kept when asked to, or when the run did not end well
+            if keep_work or run.status not in ("ok", "lost"):
+                kept = str(out_traj.with_name(f"{out_traj.stem}.rep{r}.orbslam3.log"))
+                if Path(run.log).is_file():
+                    shutil.copyfile(run.log, kept)
+            run = dataclasses.replace(run, log=kept)
+            if evaluate and run.trajectory and seq.groundtruth is not None:
                 t0 = time.perf_counter()
-                res.update(evaluate_trajectory(seq, res["trajectory"]))
-                res["seconds"]["evaluate"] = round(time.perf_counter() - t0, 3)
-            runs.append(res)
-        return _finish(_summarise(base, runs, out_traj), metrics_json)
+                evaluation = evaluate_trajectory(seq, run.trajectory)
+                run = dataclasses.replace(run, evaluation=evaluation,
+                                          seconds={**run.seconds, "evaluate": round(time.perf_counter() - t0, 3)})
+            runs.append(run.to_dict())
+        return _finish(_summarise(base, runs, out_traj), metrics_json), seq
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
         if store is not None:
@@ -608,36 +693,3 @@ def _json_default(o):
     if isinstance(o, Path):
         return str(o)
     raise TypeError(type(o).__name__)
-
-
-def cli_run(args) -> int:
-    """``d2slam run SEQUENCE_DIR --method orbslam3 --out TRAJ [--metrics-json RUN.json] [--camera fr3]`` (for the
-    run command to call when ``args.method == "orbslam3"``; optional ``args.repeats``, ``args.vocab``). Prints the
-    outcome; exit status 0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed."""
-    run = run_orbslam3(args.sequence, args.out, getattr(args, "metrics_json", None),
-                       repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
-                       camera=getattr(args, "camera", None), progress=not getattr(args, "quiet", False),
-                       masks=getattr(args, "masks", None))
-    from d2slam.commands.run import camera_text, summary_line
-
-    stream = sys.stdout if run["status"] in ("ok", "lost") else sys.stderr
-    v = run.get("vocabulary") or {}
-    masks = f" ({run['masks']} masks)" if run.get("masks") else ""
-    print(f"{run['method']} {run.get('name', args.sequence)}{masks}: {run['status']}: {run['message']}", file=stream)
-    if v:
-        print(f"  vocabulary: {v['kind']} {v['path']} (sha256 {v['sha256'][:16]})", file=stream)
-    if isinstance(run.get("ms_per_frame"), (int, float)):
-        print(f"  {run['ms_per_frame']:.1f} ms/frame", file=stream)
-    if not getattr(args, "quiet", False):
-        repeats = int(run.get("repeats", 1) or 1)
-        many = " (median of {repeats} runs)".format(repeats=repeats) if repeats > 1 else ""
-        ate = run.get("metrics", {}).get("ate_rmse_m")
-        masks = f"{run['masks']} ({run.get('masks_origin')})" if run.get("masks") else "none"
-        tracked = run.get("tracked") if isinstance(run.get("tracked"), (int, float)) else 0
-        print(summary_line(run["method"], masks,
-                           camera_text(run.get("camera", "?"), run.get("camera_source", "?"),
-                                       getattr(args, "camera", None)),
-                           tracked, run.get("frames", run.get("frames_expected", 0)), ate,
-                           [run.get("trajectory"), getattr(args, "metrics_json", None)], ate_note=many),
-              file=stream)
-    return {"ok": 0, "lost": 1, "reset": 1}.get(run["status"], 2)

@@ -390,7 +390,7 @@ def training_jobs(cfg: BaselineConfig = DEFAULT.baseline) -> list[dict]:
     render_frame`, written as ``d2slam synth`` writes them, so the files are those of the full sequence) without the
     frames in between. Each job's ``out`` folder is in the cache under the generator version; ``done`` says whether
     it is already rendered (:func:`render_training_frames`)."""
-    from d2slam.study.sequences import generator_version
+    from d2slam.digests import generator_version
 
     seeds = tuple(cfg.vocab_train_seeds)
     bad = [s for s in seeds if not 900 <= s <= 999]

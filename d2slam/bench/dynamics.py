@@ -23,7 +23,6 @@ import time
 import cv2
 import numpy as np
 
-FLOW_MODES = ("d2slam-flow",)  # modes that track keypoints in the images (d2slam.dynamics.flow)
 DESCRIPTION = "time the dynamics modules per frame (1000 keypoints, ~800 matches, two masks, 640x480)"
 TARGET_STAGE_MS = 5.0  # the engine's whole filter stage on a walking sequence (--sequence)
 
@@ -52,7 +51,7 @@ def _stats(values: list[float]) -> tuple[float, float, float]:
 
 def _run_mode(mode: str, scenes, args) -> dict[str, list[float]]:
     from d2slam.config import DynamicsConfig
-    from d2slam.dynamics import get_filter
+    from d2slam.methods import get_filter
 
     flt = get_filter(mode, DynamicsConfig())
     out: dict[str, list[float]] = {}
@@ -96,8 +95,7 @@ def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dic
     ``filter_cpu`` of the classifier alone."""
     from d2slam.config import DEFAULT
     from d2slam.data import SyntheticSequence, open_sequence
-    from d2slam.dynamics import get_filter
-    from d2slam.methods import get_method, mask_kind
+    from d2slam.methods import get_filter, get_method, mask_kind
     from d2slam.segmentation import masks_for, stack_masks
     from d2slam.slam.engine import Engine
 
@@ -119,8 +117,9 @@ def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dic
 
 
 def run(args) -> int:
-    from d2slam.dynamics import MODES
-    from d2slam.dynamics.depth import keypoint_depth
+    from d2slam.config import DEFAULT
+    from d2slam.methods import DYNAMICS, get_filter
+    from d2slam.slam.depth import keypoint_depth
     from d2slam.dynamics.toy import two_view_scene
 
     cv2.setNumThreads(args.threads)
@@ -150,15 +149,15 @@ def run(args) -> int:
     for i in range(args.frames):
         inp = scenes[i % len(scenes)]
         t0 = time.perf_counter()
-        keypoint_depth(inp.depth, inp.kps)
+        keypoint_depth(inp.depth, inp.kps, DEFAULT.orb.depth_patch_radius)
         kd.append((time.perf_counter() - t0) * 1e3)
-    modes = MODES if args.method == "all" else [args.method]
-    if args.method not in MODES and args.method != "all":
+    modes = list(DYNAMICS) if args.method == "all" else [args.method]
+    if args.method not in DYNAMICS and args.method != "all":
         from d2slam.errors import D2SlamError
 
-        raise D2SlamError(f"unknown method {args.method!r}; choose one of all, {', '.join(MODES)}")
+        raise D2SlamError(f"unknown method {args.method!r}; choose one of all, {', '.join(DYNAMICS)}")
     for mode in modes:
-        if mode in FLOW_MODES and not args.sequence:
+        if getattr(get_filter(mode), "use_flow", False) and not args.sequence:
             # the toy scenes have no images: the flow would be skipped and the figure would be d2slam's
             print(f"\nmethod {mode}: needs grey images (LK flow), timed with --sequence only")
             if args.method == "all":

@@ -163,7 +163,7 @@ def loops(args) -> int:
         for method in args.methods:
             for on in (True, False):
                 cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, loop_closing=on))
-                res = run_method(seq, method, cfg, synthetic=True, progress=False).result
+                res = run_method(seq, method, cfg, synthetic=True, progress=False).engine
                 lp = classify_loops(res.loops, seq.timestamps, seq.groundtruth, cfg.evaluation)
                 lp["closest"] = closest_call(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
                 wrong = wrong_candidates(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
@@ -386,7 +386,8 @@ def against_orbslam3(args) -> int:
     if twin is not None and not twin.is_dir():
         raise D2SlamError(f"no twin sequence folder {twin}")
     out = Path(tempfile.mkdtemp(prefix="d2slam_bench_engine_"))
-    orb = run_orbslam3(seq, out / "orbslam3.txt", out / "orbslam3.json", repeats=args.repeats, progress=False)
+    orb = run_orbslam3(seq, out / "orbslam3.txt", out / "orbslam3.json", repeats=args.repeats,
+                       progress=False).orbslam3
     rows = [("orbslam3", orb)]
     for method in args.methods:
         rows.append((method, _engine_run(seq, method, out)))

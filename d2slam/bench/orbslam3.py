@@ -130,7 +130,7 @@ def run(args) -> int:
                 for method in args.methods:
                     if method == "orbslam3":
                         r = run_orbslam3(seq, out / "orbslam3.txt", out / "orbslam3.json", repeats=args.repeats,
-                                         vocab=args.vocab, config=config)
+                                         vocab=args.vocab, config=config).orbslam3
                     else:
                         r = _run_engine(seq, out)
                         if r.get("trajectory") and "metrics" not in r and "metrics_error" not in r:

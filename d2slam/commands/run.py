@@ -48,8 +48,6 @@ def run(args) -> int:
     import json
     from pathlib import Path
 
-    import numpy as np
-
     from d2slam.config import DEFAULT, load_config_file
     from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
@@ -77,7 +75,7 @@ def run(args) -> int:
         if args.no_loop_closing:
             raise D2SlamError(f"--no-loop-closing does not apply to --method {args.method} (the real ORB-SLAM3)")
         _warn_depth_scale(open_sequence(args.sequence, **({"camera": camera} if camera else {})), DEFAULT)
-        return method.runner(args)
+        return print_orbslam3(method.runner(args), args)
 
     config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
     if th_depth is not None:
@@ -91,60 +89,58 @@ def run(args) -> int:
     mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
     run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
                      progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
-    result, masks_kind = run.result, run.masks
-    if result.tracked == 0:
-        write_tum_trajectory(out, result.trajectory, header=f"d2slam run {args.method}: no frame tracked")
+    engine, masks_kind, ev = run.engine, run.masks, run.evaluation
+    if run.tracked == 0:
+        write_tum_trajectory(out, run.trajectory, header=f"d2slam run {args.method}: no frame tracked")
     else:
-        write_tum_trajectory(out, result.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
+        write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
               **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
               **({"masks_origin": run.masks_origin} if run.masks_origin else {}),
-              "seed": args.seed, "config_hash": config.hash(),
+              "seed": args.seed, "config_hash": run.config_hash,
               "camera": {**dataclasses.asdict(seq.camera),
                          "source": camera_source or ("scene.json" if synthetic else args.camera or "folder name")},
               **({"config_file": str(Path(args.config).resolve()), "config_overrides": overrides,
                   "config": config.to_dict()} if args.config else {}),
-              **result.summary(), "trajectory": str(out)}
+              **engine.summary(), "trajectory": str(out)}
     if run.keypoints is not None:
         record["keypoints"] = run.keypoints
-    gt, ate_only = seq.groundtruth, None
-    record.update(loop_record(result, seq, gt, config))
-    if gt is None:
+    record.update(run.loops)
+    if run.loop_closing:
+        from d2slam.slam.orb_vocabulary import load_vocabulary
+
+        voc = load_vocabulary(config.engine.vocabulary or None)
+        record["vocabulary"] = {"path": voc.path, "sha256": voc.sha256}
+    ate_only = None
+    if ev is None:
         record["metrics_error"] = "no ATE/RPE: the sequence has no groundtruth.txt"
-    elif result.tracked < 3:
-        record["metrics_error"] = f"no ATE/RPE: only {result.tracked} frames tracked (at least 3 are needed)"
+    elif run.tracked < 3:
+        record["metrics_error"] = f"no ATE/RPE: only {run.tracked} frames tracked (at least 3 are needed)"
+    elif ev.metrics is not None:
+        record["metrics"] = ev.metrics.to_dict()
     else:
-        from d2slam.eval.trajectory import evaluate
-
-        try:
-            record["metrics"] = evaluate(gt, result.trajectory).to_dict()
-        except D2SlamError as exc:
-            record["metrics_error"] = f"no ATE/RPE: {exc}"
-            if "cannot compute RPE" in str(exc):  # too short for 1-second pairs: the ATE alone, for the summary
-                from d2slam.eval.trajectory import aligned_estimate
-
-                gt_xyz, est_xyz, _ = aligned_estimate(gt, result.trajectory)
-                ate_only = float(np.sqrt(np.mean(np.sum((gt_xyz - est_xyz) ** 2, axis=1))))
-    listed = getattr(seq, "n_rgb", result.frames)
-    if result.frames < listed:
-        record["frames_note"] = (f"{result.frames} of the {listed} frames of rgb.txt were run: the others have no "
+        record["metrics_error"] = f"no ATE/RPE: {ev.error}"
+        ate_only = ev.ate_rmse_m  # too short for 1-second pairs: the ATE alone, for the summary
+    listed = getattr(seq, "n_rgb", run.frames)
+    if run.frames < listed:
+        record["frames_note"] = (f"{run.frames} of the {listed} frames of rgb.txt were run: the others have no "
                                  f"depth image within {seq.max_dt:g} s (depth.txt lists {seq.n_depth})")
     for k in STAGES:
-        if k in result.stage_ms:
-            record[f"{k}_ms"] = round(result.stage_ms[k], 3)
-    record["startup_s"] = round(result.first_frame_at - process_start(), 3)
+        if k in run.stage_ms:
+            record[f"{k}_ms"] = round(run.stage_ms[k], 3)
+    record["startup_s"] = round(engine.first_frame_at - process_start(), 3)
     if args.metrics_json:
         tmp = Path(args.metrics_json).with_name(Path(args.metrics_json).name + ".tmp")
         tmp.write_text(json.dumps(record, indent=2) + "\n")
         tmp.replace(args.metrics_json)
     if not args.quiet:
-        print(f"{seq.name}: {result.lost} lost, {result.keyframes} keyframes, {result.fps:.1f} fps; ms/frame: "
-              + ", ".join(f"{k} {v:.1f}" for k, v in result.stage_ms.items()))
+        print(f"{seq.name}: {run.lost} lost, {run.keyframes} keyframes, {run.fps:.1f} fps; ms/frame: "
+              + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms.items()))
         if "frames_note" in record:
             print(record["frames_note"])
-        if result.loop_closing:
+        if run.loop_closing:
             print(f"loops: {len(record['loops'])}" + (f" ({len(record['loops_true'])} true, "
-                                                     f"{len(record['loops_false'])} false)" if gt is not None else "")
+                                                     f"{len(record['loops_false'])} false)" if ev is not None else "")
                   + "".join(f"; frames {a} -> {b}" for a, b in record["loops"]))
         if "metrics" in record:
             m = record["metrics"]
@@ -155,9 +151,39 @@ def run(args) -> int:
         masks = f"{masks_kind} ({run.masks_origin})" if masks_kind else "none"
         ate = record["metrics"]["ate_rmse_m"] if "metrics" in record else ate_only
         print(summary_line(args.method, masks, camera_text(seq.camera.name, record["camera"]["source"], args.camera),
-                           result.tracked, result.frames, ate, [out, args.metrics_json],
+                           run.tracked, run.frames, ate, [out, args.metrics_json],
                            ate_note=" (no RPE)" if ate_only is not None else ""))
     return 0
+
+
+def print_orbslam3(run, args) -> int:
+    """What ``d2slam run --method orbslam3[-masked]`` prints of ORB-SLAM3's run (``RunRecord``) and its exit status:
+    0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed."""
+    import sys
+
+    report = run.orbslam3
+    stream = sys.stdout if report["status"] in ("ok", "lost") else sys.stderr
+    v = report.get("vocabulary") or {}
+    masks = f" ({report['masks']} masks)" if report.get("masks") else ""
+    print(f"{report['method']} {report.get('name', args.sequence)}{masks}: {report['status']}: {report['message']}",
+          file=stream)
+    if v:
+        print(f"  vocabulary: {v['kind']} {v['path']} (sha256 {v['sha256'][:16]})", file=stream)
+    if isinstance(report.get("ms_per_frame"), (int, float)):
+        print(f"  {report['ms_per_frame']:.1f} ms/frame", file=stream)
+    if not getattr(args, "quiet", False):
+        repeats = int(report.get("repeats", 1) or 1)
+        many = " (median of {repeats} runs)".format(repeats=repeats) if repeats > 1 else ""
+        ate = report.get("metrics", {}).get("ate_rmse_m")
+        masks = f"{report['masks']} ({report.get('masks_origin')})" if report.get("masks") else "none"
+        tracked = report.get("tracked") if isinstance(report.get("tracked"), (int, float)) else 0
+        print(summary_line(report["method"], masks,
+                           camera_text(report.get("camera", "?"), report.get("camera_source", "?"),
+                                       getattr(args, "camera", None)),
+                           tracked, report.get("frames", report.get("frames_expected", 0)), ate,
+                           [report.get("trajectory"), getattr(args, "metrics_json", None)], ate_note=many),
+              file=stream)
+    return {"ok": 0, "lost": 1, "reset": 1}.get(report["status"], 2)
 
 
 def _warn_depth_scale(seq, config) -> None:
@@ -196,15 +222,3 @@ def process_start() -> float:
     import psutil
 
     return psutil.Process().create_time()
-
-def loop_record(result, seq, groundtruth, config) -> dict:
-    """``d2slam.eval.loops.loop_summary`` and, with loop closing, the vocabulary read (path, sha256)."""
-    from d2slam.eval.loops import loop_summary
-
-    out = loop_summary(result, seq.timestamps, groundtruth, config.evaluation)
-    if result.loop_closing:
-        from d2slam.slam.orb_vocabulary import load_vocabulary
-
-        voc = load_vocabulary(config.engine.vocabulary or None)
-        out["vocabulary"] = {"path": voc.path, "sha256": voc.sha256}
-    return out

@@ -14,26 +14,28 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
                    and passing the pose test; our deviation, DynamicsConfig.oim_skip_observed_static)
                                                                                              (eq 9-10, interaction.py)
 
-Modes (the ablations of the study; ``get_filter(method, config)`` builds one, ``none`` -> None, the hook off):
+Variants (the study's ablations; ``d2slam.methods`` registers each under its method name, ``none`` being the hook
+off): :class:`D2SlamFilter` with its :class:`~d2slam.dynamics.switches.Switches`, or one module alone.
 
-- ``d2slam``    the full method.
-- ``d2slam-flow`` ours: the full method with sub-pixel correspondences for eq 5 by LK flow (``flow.py``; also
-                ``DynamicsConfig.flow`` in the other full-method modes). Needs the grey images (``FilterInput.gray``
-                and ``prev_gray``): without them (first frame, stored features) the frame runs as ``d2slam`` plus
-                the edge band.
-                The flow's new matches take their depth from the previous depth image (``FilterInput.prev_depth``,
-                ``DynamicsConfig.flow_new_depth``), so the pose test runs on them. A keypoint that neither the
-                matches nor the flow observed, within ``flow_edge_band`` px outside a mask, is raised to
-                ``flow_edge_p`` (``fusion.edge_band``; also on frames without images, where nothing is tracked).
-- ``no-depth``  every depth-adaptive quantity at the midpoint of its range (beta 0.15, alpha 0.7 px, delta 29.5 px,
-                gamma 19 px), the OIM's depth tests dropped (plain centroid), no pose test and no neighbours' P_g
-                for unmatched keypoints (both need depth).
-- ``no-oim``    without the Object Interaction Module.
-- ``no-bayes``  the eq 7 probability P used directly as the belief (no temporal filter, no prior).
-- ``semantic``  masks only, DynaSLAM-like: every keypoint inside a mask is dynamic (belief 1), every other 0.
-- ``geometric`` epipolar check only with the fixed threshold ``fixed_alpha`` (x 1.2^octave like alpha(z), see
-                ``depth.octave_factor``), no masks, no filter: belief = P_g
-                for matched keypoints (p_g_exceed = 0.7 above the threshold), 0.5 (no observation) for the others.
+- ``Switches()``  (``d2slam``) the full method.
+- ``flow``        (``d2slam-flow``) ours: the full method with sub-pixel correspondences for eq 5 by LK flow
+                  (``flow.py``; also ``DynamicsConfig.flow`` with any switches). Needs the grey images
+                  (``FilterInput.gray`` and ``prev_gray``): without them (first frame, stored features) the frame
+                  runs as without the flow plus the edge band.
+                  The flow's new matches take their depth from the previous depth image (``FilterInput.prev_depth``,
+                  ``DynamicsConfig.flow_new_depth``), so the pose test runs on them. A keypoint that neither the
+                  matches nor the flow observed, within ``flow_edge_band`` px outside a mask, is raised to
+                  ``flow_edge_p`` (``fusion.edge_band``; also on frames without images, where nothing is tracked).
+- ``depth`` off   (``no-depth``) every depth-adaptive quantity at the midpoint of its range (beta 0.15, alpha 0.7 px,
+                  delta 29.5 px, gamma 19 px), the OIM's depth tests dropped (plain centroid), no pose test and no
+                  neighbours' P_g for unmatched keypoints (both need depth).
+- ``oim`` off     (``no-oim``) without the Object Interaction Module.
+- ``bayes`` off   (``no-bayes``) the eq 7 probability P used directly as the belief (no temporal filter, no prior).
+- :class:`SemanticFilter` (``semantic``) masks only, DynaSLAM-like: every keypoint inside a mask is dynamic (belief
+                  1), every other 0.
+- :class:`EpipolarFilter` (``geometric``) epipolar check only with the fixed threshold ``fixed_alpha`` (x 1.2^octave
+                  like alpha(z), see ``depth.octave_factor``), no masks, no filter: belief = P_g for matched keypoints
+                  (p_g_exceed = 0.7 above the threshold), 0.5 (no observation) for the others.
 
 ``last`` holds the diagnostics of the last frame (``FrameDiagnostics``): every module's output and its time, so
 per-module precision/recall can be measured (``FrameDiagnostics.predictions``).
@@ -41,21 +43,21 @@ per-module precision/recall can be measured (``FrameDiagnostics.predictions``).
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from d2slam.config import Config, DynamicsConfig
-from d2slam.dynamics import METHODS, MODES, NEEDS_MASKS, register_methods  # noqa: F401 (names defined there, light)
 from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, check_edge_band, edge_band, fuse, prior_belief
 from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import check_matches, geometric_module
 from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_g, oim_candidates, oim_frame
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
+from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
 from d2slam.slam.hook import FilterInput
+from d2slam.slam.timing import StageTimer
 
 
 @dataclass
@@ -63,7 +65,7 @@ class FrameDiagnostics:
     """Per-module outputs of one frame (N keypoints). Fields of modules a mode does not run are None."""
 
     frame_index: int
-    mode: str
+    mode: str  # the method (``d2slam.methods``) the filter was built for
     z: np.ndarray  # (N,) keypoint depth used (m, 0 invalid)
     belief: np.ndarray  # (N,) the hook's output
     p_s: np.ndarray | None = None  # eq 2
@@ -135,20 +137,28 @@ def _check_input(inp: FilterInput) -> tuple[np.ndarray, np.ndarray, np.ndarray |
     return kps, z, masks
 
 
-class D2SlamFilter:
-    """D2SLAM's dynamic-keypoint classifier for one mode; implements the ``KeypointFilter`` protocol."""
+def _dynamics_config(config: Config | DynamicsConfig | None) -> DynamicsConfig:
+    if config is None:
+        return DynamicsConfig()
+    return config.dynamics if isinstance(config, Config) else config
 
-    def __init__(self, config: Config | DynamicsConfig | None = None, mode: str = "d2slam"):
-        if mode not in MODES:
-            raise D2SlamError(f"unknown dynamics method {mode!r}; choose one of {', '.join(METHODS)}")
-        if config is None:
-            config = DynamicsConfig()
-        self.cfg: DynamicsConfig = config.dynamics if isinstance(config, Config) else config
-        self.mode = mode
-        self.use_depth = mode != "no-depth"
-        self.use_oim = mode in ("d2slam", "d2slam-flow", "no-depth", "no-bayes")
-        self.use_bayes = mode in ("d2slam", "d2slam-flow", "no-depth", "no-oim")
-        self.use_flow = self.cfg.flow or mode == "d2slam-flow"
+
+def _ms(timer: StageTimer) -> dict[str, float]:
+    """The stage timings of one frame in milliseconds, with their ``total``."""
+    t = {k: v * 1e3 for k, v in timer.seconds.items()}
+    t["total"] = sum(t.values())
+    return t
+
+
+class D2SlamFilter:
+    """D2SLAM's dynamic-keypoint classifier (eq 1-10) with its ablation ``switches``; implements the
+    ``KeypointFilter`` protocol. ``name``: the method it runs for (the diagnostics' ``mode``)."""
+
+    def __init__(self, config: Config | DynamicsConfig | None = None, switches: Switches = Switches(),
+                 name: str = "d2slam"):
+        self.cfg = _dynamics_config(config)
+        self.switches, self.mode = switches, name
+        self.use_flow = switches.flow or self.cfg.flow
         if self.use_flow:
             check_flow_area(self.cfg.flow_area)
             check_edge_band(self.cfg.flow_edge_band, self.cfg.flow_edge_p)
@@ -158,116 +168,140 @@ class D2SlamFilter:
         self.last = None
 
     def __call__(self, inp: FilterInput) -> np.ndarray:
-        cfg, mode = self.cfg, self.mode
+        cfg, on = self.cfg, self.switches
         kps, z, masks = _check_input(inp)
         n = len(kps)
-        t = {}
-        clock = time.perf_counter
-        t0 = clock()
+        timer = StageTimer()
+        with timer("depth_maps"):  # beta, alpha, delta, gamma of every keypoint, once (eq 2, 5, 9, 10)
+            maps = dz.DepthMaps(z, cfg, on.depth)
+            scale = dz.octave_factor(inp.octave, n, cfg)  # eq 5 at each keypoint's detection scale
+        with timer("mask_edges_depth"):
+            fm, margin, z_n = self._masks(inp, kps, masks, maps.beta)
+        with timer("semantic"):  # eq 1-2; with the flow, exact at least as far as the edge band
+            sem = semantic_module(fm, kps, maps.beta, max(margin, cfg.flow_edge_band if self.use_flow else 0.0), cfg)
+        prev = (inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, inp.matches, None)
+        if self.use_flow and inp.gray is not None and inp.prev_gray is not None and n:
+            with timer("flow"):
+                prev, scale = self._flow(inp, kps, sem.in_area, scale)
+        with timer("geometric"):  # eq 4-6 and the pose test
+            geo = self._geometric(inp, kps, z, maps.alpha, scale, prev)
+        with timer("fusion"):  # eq 7
+            matched, p_nb, p, edge = self._fusion(kps, maps, fm, sem, geo)
+        with timer("bayes"):  # eq 8
+            prior = prior_belief(n, inp.matches, inp.prev_belief, inp.mappoint_belief, cfg) if on.bayes else None
+            bel = bayes_update(prior, p, cfg) if on.bayes else p.copy()
+        with timer("oim"):  # eq 9-10
+            zone, oim = self._oim(kps, maps, fm, z_n, sem, geo, margin, bel, p_nb, matched)
+            belief = np.where(oim, np.maximum(bel, cfg.oim_belief), bel) if on.oim else bel
+        self.last = FrameDiagnostics(
+            inp.frame_index, self.mode, z, belief, p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
+            in_area=sem.in_area, err=geo.err, p_g=geo.p_g, observed=geo.observed, geo_dynamic=geo.dynamic,
+            reproj_err=geo.reproj_err, depth_err=geo.depth_err, pose_dynamic=geo.pose_dynamic, edge=edge, fused=p,
+            prior=prior, belief_bayes=bel, zone=zone, oim=oim, mask_depth=z_n,
+            f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static, timings_ms=_ms(timer))
+        return belief
 
-        if mode == "semantic":
-            b = dz.beta(z, cfg)
-            margin = float(dz.uncertainty_width(b.min(), cfg)) + 1.0 if n else 0.0
-            sem = semantic_module(masks, kps, b, margin, cfg)
-            belief = sem.inside.astype(np.float64)
-            t["semantic"] = (clock() - t0) * 1e3
-            t["total"] = sum(t.values())
-            self.last = FrameDiagnostics(inp.frame_index, mode, z, belief, p_s=sem.p_s, inside=sem.inside,
-                                         uncertain=sem.uncertain, in_area=sem.in_area, timings_ms=t)
-            return belief
-
-        if mode == "geometric":
-            scale = dz.octave_factor(getattr(inp, "octave", None), n, cfg)
-            geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, cfg.fixed_alpha * scale, cfg,
-                                   scale=scale)  # threshold and sigma at the detection scale
-            belief = np.where(geo.observed, np.nan_to_num(geo.p_g), cfg.p_no_observation)
-            t["geometric"] = (clock() - t0) * 1e3
-            t["total"] = sum(t.values())
-            self.last = FrameDiagnostics(inp.frame_index, mode, z, belief, err=geo.err, p_g=geo.p_g,
-                                         observed=geo.observed, geo_dynamic=geo.dynamic, f_found=geo.F is not None,
-                                         f_matches=geo.n_used, f_static_only=geo.used_static, timings_ms=t)
-            return belief
-
-        # Full method and its ablations.
-        ud = self.use_depth
-        maps = dz.DepthMaps(z, cfg, ud)  # beta, alpha, delta, gamma of every keypoint, once
-        # eq 5 threshold at each keypoint's detection scale (alpha(z) * 1.2^octave, see depth.octave_factor).
-        scale = dz.octave_factor(getattr(inp, "octave", None), n, cfg)
-        b, a = maps.beta, maps.alpha * scale
-        t1 = clock()
-        t["depth_maps"] = (t1 - t0) * 1e3
-        # The masks seen from the keypoints (edges, pixel lookups, bounding-box distances), shared by the semantic
-        # module and the OIM. Signed distances are searched as far as the widest uncertainty zone (the OIM extends
-        # them later, only where it needs to).
+    def _masks(self, inp: FilterInput, kps: np.ndarray, masks, b: np.ndarray):
+        """The masks seen from the keypoints (edges, pixel lookups, bounding-box distances), shared by the semantic
+        module and the OIM; the widest uncertainty zone (how far signed distances are searched: the OIM extends
+        them later, only where it needs to) and each mask's depth z_n (eq 9-10; NaN without the OIM)."""
         fm = FrameMasks(masks, kps, np.shape(inp.depth))
-        margin = float(dz.uncertainty_width(b.min(), cfg)) + 1.0 if n else 0.0
-        z_n = mask_depths(inp.depth, fm, cfg) if self.use_oim else np.full(len(fm.edges), np.nan)
-        t2 = clock()
-        t["mask_edges_depth"] = (t2 - t1) * 1e3
-        # With the flow, eq 1 is exact at least as far as the edge band (fusion.edge_band reads d_max within it).
-        band = cfg.flow_edge_band if self.use_flow else 0.0
-        sem = semantic_module(fm, kps, b, max(margin, band), cfg)
-        t3 = clock()
-        t["semantic"] = (t3 - t2) * 1e3
-        pose = ud and cfg.pose_test  # the pose test needs the depths (off in no-depth)
-        prev_kps, prev_z, prev_bel, matches, fit = inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, inp.matches, None
-        if self.use_flow and inp.gray is not None and getattr(inp, "prev_gray", None) is not None and n:
-            # ours: sub-pixel correspondences by LK flow (flow.py); alpha and sigma unscaled where the flow tracked
-            m0 = check_matches(matches, n, len(prev_kps))
-            q = flow_correspondences(inp.gray, inp.prev_gray, kps, prev_kps, m0, cfg,
-                                     track=flow_keypoints(sem.in_area, m0, cfg.flow_area))
-            prev_kps, prev_z, prev_bel, matches, fit, tracked = flow_matches(
-                q, prev_kps, prev_z, prev_bel, m0, getattr(inp, "prev_depth", None), cfg, shape=np.shape(inp.gray))
-            scale = np.where(tracked, 1.0, scale)
-            a = maps.alpha * scale
-            t3b = clock()
-            t["flow"] = (t3b - t3) * 1e3
-            t3 = t3b
-        geo = geometric_module(kps, prev_kps, matches, prev_bel, a, cfg, scale=scale,
-                               kp_depth=z if pose else None, prev_kp_depth=prev_z if pose else None,
-                               K=inp.K if pose else None, fit=fit)
-        t4 = clock()
-        t["geometric"] = (t4 - t3) * 1e3
-        # The matched keypoints and their k-d tree, shared by the neighbours' P_g and the OIM (eq 9's dynamic
-        # neighbours are matched keypoints); the tree is built on first use.
+        margin = float(dz.uncertainty_width(b.min(), self.cfg)) + 1.0 if len(kps) else 0.0
+        z_n = mask_depths(inp.depth, fm, self.cfg) if self.switches.oim else np.full(len(fm.edges), np.nan)
+        return fm, margin, z_n
+
+    def _flow(self, inp: FilterInput, kps: np.ndarray, in_area: np.ndarray, scale):
+        """Ours: sub-pixel correspondences by LK flow (flow.py) in place of the matches, and the threshold scale
+        (alpha and sigma unscaled where the flow tracked)."""
+        cfg = self.cfg
+        m0 = check_matches(inp.matches, len(kps), len(inp.prev_kps))
+        q = flow_correspondences(inp.gray, inp.prev_gray, kps, inp.prev_kps, m0, cfg,
+                                 track=flow_keypoints(in_area, m0, cfg.flow_area))
+        *prev, tracked = flow_matches(q, inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, m0, inp.prev_depth, cfg,
+                                      shape=np.shape(inp.gray))
+        return tuple(prev), np.where(tracked, 1.0, scale)
+
+    def _geometric(self, inp: FilterInput, kps: np.ndarray, z: np.ndarray, alpha: np.ndarray, scale, prev):
+        """Eq 4-6 against the previous frame's keypoints ``prev`` (keypoints, depths, beliefs, matches, the matches
+        the fundamental matrix is fitted on), with the pose test (ours) when the depths are used."""
+        prev_kps, prev_z, prev_bel, matches, fit = prev
+        pose = self.switches.depth and self.cfg.pose_test  # the pose test needs the depths
+        return geometric_module(kps, prev_kps, matches, prev_bel, alpha * scale, self.cfg, scale=scale,
+                                kp_depth=z if pose else None, prev_kp_depth=prev_z if pose else None,
+                                K=inp.K if pose else None, fit=fit)
+
+    def _fusion(self, kps: np.ndarray, maps, fm, sem, geo):
+        """Eq 7: (the matched keypoints, their P_g for unmatched neighbours (ours) or None, P, the edge band's
+        flags (ours, with the flow) or None). The matched keypoints and their k-d tree are shared by the
+        neighbours' P_g and the OIM (eq 9's dynamic neighbours are matched keypoints)."""
+        cfg, ud = self.cfg, self.switches.depth
         matched = MatchedPoints(kps, geo.observed, fm.kp.finite, maps.valid if ud else None)
-        p_nb = None  # ours: an unmatched keypoint's matched neighbours (skipped inside masks, where P_S > 0.5)
+        p_nb = None  # an unmatched keypoint's matched neighbours (skipped inside masks, where P_S > 0.5)
         if ud and cfg.neighbour_p_g:
             p_nb = neighbour_p_g(kps, maps, geo.observed, geo.p_g, cfg, skip=sem.inside, matched=matched)
         p = fuse(sem.p_s, geo.p_g, geo.observed, sem.in_area, sem.uncertain, cfg, p_nb)
         edge = None
-        if self.use_flow:  # ours: unobserved keypoints just outside a mask (fusion.edge_band)
+        if self.use_flow:  # unobserved keypoints just outside a mask (fusion.edge_band)
             p, edge = edge_band(p, sem.d_max, geo.observed, cfg.flow_edge_band, cfg.flow_edge_p)
-        t5 = clock()
-        t["fusion"] = (t5 - t4) * 1e3
-        prior = None
-        if self.use_bayes:
-            prior = prior_belief(n, inp.matches, inp.prev_belief, inp.mappoint_belief, cfg)
-            bel = bayes_update(prior, p, cfg)
-        else:
-            bel = p.copy()
-        t6 = clock()
-        t["bayes"] = (t6 - t5) * 1e3
-        belief, zone, oim = bel, None, None
-        if self.use_oim:
-            # eq 10's centroid test first, on the static keypoints near a mask, then the zone test (eq 9) only where
-            # it would flip: the same result as testing the zone first, with far fewer edge searches.
-            cand = oim_candidates(bel, geo.observed, geo.dynamic, cfg, p_nb)
-            zone, oim = oim_frame(fm, kps, maps, z_n, sem.d, margin, cand, geo.dynamic, cfg, ud, matched)
-            belief = np.where(oim, np.maximum(bel, cfg.oim_belief), bel)
-        t["oim"] = (clock() - t6) * 1e3
-        t["total"] = sum(t.values())
-        self.last = FrameDiagnostics(
-            inp.frame_index, mode, z, belief, p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
-            in_area=sem.in_area, err=geo.err, p_g=geo.p_g, observed=geo.observed, geo_dynamic=geo.dynamic,
-            reproj_err=geo.reproj_err, depth_err=geo.depth_err, pose_dynamic=geo.pose_dynamic, edge=edge, fused=p,
-            prior=prior, belief_bayes=bel, zone=zone, oim=oim, mask_depth=z_n,
-            f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static, timings_ms=t)
+        return matched, p_nb, p, edge
+
+    def _oim(self, kps, maps, fm, z_n, sem, geo, margin: float, bel, p_nb, matched):
+        """Eq 9-10: (in an interaction zone, turned dynamic), both None without the OIM. Eq 10's centroid test
+        first, on the static keypoints near a mask, then the zone test (eq 9) only where it would flip: the same
+        result as testing the zone first, with far fewer edge searches."""
+        if not self.switches.oim:
+            return None, None
+        cand = oim_candidates(bel, geo.observed, geo.dynamic, self.cfg, p_nb)
+        return oim_frame(fm, kps, maps, z_n, sem.d, margin, cand, geo.dynamic, self.cfg, self.switches.depth,
+                         matched)
+
+
+class _OneModule:
+    """A baseline filter that runs one module of the paper alone (no fusion, no temporal filter): ``_module``
+    gives the beliefs and the module's diagnostics, timed as ``stage``."""
+
+    stage = ""
+
+    def __init__(self, config: Config | DynamicsConfig | None = None, name: str = ""):
+        self.cfg, self.mode = _dynamics_config(config), name or self.stage
+        self.last: FrameDiagnostics | None = None
+
+    def reset(self) -> None:
+        self.last = None
+
+    def __call__(self, inp: FilterInput) -> np.ndarray:
+        kps, z, masks = _check_input(inp)
+        timer = StageTimer()
+        with timer(self.stage):
+            belief, found = self._module(inp, kps, z, masks)
+        self.last = FrameDiagnostics(inp.frame_index, self.mode, z, belief, timings_ms=_ms(timer), **found)
         return belief
 
 
-def get_filter(method: str, config: Config | DynamicsConfig | None = None) -> D2SlamFilter | None:
-    """The keypoint filter of a method name (``METHODS``); ``none`` -> None (the engine runs with the hook off)."""
-    if method == "none":
-        return None
-    return D2SlamFilter(config, method)
+class SemanticFilter(_OneModule):
+    """The ``semantic`` baseline: masks only, DynaSLAM-like (eq 1-2's "inside a mask" alone)."""
+
+    stage = "semantic"
+
+    def _module(self, inp: FilterInput, kps: np.ndarray, z: np.ndarray, masks):
+        b = dz.beta(z, self.cfg)
+        margin = float(dz.uncertainty_width(b.min(), self.cfg)) + 1.0 if len(kps) else 0.0
+        sem = semantic_module(masks, kps, b, margin, self.cfg)
+        return sem.inside.astype(np.float64), dict(p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
+                                                   in_area=sem.in_area)
+
+
+class EpipolarFilter(_OneModule):
+    """The ``geometric`` baseline: the epipolar check alone (eq 4-6) with the fixed threshold ``fixed_alpha`` at each
+    keypoint's detection scale; no masks, no filter."""
+
+    stage = "geometric"
+
+    def _module(self, inp: FilterInput, kps: np.ndarray, z: np.ndarray, masks):
+        cfg = self.cfg
+        scale = dz.octave_factor(inp.octave, len(kps), cfg)
+        geo = geometric_module(kps, inp.prev_kps, inp.matches, inp.prev_belief, cfg.fixed_alpha * scale, cfg,
+                               scale=scale)  # threshold and sigma at the detection scale
+        belief = np.where(geo.observed, np.nan_to_num(geo.p_g), cfg.p_no_observation)
+        return belief, dict(err=geo.err, p_g=geo.p_g, observed=geo.observed, geo_dynamic=geo.dynamic,
+                            f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static)

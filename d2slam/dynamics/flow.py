@@ -130,8 +130,8 @@ def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray,
     is_matched[m[:, 0]] = True
     new = np.flatnonzero(tracked & ~is_matched)
     n_prev = len(prev_kps)
-    new_z = keypoint_depth(prev_depth, q[new], cfg=cfg) if prev_depth is not None and cfg.flow_new_depth else \
-        np.zeros(len(new))
+    new_z = keypoint_depth(prev_depth, q[new], cfg.depth_patch_radius) \
+        if prev_depth is not None and cfg.flow_new_depth else np.zeros(len(new))
     prev_kps = np.concatenate([prev_kps, q[new]])
     prev_depth_kp = np.concatenate([np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1), new_z])
     prev_belief = np.concatenate([np.asarray(prev_belief, dtype=np.float64).reshape(-1), np.full(len(new), np.nan)])

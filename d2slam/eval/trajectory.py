@@ -28,12 +28,31 @@ class TrajectoryMetrics:
     ate_rmse_m: float
     rpe_trans_m: float
     rpe_rot_deg: float
-    n_matched: int  # estimated poses associated with ground truth
-    n_estimated: int
-    n_rpe_pairs: int
+    n_matched: int | None = None  # estimated poses associated with ground truth (None: medians over repeats)
+    n_estimated: int | None = None
+    n_rpe_pairs: int | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+class NoRpePairs(D2SlamError):
+    """The estimate has no pair of matched poses 1 second apart (too short, or tracking gaps): no RPE."""
+
+
+@dataclass
+class Evaluation:
+    """A run's trajectory against its ground truth (:func:`evaluate_run`)."""
+
+    metrics: TrajectoryMetrics | None = None  # ATE and 1-second RPE
+    ate_rmse_m: float | None = None  # the ATE, also when the estimate is too short for the RPE
+    error: str = ""  # why there are no metrics ("" when there are)
+    aligned: tuple[np.ndarray, np.ndarray] | None = None  # matched ground-truth and aligned estimated positions
+
+    @property
+    def status(self) -> str:
+        """``ok`` (ATE and RPE), ``partial`` (the ATE alone) or ``unevaluated``."""
+        return "ok" if self.metrics is not None else "partial" if self.ate_rmse_m is not None else "unevaluated"
 
 
 def to_evo(traj: Trajectory, what: str):
@@ -80,13 +99,34 @@ def evaluate(groundtruth: Trajectory, estimate: Trajectory, max_diff: float = MA
         why = (f"the matched estimate spans only {span:.2f} s" if span < delta_s - max_diff else
                f"no two matched poses are {delta_s} +- {max_diff} s apart (the estimate spans {span:.2f} s with "
                f"tracking gaps; longest gap {np.diff(ts).max():.2f} s)")
-        raise D2SlamError(f"cannot compute RPE over {delta_s} s pairs: {why}", path=estimate.meta.get("path"))
+        raise NoRpePairs(f"cannot compute RPE over {delta_s} s pairs: {why}", path=estimate.meta.get("path"))
     t_err, r_err = relative_errors(np.asarray(ref_a.poses_se3), np.asarray(est_a.poses_se3), pairs)
     return TrajectoryMetrics(
         ate_rmse_m=ate,
         rpe_trans_m=float(np.sqrt(np.mean(t_err ** 2))),
         rpe_rot_deg=float(np.sqrt(np.mean(r_err ** 2))),
         n_matched=int(n), n_estimated=int(len(estimate.timestamps)), n_rpe_pairs=int(len(pairs)))
+
+
+def evaluate_run(groundtruth: Trajectory, estimate: Trajectory) -> Evaluation:
+    """:func:`evaluate` and the aligned positions (for plots), never raising: when the estimate is too short for an
+    RPE pair, the ATE alone (:func:`ate_rmse`); when it cannot be evaluated at all, the reason (``error``)."""
+    try:
+        m = evaluate(groundtruth, estimate)
+        return Evaluation(m, m.ate_rmse_m, aligned=aligned_estimate(groundtruth, estimate)[:2])
+    except NoRpePairs as exc:
+        try:
+            gt_xyz, est_xyz, _ = aligned_estimate(groundtruth, estimate)
+        except Exception:  # noqa: BLE001 - no ATE either
+            return Evaluation(error=str(exc))
+        return Evaluation(ate_rmse_m=ate_rmse(gt_xyz, est_xyz), error=str(exc), aligned=(gt_xyz, est_xyz))
+    except Exception as exc:  # noqa: BLE001 - D2SlamError, or evo's own errors (degenerate alignment)
+        return Evaluation(error=str(exc) if isinstance(exc, D2SlamError) else f"{type(exc).__name__}: {exc}")
+
+
+def ate_rmse(gt_xyz: np.ndarray, est_xyz: np.ndarray) -> float:
+    """RMSE of the position errors of matched, aligned positions (= evo's APE translation RMSE)."""
+    return float(np.sqrt(np.mean(np.sum((np.asarray(gt_xyz) - np.asarray(est_xyz)) ** 2, axis=1))))
 
 
 def second_pairs(ts: np.ndarray, delta_s: float, tol_s: float = MAX_DIFF) -> np.ndarray:

@@ -17,11 +17,12 @@ import numpy as np
 
 from d2slam.config import EngineConfig, OrbConfig
 from d2slam.data.base import Camera
-from d2slam.dynamics.depth import keypoint_depth
+from d2slam.slam.depth import keypoint_depth
+from d2slam.slam.matching import Gridded
 
 
 @dataclass
-class Frame:
+class Frame(Gridded):
     """One tracked frame (arrays indexed by keypoint). ``Tcw`` is world-to-camera (ORB-SLAM convention)."""
 
     index: int
@@ -39,7 +40,7 @@ class Frame:
     belief: np.ndarray | None = None  # (N,) dynamic belief from the hook (None: no filter)
     Tcw: np.ndarray | None = None
     ref_kf: int = -1
-    grids: dict = field(default_factory=dict, repr=False)  # cell size -> KeypointGrid (see grid)
+    grids: dict = field(default_factory=dict, repr=False)  # cell size -> KeypointGrid (``Gridded.grid``)
 
     def __post_init__(self):
         n = len(self.kps)
@@ -51,14 +52,6 @@ class Frame:
     @property
     def n(self) -> int:
         return len(self.kps)
-
-    def grid(self, cell: float):
-        """The keypoints bucketed in ``cell``-pixel cells for searches by projection (built once per cell size)."""
-        from d2slam.slam.matching import KeypointGrid
-
-        if cell not in self.grids:
-            self.grids[cell] = KeypointGrid(self.kps, self.octave, self.ur, self.desc, cell)
-        return self.grids[cell]
 
     @property
     def dynamic(self) -> np.ndarray:

@@ -229,107 +229,163 @@ def _inv3(M, lam, out):
 
 
 @njit(cache=True, nogil=True)
-def local_ba_lm(poses0, fixed, X0, obs_cam, obs_pt, meas, stereo, info, delta, fx, fy, cx, cy, bf, iterations):
-    """Local BA: LM over the free poses and every point (Huber on all edges), points marginalised (Schur
-    complement). Returns (poses, points)."""
-    poses, X = poses0.copy(), X0.copy()
-    C, P, O = poses.shape[0], X.shape[0], obs_cam.shape[0]
+def _ba_layout(fixed, obs_pt, P):
+    """The free poses' indices (-1: fixed) and their count, and the observations grouped by point (CSR: point p's
+    are ``by_pt[pstart[p]:pstart[p + 1]]``)."""
+    C, O = fixed.shape[0], obs_pt.shape[0]
     free = np.full(C, -1, np.int64)
     F = 0
     for c in range(C):
         if not fixed[c]:
             free[c] = F
             F += 1
-    by_pt = np.argsort(obs_pt, kind="mergesort")  # observations grouped by point (CSR)
+    by_pt = np.argsort(obs_pt, kind="mergesort")
     pstart = np.zeros(P + 1, np.int64)
     for o in range(O):
         pstart[obs_pt[o] + 1] += 1
     for p in range(P):
         pstart[p + 1] += pstart[p]
+    return free, F, by_pt, pstart
+
+
+@njit(cache=True, nogil=True)
+def _ba_normal_equations(poses, X, free, obs_cam, obs_pt, meas, stereo, info, delta, fx, fy, cx, cy, bf,
+                         Hcc, bc, Hpp, bp, Hcp):
+    """Fill the blocks of the robust normal equations (poses ``Hcc``/``bc``, points ``Hpp``/``bp``, pose-point
+    ``Hcp`` per observation); returns the robust chi2."""
     e, A, B = np.zeros(3), np.zeros((3, 6)), np.zeros((3, 3))
     WA, WB = np.zeros((3, 6)), np.zeros((3, 3))
+    Hcc[:] = 0.0
+    bc[:] = 0.0
+    Hpp[:] = 0.0
+    bp[:] = 0.0
+    chi = 0.0
+    for o in range(obs_cam.shape[0]):
+        c, p = obs_cam[o], obs_pt[o]
+        _edge(poses[c], X[p], meas[o], stereo[o], fx, fy, cx, cy, bf, e, A, B)
+        rc, w = _robust(_chi2(e, info[o]), delta[o], True)
+        chi += rc
+        _weighted(w, info[o], B, WB)
+        _add_JtWJ(Hpp[p], B, WB, 1.0)
+        _sub_Jte(bp[p], WB, e)
+        f = free[c]
+        if f >= 0:
+            _weighted(w, info[o], A, WA)
+            _add_JtWJ(Hcc[f], A, WA, 1.0)
+            _sub_Jte(bc[f], WA, e)
+            Hcp[o, :, :] = 0.0
+            _add_JtWJ(Hcp[o], A, WB, 1.0)
+    return chi
+
+
+@njit(cache=True, nogil=True)
+def _ba_max_diagonal(Hcc, Hpp):
+    mx = 0.0
+    for f in range(Hcc.shape[0]):
+        for k in range(6):
+            mx = max(mx, Hcc[f, k, k])
+    for p in range(Hpp.shape[0]):
+        for k in range(3):
+            mx = max(mx, Hpp[p, k, k])
+    return mx
+
+
+@njit(cache=True, nogil=True)
+def _ba_reduced_system(Hcc, bc, Hpp, bp, Hcp, lam, free, obs_cam, by_pt, pstart, Hinv):
+    """The damped pose system with the points eliminated (Schur complement): (S, rhs); ``Hinv`` receives the
+    damped inverse point blocks."""
+    F, P = Hcc.shape[0], Hpp.shape[0]
+    Y = np.zeros((6, 3))
+    S = np.zeros((6 * F, 6 * F))
+    rhs = np.zeros(6 * F)
+    for f in range(F):
+        for i in range(6):
+            rhs[6 * f + i] = bc[f, i]
+            for j in range(6):
+                S[6 * f + i, 6 * f + j] = Hcc[f, i, j]
+            S[6 * f + i, 6 * f + i] += lam
+    for p in range(P):
+        _inv3(Hpp[p], lam, Hinv[p])
+        for a in range(pstart[p], pstart[p + 1]):
+            oa = by_pt[a]
+            fa = free[obs_cam[oa]]
+            if fa < 0:
+                continue
+            for i in range(6):  # Y = Hcp[oa] Hinv[p]
+                for j in range(3):
+                    Y[i, j] = Hcp[oa, i, 0] * Hinv[p, 0, j] + Hcp[oa, i, 1] * Hinv[p, 1, j] + \
+                        Hcp[oa, i, 2] * Hinv[p, 2, j]
+                rhs[6 * fa + i] -= Y[i, 0] * bp[p, 0] + Y[i, 1] * bp[p, 1] + Y[i, 2] * bp[p, 2]
+            for b_ in range(pstart[p], pstart[p + 1]):
+                ob = by_pt[b_]
+                fb = free[obs_cam[ob]]
+                if fb < 0:
+                    continue
+                for i in range(6):
+                    for j in range(6):
+                        S[6 * fa + i, 6 * fb + j] -= Y[i, 0] * Hcp[ob, j, 0] + Y[i, 1] * Hcp[ob, j, 1] + \
+                            Y[i, 2] * Hcp[ob, j, 2]
+    return S, rhs
+
+
+@njit(cache=True, nogil=True)
+def _ba_point_steps(dc, bp, Hcp, Hinv, free, obs_cam, by_pt, pstart):
+    """Back-substitution: each point's step given the poses' ``dc``."""
+    P = bp.shape[0]
+    dxp = np.zeros((P, 3))
+    for p in range(P):
+        r0, r1, r2 = bp[p, 0], bp[p, 1], bp[p, 2]
+        for a in range(pstart[p], pstart[p + 1]):
+            oa = by_pt[a]
+            fa = free[obs_cam[oa]]
+            if fa >= 0:
+                for i in range(6):
+                    d = dc[6 * fa + i]
+                    r0 -= Hcp[oa, i, 0] * d
+                    r1 -= Hcp[oa, i, 1] * d
+                    r2 -= Hcp[oa, i, 2] * d
+        for i in range(3):
+            dxp[p, i] = Hinv[p, i, 0] * r0 + Hinv[p, i, 1] * r1 + Hinv[p, i, 2] * r2
+    return dxp
+
+
+@njit(cache=True, nogil=True)
+def _ba_predicted_gain(dc, bc, dxp, bp, lam):
+    """g2o's scale of the gain ratio: ``1e-3 + dx^T (lam dx + b)`` over the poses and the points."""
+    scale = 1e-3
+    for f in range(bc.shape[0]):
+        for i in range(6):
+            x = dc[6 * f + i]
+            scale += x * (lam * x + bc[f, i])
+    for p in range(bp.shape[0]):
+        for i in range(3):
+            scale += dxp[p, i] * (lam * dxp[p, i] + bp[p, i])
+    return scale
+
+
+@njit(cache=True, nogil=True)
+def local_ba_lm(poses0, fixed, X0, obs_cam, obs_pt, meas, stereo, info, delta, fx, fy, cx, cy, bf, iterations):
+    """Local BA: LM over the free poses and every point (Huber on all edges), points marginalised (Schur
+    complement). Returns (poses, points)."""
+    poses, X = poses0.copy(), X0.copy()
+    C, P, O = poses.shape[0], X.shape[0], obs_cam.shape[0]
+    free, F, by_pt, pstart = _ba_layout(fixed, obs_pt, P)
     Hcc, bc = np.zeros((F, 6, 6)), np.zeros((F, 6))
     Hpp, bp = np.zeros((P, 3, 3)), np.zeros((P, 3))
     Hcp = np.zeros((O, 6, 3))
-    Hinv, Y = np.zeros((P, 3, 3)), np.zeros((6, 3))
+    Hinv = np.zeros((P, 3, 3))
     lam, nu = 0.0, 2.0
     for it in range(iterations):
-        Hcc[:] = 0.0
-        bc[:] = 0.0
-        Hpp[:] = 0.0
-        bp[:] = 0.0
-        chi = 0.0
-        for o in range(O):
-            c, p = obs_cam[o], obs_pt[o]
-            _edge(poses[c], X[p], meas[o], stereo[o], fx, fy, cx, cy, bf, e, A, B)
-            rc, w = _robust(_chi2(e, info[o]), delta[o], True)
-            chi += rc
-            _weighted(w, info[o], B, WB)
-            _add_JtWJ(Hpp[p], B, WB, 1.0)
-            _sub_Jte(bp[p], WB, e)
-            f = free[c]
-            if f >= 0:
-                _weighted(w, info[o], A, WA)
-                _add_JtWJ(Hcc[f], A, WA, 1.0)
-                _sub_Jte(bc[f], WA, e)
-                Hcp[o, :, :] = 0.0
-                _add_JtWJ(Hcp[o], A, WB, 1.0)
+        chi = _ba_normal_equations(poses, X, free, obs_cam, obs_pt, meas, stereo, info, delta, fx, fy, cx, cy, bf,
+                                   Hcc, bc, Hpp, bp, Hcp)
         if it == 0:
-            mx = 0.0
-            for f in range(F):
-                for k in range(6):
-                    mx = max(mx, Hcc[f, k, k])
-            for p in range(P):
-                for k in range(3):
-                    mx = max(mx, Hpp[p, k, k])
-            lam = TAU * mx
+            lam = TAU * _ba_max_diagonal(Hcc, Hpp)
             nu = 2.0
         trials, rho = 0, 0.0
         while True:
-            S = np.zeros((6 * F, 6 * F))
-            rhs = np.zeros(6 * F)
-            for f in range(F):
-                for i in range(6):
-                    rhs[6 * f + i] = bc[f, i]
-                    for j in range(6):
-                        S[6 * f + i, 6 * f + j] = Hcc[f, i, j]
-                    S[6 * f + i, 6 * f + i] += lam
-            for p in range(P):
-                _inv3(Hpp[p], lam, Hinv[p])
-                for a in range(pstart[p], pstart[p + 1]):
-                    oa = by_pt[a]
-                    fa = free[obs_cam[oa]]
-                    if fa < 0:
-                        continue
-                    for i in range(6):  # Y = Hcp[oa] Hinv[p]
-                        for j in range(3):
-                            Y[i, j] = Hcp[oa, i, 0] * Hinv[p, 0, j] + Hcp[oa, i, 1] * Hinv[p, 1, j] + \
-                                Hcp[oa, i, 2] * Hinv[p, 2, j]
-                        rhs[6 * fa + i] -= Y[i, 0] * bp[p, 0] + Y[i, 1] * bp[p, 1] + Y[i, 2] * bp[p, 2]
-                    for b_ in range(pstart[p], pstart[p + 1]):
-                        ob = by_pt[b_]
-                        fb = free[obs_cam[ob]]
-                        if fb < 0:
-                            continue
-                        for i in range(6):
-                            for j in range(6):
-                                S[6 * fa + i, 6 * fb + j] -= Y[i, 0] * Hcp[ob, j, 0] + Y[i, 1] * Hcp[ob, j, 1] + \
-                                    Y[i, 2] * Hcp[ob, j, 2]
+            S, rhs = _ba_reduced_system(Hcc, bc, Hpp, bp, Hcp, lam, free, obs_cam, by_pt, pstart, Hinv)
             dc = np.linalg.solve(S, rhs) if F else np.zeros(0)
-            dxp = np.zeros((P, 3))
-            for p in range(P):
-                r0, r1, r2 = bp[p, 0], bp[p, 1], bp[p, 2]
-                for a in range(pstart[p], pstart[p + 1]):
-                    oa = by_pt[a]
-                    fa = free[obs_cam[oa]]
-                    if fa >= 0:
-                        for i in range(6):
-                            d = dc[6 * fa + i]
-                            r0 -= Hcp[oa, i, 0] * d
-                            r1 -= Hcp[oa, i, 1] * d
-                            r2 -= Hcp[oa, i, 2] * d
-                for i in range(3):
-                    dxp[p, i] = Hinv[p, i, 0] * r0 + Hinv[p, i, 1] * r1 + Hinv[p, i, 2] * r2
+            dxp = _ba_point_steps(dc, bp, Hcp, Hinv, free, obs_cam, by_pt, pstart)
             new_poses = poses.copy()
             for c in range(C):
                 f = free[c]
@@ -337,15 +393,7 @@ def local_ba_lm(poses0, fixed, X0, obs_cam, obs_pt, meas, stereo, info, delta, f
                     new_poses[c] = update_pose(dc[6 * f:6 * f + 6], poses[c])
             new_X = X + dxp
             new_chi = ba_chi2(new_poses, new_X, obs_cam, obs_pt, meas, stereo, info, delta, fx, fy, cx, cy, bf)
-            scale = 1e-3
-            for f in range(F):
-                for i in range(6):
-                    x = dc[6 * f + i]
-                    scale += x * (lam * x + bc[f, i])
-            for p in range(P):
-                for i in range(3):
-                    scale += dxp[p, i] * (lam * dxp[p, i] + bp[p, i])
-            rho = (chi - new_chi) / scale
+            rho = (chi - new_chi) / _ba_predicted_gain(dc, bc, dxp, bp, lam)
             trials += 1
             kept, lam, nu = _damping(rho, new_chi, lam, nu)
             if kept:

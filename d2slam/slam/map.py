@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from d2slam.slam.matching import Gridded
+
 
 class Columns:
     """Growable struct-of-arrays (capacity doubling)."""
@@ -41,7 +43,7 @@ class Columns:
 
 
 @dataclass
-class KeyFrame:
+class KeyFrame(Gridded):
     id: int
     frame_index: int
     timestamp: float
@@ -56,19 +58,7 @@ class KeyFrame:
     mp: np.ndarray  # (N,) map point ids, -1 none
     bad: bool = False
     dynamic: np.ndarray | None = None  # (N,) bool: the hook's verdict when the keyframe was made (None: no filter)
-    grids: dict = field(default_factory=dict, repr=False)  # cell size -> KeypointGrid (see grid)
-
-    def grid(self, cell: float):
-        """The keypoints bucketed in ``cell``-pixel cells for searches by projection (built once per cell size)."""
-        from d2slam.slam.matching import KeypointGrid
-
-        if cell not in self.grids:
-            self.grids[cell] = KeypointGrid(self.kps, self.octave, self.ur, self.desc, cell)
-        return self.grids[cell]
-
-    @property
-    def center(self) -> np.ndarray:
-        return -self.Tcw[:3, :3].T @ self.Tcw[:3, 3]
+    grids: dict = field(default_factory=dict, repr=False)  # cell size -> KeypointGrid (``Gridded.grid``)
 
 
 class Map:

@@ -54,6 +54,17 @@ def _in_top_bins(idx, bins):
     return out
 
 
+class Gridded:
+    """What :class:`~d2slam.slam.frame.Frame` and :class:`~d2slam.slam.map.KeyFrame` share for searches by
+    projection: their keypoints (``kps``, ``octave``, ``ur``, ``desc``) bucketed in ``cell``-pixel cells, built once
+    per cell size into their ``grids`` dict."""
+
+    def grid(self, cell: float) -> KeypointGrid:
+        if cell not in self.grids:
+            self.grids[cell] = KeypointGrid(self.kps, self.octave, self.ur, self.desc, cell)
+        return self.grids[cell]
+
+
 class KeypointGrid:
     """A frame's keypoints bucketed in square cells of ``cell`` pixels (ORB-SLAM's ``mGrid``), for
     ``GetFeaturesInArea``-style searches: cell ``(row, col)`` holds ``order[start[row * cols + col]:start[... + 1]]``.

@@ -73,6 +73,18 @@ def _edge_setup(uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray, cfg: Eng
     return k_mono, k_stereo, info2, info3, ur >= 0, np.column_stack([uv, ur])
 
 
+def _g2o_edge(e, measurement, information, kernel, intrinsics: tuple, bf: float | None = None):
+    """A g2o projection edge ``e`` with its measurement, information, robust kernel, intrinsics (fx, fy, cx, cy) and,
+    for a stereo edge, ``bf``; its vertices are the caller's."""
+    e.set_measurement(measurement)
+    e.set_information(information)
+    if bf is not None:
+        e.bf = bf
+    e.set_robust_kernel(kernel)
+    e.fx, e.fy, e.cx, e.cy = intrinsics
+    return e
+
+
 def reprojection_chi2(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
                       K: np.ndarray, bf: float, disparity_sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Chi2 of every observation (stereo where ``ur >= 0``, with the information of ``stereo_information``) and
@@ -96,80 +108,87 @@ def stereo_chi2(du, dv, dur, stereo, inv_sigma2, disparity_sigma: float = 0.0):
     return e2 + np.where(stereo, extra, 0.0)
 
 
-def _pose_optimization_g2o(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.ndarray, inv_sigma2: np.ndarray,
-                           K: np.ndarray, bf: float, cfg: EngineConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Motion-only BA (ORB-SLAM ``PoseOptimization``): returns the optimised ``Tcw`` and the inlier mask.
+class _G2oPoseRounds:
+    """The rounds of :func:`pose_optimization` with a g2o graph: one pose vertex, ORB-SLAM's edge types (fixed points
+    for the stereo edges), one Huber kernel per edge type; outliers are switched off by edge level, the kernel
+    dropped by an infinite delta (the binding has no null kernel)."""
 
-    ``pose_opt_rounds`` rounds of ``pose_opt_iterations`` LM iterations; after each round every edge is classified
-    (chi2 against 5.991 mono / 7.815 stereo), outliers are switched off (level 1) and may come back; the robust
-    kernel is dropped for the last rounds, as in ORB-SLAM. Each round stops early when the relative chi2
-    decrease falls below ``pose_opt_gain_threshold`` (g2o's terminate action)."""
-    m = len(X)
-    inlier = np.ones(m, dtype=bool)
-    if m < 3:
-        return Tcw.copy(), np.zeros(m, dtype=bool)
-    opt = _optimizer(dense=True, gain_threshold=cfg.pose_opt_gain_threshold)
-    vpose = g2o.VertexSE3Expmap()
-    vpose.set_estimate(_se3(Tcw))
-    vpose.set_id(0)
-    opt.add_vertex(vpose)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    k_mono, k_stereo, info2, info3, stereo, meas3 = _edge_setup(uv, ur, inv_sigma2, cfg)
-    coarse = cfg.disparity_sigma_px > 0 and cfg.pose_opt_coarse_rounds > 0
-    info3_final = info3
-    if coarse:  # the first rounds with ORB-SLAM's isotropic information (a wide basin from a coarse initial pose)
-        info3 = _infos(inv_sigma2)[1]
-    edges = []
-    for i in range(m):
-        if stereo[i]:
-            vp = g2o.VertexPointXYZ()
-            vp.set_id(i + 1)
-            vp.set_estimate(X[i])
-            vp.set_fixed(True)
-            opt.add_vertex(vp)
-            e = g2o.EdgeStereoSE3ProjectXYZ()
-            e.set_vertex(0, vp)
-            e.set_vertex(1, vpose)
-            e.set_measurement(meas3[i])
-            e.set_information(info3[i])
-            e.bf = bf
-            e.set_robust_kernel(k_stereo)
-        else:
-            e = g2o.EdgeSE3ProjectXYZOnlyPose()
-            e.set_vertex(0, vpose)
-            e.set_measurement(uv[i])
-            e.set_information(info2[i])
-            e.Xw = X[i]
-            e.set_robust_kernel(k_mono)
-        e.fx, e.fy, e.cx, e.cy = fx, fy, cx, cy
-        opt.add_edge(e)
-        edges.append(e)
-    th = np.where(stereo, cfg.chi2_stereo, cfg.chi2_mono)
-    level = np.zeros(m, dtype=np.int64)
-    T = Tcw.copy()
-    for it in range(cfg.pose_opt_rounds):
-        if coarse and it == cfg.pose_opt_coarse_rounds:
-            for i in np.flatnonzero(stereo):
-                edges[i].set_information(info3_final[i])
-        sigma_d = 0.0 if coarse and it < cfg.pose_opt_coarse_rounds else cfg.disparity_sigma_px
-        # ORB-SLAM restarts every round from the initial pose; we continue from the last estimate (fewer
-        # iterations to converge with the early-termination action, same fixed point).
-        opt.initialize_optimization(0)
-        opt.optimize(cfg.pose_opt_iterations)
-        T = _mat(vpose.estimate())
-        chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf, sigma_d)
-        inlier = (chi2 <= th) & front
-        new_level = (~inlier).astype(np.int64)
-        for i in np.flatnonzero(new_level != level):
-            edges[i].set_level(int(new_level[i]))
-        level = new_level
-        if it == 2:  # ORB-SLAM drops the robust kernel from here on (the binding has no null kernel: infinite delta)
-            k_mono.set_delta(1e12)
-            k_stereo.set_delta(1e12)
-        if inlier.sum() < 10:
-            break
-    _KEEP_ALIVE.pop(id(opt), None)
-    return T, inlier
+    def __init__(self, Tcw, X, uv, ur, inv_sigma2, K, bf, cfg: EngineConfig, coarse: bool):
+        m = len(X)
+        self.cfg = cfg
+        self.opt = _optimizer(dense=True, gain_threshold=cfg.pose_opt_gain_threshold)
+        self.vpose = g2o.VertexSE3Expmap()
+        self.vpose.set_estimate(_se3(Tcw))
+        self.vpose.set_id(0)
+        self.opt.add_vertex(self.vpose)
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        self.kernels = _edge_setup(uv, ur, inv_sigma2, cfg)
+        k_mono, k_stereo, info2, info3, self.stereo, meas3 = self.kernels
+        self.info_fine, self.fine = info3, not coarse
+        if coarse:  # the first rounds with ORB-SLAM's isotropic information
+            info3 = _infos(inv_sigma2)[1]
+        self.edges = []
+        for i in range(m):
+            if self.stereo[i]:
+                vp = g2o.VertexPointXYZ()
+                vp.set_id(i + 1)
+                vp.set_estimate(X[i])
+                vp.set_fixed(True)
+                self.opt.add_vertex(vp)
+                e = _g2o_edge(g2o.EdgeStereoSE3ProjectXYZ(), meas3[i], info3[i], k_stereo, (fx, fy, cx, cy), bf)
+                e.set_vertex(0, vp)
+                e.set_vertex(1, self.vpose)
+            else:
+                e = _g2o_edge(g2o.EdgeSE3ProjectXYZOnlyPose(), uv[i], info2[i], k_mono, (fx, fy, cx, cy))
+                e.set_vertex(0, self.vpose)
+                e.Xw = X[i]
+            self.opt.add_edge(e)
+            self.edges.append(e)
+        self.level = np.zeros(m, dtype=np.int64)
+        self.robust = True
+
+    def round(self, rough: bool, inlier: np.ndarray, robust: bool) -> np.ndarray:
+        if not rough and not self.fine:
+            for i in np.flatnonzero(self.stereo):
+                self.edges[i].set_information(self.info_fine[i])
+            self.fine = True
+        level = (~inlier).astype(np.int64)
+        for i in np.flatnonzero(level != self.level):
+            self.edges[i].set_level(int(level[i]))
+        self.level = level
+        if self.robust and not robust:
+            self.kernels[0].set_delta(1e12)
+            self.kernels[1].set_delta(1e12)
+            self.robust = False
+        self.opt.initialize_optimization(0)
+        self.opt.optimize(self.cfg.pose_opt_iterations)
+        return _mat(self.vpose.estimate())
+
+    def close(self) -> None:
+        _KEEP_ALIVE.pop(id(self.opt), None)
+
+
+class _LmPoseRounds:
+    """The rounds of :func:`pose_optimization` with the compiled LM (``d2slam.slam.lm.pose_lm``): the edges as
+    arrays, outliers left out by mask."""
+
+    def __init__(self, Tcw, X, uv, ur, inv_sigma2, K, bf, cfg: EngineConfig, coarse: bool):
+        self.cfg, self.X, self.bf = cfg, X, float(bf)
+        self.meas, self.stereo, self.info_fine, self.delta = _edges(uv, ur, inv_sigma2, cfg, cfg.disparity_sigma_px)
+        self.info_coarse = edge_information(np.asarray(inv_sigma2, np.float64), self.stereo, 0.0) if coarse \
+            else self.info_fine
+        self.K = (K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+        self.T = np.ascontiguousarray(Tcw, dtype=np.float64)
+
+    def round(self, rough: bool, inlier: np.ndarray, robust: bool) -> np.ndarray:
+        cfg = self.cfg
+        self.T = lm.pose_lm(self.T, self.X, self.meas, self.stereo, self.info_coarse if rough else self.info_fine,
+                            inlier, self.delta, *self.K, self.bf, robust, cfg.pose_opt_iterations,
+                            cfg.pose_opt_gain_threshold)
+        return self.T
+
+    def close(self) -> None:
+        pass
 
 
 def _local_bundle_adjustment_g2o(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray, obs_cam: np.ndarray,
@@ -199,19 +218,11 @@ def _local_bundle_adjustment_g2o(poses: np.ndarray, fixed: np.ndarray, X: np.nda
     k_mono, k_stereo, info2, info3, stereo, meas3 = _edge_setup(uv, ur, inv_sigma2, cfg)
     for o in range(len(obs_cam)):
         if stereo[o]:
-            e = g2o.EdgeStereoSE3ProjectXYZ()
-            e.set_measurement(meas3[o])
-            e.set_information(info3[o])
-            e.bf = bf
-            e.set_robust_kernel(k_stereo)
+            e = _g2o_edge(g2o.EdgeStereoSE3ProjectXYZ(), meas3[o], info3[o], k_stereo, (fx, fy, cx, cy), bf)
         else:
-            e = g2o.EdgeSE3ProjectXYZ()
-            e.set_measurement(uv[o])
-            e.set_information(info2[o])
-            e.set_robust_kernel(k_mono)
+            e = _g2o_edge(g2o.EdgeSE3ProjectXYZ(), uv[o], info2[o], k_mono, (fx, fy, cx, cy))
         e.set_vertex(0, vpts[obs_pt[o]])
         e.set_vertex(1, vposes[obs_cam[o]])
-        e.fx, e.fy, e.cx, e.cy = fx, fy, cx, cy
         opt.add_edge(e)
     opt.initialize_optimization(0)
     opt.optimize(iterations)
@@ -262,30 +273,25 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     isotropic information (a wide basin from a coarse initial pose). Each round continues from the last estimate
     (ORB-SLAM restarts from the initial pose: same fixed point, fewer iterations). ``EngineConfig.optimizer``:
     the compiled kernels of ``d2slam.slam.lm`` or g2o."""
-    if cfg.optimizer == "g2o":
-        return _pose_optimization_g2o(Tcw, X, uv, ur, inv_sigma2, K, bf, cfg)
     m = len(X)
     if m < 3:
         return Tcw.copy(), np.zeros(m, dtype=bool)
     X = np.ascontiguousarray(X, dtype=np.float64)
     coarse = cfg.disparity_sigma_px > 0 and cfg.pose_opt_coarse_rounds > 0
-    meas, stereo, info_fine, delta = _edges(uv, ur, inv_sigma2, cfg, cfg.disparity_sigma_px)
-    info_coarse = edge_information(np.asarray(inv_sigma2, np.float64), stereo, 0.0) if coarse else info_fine
-    th = np.where(stereo, cfg.chi2_stereo, cfg.chi2_mono)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    inlier = np.ones(m, dtype=bool)
-    T = np.ascontiguousarray(Tcw, dtype=np.float64)
-    robust = True
-    for it in range(cfg.pose_opt_rounds):
-        rough = coarse and it < cfg.pose_opt_coarse_rounds
-        T = lm.pose_lm(T, X, meas, stereo, info_coarse if rough else info_fine, inlier, delta, fx, fy, cx, cy,
-                       float(bf), robust, cfg.pose_opt_iterations, cfg.pose_opt_gain_threshold)
-        chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf, 0.0 if rough else cfg.disparity_sigma_px)
-        inlier = (chi2 <= th) & front
-        if it == 2:
-            robust = False
-        if inlier.sum() < 10:
-            break
+    rounds = (_G2oPoseRounds if cfg.optimizer == "g2o" else _LmPoseRounds)(Tcw, X, uv, ur, inv_sigma2, K, bf, cfg,
+                                                                          coarse)
+    th = np.where(rounds.stereo, cfg.chi2_stereo, cfg.chi2_mono)
+    inlier, T = np.ones(m, dtype=bool), Tcw.copy()
+    try:
+        for it in range(cfg.pose_opt_rounds):
+            rough = coarse and it < cfg.pose_opt_coarse_rounds
+            T = rounds.round(rough, inlier, robust=it <= 2)  # ORB-SLAM drops the robust kernel after the third round
+            chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf, 0.0 if rough else cfg.disparity_sigma_px)
+            inlier = (chi2 <= th) & front
+            if inlier.sum() < 10:
+                break
+    finally:
+        rounds.close()
     return T, inlier
 
 

@@ -4,8 +4,6 @@ descriptor votes, 2-NN matching, seeded EPnP RANSAC, motion-only BA and a projec
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 
@@ -13,16 +11,14 @@ from d2slam.slam.frame import Frame
 from d2slam.slam.map import KeyFrame
 from d2slam.slam.matching import nearest_matches
 
-if TYPE_CHECKING:
-    from d2slam.slam.tracking import Tracker
 
-
-def relocalise(tracker: Tracker, frame: Frame) -> bool:
+def relocalise(tracker, frame: Frame) -> bool:
     """Candidates: the keyframe database's relocalisation candidates of the frame's static keypoints (ORB-SLAM
     ``DetectRelocalizationCandidates``), or without a database the recent keyframes and the reference keyframe; the
     best few by votes (``shortlist``) tried in turn: matches, PnP RANSAC (seeded by the frame index), pose
     optimisation, a projection search of the candidate's points when inliers are few. The first candidate with
-    ``relocalisation_min_inliers`` wins and becomes the reference keyframe."""
+    ``relocalisation_min_inliers`` wins and becomes the reference keyframe. ``tracker``: the engine's
+    ``d2slam.slam.tracking.Tracker`` (which calls this module)."""
     cfg, map_ = tracker.cfg, tracker.map
     kfs = map_.good_keyframes()
     if not kfs or frame.n == 0:
@@ -76,7 +72,7 @@ def relocalise(tracker: Tracker, frame: Frame) -> bool:
     return False
 
 
-def shortlist(tracker: Tracker, frame: Frame, cands: list[KeyFrame]) -> list[KeyFrame]:
+def shortlist(tracker, frame: Frame, cands: list[KeyFrame]) -> list[KeyFrame]:
     """The candidates worth a PnP attempt (our stand-in for DBoW2's candidate scoring): one nearest-neighbour
     search of the frame's static descriptors against the points of all candidates at once; each keyframe gets a
     vote per keypoint whose nearest point descriptor (Hamming <= TH_LOW) is one of its points. The best

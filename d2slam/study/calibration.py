@@ -26,7 +26,7 @@ def published_improvements() -> pd.DataFrame:
     """Improvement (%) of each published mask-based method over each published ORB-SLAM3 value: rows the paper's
     sequence labels, columns ``(method, ORB-SLAM3 source)``."""
     from d2slam.study.paper import SEQUENCES, published_absolute
-    from d2slam.study.tables import improvement
+    from d2slam.study.improvement import improvement
 
     pub = published_absolute()
     base = pub[pub["method"] == "ORB-SLAM3"].pivot(index="sequence", columns="source", values="ate_rmse_m")
@@ -49,7 +49,7 @@ def calibration_table(runs: pd.DataFrame, methods=METHODS) -> pd.DataFrame:
     ``imp_<method>`` (median, min, max of the per-seed improvements over orbslam3, %), the published ORB-SLAM3 ATE
     range and the published mask-based improvement range (``None`` for scenarios of our own)."""
     from d2slam.study.paper import orbslam3_baselines, paper_table
-    from d2slam.study.tables import improvement
+    from d2slam.study.improvement import improvement
 
     pub_imp = published_improvements()
     base = orbslam3_baselines()

@@ -34,7 +34,8 @@ from d2slam.study import grid as G
 from d2slam.study import tables as T
 from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
-from d2slam.study.runner import (base_row, execute_run, features_dir, onnx_sequence_keys, prepare_sequence, run_key,
+from d2slam.study.keys import run_key
+from d2slam.study.runner import (execute_run, failed_row, features_dir, onnx_sequence_keys, prepare_sequence,
                                  run_options, segment_sequence)
 
 RETRY = ("failed", "crashed", "timeout")  # statuses never reused by --resume
@@ -56,12 +57,13 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
               resume: bool = False) -> StudyResult:
     """Run the study grid and write its results into ``out`` (created). See the module docstring.
 
-    ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.runner.run_key`: the run, config,
+    ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.keys.run_key`: the run, config,
     masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
     and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
     from d2slam.config import DEFAULT
-    from d2slam.study.manifest import build_manifest, code_info, git_info
-    from d2slam.study.sequences import generator_version
+    from d2slam.digests import generator_version
+    from d2slam.study.keys import code_info
+    from d2slam.study.manifest import build_manifest, git_info
 
     checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
@@ -132,9 +134,8 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
         if s.run_id in by_id:
             results.append(by_id[s.run_id])
         else:
-            row = base_row(s)
-            row.update(status="failed", error=f"sequence: {prep_error[s.sequence_key]}")
-            results.append({"row": row, "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}})
+            results.append({"row": failed_row(s, f"sequence: {prep_error[s.sequence_key]}"), "trajectory": None,
+                            "aligned": None, "keypoints": None, "stage_ms": {}})
     t_runs = time.perf_counter() - t0 - t_seq - t_seg
 
     grid = {"scenarios": list(dict.fromkeys(s.scenario for s in specs)), "methods": method_order,

@@ -7,9 +7,9 @@ import os
 import platform
 import subprocess
 import sys
-from importlib import metadata
 
 from d2slam.paths import REPO_ROOT
+from d2slam.study.keys import code_info, package_versions
 
 PACKAGES = ("numpy", "scipy", "opencv-python-headless", "onnxruntime", "gtsam", "g2opy", "evo", "pyorbslam3",
             "pandas", "matplotlib", "joblib", "dask", "distributed", "tqdm")
@@ -31,16 +31,6 @@ def git_info(root=REPO_ROOT) -> dict:
         return {"commit": None, "dirty": None}
 
 
-def package_versions(names=PACKAGES) -> dict:
-    out = {}
-    for n in names:
-        try:
-            out[n] = metadata.version(n)
-        except metadata.PackageNotFoundError:
-            out[n] = None
-    return out
-
-
 def cpu_model() -> str:
     try:
         with open("/proc/cpuinfo") as f:
@@ -58,16 +48,6 @@ def machine_info() -> dict:
             "threads": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}}
 
 
-def code_info() -> dict:
-    """The source digests that key the runs (``d2slam.study.runner.source_digest``: comments and docstrings left out):
-    ``engine`` for the engine's runs, ``orbslam3`` for ORB-SLAM3's, ``orbslam3-masked`` for ORB-SLAM3's on masked
-    frames. Two studies with the same digests ran the same code, whatever their commits."""
-    from d2slam.study.runner import _ENGINE_CODE, _ORBSLAM3_CODE, _ORBSLAM3_MASKED_CODE, source_digest
-
-    return {"engine": source_digest(_ENGINE_CODE), "orbslam3": source_digest(_ORBSLAM3_CODE),
-            "orbslam3-masked": source_digest(_ORBSLAM3_MASKED_CODE)}
-
-
 def build_manifest(config, grid: dict, executor: dict, generator_version: str, timing: dict | None = None,
                    git: dict | None = None, code: dict | None = None) -> dict:
     """The study's manifest. ``git`` and ``code`` are taken when the study starts (``run_study``): a commit made
@@ -77,4 +57,4 @@ def build_manifest(config, grid: dict, executor: dict, generator_version: str, t
     return {"d2slam_version": d2slam.__version__, "git": git if git is not None else git_info(),
             "code": code if code is not None else code_info(), "config_hash": config.hash(),
             "generator_version": generator_version, "grid": grid, "executor": executor,
-            "packages": package_versions(), "machine": machine_info(), "timing": timing or {}}
+            "packages": package_versions(PACKAGES), "machine": machine_info(), "timing": timing or {}}

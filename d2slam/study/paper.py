@@ -96,7 +96,7 @@ def implied_baseline() -> pd.DataFrame:
 
 def side_by_side(runs: pd.DataFrame, table: int, ours: str = "d2slam", baseline: str = "none") -> pd.DataFrame:
     """The paper's D2SLAM improvement next to ours (median over seeds, over ``baseline``) for Table ``table``."""
-    from d2slam.study.tables import improvement_table
+    from d2slam.study.improvement import improvement_table
 
     metric = STUDY_METRIC[METRICS[table]]
     scen, _, cells = improvement_table(runs, metric, baseline, [ours])

@@ -1,9 +1,10 @@
 """The study's sequence cache: synthetic sequences generated once and reused, keyed by scenario, seed, frames,
-static twin and *generator version*.
+static twin and *generator version* (:func:`d2slam.digests.generator_version`).
 
 ``cache_dir("study", "sequences", "<scenario>_s<seed>_n<frames>[_twin]-<generator version>")``. The generator version
 is a digest of the synthetic format, the package version, every ``SynthConfig`` value and the code of
-``d2slam/synth/*.py`` (comments and docstrings left out, as in the run keys): a changed generator never feeds a study a stale sequence. A sequence counts as present only
+``d2slam/synth/*.py`` (comments and docstrings left out, as in the run keys): a changed generator never feeds a
+study a stale sequence. A sequence counts as present only
 when its ``.complete`` marker (written last, holding the key) is there; it is generated into a temporary folder and
 renamed into place (:func:`d2slam.outputs.staged_dir`), under a lock file, so concurrent workers (processes or a Dask
 cluster sharing the cache) never read a half-written sequence and never generate the same one twice.
@@ -12,35 +13,14 @@ cluster sharing the cache) never read a half-written sequence and never generate
 
 from __future__ import annotations
 
-import dataclasses
 import fcntl
-import hashlib
 import json
-from functools import lru_cache
 from pathlib import Path
 
+from d2slam.digests import generator_version
 from d2slam.errors import D2SlamError
 
 MARKER = ".complete"
-
-
-@lru_cache(maxsize=1)
-def generator_version() -> str:
-    """16 hex digits identifying what ``d2slam.synth`` would write."""
-    import d2slam
-    from d2slam.config import SynthConfig
-    from d2slam.synth import FORMAT
-
-    h = hashlib.sha256()
-    h.update(f"{FORMAT}|{d2slam.__version__}|".encode())
-    h.update(json.dumps(dataclasses.asdict(SynthConfig()), sort_keys=True, default=str).encode())
-    from d2slam.study.runner import code_text
-
-    src = Path(__file__).resolve().parent.parent / "synth"
-    for path in sorted(src.glob("*.py")):
-        h.update(path.name.encode())
-        h.update(code_text(path.read_text()).encode())
-    return h.hexdigest()[:16]
 
 
 def sequence_name(scenario: str, seed: int, frames: int, twin: bool) -> str:

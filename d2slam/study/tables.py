@@ -19,6 +19,10 @@ import pandas as pd
 from d2slam.config import EvalConfig
 from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, LOOP_SCENARIOS, ORACLE,
                                ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS)
+from d2slam.study.improvement import improvement, improvement_table, metric_matrix  # noqa: F401 - the tables' API
+from d2slam.study.improvement import methods_of as _methods
+from d2slam.study.improvement import nanmedian as _nanmedian
+from d2slam.study.improvement import scenarios_of as _scenarios
 
 # runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
 KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source", "loop_closing"]
@@ -44,16 +48,6 @@ GROUP = ["source", "scenario", "sequence", "twin", "method", "frames", "loop_clo
 UNITS = {"ate_rmse_m": "m", "rpe_trans_m": "m", "rpe_rot_deg": "deg"}
 TITLES = {"ate_rmse_m": "ATE", "rpe_trans_m": "translational RPE", "rpe_rot_deg": "rotational RPE"}
 DECIMALS = {"ate_rmse_m": 4, "rpe_trans_m": 4, "rpe_rot_deg": 3}
-
-
-def improvement(ours, baseline):
-    """``(1 - ours / baseline) x 100`` (%), elementwise; NaN where either is missing or the baseline is not > 0."""
-    ours = np.asarray(ours, dtype=np.float64)
-    base = np.asarray(baseline, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = (1.0 - ours / base) * 100.0
-    out = np.where(np.isfinite(ours) & np.isfinite(base) & (base > 0), out, np.nan)
-    return out if out.ndim else float(out)
 
 
 def runs_frame(rows: list[dict]) -> pd.DataFrame:
@@ -132,55 +126,6 @@ def write_summary_csv(summary: pd.DataFrame, path) -> None:
 # ------------------------------------------------------------------------------------------------------------
 # Paper-format tables
 # ------------------------------------------------------------------------------------------------------------
-def _scenarios(df) -> list[str]:
-    present = set(df["scenario"])
-    return [s for s in SCENARIOS if s in present] + sorted(present - set(SCENARIOS))
-
-
-def _methods(df) -> list[str]:
-    return list(dict.fromkeys(df["method"]))
-
-
-def metric_matrix(df: pd.DataFrame, metric: str, twin: int = 0) -> pd.DataFrame:
-    """Per-seed values: index (scenario, seed), columns methods (NaN where a run has no metric)."""
-    d = df[df["twin"] == twin]
-    if d.empty:
-        return pd.DataFrame()
-    return d.pivot_table(index=["scenario", "seed"], columns="method", values=metric, aggfunc="first",
-                         dropna=False)
-
-
-def improvement_table(df: pd.DataFrame, metric: str, baseline: str = BASELINE, methods: list[str] | None = None):
-    """Rows scenarios, columns methods: ``(improvement of the medians, min, max of the per-seed improvements)``,
-    or None where not computable. Returns (scenarios, methods, cells dict)."""
-    scen = _scenarios(df[df["twin"] == 0])
-    methods = [m for m in (methods or _methods(df)) if m != baseline]
-    mat = metric_matrix(df, metric)
-    cells = {}
-    for s in scen:
-        for m in methods:
-            cells[(s, m)] = None
-            if mat.empty or m not in mat.columns or baseline not in mat.columns or s not in mat.index:
-                continue
-            ours = mat.loc[s, m].to_numpy(np.float64)
-            base = mat.loc[s, baseline].to_numpy(np.float64)
-            med_o, med_b = _nanmedian(ours), _nanmedian(base)
-            imp = improvement(med_o, med_b)
-            if not math.isfinite(imp):
-                continue
-            per_seed = improvement(ours, base)
-            per_seed = per_seed[np.isfinite(per_seed)]
-            cells[(s, m)] = (imp, float(per_seed.min()) if len(per_seed) else np.nan,
-                             float(per_seed.max()) if len(per_seed) else np.nan, len(per_seed))
-    return scen, methods, cells
-
-
-def _nanmedian(v) -> float:
-    v = np.asarray(v, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    return float(np.median(v)) if len(v) else float("nan")
-
-
 TRACKED_FLAG = 0.9  # cells of runs that tracked less than this fraction of the frames (median over seeds) get a dagger
 DAGGER = " †"
 DAGGER_NOTE = ("† the method tracked fewer than 90 % of the frames (median over seeds): its errors are over a "

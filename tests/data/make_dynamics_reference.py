@@ -12,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from d2slam.dynamics import MODES, get_filter
+from d2slam.methods import DYNAMICS, get_filter
+
+MODES = tuple(DYNAMICS)
 from d2slam.dynamics.toy import two_view_scene
 from d2slam.slam.hook import FilterInput
 

@@ -1,0 +1,82 @@
+"""What a run gives: :class:`RunRecord` for every method (our engine's, the real ORB-SLAM3's, ORB-SLAM3's on masked
+frames), the one shape that ``d2slam run`` prints and writes and the study turns into its rows and tables; and
+:class:`EngineRun`, the engine's own account of a run (``d2slam.pipeline.run_sequence``), which a record of an
+engine method carries.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from d2slam.data.base import Trajectory
+from d2slam.eval.trajectory import Evaluation
+
+
+@dataclass
+class EngineRun:
+    """A sequence run through the engine (``d2slam.pipeline.run_sequence``)."""
+
+    trajectory: Trajectory  # tracked frames only
+    frames: int
+    tracked: int
+    lost: int
+    states: list[str]  # per frame: "ok" | "lost" | "not_initialized"
+    keyframes: int
+    map_points: int
+    stage_ms: dict[str, float]  # mean milliseconds per frame and stage
+    total_s: float
+    fps: float
+    per_frame: list[dict] = field(default_factory=list)
+    first_frame_at: float = float("nan")  # time.time() when the first frame was done (cold-start measurements)
+    # Loop closing (``EngineConfig.loop_closing``): the loops closed (``Loop.to_dict``), every place-recognition
+    # candidate (``Candidate``), the detection time of each keyframe (ms, wall and CPU) and each correction's (s).
+    loop_closing: bool = False
+    loops: list[dict] = field(default_factory=list)
+    loop_candidates: list = field(default_factory=list)
+    loop_detect_ms: list[float] = field(default_factory=list)
+    loop_detect_cpu_ms: list[float] = field(default_factory=list)  # the same in CPU time
+
+    @property
+    def ms_per_frame(self) -> float:
+        return 1000.0 * self.total_s / max(self.frames, 1)
+
+    def summary(self) -> dict:
+        return {"frames": self.frames, "tracked": self.tracked, "lost": self.lost, "keyframes": self.keyframes,
+                "map_points": self.map_points, "fps": round(self.fps, 2),
+                "stage_ms": {k: round(v, 3) for k, v in self.stage_ms.items()}}
+
+
+@dataclass
+class RunRecord:
+    """One run of a method on a sequence, evaluated against its ground truth when it has one.
+
+    ``status`` and ``error`` say how the run ended, as the study's ``runs.csv`` records it: for the engine's methods
+    ``ok`` (ATE and RPE), ``partial`` (the ATE alone: too short for a 1-second RPE pair) or ``unevaluated``; for
+    ORB-SLAM3 its own outcome (``ok``, ``lost``, ``reset``, ``failed``, ``crashed``, ``timeout``; ``unevaluated``
+    when it tracked but gave no metrics). ORB-SLAM3 runs ``repeats`` times: its figures are the medians, ``ate_range``
+    the ATE's (min, max) over the repeats."""
+
+    method: str
+    sequence: str  # the sequence's name
+    trajectory: Trajectory  # T_world_camera of the tracked frames (empty when none was tracked)
+    frames: int  # frames run
+    tracked: int
+    lost: int
+    fps: float | None
+    ms_per_frame: float | None
+    config_hash: str
+    loop_closing: bool
+    status: str
+    error: str  # why the status is not ``ok`` ("" when it is)
+    evaluation: Evaluation | None  # None: the sequence has no ground truth, or the run gave no trajectory
+    stage_ms: dict[str, float] = field(default_factory=dict)  # the engine's stages (``d2slam.pipeline.STAGES``)
+    masks: str | None = None  # the mask kind read (None: none)
+    masks_origin: str | None = None  # where they came from (``d2slam.segmentation.masks_origin``)
+    repeats: int = 1
+    ate_range: tuple[float, float] | None = None
+    keypoints: dict | None = None  # classification against the synthetic truth (``d2slam.eval.keypoints``)
+    loops: dict | None = None  # ``d2slam.eval.loops.loop_summary`` (the engine's methods)
+    keyframes: int | None = None
+    map_points: int | None = None
+    engine: EngineRun | None = None  # the engine's own account (the engine's methods)
+    orbslam3: dict | None = None  # ORB-SLAM3's run JSON (``d2slam.baselines.orbslam3``)
