@@ -8,6 +8,7 @@ import pytest
 from d2slam.cli import main
 from d2slam.data import open_sequence, read_tum_trajectory
 from d2slam.errors import D2SlamError
+import d2slam.methods as M
 from d2slam.methods import get_filter, get_method, methods, register
 from d2slam.pipeline import run_sequence
 from d2slam.slam.fixture import write_room_sequence
@@ -62,10 +63,11 @@ def test_single_frame_sequence(tmp_path, capsys):
     assert "need >= 3" in capsys.readouterr().err
 
 
-def test_method_registry():
+def test_method_registry(monkeypatch):
     assert "none" in methods() and get_filter("none", None) is None
     with pytest.raises(D2SlamError, match="unknown method"):
         get_method("nope")
+    monkeypatch.setattr(M, "_REGISTRY", dict(M._REGISTRY))  # the registration below ends with this test
     register("_test_all_static", lambda cfg: None)
     assert "_test_all_static" in methods()
 
