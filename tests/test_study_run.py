@@ -380,6 +380,26 @@ def _study_cli(out) -> list[str]:
             "--no-plots", "--quiet"]
 
 
+def test_ctrl_c_while_workers_start_is_kept_and_they_inherit_the_block():
+    """While the pool's workers start, a Ctrl-C that reaches this thread waits (it is not lost: it arrives when they
+    have started) and the processes started meanwhile have it blocked until their initializer ignores it."""
+    import signal
+    import subprocess
+    import sys
+    import threading
+
+    from d2slam.study.executors import _sigint_deferred
+
+    probe = "import signal; print(signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))"
+    with pytest.raises(KeyboardInterrupt):
+        with _sigint_deferred():
+            signal.pthread_kill(threading.get_ident(), signal.SIGINT)
+            child = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+            reached_the_end = True
+    assert reached_the_end and child.stdout.strip() == "True"
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
 def test_parallel_study_ctrl_c_is_one_line_and_leaves_nothing(serial, tmp_path):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while two workers run: exit status 130,
     "d2slam: interrupted" and nothing else on stderr (no worker traceback, no leaked semaphores, no loky warning), no

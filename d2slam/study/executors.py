@@ -85,7 +85,7 @@ def _joblib(fn, items, order, args, jobs):
 
     pool = ProcessPoolExecutor(max_workers=int(jobs), env=WORKER_ENV, initializer=_ignore_sigint)
     try:
-        with _sigint_ignored():  # the workers start now (first submit) and inherit it from their first instruction
+        with _sigint_deferred():  # the workers start now (first submit) and inherit the block
             # submitted in ``order``: the pool starts them so, one per worker as it frees up
             futures = {pool.submit(fn, items[i], *args): i for i in order}
         for fut in as_completed(futures):
@@ -103,24 +103,21 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-class _sigint_ignored:
-    """SIGINT ignored in this process for the duration (processes started meanwhile inherit it); a no-op outside the
-    main thread, where signal handlers cannot be set."""
+class _sigint_deferred:
+    """SIGINT blocked in this thread for the duration: processes started meanwhile inherit the block, so a Ctrl-C
+    cannot reach a worker before its initializer ignores it, and a Ctrl-C that comes meanwhile stays pending here
+    and is delivered (``KeyboardInterrupt``) when the block ends, instead of being lost."""
 
     def __enter__(self):
         import signal
-        import threading
 
-        self._prev = None
-        if threading.current_thread() is threading.main_thread():
-            self._prev = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        self._prev = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         return self
 
     def __exit__(self, *exc):
         import signal
 
-        if self._prev is not None:
-            signal.signal(signal.SIGINT, self._prev)
+        signal.pthread_sigmask(signal.SIG_SETMASK, self._prev)
         return False
 
 
