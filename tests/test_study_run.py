@@ -380,7 +380,18 @@ def _study_cli(out) -> list[str]:
             "--no-plots", "--quiet"]
 
 
-def test_ctrl_c_while_workers_start_is_kept_and_they_inherit_the_block():
+@pytest.fixture
+def ctrl_c_handled():
+    """SIGINT handled as in an interactive session (KeyboardInterrupt) for the test and the processes it starts: a
+    suite started in the background by a non-interactive shell inherits SIGINT ignored, which a study respects."""
+    import signal
+
+    prev = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, prev)
+
+
+def test_ctrl_c_while_workers_start_is_kept_and_they_inherit_the_block(ctrl_c_handled):
     """While the pool's workers start, a Ctrl-C that reaches this thread waits (it is not lost: it arrives when they
     have started) and the processes started meanwhile have it blocked until their initializer ignores it."""
     import signal
@@ -400,7 +411,7 @@ def test_ctrl_c_while_workers_start_is_kept_and_they_inherit_the_block():
     assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
 
 
-def test_parallel_study_ctrl_c_is_one_line_and_leaves_nothing(serial, tmp_path):
+def test_parallel_study_ctrl_c_is_one_line_and_leaves_nothing(serial, tmp_path, ctrl_c_handled):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while two workers run: exit status 130,
     "d2slam: interrupted" and nothing else on stderr (no worker traceback, no leaked semaphores, no loky warning), no
     temporary file or folder of the study's processes left anywhere; on start, the study removed a killed process's
