@@ -70,3 +70,16 @@ def test_deviations_name_real_config_fields():
     assert len(named) >= 8
     for section, field in named:
         assert hasattr(sections[section.lower()], field), f"{section}Config.{field}"
+
+
+def test_headline_reads_the_runs_with_loop_closing_on():
+    """The README's loop row is the engine's default (loop closing on), not a median over runs with it on and off."""
+    import numpy as np
+
+    from d2slam.study import tables as T
+
+    df = T.read_runs_csv(ROOT / "results" / "runs.csv")
+    loop = df[(df["scenario"] == "office_loop") & (df["twin"] == 0) & (df["method"] == "none")]
+    on = loop[loop["loop_closing"].astype(bool)]["ate_rmse_m"]
+    assert len(on) and len(on) < len(loop)
+    assert f"| loop (ours) | {np.median(on):.4f} [" in D.headline_markdown(ROOT / "results")
