@@ -111,11 +111,14 @@ def test_inverted_file_counts_common_words_and_scores_all_keyframes(voc):
     assert 2 not in db._sharing(q, np.zeros(0, np.int64))[0]
 
 
+def _descriptors_with_dynamic(n: int = 200, n_dynamic: int = 120):
+    """n random ORB descriptors, the first n_dynamic of them flagged dynamic."""
+    d = np.random.default_rng(4).integers(0, 256, (n, 32), dtype=np.uint8)
+    return d, np.arange(n) < n_dynamic
+
+
 def test_dynamic_keypoints_give_no_word(voc):
-    rng = np.random.default_rng(4)
-    d = rng.integers(0, 256, (200, 32), dtype=np.uint8)
-    dyn = np.zeros(200, bool)
-    dyn[:120] = True
+    d, dyn = _descriptors_with_dynamic()
     m = Map()
     db = KeyFrameDatabase(voc, m, DEFAULT.engine)
     m.add_keyframe(_kf(0, d, dynamic=dyn))
@@ -485,10 +488,7 @@ def test_tables_have_a_loop_closing_section():
 
 
 def test_the_ablation_puts_dynamic_keypoints_back_into_words_and_matches(voc):
-    rng = np.random.default_rng(4)
-    d = rng.integers(0, 256, (200, 32), dtype=np.uint8)
-    dyn = np.zeros(200, bool)
-    dyn[:120] = True
+    d, dyn = _descriptors_with_dynamic()
     m = Map()
     db = KeyFrameDatabase(voc, m, _cfg(loop_dynamic_keypoints=True).engine)
     m.add_keyframe(_kf(0, d, dynamic=dyn))
