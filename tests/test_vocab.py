@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -281,3 +282,22 @@ def test_resolve_checks_a_file_once_and_trusts_its_own_build(small_vocab, tmp_pa
     built = tmp_path / "built.txt"
     V.build_vocabulary(built, synthetic=False, real=True, progress=False)
     assert V.resolve_vocabulary(built, build=False)["kind"] == "built" and len(calls) == 1
+
+
+def test_the_cached_vocabulary_is_checked_for_staleness_once_per_process(tmp_path, monkeypatch):
+    """A cached vocabulary built from other training frames (an older generator) or other parameters is rebuilt:
+    resolving the cache's vocabulary asks build_vocabulary, which reuses a current file and rebuilds a stale one;
+    once per process."""
+    monkeypatch.delenv("PYORBSLAM3_VOCAB", raising=False)
+    out = tmp_path / "voc.txt"
+    desc = np.random.default_rng(0).integers(0, 256, (500, 32), dtype=np.uint8)
+    V.build_tree(desc, np.arange(500) // 50, k=4, L=2).save(out)
+    monkeypatch.setattr(V, "default_vocab_path", lambda: out)
+    monkeypatch.setattr(V, "_CURRENT", set())
+    calls = []
+    monkeypatch.setattr(V, "build_vocabulary", lambda path, progress=True: calls.append(Path(path)))
+    V.resolve_vocabulary(None, build=True)
+    V.resolve_vocabulary(None, build=True)
+    assert calls == [out]
+    V.resolve_vocabulary(None, build=False)  # no build allowed: the file as it is
+    assert calls == [out]

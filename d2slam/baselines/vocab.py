@@ -698,11 +698,13 @@ def resolve_vocabulary(path: str | Path | None = None, build: bool = True, progr
                               path=chosen)
     else:
         chosen, source = default_vocab_path(), "cache"
-        if not chosen.is_file():
-            if not build:
-                raise D2SlamError("no ORB vocabulary: run `d2slam vocab build` (or set PYORBSLAM3_VOCAB)",
-                                  path=chosen)
+        if not chosen.is_file() and not build:
+            raise D2SlamError("no ORB vocabulary: run `d2slam vocab build` (or set PYORBSLAM3_VOCAB)", path=chosen)
+        if build and str(chosen) not in _CURRENT:
+            # built if missing, rebuilt if stale: a vocabulary trained on another generator's frames, or with other
+            # parameters, changes loop closing's and ORB-SLAM3's results (build_vocabulary reuses a current file)
             build_vocabulary(chosen, progress=progress)
+            _CURRENT.add(str(chosen))
     chosen = chosen.expanduser().resolve()
     if not chosen.is_file():
         check_vocabulary_file(chosen)  # the reader's one-line error
@@ -724,6 +726,7 @@ def resolve_vocabulary(path: str | Path | None = None, build: bool = True, progr
 
 
 _CHECKED: set[tuple[str, str]] = set()  # (path, sha256) of the vocabulary files this process has checked
+_CURRENT: set[str] = set()  # the cache's vocabulary files this process has found current (or built)
 
 
 def check_vocabulary_file(path: str | Path) -> None:
