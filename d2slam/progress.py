@@ -64,15 +64,16 @@ def progress(iterable: Iterable[T], total: int | None = None, desc: str = "", un
     every = CLI.progress_log_s if interval is None else float(interval)
     start = last = clock()
     done, done_w = 0, 0.0
+    of_w = total if weight is None else total_weight  # the work in all: items, or their summed weights
     of = f"/{total}" if total else ""
     for item in iterable:
         yield item
         done += 1
-        done_w += weight(item) if weight is not None else 1.0
+        done_w += 1.0 if weight is None else weight(item)
         now = clock()
         if now - last >= every and (not total or done < total):
             last = now
-            share = done_w / total_weight if weight is not None and total_weight else done / total if total else 0.0
+            share = done_w / of_w if of_w else 0.0
             left = f", about {duration((now - start) * (1.0 - share) / share)} left" if share > 0 else ""
             print(f"d2slam: {desc}: {done}{of} {unit}s, {duration(now - start)}{left}", file=stream, flush=True)
     print(f"d2slam: {desc}: {done}{of} {unit}s in {duration(clock() - start)}", file=stream, flush=True)

@@ -83,3 +83,16 @@ def test_headline_reads_the_runs_with_loop_closing_on():
     on = loop[loop["loop_closing"].astype(bool)]["ate_rmse_m"]
     assert len(on) and len(on) < len(loop)
     assert f"| loop (ours) | {np.median(on):.4f} [" in D.headline_markdown(ROOT / "results")
+
+
+
+def test_headline_of_a_study_without_loop_closing_keeps_its_runs(tmp_path):
+    """A study made before loop closing (its runs read with loop_closing 0) still fills the README's table."""
+    from d2slam.study import tables as T
+
+    df = T.read_runs_csv(ROOT / "results" / "runs.csv")
+    old = df[df["scenario"] == "walking_xyz"].drop(columns="loop_closing")
+    (tmp_path / "old").mkdir()
+    old.to_csv(tmp_path / "old" / "runs.csv", index=False)
+    ours = D.headline_markdown(ROOT / "results").splitlines()
+    assert D.headline_markdown(tmp_path / "old").splitlines()[2] == next(r for r in ours if r.startswith("| w/xyz |"))

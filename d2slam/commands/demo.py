@@ -16,8 +16,8 @@ def register(sub) -> None:
     p = sub.add_parser("demo", help="the main job on a short synthetic sequence: generate, run none vs d2slam, "
                        "evaluate",
                        description="Generate (or reuse) a short synthetic sequence (default walking_halfsphere) and "
-                       "its static twin in the study's sequence cache, describe them, then run the engine with the keypoint filter "
-                       "off (none) and with D2SLAM (d2slam, the real segmenter's masks) on both, evaluate with evo "
+                       "its static twin in the study's sequence cache, describe them, then run the engine with the "
+                       "keypoint filter off (none) and with D2SLAM (d2slam, the real segmenter's masks) on both, evaluate with evo "
                        "and print ATE / RPE / keypoint F1 (a tiny `d2slam study` grid). Everything goes into the "
                        "cache ($D2SLAM_CACHE, default ~/.cache/d2slam): the sequences into study/sequences/, the "
                        "results (runs.csv, tables.md, trajectories/, runs/) into demo/study/, overwritten by the next "

@@ -12,9 +12,9 @@
   (one run per core; the numbers do not depend on it, the speed does).
 
 The function must be importable (a module-level function) and its arguments picklable. Results are placed by
-index, so the output order never depends on which worker finished first. Progress (:func:`d2slam.progress.progress`):
-a tqdm bar on a terminal, else a line on stderr every few seconds (CI, ``nohup``, a pipe). With ``cost`` the items start in
-decreasing cost (``dispatch_order``: the longest first, ties in input order), one at a time as a worker frees up:
+index, so the output order never depends on which worker finished first. Progress
+(:func:`d2slam.progress.progress`): a tqdm bar on a terminal, else a line on stderr every few seconds (CI, ``nohup``,
+a pipe). With ``cost`` the items start in decreasing cost (``dispatch_order``: the longest first, ties in input order), one at a time as a worker frees up:
 the last to start are the shortest, so both cores stay busy to the end instead of one finishing a long run alone.
 """
 
