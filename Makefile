@@ -5,6 +5,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.d2slam-installed
+WARM   := $(VENV)/.d2slam-warm
 NODEPS := anny==0.6.2 pyrender==0.1.45
 
 # Deterministic, explicit thread counts (see README "Determinism").
@@ -26,8 +27,7 @@ $(STAMP): environment.txt pyproject.toml
 	@# create an offscreen context, and runs on the 3.1.10 of environment.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps $(NODEPS)
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
-	@# compile the engine's kernels now (numba caches them on disk), not during the first run
-	$(PY) -m d2slam.warmup
+	@rm -f $(WARM)
 	@# the synthetic benchmark renders offscreen with Mesa's EGL and llvmpipe (system libraries)
 	@ldconfig -p 2>/dev/null | grep -q 'libEGL_mesa.so' && ldconfig -p 2>/dev/null | grep -q 'libGL.so' || \
 		echo "warning: no Mesa EGL/OpenGL for the synthetic benchmark: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri"
@@ -35,8 +35,11 @@ $(STAMP): environment.txt pyproject.toml
 
 # The segmentation models and the five real TUM frames: found in $$D2SLAM_SHARED (default ../shared) or the cache,
 # else fetched from pinned URLs (sha256-checked); does nothing when everything is found.
+# Then, once per install, the engine's kernels are compiled (numba caches them on disk), not during the first run;
+# after the assets, since the warm-up's engine closes loops with the vocabulary built from the real TUM frames.
 assets: $(STAMP)
 	$(VENV)/bin/d2slam assets fetch
+	@test -f $(WARM) || { $(PY) -m d2slam.warmup && touch $(WARM); }
 
 demo: assets
 	$(VENV)/bin/d2slam demo

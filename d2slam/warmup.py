@@ -9,8 +9,9 @@ well under a second.
 
 ``warm_up`` runs the engine with the ``d2slam`` filter on a few frames of the analytic room
 (``d2slam.slam.fixture``) with a person mask, so that every kernel is compiled (or loaded) with the argument types of
-real runs. ``make install`` calls it (``python -m d2slam.warmup``), so that the first run of a fresh install finds
-them compiled, and the study calls it before its workers start, so that they do not each compile the same kernels.
+real runs. ``make demo`` and ``make test`` call it once per install, after fetching the assets (``python -m
+d2slam.warmup``; its engine closes loops with the vocabulary, built from the real TUM frames), so that the first
+run of a fresh install finds them compiled, and the study calls it before its workers start, so that they do not each compile the same kernels.
 """
 
 from __future__ import annotations
