@@ -8,7 +8,7 @@ from d2slam.baselines.vocab import build_tree
 from d2slam.cli import main
 
 
-def test_demo_runs_the_main_job(tmp_path, monkeypatch, capsys):
+def test_demo_runs_the_main_job(tmp_path, monkeypatch, capsys, assets_kept):
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path))
     # the engine's loop closing reads the ORB vocabulary: a small one here (an empty cache would build the project's)
     desc = np.random.default_rng(0).integers(0, 256, (2000, 32), dtype=np.uint8)

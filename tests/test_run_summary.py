@@ -28,7 +28,7 @@ def room(tmp_path_factory):
 
 
 @pytest.fixture
-def cache(tmp_path, monkeypatch, model):
+def cache(tmp_path, monkeypatch, model, assets_kept):
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("D2SLAM_SEG_MODEL", str(model))
     return tmp_path / "cache"
