@@ -52,8 +52,9 @@ class DynamicsConfig:
     # eq 7 (ours): a keypoint with no observation (not matched) takes the mean P_g of its matched neighbours
     # when that is larger than its eq 7 P: of its neighbour_k nearest matched keypoints, those within delta(z) px
     # (eq 9's radius) and neighbour_depth metres, at least neighbour_min of them. False = the paper. See
-    # interaction.neighbour_p_g; measured: docs/deviations.md.
-    neighbour_p_g: bool = True
+    # interaction.neighbour_p_g; off: on real frames it spread the false alarms of eq 5 to the unmatched keypoints
+    # (measured: docs/deviations.md).
+    neighbour_p_g: bool = False
     neighbour_k: int = 8
     neighbour_depth: float = 0.15
     neighbour_min: int = 2
@@ -148,6 +149,13 @@ class DynamicsConfig:
     # docs/deviations.md.
     flow_edge_band: float = 6.0
     flow_edge_p: float = 0.9
+    # eq 5-6 and the pose test (ours): each threshold is widened, frame by frame, to at least the noise_confidence
+    # quantile of the frame's static residuals (a chi distribution fitted to their median; geometric.widening):
+    # alpha(z) (0.5-0.9 px) sits at the noise floor of a sharp sensor whose depth and colour are taken at one instant,
+    # and a real Kinect's static residuals are wider and vary with the motion (blur, the depth image's own capture
+    # time). False = the paper's fixed thresholds. Measured: docs/real_data.md, docs/deviations.md.
+    noise_widening: bool = True
+    noise_confidence: float = 0.95
     # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
     fixed_alpha: float = 0.7
     # Keypoint depth: median of valid pixels in a (2 r + 1)^2 patch.
