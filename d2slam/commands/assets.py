@@ -16,7 +16,7 @@ def register(sub) -> None:
         "does nothing when everything is found. An interrupted fetch of fr1/rpy resumes where it stopped.")
     parser.add_argument("action", choices=["fetch", "list"], help="fetch the missing assets, or list where each is")
     parser.add_argument("--full-real", action="store_true",
-                        help="fetch also the whole TUM fr1/rpy sequence (723 RGB + 722 depth images, about 420 MB; "
+                        help="fetch also the whole TUM fr1/rpy sequence (723 RGB + 722 depth images, about 440 MB; "
                         "for development) from the same pinned copy into $D2SLAM_CACHE/real/rgbd_dataset_freiburg1_rpy: "
                         "its lists are sha256-checked; no per-image checksum is known, so every listed image must "
                         "arrive and decode")
