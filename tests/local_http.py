@@ -84,19 +84,20 @@ def real_url_path(rel: str) -> str:
     return f"/{pins['repository']}/{pins['commit']}/{pins['folder']}/{rel}"
 
 
-def real_files(whole_lists: str) -> dict[str, bytes]:
+def real_files(whole_lists: str, whole_images: bool = False) -> dict[str, bytes]:
     """TUM fr1/rpy at its mirror paths: the head's images (``d2slam.assets.real_head``) and, at the whole sequence's
-    list paths, the whole sequence's lists and images (``whole_lists="real"``: ``d2slam.assets.real_full``) or the
-    head's cut lists (``"head"``: a whole sequence of 120 frames, for tests that pin its lists with
-    :func:`head_as_whole`)."""
+    list paths, the whole sequence's lists (``whole_lists="real"``: ``d2slam.assets.real_full``; with
+    ``whole_images`` every image they name too, 440 MB) or the head's cut lists (``"head"``: a whole sequence of 120
+    frames, for tests that pin its lists with :func:`head_as_whole`)."""
     from d2slam import assets
 
     head = assets.real_head()
     files = {real_url_path(rel): (head / rel).read_bytes() for rel in assets.real_pins()["head"]["files"]}
     if whole_lists == "real":
         full = assets.real_full()
-        files.update({real_url_path(rel): (full / rel).read_bytes() for rel in assets._listed(full)})
         files.update({real_url_path(name): (full / name).read_bytes() for name in assets.LISTS})
+        if whole_images:
+            files.update({real_url_path(rel): (full / rel).read_bytes() for rel in assets._listed(full)})
     else:
         files.update({real_url_path(name): (head / name).read_bytes() for name in assets.LISTS})
     return files
@@ -108,7 +109,7 @@ def head_as_whole(pins: dict) -> dict:
     return {**pins, "lists": dict(pins["head"]["lists"])}
 
 
-def asset_mirror(seconds: float = 600.0, whole_lists: str | None = None) -> Server:
+def asset_mirror(seconds: float = 600.0, whole_lists: str | None = None, whole_images: bool = False) -> Server:
     """A server holding every downloaded asset at its upstream path (read from the shared folder or the cache), and
     TUM fr1/rpy when ``whole_lists`` is given (:func:`real_files`)."""
     from d2slam import assets
@@ -117,7 +118,7 @@ def asset_mirror(seconds: float = 600.0, whole_lists: str | None = None) -> Serv
     for a in assets.DOWNLOADS:
         srv.files["/" + a.url_path] = assets.asset_path(a.path).read_bytes()
     if whole_lists is not None:
-        srv.files.update(real_files(whole_lists))
+        srv.files.update(real_files(whole_lists, whole_images))
     return srv
 
 
@@ -128,6 +129,7 @@ if __name__ == "__main__":
     args = parser.parse_args()
     from d2slam.assets import find_real_head, real_full
 
-    server = asset_mirror(args.seconds, "real" if find_real_head() and real_full() else None)
+    whole = bool(find_real_head() and real_full())
+    server = asset_mirror(args.seconds, "real" if whole else None, whole_images=whole)
     print(f"D2SLAM_ASSETS_MIRROR={server.url}", flush=True)
     server.thread.join()

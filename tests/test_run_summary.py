@@ -74,6 +74,11 @@ def test_camera_origins_and_no_masks(room, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "no RPE: cannot compute RPE over 1.0 s pairs" in out and "tracked 6/6 frames; ATE 0.0" in out
     assert " m (no RPE); wrote " in summary_lines(out)[0]
+    assert main(["run", str(short), "--camera", "fr3", "--out", str(tmp_path / "t.txt"), "--metrics-json",
+                 str(tmp_path / "short.json"), "--quiet"]) == 0
+    rec = json.loads((tmp_path / "short.json").read_text())  # the ATE alone, as the line gives it
+    assert list(rec["metrics"]) == ["ate_rmse_m"] and rec["metrics_error"].startswith("no RPE: cannot compute")
+    assert f"ATE {rec['metrics']['ate_rmse_m']:.4f} m (no RPE)" in summary_lines(out)[0]
 
 
 def test_the_real_segmenter_is_the_default_everywhere():

@@ -135,9 +135,12 @@ def run(args) -> int:
         record["metrics_error"] = f"no ATE/RPE: only {run.tracked} frames tracked (at least 3 are needed)"
     elif ev.metrics is not None:
         record["metrics"] = ev.metrics.to_dict()
+    elif ev.ate_rmse_m is not None:  # too short for 1-second pairs: the ATE alone
+        ate_only = ev.ate_rmse_m
+        record["metrics"] = {"ate_rmse_m": ate_only}
+        record["metrics_error"] = f"no RPE: {ev.error}"
     else:
         record["metrics_error"] = f"no ATE/RPE: {ev.error}"
-        ate_only = ev.ate_rmse_m  # too short for 1-second pairs: the ATE alone, for the summary
     listed = getattr(seq, "n_rgb", run.frames)
     if run.frames < listed:
         record["frames_note"] = (f"{run.frames} of the {listed} frames of rgb.txt were run: the others have no "
@@ -160,14 +163,13 @@ def run(args) -> int:
             print(f"loops: {len(record['loops'])}" + (f" ({len(record['loops_true'])} true, "
                                                      f"{len(record['loops_false'])} false)" if ev is not None else "")
                   + "".join(f"; frames {a} -> {b}" for a, b in record["loops"]))
-        if "metrics" in record:
+        if "metrics_error" in record:
+            print(record["metrics_error"])
+        else:
             m = record["metrics"]
             print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
-        else:
-            print(record["metrics_error"].replace("no ATE/RPE:", "no RPE:") if ate_only is not None else
-                  record["metrics_error"])
         masks = f"{masks_kind} ({run.masks_origin})" if masks_kind else "none"
-        ate = record["metrics"]["ate_rmse_m"] if "metrics" in record else ate_only
+        ate = record["metrics"]["ate_rmse_m"] if "metrics" in record else None
         print(summary_line(args.method, masks, camera_text(seq.camera.name, record["camera"]["source"], args.camera),
                            run.tracked, run.frames, ate, [out, args.metrics_json],
                            ate_note=" (no RPE)" if ate_only is not None else "", min_share=run.min_tracked_share))
