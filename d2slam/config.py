@@ -904,8 +904,14 @@ def _section(section_cls, data: dict, name: str):
 
 @dataclass(frozen=True)
 class EvalConfig:
-    """How a run's loops are judged against the ground truth (``d2slam.eval.loops``); nothing here changes a
-    trajectory."""
+    """How a run is judged: the share of its frames it tracked (``d2slam.record``) and its loops against the ground
+    truth (``d2slam.eval.loops``); nothing here changes a trajectory."""
+
+    # A run that tracks less than this share of the frames it ran is a fragment, not a result: its ATE and RPE are
+    # over the tracked frames only (the TUM convention), so a run lost after a few frames can show a smaller error
+    # than one that tracked them all. `d2slam run` says so in its summary line and run JSON and exits with status 3;
+    # the study's runs.csv records it (fragment) and its tables mark the cells whose median share is below it.
+    min_tracked_share: float = 0.9
 
     # A detected loop is true when the relative pose of its two keyframes that the loop closer estimated is within
     # both of these of the ground truth's relative pose, false otherwise.
