@@ -66,7 +66,7 @@ def test_geometric_mode_ignores_masks_and_uses_fixed_threshold():
     inp2.masks = None
     np.testing.assert_array_equal(bel, f(inp2))
     d = f.last
-    np.testing.assert_array_equal(d.geo_dynamic, np.nan_to_num(d.err) > DynamicsConfig().fixed_alpha)
+    np.testing.assert_array_equal(d.geo_dynamic, np.nan_to_num(d.err) > DynamicsConfig().fixed_alpha * d.widening[0])
     np.testing.assert_array_equal(bel[~d.observed], 0.5)
     np.testing.assert_array_equal(bel[d.geo_dynamic], DynamicsConfig().p_g_exceed)
 
@@ -128,7 +128,7 @@ def test_oim_flips_inert_object_next_to_person():
     assert not d.geo_dynamic[n:].any() and (d.belief_bayes[n:] <= 0.5).all()  # static before the OIM
     assert d.oim[n:].all() and (bel[n:] > 0.5).all()
     assert (get_filter("no-oim", cfg)(inp)[n:] <= 0.5).all()
-    with_nb = get_filter("d2slam")
+    with_nb = get_filter("d2slam", DynamicsConfig(neighbour_p_g=True))
     assert (with_nb(inp)[n:] > 0.5).all() and (with_nb.last.fused[n:] > 0.5).all()  # raised before the OIM
 
 

@@ -98,16 +98,17 @@ def test_no_F_gives_nan_pose_fields_when_the_pose_test_is_asked_for():
     assert res.reproj_err is None and res.pose_dynamic is None
 
 
-def _two_view(rng, n_static=300, n_dyn=60):
-    """Camera moves sideways (horizontal epipolar lines); an object at 2 m moves up by 5 cm (about 13 px)."""
+def _two_view(rng, n_static=300, n_dyn=60, noise_px=0.2):
+    """Camera moves sideways (horizontal epipolar lines); an object at 2 m moves up by 5 cm (about 13 px); keypoints
+    carry Gaussian noise of ``noise_px`` in both views."""
     Xs = np.column_stack([rng.uniform(-2, 2, n_static), rng.uniform(-1.5, 1.5, n_static), rng.uniform(1.5, 5, n_static)])
     Xd = np.column_stack([rng.uniform(-0.3, 0.3, n_dyn), rng.uniform(-0.5, 0.5, n_dyn), rng.uniform(1.9, 2.1, n_dyn)])
     X = np.vstack([Xs, Xd])
     t = np.array([0.04, 0.0, 0.01])
-    q = _project(X) + rng.normal(0, 0.2, (len(X), 2))
+    q = _project(X) + rng.normal(0, noise_px, (len(X), 2))
     X_now = X - t
     X_now[n_static:, 1] -= 0.05
-    p = _project(X_now) + rng.normal(0, 0.2, (len(X), 2))
+    p = _project(X_now) + rng.normal(0, noise_px, (len(X), 2))
     truth = np.r_[np.zeros(n_static, bool), np.ones(n_dyn, bool)]
     perm = rng.permutation(len(X))  # previous keypoints in another order
     prev = np.empty_like(q)
@@ -125,6 +126,43 @@ def test_two_view_moving_object_high_P_g_static_low():
     assert (res.p_g[truth] >= CFG.p_g_exceed).mean() >= 0.95
     assert res.dynamic[~truth].mean() <= 0.10  # 0.2 px noise in both views, F from RANSAC
     assert np.median(res.p_g[~truth]) < 0.1
+
+
+def test_noise_widening_keeps_the_static_false_alarms_low_whatever_the_noise():
+    """The thresholds widen to the frame's static noise (ours, geometric.widening): a static match exceeds alpha with
+    a small probability at any keypoint noise, where the paper's fixed alpha (0.7 px) flags most of them once the
+    noise reaches it. An object moving 13 px across the lines stays dynamic while RANSAC still finds this short
+    baseline's F (0.6 px); at 1.5 px eq 5 loses the object rather than flagging the static scene."""
+    import dataclasses
+
+    kappa = []
+    for noise_px in (0.1, 0.6, 1.5):
+        rng = np.random.default_rng(7)
+        p, prev, matches, truth, z = _two_view(rng, noise_px=noise_px)
+        b = np.full(len(prev), 0.5)
+        res = geometric_module(p, prev, matches, b, np.full(len(p), 0.7), CFG)
+        paper = geometric_module(p, prev, matches, b, np.full(len(p), 0.7),
+                                 dataclasses.replace(CFG, noise_widening=False))
+        assert paper.widening == (1.0, 1.0, 1.0)
+        assert res.dynamic[~truth].mean() <= 0.12, noise_px
+        if noise_px <= 0.6:
+            assert res.dynamic[truth].mean() >= 0.95, noise_px
+        np.testing.assert_array_equal(res.dynamic, res.err > 0.7 * res.widening[0])
+        if noise_px >= 0.6:
+            assert paper.dynamic[~truth].mean() >= 0.3
+        kappa.append(res.widening[0])
+    assert kappa[0] == 1.0 and kappa[0] < kappa[1] < kappa[2]
+
+
+def test_noise_widening_needs_enough_static_residuals():
+    from d2slam.dynamics.geometric import widening
+
+    assert widening(np.full(CFG.f_min_static_matches - 1, 10.0), 0.7, 1, CFG) == 1.0
+    assert widening(np.full(CFG.f_min_static_matches, 10.0), 0.7, 1, CFG) > 1.0
+    assert widening(np.full(100, 10.0), 0.0, 2, CFG) == 1.0  # a test turned off stays off
+    # the threshold is the chi quantile: residuals r ~ sigma |N(0, 1)| -> kappa 0.7 = 1.96 sigma
+    r = np.abs(np.random.default_rng(0).normal(0, 2.0, 20000))
+    assert widening(r, 0.7, 1, CFG) * 0.7 == pytest.approx(1.96 * 2.0, rel=0.03)
 
 
 def test_eq6_sigma_at_the_detection_scale():

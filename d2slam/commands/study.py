@@ -22,9 +22,10 @@ def register(sub) -> None:
         "ORB-SLAM3, absolute values, static-twin ratios, keypoint F1), OUT/plots/*.png, OUT/trajectories/, "
         "OUT/runs/*.json and OUT/manifest.json. A failed run is a row with status=failed and its error.")
     p.add_argument("--out", required=True, metavar="DIR", help="results folder (created)")
-    p.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS), metavar="SCENARIO",
-                   help=f"default: all ({', '.join(SCENARIOS)}; the last three are ours, not TUM's; office_loop "
-                   "always runs at its own length, whatever --frames)")
+    p.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=None, metavar="SCENARIO",
+                   help=f"default: all ({', '.join(SCENARIOS)}; carry, push and office_loop are ours, not TUM's; "
+                   "office_loop always runs at its own length, whatever --frames; fr1_rpy is the real TUM fr1/rpy, "
+                   "each method once over all its frames, when `d2slam assets fetch --full-real` has fetched it)")
     p.add_argument("--methods", nargs="+", default=None, metavar="METHOD",
                    help="default: every registered method and orbslam3 (real ORB-SLAM3)")
     p.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), metavar="SEED",
@@ -84,9 +85,15 @@ def run(args) -> int:
             raise D2SlamError(f"--tum needs ${ENV_TUM} pointing at a TUM RGB-D copy")
     check_output_dir(out, "--out")
     scenarios = args.scenarios
+    if scenarios is None:
+        scenarios = G.default_scenarios()
+        skipped = [s for s in G.REAL_SCENARIOS if s not in scenarios]
+        if skipped and not tum_root:
+            print(f"d2slam study: the real recording(s) {', '.join(skipped)} left out: not in the cache "
+                  "(`d2slam assets fetch --full-real` fetches them)", file=sys.stderr)
     if tum_root:  # a real TUM copy has the fr3 sequences only
         ours = [s for s in scenarios if s not in G.FR3_SCENARIOS]
-        if ours and scenarios != list(G.SCENARIOS):
+        if ours and args.scenarios is not None:
             raise D2SlamError(f"{', '.join(ours)} is ours, not a TUM sequence: give fr3 scenarios with --tum-root")
         scenarios = _downloaded(tum_root, [s for s in scenarios if s in G.FR3_SCENARIOS])
     methods = args.methods or G.default_methods("tum" if tum_root else "synth")

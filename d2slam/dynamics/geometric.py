@@ -223,9 +223,11 @@ def widening(r: np.ndarray, threshold: np.ndarray | float, dof: int, cfg: Dynami
     ok = np.isfinite(r)
     if int(ok.sum()) < cfg.f_min_static_matches:
         return 1.0
-    th = np.broadcast_to(np.asarray(threshold, dtype=np.float64), r.shape)[ok]
+    th = float(np.median(np.broadcast_to(np.asarray(threshold, dtype=np.float64), r.shape)[ok]))
+    if not th > 0:  # a test turned off (threshold 0) is not widened
+        return 1.0
     q = np.sqrt(chi2.ppf(cfg.noise_confidence, dof) / chi2.ppf(0.5, dof))
-    return max(1.0, float(q * np.median(r[ok]) / np.median(th)))
+    return max(1.0, float(q * np.median(r[ok]) / th))
 
 
 @dataclass

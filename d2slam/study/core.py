@@ -68,7 +68,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
     if specs is None:
-        specs = expand_grid(scenarios or G.SCENARIOS, methods, seeds or G.DEFAULT_SEEDS,
+        specs = expand_grid(scenarios or G.default_scenarios(), methods, seeds or G.DEFAULT_SEEDS,
                             G.DEFAULT_FRAMES if frames is None else frames,
                             G.TWIN_METHODS if twin_methods is None else twin_methods,
                             source="tum" if tum_root else "synth")

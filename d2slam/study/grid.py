@@ -4,7 +4,9 @@ A run is a :class:`RunSpec` ``(scenario, method, seed, frames, twin, source, loo
 ORB-SLAM3) with one keypoint-filter method on the synthetic sequence ``scenario`` generated with ``seed`` and
 ``frames`` frames, or on its *static twin* (same camera path and room, no people, no moved objects) when ``twin`` is
 true, with the engine's loop closing on (the default, as ORB-SLAM3) or off. On a real TUM copy (``source="tum"``)
-the scenario names a fr3 folder and the seed only seeds the engine's RANSAC.
+the scenario names a fr3 folder and the seed only seeds the engine's RANSAC. The real recordings of the study
+(``source="real"``, ``REAL_SCENARIOS``: the whole TUM fr1/rpy, no people, fetched into the cache by ``d2slam assets
+fetch --full-real``) run once per method, with the first seed (it only seeds the engine's RANSAC), over all frames.
 
 The scenario with a return (``office_loop``, ours) runs ``none``, ``d2slam`` and ``oracle`` by default, each with loop
 closing on and off (its twin with it on), always at its own length (``d2slam.synth.scene.default_frames``: 1200
@@ -26,8 +28,11 @@ from d2slam.errors import D2SlamError
 FR3_SCENARIOS = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy", "sitting_static")
 INTERACTION_SCENARIOS = ("walking_carry", "walking_push")
 LOOP_SCENARIOS = ("office_loop",)  # with a return (ours): loop closing on and off
-SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS
-LABELS = {"walking_xyz": "w/xyz", "walking_halfsphere": "w/half", "walking_static": "w/static",
+# Real recordings (d2slam.study.sequences.real_sequence_dir): TUM fr1/rpy, a real Kinect with fast rotations, blur
+# and lens distortion and nobody in view, where a keypoint filter must cost nothing.
+REAL_SCENARIOS = ("fr1_rpy",)
+SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS + REAL_SCENARIOS
+LABELS = {"fr1_rpy": "fr1/rpy (real)", "walking_xyz": "w/xyz", "walking_halfsphere": "w/half", "walking_static": "w/static",
           "walking_rpy": "w/rpy", "sitting_static": "s/static", "walking_carry": "carry (ours)",
           "walking_push": "push (ours)", "office_loop": "loop (ours)"}
 TUM_FOLDERS = {s: f"rgbd_dataset_freiburg3_{s}" for s in FR3_SCENARIOS}
@@ -61,7 +66,7 @@ class RunSpec:
     seed: int
     frames: int
     twin: bool = False
-    source: str = "synth"  # "synth" (generated, cached) | "tum" (a real TUM folder)
+    source: str = "synth"  # "synth" (generated, cached) | "tum" (a fr3 folder of a TUM copy) | "real" (REAL_SCENARIOS)
     loop_closing: bool = True  # the engine's loop closing (EngineConfig.loop_closing; ORB-SLAM3 always has its own)
 
     @property
@@ -73,7 +78,7 @@ class RunSpec:
     def run_id(self) -> str:
         """A file-name-safe identity, unique in a grid."""
         twin = "_twin" if self.twin else ""
-        src = "tum_" if self.source == "tum" else ""
+        src = "tum_" if self.source == "tum" else ""  # a real recording's scenario name says it is one
         loop = "" if self.loop_closing else "_noloop"
         return f"{src}{self.scenario}{twin}_s{self.seed}_n{self.frames}_{self.method}{loop}"
 
@@ -94,9 +99,11 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
                 twin_methods=TWIN_METHODS, source: str = "synth") -> list[RunSpec]:
     """Every run of the study, in the documented order. ``methods`` default: every registered method plus
     ``orbslam3`` (on the interaction scenarios those of ``INTERACTION_METHODS``, on the scenario with a return those
-    of ``LOOP_METHODS``). ``twin_methods``: the methods also run on each static twin (only those of ``methods``; none
-    on a real TUM copy, which has no twin). On the scenario with a return every engine method of ``methods`` runs
-    with loop closing on, then off. Duplicates in the arguments are dropped (first occurrence kept)."""
+    of ``LOOP_METHODS``, on a real recording those that need no synthetic truth). ``twin_methods``: the methods also
+    run on each static twin (only those of ``methods``; none on real data, which has no twin). On the scenario with a
+    return every engine method of ``methods`` runs with loop closing on, then off; a real recording of
+    ``REAL_SCENARIOS`` runs each method once (the first seed, all frames). Duplicates in the arguments are dropped
+    (first occurrence kept)."""
     default = methods is None
     if methods is None:
         methods = default_methods(source)
@@ -115,12 +122,16 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
         raise D2SlamError(f"unknown scenario(s) {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}")
+    real_methods = [m for m in methods if m not in _truth_methods()]
     ours = [s for s in scenarios if s not in FR3_SCENARIOS]
     if source == "tum" and ours:
         raise D2SlamError(f"{', '.join(ours)} is ours, not a TUM sequence: give fr3 scenarios with a TUM copy")
     twins = [] if source == "tum" else [m for m in methods if m in set(twin_methods or ())]
     specs = []
     for scenario in sorted(scenarios, key=_scenario_rank):
+        if scenario in REAL_SCENARIOS:
+            specs += [RunSpec(scenario, m, min(seeds), 0, False, "real") for m in real_methods]
+            continue
         n = frames_of(scenario, frames, source)
         keep = bool
         if default and scenario in INTERACTION_SCENARIOS:
@@ -136,6 +147,14 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
                     specs += [RunSpec(scenario, m, seed, n, twin, source, loop_closing=False) for m in ms
                               if keep(m) and m not in REPEATED]
     return specs
+
+
+def default_scenarios() -> list[str]:
+    """The study's default scenarios: every synthetic one, and the real recordings whose sequence is in the cache
+    (``d2slam assets fetch --full-real``)."""
+    from d2slam.assets import real_full
+
+    return [s for s in SCENARIOS if s not in REAL_SCENARIOS or real_full() is not None]
 
 
 def frames_of(scenario: str, frames: int | str, source: str = "synth") -> int:

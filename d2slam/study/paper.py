@@ -58,6 +58,12 @@ def published_absolute() -> pd.DataFrame:
     return _read("published_absolute.csv", ["method", "source", "sequence", "ate_rmse_m"])
 
 
+def published_real() -> pd.DataFrame:
+    """Long form (method, source, sequence, ate_rmse_m): published ATE on the study's real recordings
+    (``data/published_real.csv``; ``sequence`` is the study's scenario name)."""
+    return _read("published_real.csv", ["method", "source", "sequence", "ate_rmse_m"])
+
+
 def orbslam3_baselines() -> pd.DataFrame:
     """Rows sequences, columns the published ORB-SLAM3 sources: absolute ATE (m)."""
     d = published_absolute()

@@ -86,6 +86,10 @@ def segment_sequence(key: tuple, options: dict) -> dict:
 
 
 def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
+    if source == "real":
+        from d2slam.study.sequences import real_sequence_dir
+
+        return real_sequence_dir(scenario)
     if source == "tum":
         from d2slam.study.sequences import tum_sequence_dir
 
@@ -288,7 +292,7 @@ def _run_orbslam3(spec: RunSpec, path: Path, options: dict) -> RunRecord:
         masks = mask_kind(get_method(spec.method), options["masks"], synthetic=spec.source == "synth")
     with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
         return run_orbslam3(path, Path(tmp) / "orbslam3.txt", repeats=repeats, config=config, progress=False,
-                            max_frames=spec.frames if spec.source == "tum" else 0,
+                            max_frames=spec.frames if spec.source != "synth" else 0,
                             timeout=options.get("orbslam3_timeout"), masks=masks)
 
 

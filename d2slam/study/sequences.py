@@ -84,6 +84,18 @@ def tum_sequence_dir(tum_root: str | Path, scenario: str) -> Path:
     return path
 
 
+def real_sequence_dir(scenario: str) -> Path:
+    """The folder of the real recording ``scenario`` (``grid.REAL_SCENARIOS``): the whole TUM fr1/rpy in the shared
+    folder or the cache (``d2slam.assets.real_full``); a D2SlamError naming the command that fetches it."""
+    from d2slam.assets import real_full
+
+    path = real_full()
+    if scenario != "fr1_rpy" or path is None:
+        raise D2SlamError(f"the real recording {scenario} is not in the cache: `d2slam assets fetch --full-real` "
+                          "fetches the whole TUM fr1/rpy")
+    return path
+
+
 def remove_stale_temps(root: str | Path | None = None) -> list[Path]:
     """Remove the temporary sequence folders (``<name>.tmp-<pid>...``) of processes that are gone, under ``root``
     (default: the study's sequence cache); the work of running processes is left alone."""
