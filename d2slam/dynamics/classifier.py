@@ -56,6 +56,7 @@ from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
+from d2slam.slam.frame import undistort as undistort_points
 from d2slam.slam.hook import FilterInput
 from d2slam.slam.timing import StageTimer
 
@@ -123,6 +124,8 @@ def _check_input(inp: FilterInput) -> tuple[np.ndarray, np.ndarray, np.ndarray |
     if kps.ndim != 2 or kps.shape[1] != 2:
         raise D2SlamError(f"frame {inp.frame_index}: keypoints must be (N, 2), got shape {kps.shape}")
     n = len(kps)
+    if inp.kps_px is not None and np.shape(inp.kps_px) != (n, 2):
+        raise D2SlamError(f"frame {inp.frame_index}: kps_px has shape {np.shape(inp.kps_px)} for {n} keypoints")
     z = np.asarray(inp.kp_depth, dtype=np.float64).reshape(-1)
     if len(z) != n:
         raise D2SlamError(f"frame {inp.frame_index}: kp_depth has {len(z)} entries for {n} keypoints")
@@ -171,28 +174,29 @@ class D2SlamFilter:
     def __call__(self, inp: FilterInput) -> np.ndarray:
         cfg, on = self.cfg, self.switches
         kps, z, masks = _check_input(inp)
+        px = np.asarray(inp.pixels()[0], dtype=np.float64).reshape(-1, 2)  # in the images: masks, depth, flow
         n = len(kps)
         timer = StageTimer()
         with timer("depth_maps"):  # beta, alpha, delta, gamma of every keypoint, once (eq 2, 5, 9, 10)
             maps = dz.DepthMaps(z, cfg, on.depth)
             scale = dz.octave_factor(inp.octave, n, cfg)  # eq 5 at each keypoint's detection scale
         with timer("mask_edges_depth"):
-            fm, margin, z_n = self._masks(inp, kps, masks, maps.beta)
+            fm, margin, z_n = self._masks(inp, px, masks, maps.beta)
         with timer("semantic"):  # eq 1-2; with the flow, exact at least as far as the edge band
-            sem = semantic_module(fm, kps, maps.beta, max(margin, cfg.flow_edge_band if self.use_flow else 0.0), cfg)
+            sem = semantic_module(fm, px, maps.beta, max(margin, cfg.flow_edge_band if self.use_flow else 0.0), cfg)
         prev = (inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, inp.matches, None)
         if self.use_flow and inp.gray is not None and inp.prev_gray is not None and n:
             with timer("flow"):
-                prev, scale = self._flow(inp, kps, sem.in_area, scale)
+                prev, scale = self._flow(inp, px, sem.in_area, scale)
         with timer("geometric"):  # eq 4-6 and the pose test
             geo = self._geometric(inp, kps, z, maps.alpha, scale, prev)
         with timer("fusion"):  # eq 7
-            matched, p_nb, p, edge = self._fusion(kps, maps, fm, sem, geo)
+            matched, p_nb, p, edge = self._fusion(px, maps, fm, sem, geo)
         with timer("bayes"):  # eq 8
             prior = prior_belief(n, inp.matches, inp.prev_belief, inp.mappoint_belief, cfg) if on.bayes else None
             bel = bayes_update(prior, p, cfg) if on.bayes else p.copy()
         with timer("oim"):  # eq 9-10
-            zone, oim = self._oim(kps, maps, fm, z_n, sem, geo, margin, bel, p_nb, matched)
+            zone, oim = self._oim(px, maps, fm, z_n, sem, geo, margin, bel, p_nb, matched)
             belief = np.where(oim, np.maximum(bel, cfg.oim_belief), bel) if on.oim else bel
         self.last = FrameDiagnostics(
             inp.frame_index, self.mode, z, belief, p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
@@ -212,15 +216,17 @@ class D2SlamFilter:
         z_n = mask_depths(inp.depth, fm, self.cfg) if self.switches.oim else np.full(len(fm.edges), np.nan)
         return fm, margin, z_n
 
-    def _flow(self, inp: FilterInput, kps: np.ndarray, in_area: np.ndarray, scale):
+    def _flow(self, inp: FilterInput, px: np.ndarray, in_area: np.ndarray, scale):
         """Ours: sub-pixel correspondences by LK flow (flow.py) in place of the matches, and the threshold scale
-        (alpha and sigma unscaled where the flow tracked)."""
+        (alpha and sigma unscaled where the flow tracked). The flow runs in the images (``px``, the keypoints where
+        they are in them); its tracks are undistorted for eq 5."""
         cfg = self.cfg
-        m0 = check_matches(inp.matches, len(kps), len(inp.prev_kps))
-        q = flow_correspondences(inp.gray, inp.prev_gray, kps, inp.prev_kps, m0, cfg,
-                                 track=flow_keypoints(in_area, m0, cfg.flow_area))
+        m0 = check_matches(inp.matches, len(px), len(inp.prev_kps))
+        q_px = flow_correspondences(inp.gray, inp.prev_gray, px, inp.pixels()[1], m0, cfg,
+                                    track=flow_keypoints(in_area, m0, cfg.flow_area))
+        q = q_px if inp.kps_px is None else undistort_points(q_px, inp.camera)
         *prev, tracked = flow_matches(q, inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, m0, inp.prev_depth, cfg,
-                                      shape=np.shape(inp.gray))
+                                      shape=np.shape(inp.gray), q_px=q_px)
         return tuple(prev), np.where(tracked, 1.0, scale)
 
     def _geometric(self, inp: FilterInput, kps: np.ndarray, z: np.ndarray, alpha: np.ndarray, scale, prev):
@@ -288,7 +294,7 @@ class SemanticFilter(_OneModule):
     def _module(self, inp: FilterInput, kps: np.ndarray, z: np.ndarray, masks):
         b = dz.beta(z, self.cfg)
         margin = float(dz.uncertainty_width(b.min(), self.cfg)) + 1.0 if len(kps) else 0.0
-        sem = semantic_module(masks, kps, b, margin, self.cfg)
+        sem = semantic_module(masks, np.asarray(inp.pixels()[0], dtype=np.float64).reshape(-1, 2), b, margin, self.cfg)
         return sem.inside.astype(np.float64), dict(p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
                                                    in_area=sem.in_area)
 

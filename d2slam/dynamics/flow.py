@@ -103,7 +103,7 @@ def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarra
 
 def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray, prev_belief: np.ndarray,
                  matches: np.ndarray, prev_depth: np.ndarray | None = None, cfg: DynamicsConfig = _DEFAULT,
-                 shape: tuple[int, int] | None = None
+                 shape: tuple[int, int] | None = None, q_px: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The geometric module's inputs with the flow's correspondences ``q`` (N, 2) (``flow_correspondences``) and the
     validated ``matches`` (K, 2) (``geometric.check_matches``).
@@ -114,7 +114,8 @@ def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray,
     previous depth image ``prev_depth`` (H, W) at the tracked position (``depth.keypoint_depth``), so the pose test
     runs on it, when ``cfg.flow_new_depth`` is on and the image is given; 0 (no pose test) otherwise. ``shape`` is
     the grey images' (H, W): a ``prev_depth`` of another size (or not 2-D) is a clear error, not silent 0 depths.
-    Returns (prev_kps, prev_kp_depth, prev_belief, matches, fit (K',) bool, tracked (N,) bool)."""
+    ``q_px``: the tracked positions in the image, where the depth is read, when ``q`` holds them undistorted (a
+    camera with lens distortion; default ``q``). Returns (prev_kps, prev_kp_depth, prev_belief, matches, fit (K',) bool, tracked (N,) bool)."""
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     if prev_depth is not None:
         prev_depth = np.asarray(prev_depth)
@@ -130,7 +131,8 @@ def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray,
     is_matched[m[:, 0]] = True
     new = np.flatnonzero(tracked & ~is_matched)
     n_prev = len(prev_kps)
-    new_z = keypoint_depth(prev_depth, q[new], cfg.depth_patch_radius) \
+    q_px = q if q_px is None else np.asarray(q_px, dtype=np.float64).reshape(-1, 2)
+    new_z = keypoint_depth(prev_depth, q_px[new], cfg.depth_patch_radius) \
         if prev_depth is not None and cfg.flow_new_depth else np.zeros(len(new))
     prev_kps = np.concatenate([prev_kps, q[new]])
     prev_depth_kp = np.concatenate([np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1), new_z])

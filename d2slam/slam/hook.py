@@ -14,6 +14,7 @@ from typing import Protocol
 import numpy as np
 
 from d2slam.config import EngineConfig
+from d2slam.data.base import Camera
 from d2slam.errors import D2SlamError
 from d2slam.slam.frame import Frame
 from d2slam.slam.map import Map
@@ -45,6 +46,19 @@ class FilterInput:
     # (H, W) depth image (metres) of the previous frame, None on the first frame: the depth of the flow's new matches
     # for the pose test (DynamicsConfig.flow_new_depth; the flow itself needs ``prev_gray``).
     prev_depth: np.ndarray | None = None
+    # Where the keypoints are in the images (detected, distorted pixel coordinates), (N, 2) and (M, 2), for whatever
+    # reads the images, the depth maps or the masks at a keypoint; ``kps`` and ``prev_kps`` are undistorted, for
+    # geometry. None when the camera has no lens distortion (then they are ``kps`` and ``prev_kps``).
+    kps_px: np.ndarray | None = None
+    prev_kps_px: np.ndarray | None = None
+    # The camera (its lens distortion turns image positions into the undistorted coordinates of ``kps``).
+    camera: Camera | None = None
+
+    def pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """(current, previous) keypoints where they are in the images: ``kps_px`` and ``prev_kps_px``, or the
+        keypoints themselves for a camera without distortion."""
+        return (self.kps if self.kps_px is None else self.kps_px,
+                self.prev_kps if self.prev_kps_px is None else self.prev_kps_px)
 
 
 class KeypointFilter(Protocol):
@@ -76,13 +90,16 @@ class FilterHook:
         prediction T_frame_prev, usable for guided matching when ``prev_tracked`` (``prev`` is the last tracked
         frame)."""
         n = frame.n
+        camera = self.proj.camera
         if prev is None or prev.n == 0 or n == 0:
             matches = np.zeros((0, 2), dtype=np.int64)
             prev_kps, prev_kp_depth = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+            prev_px = prev_kps
             prev_belief = np.zeros(0)
         else:
             matches = self.matches(frame, prev, velocity if prev_tracked else None)
             prev_kps, prev_kp_depth = prev.kps.astype(np.float32), prev.depth.astype(np.float32)
+            prev_px = prev.kps_raw.astype(np.float32)
             prev_belief = prev.belief if prev.belief is not None else np.full(prev.n, 0.5)
         mp_belief = np.full(n, np.nan)
         if len(matches) and prev is not None:
@@ -96,7 +113,9 @@ class FilterHook:
                           prev_kps=prev_kps, prev_kp_depth=prev_kp_depth, prev_belief=np.asarray(prev_belief),
                           matches=matches, mappoint_belief=mp_belief, masks=masks, octave=frame.octave,
                           prev_gray=prev_gray if prev is not None else None,
-                          prev_depth=prev_depth if prev is not None else None)
+                          prev_depth=prev_depth if prev is not None else None,
+                          kps_px=frame.kps_raw.astype(np.float32) if camera.has_distortion else None,
+                          prev_kps_px=prev_px if camera.has_distortion else None, camera=camera)
         belief = np.asarray(self.filter(inp), dtype=np.float64)
         if belief.shape != (n,) or not np.all(np.isfinite(belief)) or belief.min(initial=0) < 0 or \
                 belief.max(initial=0) > 1:
