@@ -108,6 +108,7 @@ class DynamicsConfig:
     pose_test: bool = True
     pose_reproj_px: float = 4.0
     pose_depth_sigmas: float = 2.0
+    depth_edge_skip: bool = True
     # P(dynamic | a pose test exceeded) with equal priors, like p_g_exceed (measured: docs/deviations.md).
     p_pose_exceed: float = 0.9
     # Kinect axial depth noise sigma(z) = a + b (z - c)^2 metres (Nguyen et al. 2012; docs/design.md#depth-noise).

@@ -184,7 +184,7 @@ class D2SlamFilter:
             fm, margin, z_n = self._masks(inp, px, masks, maps.beta)
         with timer("semantic"):  # eq 1-2; with the flow, exact at least as far as the edge band
             sem = semantic_module(fm, px, maps.beta, max(margin, cfg.flow_edge_band if self.use_flow else 0.0), cfg)
-        prev = (inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, inp.matches, None)
+        prev = (inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, inp.matches, None, inp.pixels()[1])
         if self.use_flow and inp.gray is not None and inp.prev_gray is not None and n:
             with timer("flow"):
                 prev, scale = self._flow(inp, px, sem.in_area, scale)
@@ -224,19 +224,30 @@ class D2SlamFilter:
         m0 = check_matches(inp.matches, len(px), len(inp.prev_kps))
         q_px = flow_correspondences(inp.gray, inp.prev_gray, px, inp.pixels()[1], m0, cfg,
                                     track=flow_keypoints(in_area, m0, cfg.flow_area))
-        q = q_px if inp.kps_px is None else undistort_points(q_px, inp.camera)
-        *prev, tracked = flow_matches(q, inp.prev_kps, inp.prev_kp_depth, inp.prev_belief, m0, inp.prev_depth, cfg,
-                                      shape=np.shape(inp.gray), q_px=q_px)
-        return tuple(prev), np.where(tracked, 1.0, scale)
+        args = (inp.prev_kp_depth, inp.prev_belief, m0, inp.prev_depth, cfg)
+        if inp.kps_px is None:
+            *prev, tracked = flow_matches(q_px, inp.prev_kps, *args, shape=np.shape(inp.gray))
+            prev_px = prev[0]
+        else:  # the same matches twice: undistorted for geometry, in the image for the depth
+            q = undistort_points(q_px, inp.camera)
+            *prev, tracked = flow_matches(q, inp.prev_kps, *args, shape=np.shape(inp.gray), q_px=q_px)
+            prev_px = flow_matches(q_px, inp.pixels()[1], *args, shape=np.shape(inp.gray))[0]
+        return (*prev, prev_px), np.where(tracked, 1.0, scale)
 
     def _geometric(self, inp: FilterInput, kps: np.ndarray, z: np.ndarray, alpha: np.ndarray, scale, prev):
         """Eq 4-6 against the previous frame's keypoints ``prev`` (keypoints, depths, beliefs, matches, the matches
-        the fundamental matrix is fitted on), with the pose test (ours) when the depths are used."""
-        prev_kps, prev_z, prev_bel, matches, fit = prev
+        the fundamental matrix is fitted on, the previous keypoints where they are in the image), with the pose test
+        (ours) when the depths are used, which skips the depths read across a depth edge (ours,
+        ``DynamicsConfig.depth_edge_skip``)."""
+        prev_kps, prev_z, prev_bel, matches, fit, prev_px = prev
         pose = self.switches.depth and self.cfg.pose_test  # the pose test needs the depths
+        edge = prev_edge = None
+        if pose and self.cfg.depth_edge_skip and inp.prev_depth is not None:
+            edge = dz.depth_edge(inp.depth, inp.pixels()[0], z, self.cfg)
+            prev_edge = dz.depth_edge(inp.prev_depth, prev_px, prev_z, self.cfg)
         return geometric_module(kps, prev_kps, matches, prev_bel, alpha * scale, self.cfg, scale=scale,
                                 kp_depth=z if pose else None, prev_kp_depth=prev_z if pose else None,
-                                K=inp.K if pose else None, fit=fit)
+                                K=inp.K if pose else None, fit=fit, depth_edge=edge, prev_depth_edge=prev_edge)
 
     def _fusion(self, kps: np.ndarray, maps, fm, sem, geo):
         """Eq 7: (the matched keypoints, their P_g for unmatched neighbours (ours) or None, P, the edge band's

@@ -25,7 +25,7 @@ import numpy as np
 
 from d2slam.config import DynamicsConfig
 from d2slam.errors import D2SlamError
-from d2slam.slam.depth import keypoint_depth, valid_depth  # noqa: F401 - the engine's, shared
+from d2slam.slam.depth import keypoint_depth, keypoint_depth_range, valid_depth  # noqa: F401 - the engine's, shared
 
 _DEFAULT = DynamicsConfig()
 
@@ -100,6 +100,18 @@ def depth_sigma(z, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
     NaN where the depth is invalid."""
     z = np.asarray(z, dtype=np.float64)
     return np.where(valid_depth(z), cfg.depth_sigma_a + cfg.depth_sigma_b * (z - cfg.depth_sigma_c) ** 2, np.nan)
+
+
+def depth_edge(depth: np.ndarray, px: np.ndarray, z: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """(N,) bool: the keypoint's depth patch (the engine's, ``depth_patch_radius``) spans more than the noise can: its
+    range exceeds the ``noise_confidence`` quantile of the range of that many samples of sigma(z) (the studentized
+    range). ``px`` where the keypoints are in the depth image, ``z`` their robust depths."""
+    from scipy.stats import studentized_range
+
+    n = (2 * int(cfg.depth_patch_radius) + 1) ** 2
+    q = float(studentized_range.ppf(cfg.noise_confidence, n, 1e6))
+    with np.errstate(invalid="ignore"):
+        return keypoint_depth_range(depth, px, cfg.depth_patch_radius) > q * depth_sigma(z, cfg)
 
 
 def uncertainty_width(b: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:

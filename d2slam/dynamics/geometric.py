@@ -252,7 +252,8 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
                      a: np.ndarray, cfg: DynamicsConfig = _DEFAULT, seed: int | None = None,
                      kp_depth: np.ndarray | None = None, prev_kp_depth: np.ndarray | None = None,
                      K: np.ndarray | None = None, scale: np.ndarray | float = 1.0,
-                     fit: np.ndarray | None = None) -> GeometricResult:
+                     fit: np.ndarray | None = None, depth_edge: np.ndarray | None = None,
+                     prev_depth_edge: np.ndarray | None = None) -> GeometricResult:
     """eq 4-6 for the current keypoints ``kps`` (N, 2) given ``matches`` (K, 2) to ``prev_kps`` (M, 2).
 
     ``a`` (N,) is the threshold of each current keypoint (alpha(z_p), or ``fixed_alpha`` for the `geometric`
@@ -325,7 +326,12 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
             if cfg.pose_reproj_px > 0:
                 flag |= reproj_err > cfg.pose_reproj_px * scale * k_r
             if cfg.pose_depth_sigmas > 0:
-                flag |= np.abs(depth_err) > cfg.pose_depth_sigmas * k_z
+                dz_flag = np.abs(depth_err) > cfg.pose_depth_sigmas * k_z
+                if depth_edge is not None and prev_depth_edge is not None:  # a depth read across an edge: no test
+                    at_edge = np.asarray(depth_edge, dtype=bool).copy()
+                    at_edge[m[:, 0]] |= np.asarray(prev_depth_edge, dtype=bool)[m[:, 1]]
+                    dz_flag &= ~at_edge
+                flag |= dz_flag
         pose_dyn = observed & flag
         p_g = np.where(pose_dyn, np.maximum(p_g, cfg.p_pose_exceed), p_g)
         dyn = dyn | pose_dyn

@@ -13,22 +13,13 @@ def valid_depth(z: np.ndarray) -> np.ndarray:
         return np.isfinite(z) & (z > 0)
 
 
-def keypoint_depth(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarray:
-    """Robust depth of each keypoint: median of the valid pixels of the (2 radius + 1)^2 patch around its rounded
-    pixel.
-
-    ``depth`` (H, W) metres (0 / NaN / inf invalid), ``kps`` (N, 2) pixel (u, v). Patch pixels outside the image are
-    ignored; a keypoint with no valid patch pixel (or a non-finite position) gets 0 (invalid). Vectorised: the patches
-    are gathered as an (N, P) array, invalid entries sorted to the end as +inf, and the median is read at the middle
-    of each row's valid count (mean of the two middle values when the count is even).
-    """
+def _patches(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarray:
+    """(N, (2 radius + 1)^2) depths of each keypoint's patch around its rounded pixel, sorted, with +inf for the
+    pixels outside the image or without a valid depth (and for every pixel of a non-finite keypoint)."""
     r = int(radius)
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     depth = np.asarray(depth)
     h, w = depth.shape
-    n = len(kps)
-    if n == 0:
-        return np.zeros(0, dtype=np.float32)
     finite = np.all(np.isfinite(kps), axis=1)
     c = np.where(finite[:, None], np.rint(kps), -10 * (r + 1)).astype(np.int64)
     off = np.arange(-r, r + 1)
@@ -38,10 +29,38 @@ def keypoint_depth(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarra
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     vals = depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)].astype(np.float64)
     ok = inside & valid_depth(vals)
-    vals = np.sort(np.where(ok, vals, np.inf), axis=1)
-    cnt = ok.sum(axis=1)
+    return np.sort(np.where(ok, vals, np.inf), axis=1)
+
+
+def keypoint_depth(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarray:
+    """Robust depth of each keypoint: median of the valid pixels of the (2 radius + 1)^2 patch around its rounded
+    pixel.
+
+    ``depth`` (H, W) metres (0 / NaN / inf invalid), ``kps`` (N, 2) pixel (u, v). Patch pixels outside the image are
+    ignored; a keypoint with no valid patch pixel (or a non-finite position) gets 0 (invalid). Vectorised: the patches
+    are gathered as an (N, P) array, invalid entries sorted to the end as +inf, and the median is read at the middle
+    of each row's valid count (mean of the two middle values when the count is even).
+    """
+    vals = _patches(depth, kps, radius)
+    n = len(vals)
+    if n == 0:
+        return np.zeros(0, dtype=np.float32)
+    cnt = np.isfinite(vals).sum(axis=1)
     lo = np.maximum((cnt - 1) // 2, 0)
     hi = np.maximum(cnt // 2, 0)
     rows = np.arange(n)
     med = 0.5 * (vals[rows, lo] + vals[rows, np.minimum(hi, vals.shape[1] - 1)])
     return np.where(cnt > 0, med, 0.0).astype(np.float32)
+
+
+def keypoint_depth_range(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarray:
+    """(N,) max - min of the valid depths of each keypoint's (2 radius + 1)^2 patch (the patch of
+    :func:`keypoint_depth`), NaN with fewer than two valid pixels: how far the patch spans a depth edge."""
+    vals = _patches(depth, kps, radius)
+    if len(vals) == 0:
+        return np.zeros(0)
+    cnt = np.isfinite(vals).sum(axis=1)
+    rows = np.arange(len(vals))
+    with np.errstate(invalid="ignore"):
+        out = vals[rows, np.maximum(cnt - 1, 0)] - vals[:, 0]
+    return np.where(cnt >= 2, out, np.nan)
