@@ -594,17 +594,14 @@ def _frame_store_root(seq, n_frames: int, repeats: int, config: Config, work_roo
 
 def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool) -> str:
     """Check that the ``kind`` masks of the first ``n_frames`` frames can be had before ORB-SLAM3 starts (a clear
-    :class:`D2SlamError` otherwise: no ``mask_sim/`` on a real sequence, no ONNX model, a fill name unknown); the
+    :class:`D2SlamError` otherwise: no ``mask_sim/`` on a real sequence, no ONNX model; the fill and dilation are
+    checked by ``MaskingConfig``'s ranges); the
     ``onnx`` ones are segmented into the mask cache here (announced, :func:`d2slam.segmentation.masks_origin`), so
     the worker only reads them. Returns where the masks come from."""
-    from d2slam.baselines.masking import FILLS, dilate
     from d2slam.segmentation import KINDS, masks_for, masks_origin
 
     if kind not in KINDS:
         raise D2SlamError(f"unknown masks {kind!r}; choose one of {', '.join(KINDS)}")
-    if config.masking.fill not in FILLS:
-        raise D2SlamError(f"unknown mask fill {config.masking.fill!r}; choose one of {', '.join(FILLS)}")
-    dilate(np.zeros((1, 1), bool), config.masking.dilate_px)  # a negative dilation is an error
     if kind != "onnx" and n_frames:
         masks_for(seq, 0, kind, config)  # the label folder is there
     return masks_origin(seq, kind, config, frames=n_frames, progress=progress)
