@@ -1062,6 +1062,10 @@ class CliConfig(_Checked):
     synth_setup_s: float = within(5.0, 0.0, 10_000.0)
     synth_frame_s: float = within(0.11, 0.0, 1000.0)
     segment_frame_s: float = within(0.15, 0.0, 1000.0)
+    # The caches' cheap checks (the mask cache's image digest, a cached folder's manifest) trust a file's size and
+    # modification time only when it was last modified at least this long before they were recorded: a change made
+    # within a file system's timestamp resolution (FAT: 2 s; ext4, tmpfs: 1 ns) could keep the recorded time.
+    cache_mtime_window_s: float = within(2.0, 0.0, 3600.0)
     # Depth-scale check of `d2slam run` against the ground truth's camera motion (d2slam.data.depth_scale): among
     # depth_candidate_frames frames spread over the sequence, up to depth_pairs pairs (one per first frame, spread over
     # the sequence) whose ground-truth poses are depth_min_baseline_m to depth_max_baseline_m apart and turn by at most

@@ -676,9 +676,11 @@ def _finish(result: dict, metrics_json) -> dict:
     result.setdefault("status", "ok")
     result["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     if metrics_json:
+        from d2slam.outputs import write_bytes
+
         path = Path(metrics_json)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(result, indent=2, default=_json_default))
+        write_bytes(path, json.dumps(result, indent=2, default=_json_default))
     return result
 
 

@@ -45,6 +45,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     import dataclasses
+    import glob
     import json
     from pathlib import Path
 
@@ -53,13 +54,15 @@ def run(args) -> int:
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
     from d2slam.errors import D2SlamError
     from d2slam.methods import get_method, run_method
-    from d2slam.outputs import check_output_file
+    from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
     from d2slam.pipeline import STAGES
 
     method = get_method(args.method)
     out = check_output_file(args.out, "--out")
     if args.metrics_json:
         check_output_file(args.metrics_json, "--metrics-json")
+    check_outputs(run_outputs(args, method), run_inputs(args))
+    remove_stale_temps(out.parent, f"{glob.escape(out.name)}.tmp-*")  # what a killed run was writing
     camera, camera_source, th_depth = args.camera, None, None
     if is_camera_file(args.camera):
         settings = read_camera_file(args.camera)
@@ -90,10 +93,10 @@ def run(args) -> int:
     run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
                      progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
     engine, masks_kind, ev = run.engine, run.masks, run.evaluation
-    if run.tracked == 0:
-        write_tum_trajectory(out, run.trajectory, header=f"d2slam run {args.method}: no frame tracked")
-    else:
-        write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
+    if run.tracked == 0:  # no trajectory: nothing written (an earlier file at --out stays as it was)
+        raise D2SlamError(f"no frame of {run.frames} was tracked: no trajectory to write (see `d2slam run --help` and "
+                          "docs/inputs.md: depth scale, camera, config)", path=seq.root)
+    write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
               **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
               **({"masks_origin": run.masks_origin} if run.masks_origin else {}),
@@ -130,9 +133,7 @@ def run(args) -> int:
             record[f"{k}_ms"] = round(run.stage_ms[k], 3)
     record["startup_s"] = round(engine.first_frame_at - process_start(), 3)
     if args.metrics_json:
-        tmp = Path(args.metrics_json).with_name(Path(args.metrics_json).name + ".tmp")
-        tmp.write_text(json.dumps(record, indent=2) + "\n")
-        tmp.replace(args.metrics_json)
+        write_bytes(Path(args.metrics_json).expanduser(), json.dumps(record, indent=2) + "\n")
     if not args.quiet:
         print(f"{seq.name}: {run.lost} lost, {run.keyframes} keyframes, {run.fps:.1f} fps; ms/frame: "
               + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms.items()))
@@ -154,6 +155,29 @@ def run(args) -> int:
                            run.tracked, run.frames, ate, [out, args.metrics_json],
                            ate_note=" (no RPE)" if ate_only is not None else ""))
     return 0
+
+
+def run_outputs(args, method) -> list[tuple[str, object]]:
+    """What ``d2slam run`` writes: ``--out``, ``--metrics-json``, and for the real ORB-SLAM3 the files it keeps
+    beside the trajectory (its settings and online poses)."""
+    from pathlib import Path
+
+    out = Path(args.out).expanduser()
+    extra = [] if method.runner is None else [("--out's ORB-SLAM3 settings", out.with_name(out.stem + ".orbslam3.yaml")),
+                                              ("--out's online poses", out.with_name(out.stem + ".online.txt"))]
+    return [("--out", out), ("--metrics-json", args.metrics_json)] + extra
+
+
+def run_inputs(args) -> list[tuple[str, object]]:
+    """What ``d2slam run`` reads: the sequence folder, ``--masks-from``, ``--camera FILE``, ``--config``, the
+    vocabulary (``$PYORBSLAM3_VOCAB``)."""
+    import os
+
+    from d2slam.data.intrinsics import is_camera_file
+
+    return [("sequence", args.sequence), ("--masks-from sequence", args.masks_from),
+            ("--camera file", args.camera if is_camera_file(args.camera) else None), ("--config file", args.config),
+            ("vocabulary ($PYORBSLAM3_VOCAB)", os.environ.get("PYORBSLAM3_VOCAB") or None)]
 
 
 def print_orbslam3(run, args) -> int:

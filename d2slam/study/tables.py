@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from d2slam.config import EvalConfig
+from d2slam.outputs import staged_file
 from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, LOOP_SCENARIOS, ORACLE,
                                ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS)
 from d2slam.study.improvement import improvement, improvement_table, metric_matrix  # noqa: F401 - the tables' API
@@ -79,7 +80,8 @@ def sort_runs(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFram
 
 
 def write_runs_csv(df: pd.DataFrame, path) -> None:
-    df[RUN_COLUMNS].to_csv(path, index=False)  # repr: exact round trip
+    with staged_file(path) as tmp:  # whole or not at all
+        df[RUN_COLUMNS].to_csv(tmp, index=False)  # repr: exact round trip
 
 
 def read_runs_csv(path) -> pd.DataFrame:
@@ -120,7 +122,8 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def write_summary_csv(summary: pd.DataFrame, path) -> None:
-    summary.to_csv(path, index=False)  # repr: exact round trip
+    with staged_file(path) as tmp:  # whole or not at all
+        summary.to_csv(tmp, index=False)  # repr: exact round trip
 
 
 # ------------------------------------------------------------------------------------------------------------
