@@ -36,18 +36,24 @@ class Damaged(D2SlamError):
     escaped would still be one line on the command line, not a traceback."""
 
 
-def report_damaged(path: str | Path, what: str, reason: object, action: str) -> None:
-    """One line on stderr: ``d2slam: damaged WHAT PATH (REASON): ACTION`` (once per file and process)."""
-    key = f"{path}|{action}"
-    if key in _REPORTED:
-        return
-    _REPORTED.add(key)
+def say_once(key: str, line: str) -> None:
+    """``line`` on stderr, once per ``key`` and process."""
+    if key not in _REPORTED:
+        _REPORTED.add(key)
+        print(line, file=sys.stderr, flush=True)
+
+
+def _reason(reason: object) -> str:
     if isinstance(reason, Damaged):
         reason = str(reason)
     elif isinstance(reason, BaseException):
         reason = f"{type(reason).__name__}: {reason}" if str(reason) else type(reason).__name__
-    reason = " ".join(str(reason).split())[:200]
-    print(f"d2slam: damaged {what} {path} ({reason}): {action}", file=sys.stderr, flush=True)
+    return " ".join(str(reason).split())[:200]
+
+
+def report_damaged(path: str | Path, what: str, reason: object, action: str) -> None:
+    """One line on stderr: ``d2slam: damaged WHAT PATH (REASON): ACTION`` (once per file and process)."""
+    say_once(f"{path}|{action}", f"d2slam: damaged {what} {path} ({_reason(reason)}): {action}")
 
 
 def sha256_file(path: str | Path) -> str:

@@ -4,14 +4,17 @@ numba keeps each ``cache=True`` kernel in an index (``.nbi``: which data file ho
 (``.nbc``: the pickled object code), beside the source or in ``$NUMBA_CACHE_DIR`` (``d2slam.warmup``). It trusts
 them: a truncated index or data file ends the process with an ``UnpicklingError`` traceback, and a flipped bit in the
 object code would run as machine code. :func:`install` (called by the modules that define kernels, before any is
-loaded) changes three methods of numba's ``IndexDataCacheFile``:
+loaded) changes how numba's ``IndexDataCacheFile`` writes and reads them:
 
-* the data files it writes end with ``D2SLAM-SHA256`` and the sha256 of what precedes (numba's own reader ignores
-  bytes after the pickle, so the files stay numba's);
+* the index and data files it writes end with ``D2SLAM-SHA256`` and the sha256 of what precedes (numba's own reader
+  ignores bytes after its pickles, so the files stay numba's);
 * a data file is used only when that digest matches: otherwise the kernel is compiled again and the file rewritten,
   with one line on stderr when it was damaged (a whole pickle without the digest, written by numba outside d2slam,
   is recompiled without a word);
-* an index that cannot be read counts as empty (the kernel is compiled again), with one line on stderr.
+* an index whose digest does not match, or that cannot be read, counts as empty (the kernels are compiled again),
+  with one line on stderr;
+* a cache file that cannot be written (a full disk, a read-only folder) is one line on stderr: the kernel, compiled
+  in memory, runs all the same.
 """
 
 from __future__ import annotations
@@ -55,17 +58,26 @@ def install() -> None:
 
     from numba.core import caching
 
-    from d2slam.cachefiles import Damaged, report_damaged
+    from d2slam.cachefiles import Damaged, report_damaged, say_once
 
     cls = caching.IndexDataCacheFile
     load_index = cls._load_index
 
     def _load_index(self):
         try:
+            with open(self._index_path, "rb") as f:
+                _unseal(f.read())  # Damaged when its seal does not match
             return load_index(self)
+        except FileNotFoundError:
+            return {}
         except Exception as exc:  # noqa: BLE001 - a damaged index: compile again
             report_damaged(self._index_path, "compiled-kernel index", exc, "compiling the kernels again")
             return {}
+
+    def _save_index(self, overloads):
+        blob = pickle.dumps(self._version, protocol=-1) + self._dump((self._source_stamp, overloads))
+        with self._open_for_write(self._index_path) as f:
+            f.write(_seal(blob))
 
     def _save_data(self, name, data):
         blob = _seal(self._dump(data))
@@ -87,7 +99,17 @@ def install() -> None:
             report_damaged(path, "compiled kernel", exc, "compiling it again")
             return None
 
-    cls._load_index, cls._save_data, cls.load = _load_index, _save_data, load
+    save = cls.save
+
+    def save_(self, key, data):
+        try:
+            save(self, key, data)
+        except OSError as exc:  # a full disk, a read-only folder: the kernel runs, compiled again next time
+            say_once(f"kernel-cache|{self._cache_path}", f"d2slam: cannot write numba's kernel cache in "
+                     f"{self._cache_path} ({exc.strerror or exc}): the kernels are compiled again next time")
+
+    cls._load_index, cls._save_index, cls._save_data = _load_index, _save_index, _save_data
+    cls.load, cls.save = load, save_
     _INSTALLED = True
 
 

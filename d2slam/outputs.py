@@ -270,6 +270,24 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def _hard_link_into(path: Path, folder: Path) -> Path | None:
+    """The file of ``folder`` that ``path`` is a hard link to (only looked for when ``path`` has several links)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    if st.st_nlink < 2 or not path.is_file():
+        return None
+    for p in folder.rglob("*"):
+        try:
+            other = p.stat()
+        except OSError:
+            continue
+        if (other.st_ino, other.st_dev) == (st.st_ino, st.st_dev):
+            return p
+    return None
+
+
 def _inside(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
@@ -323,6 +341,10 @@ def check_outputs(outputs: Iterable[tuple[str, str | Path | None]],
             elif real == inp_real or _same_file(real, inp_real):
                 raise D2SlamError(f"{opt} {_shown(given, real)} is the input {what} {_shown(inp, inp_real)}: d2slam "
                                   "never overwrites its inputs; give another path", path=given)
+            twin = _hard_link_into(real, inp_real) if inp_real.is_dir() else None
+            if twin is not None:
+                raise D2SlamError(f"{opt} {_shown(given, real)} is a hard link to {twin} of the input {what} "
+                                  f"{inp_real}: d2slam never overwrites its inputs; give another path", path=given)
         seq = _sequence_holding(real, include_self=folders, own=own)
         if seq is not None:
             raise D2SlamError(f"{opt} {_shown(given, real)} lies inside the sequence folder {seq} (it holds "

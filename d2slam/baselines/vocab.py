@@ -576,6 +576,9 @@ def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path
     out.parent.mkdir(parents=True, exist_ok=True)
     with file_lock(out.with_name(out.name + ".lock"),
                    waiting=f"vocabulary: another process is building {out}; waiting for it"):
+        import glob
+
+        remove_stale_temps(out.parent, f"{glob.escape(out.name)}*.tmp-*")  # what a killed build was writing
         if synthetic and not all(j["done"] for j in jobs):
             jobs = training_jobs(cfg)  # another process may have rendered them while this one waited
         todo = [j for j in jobs if not j["done"]]

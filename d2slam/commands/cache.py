@@ -63,6 +63,10 @@ def run(args) -> int:
 
     root = cache_root()
     found = Findings(args.fix)
+    if root.exists() and not root.is_dir():
+        found.bad("cache folder", root, "is not a folder: every command that writes the cache would fail; set "
+                  "$D2SLAM_CACHE to a folder", removable=False)
+        return 1
     if not root.is_dir():
         print(f"d2slam cache check: {root}: no cache yet (nothing to check)")
         return 0

@@ -62,7 +62,9 @@ def run(args) -> int:
     if args.metrics_json:
         check_output_file(args.metrics_json, "--metrics-json")
     check_outputs(run_outputs(args, method), run_inputs(args))
-    remove_stale_temps(out.parent, f"{glob.escape(out.name)}.tmp-*")  # what a killed run was writing
+    for path in filter(None, [out, args.metrics_json]):  # what a killed run was writing
+        path = Path(path).expanduser()
+        remove_stale_temps(path.parent, f"{glob.escape(path.name)}.tmp-*")
     camera, camera_source, th_depth = args.camera, None, None
     if is_camera_file(args.camera):
         settings = read_camera_file(args.camera)

@@ -101,9 +101,11 @@ def foreign_entries(folder: Path) -> list[str]:
         ours = {f for f in files if f in LAYOUT_FILES or (
             f.count("/") == 1 and f.split("/")[0] in LAYOUT_DIRS and f.endswith(".png"))}
     ours = ours or set()
-    parents = {str(Path(f).parent) for f in ours}
-    parents |= {str(q) for f in ours for q in Path(f).parents}
-    return [f for f in files if f not in ours] + [d + "/" for d in dirs if d not in parents]
+    holding = {q.as_posix() for f in ours for q in Path(f).parents}  # folders holding some of ours
+    foreign_dirs = [d for d in dirs if d not in holding]
+    top = [d for d in foreign_dirs if not any(Path(d).is_relative_to(o) and d != o for o in foreign_dirs)]
+    inside = lambda f: any(Path(f).is_relative_to(d) for d in top)  # noqa: E731
+    return sorted([d + "/" for d in top] + [f for f in files if f not in ours and not inside(f)])
 
 
 def check_sequence_out(path) -> Path:

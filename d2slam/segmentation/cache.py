@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sha256_file
+from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
 from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps, temp_tag, write_bytes
 from d2slam.paths import cache_dir
@@ -87,8 +87,8 @@ def images_digest(root: str | Path, window_s: float | None = None) -> str:
     """sha256 of the content of every image ``root/rgb.txt`` lists (with its name): from the memo
     ``cache_dir("masks", "stamps", <root digest>.json)`` when the images' names, sizes and modification times are
     those it recorded and it was written at least ``window_s`` (``CliConfig.cache_mtime_window_s``) after the newest
-    of them was modified; otherwise every image is hashed and the memo rewritten. A missing image counts by its
-    name."""
+    of them was modified; otherwise every image is hashed and the memo rewritten. The memo is sealed
+    (:func:`d2slam.cachefiles.sealed`): a damaged one is said and made again. A missing image counts by its name."""
     from d2slam.config import CLI
 
     root = Path(root).resolve()
@@ -105,7 +105,7 @@ def images_digest(root: str | Path, window_s: float | None = None) -> str:
     memo_path = cache_dir("masks", "stamps") / f"{_digest(str(root).encode())[:16]}.json"
     newest = max((m for _, _, m in stats), default=0)
     try:
-        memo = read_json(memo_path)
+        memo = unsealed(read_json(memo_path))
         if memo.get("stat") == stat and memo.get("recorded_ns", 0) - newest >= window * 1e9 and \
                 isinstance(memo.get("content"), str):
             return memo["content"]
@@ -121,8 +121,8 @@ def images_digest(root: str | Path, window_s: float | None = None) -> str:
     import time
 
     try:
-        write_bytes(memo_path, json.dumps({"root": str(root), "stat": stat, "content": content,
-                                           "recorded_ns": time.time_ns()}))
+        write_bytes(memo_path, json.dumps(sealed({"root": str(root), "stat": stat, "content": content,
+                                                  "recorded_ns": time.time_ns()})))
     except D2SlamError:  # a read-only cache: hashed again next time
         pass
     return content
