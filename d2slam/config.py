@@ -40,8 +40,8 @@ INT_MAX = 2**31 - 1  # seeds and counts that reach C++ (OpenCV, ORB-SLAM3) as a 
 # The feature budget's bound (docs/inputs.md): OpenCV 5.0's ORB allocates for nfeatures up front and fails with
 # std::bad_alloc from 2^29; a 640x480 image of noise yields at most 63,077 ORB keypoints at FAST 20 (8 levels, scale
 # 1.2), so no frame fills a budget beyond 100,000 (the extractor asks for n_features x oversample x refill_max).
-ORB_FEATURES_WHY = ("beyond 100000 no frame fills the budget: a 640x480 image of noise gives 63,077 ORB keypoints; "
-                    "OpenCV's ORB fails from 2^29")
+ORB_FEATURES_WHY = ("the maximum is more than any frame yields: a 640x480 image of noise gives 63,077 ORB "
+                    "keypoints; OpenCV's ORB fails from 2^29")
 # `orbslam3-masked`'s RGB fills (MaskingConfig.fill; d2slam.baselines.masking).
 MASK_FILLS = ("black", "mean", "blur", "pushpull", "telea", "ns")
 
@@ -239,10 +239,8 @@ class _Checked:
                 raise ConfigError(str(exc).replace(_HERE, _where(self, f.name))) from None
             if typed is not value:
                 object.__setattr__(self, f.name, typed)
-            rng = f.metadata.get("range")
-            if rng is None:  # every field declares one (tests/test_config_ranges.py)
-                raise ConfigError(f"{_where(self, f.name)} declares no valid range")
-            if rng.choices_from is not None and typed == f.default:
+            rng = f.metadata.get("range")  # every field declares one: tests/test_config_ranges.py says which do not
+            if rng is None or (rng.choices_from is not None and typed == f.default):
                 continue
             msg = _out_of_range(rng, typed, tp, _HERE, typed)
             if msg:
@@ -466,9 +464,11 @@ class EngineConfig(_Checked):
     # Motion-only BA: rounds of optimisation with outlier classification, iterations per round.
     pose_opt_rounds: int = within(4, 1, 100)
     pose_opt_iterations: int = within(10, 1, 1000)
-    pose_opt_gain_threshold: float = within(1e-4, 0.0, 1000.0)  # g2o terminate action: stop a round when chi2 improves less than this
+    # g2o terminate action: stop a round when chi2 improves less than this
+    pose_opt_gain_threshold: float = within(1e-4, 0.0, 1000.0)
     # Matching (ORB-SLAM ORBmatcher): Hamming thresholds, nearest-neighbour ratios, search radii (pixels x scale).
-    tracking_min_matches: int = within(20, 0, 100_000)  # motion-model search: below this, search again with twice the radius
+    # motion-model search: below this, search again with twice the radius
+    tracking_min_matches: int = within(20, 0, 100_000)
     tracking_min_inliers: int = within(10, 0, 100_000)  # after motion-only BA (motion model / reference keyframe)
     reference_min_matches: int = within(15, 0, 100_000)
     local_map_min_inliers: int = within(30, 0, 100_000)
@@ -478,10 +478,12 @@ class EngineConfig(_Checked):
     nn_ratio_local_map: float = within(0.8, 0.0, 1.0, lo_open=True)
     nn_ratio_reference: float = within(0.7, 0.0, 1.0, lo_open=True)
     nn_ratio_relocalisation: float = within(0.75, 0.0, 1.0, lo_open=True)
-    search_radius_last_frame: float = within(15.0, 0.0, 1000.0, lo_open=True)  # ORB-SLAM3 RGB-D (non-stereo sensor): th = 15
+    # ORB-SLAM3 RGB-D (non-stereo sensor): th = 15
+    search_radius_last_frame: float = within(15.0, 0.0, 1000.0, lo_open=True)
     search_radius_local_map: float = within(3.0, 0.0, 1000.0, lo_open=True)  # ORB-SLAM3 RGB-D: th = 3
     search_radius_relocalisation: float = within(10.0, 0.0, 1000.0, lo_open=True)
-    search_radius_after_relocalisation: float = within(5.0, 0.0, 1000.0, lo_open=True)  # local-map search radius on the frame after a relocalisation
+    # local-map search radius on the frame after a relocalisation
+    search_radius_after_relocalisation: float = within(5.0, 0.0, 1000.0, lo_open=True)
     # Local-map search radius factor by viewing angle (ORB-SLAM RadiusByViewingCos): frontal (cos above this) or not.
     local_map_frontal_cos: float = within(0.998, -1.0, 1.0)
     local_map_radius_frontal: float = within(2.5, 0.0, 1000.0, lo_open=True)
@@ -491,7 +493,8 @@ class EngineConfig(_Checked):
     frustum_dmax_factor: float = within(1.2, 1.0, 100.0)
     frustum_view_cos: float = within(0.5, -1.0, 1.0)
     rotation_histogram_bins: int = within(30, 1, 360)  # ORB-SLAM HISTO_LENGTH: orientation-consistency histogram
-    search_grid_cell: float = within(10.0, 0.0, 1000.0, lo_open=True)  # keypoint grid cell (px) of searches by projection (ORB-SLAM: 64 x 48 cells)
+    # keypoint grid cell (px) of searches by projection (ORB-SLAM: 64 x 48 cells)
+    search_grid_cell: float = within(10.0, 0.0, 1000.0, lo_open=True)
     check_orientation: bool = flag(True)
     # Initialisation (ORB-SLAM StereoInitialization): keypoints with valid depth needed for the first keyframe.
     init_min_keypoints: int = within(500, 1, 100_000)
@@ -506,12 +509,14 @@ class EngineConfig(_Checked):
     kf_close_tracked: int = within(100, 0, 100_000)
     kf_close_untracked: int = within(70, 0, 100_000)
     kf_min_inliers: int = within(15, 0, 100_000)
-    kf_weak_ratio: float = within(0.25, 0.0, 1.0)  # c1c: tracking weak when the inliers fall below this share of the reference's points
+    # c1c: tracking weak when the inliers fall below this share of the reference's points
+    kf_weak_ratio: float = within(0.25, 0.0, 1.0)
     # The reference keyframe's points counted by the decision: those with at least this many observations (2 while
     # the map has at most two keyframes).
     kf_ref_min_obs: int = within(3, 1, 1000)
     kf_ref_min_obs_first: int = within(2, 1, 1000)
-    kf_new_points_min: int = within(100, 0, 100_000)  # CreateNewKeyFrame: close points added until at least this many (maxPoint)
+    # CreateNewKeyFrame: close points added until at least this many (maxPoint)
+    kf_new_points_min: int = within(100, 0, 100_000)
     # ... and all closer than this (m) as well (ours): ORB-SLAM3 gets its far points by triangulating keypoints between
     # keyframes (CreateNewMapPoints), which our engine does not do; its keyframes make points from depth up to the
     # Kinect range instead (DynamicsConfig.z_far; 0 = ORB-SLAM3's rule, th_depth * b = 3 m): with people filling the
@@ -533,12 +538,14 @@ class EngineConfig(_Checked):
     fuse_second_neighbours: int = within(5, 0, 1000)
     fuse_radius: float = within(3.0, 0.0, 1000.0, lo_open=True)
     local_ba_window: int = within(10, 1, 1000)  # covisible keyframes optimised with the new one (best by shared points)
-    local_ba_max_fixed: int = within(5, 0, 1000)  # keyframes held fixed (best by observations of the local points; ours, for speed)
+    # keyframes held fixed (best by observations of the local points; ours, for speed)
+    local_ba_max_fixed: int = within(5, 0, 1000)
     covisibility_min_shared: int = within(15, 1, 100_000)
     mappoint_found_ratio: float = within(0.25, 0.0, 1.0)
     mappoint_min_obs: int = within(3, 0, 1000)  # ORB-SLAM cnThObs (RGB-D): weighted observations (stereo counts 2)
     mappoint_cull_age: int = within(2, 0, 1000)  # ... checked once a point is this many keyframes old
-    mappoint_recent_age: int = within(3, 0, 1000)  # points stay on the recent list (MapPointCulling) for this many keyframes
+    # points stay on the recent list (MapPointCulling) for this many keyframes
+    mappoint_recent_age: int = within(3, 0, 1000)
     keyframe_redundancy: float = within(0.9, 0.0, 1.0)
     keyframe_redundant_obs: int = within(3, 1, 1000)
     # Tracking the local map: keyframes sharing points with the frame (at most this many) + their covisibles.
@@ -666,12 +673,14 @@ class BodyConfig(_Checked):
         (200, 40, 40), (40, 70, 160), (230, 230, 225), (30, 30, 35), (60, 130, 70), (230, 190, 60), (120, 120, 130),
         (150, 60, 140), (240, 140, 60), (90, 160, 200), (180, 170, 150), (110, 40, 40)), 0, 255, why='RGB')
     trousers_colours: tuple[tuple[int, int, int], ...] = within((
-        (30, 40, 80), (25, 25, 28), (90, 90, 95), (150, 130, 100), (60, 50, 40), (70, 90, 120), (180, 170, 150)), 0, 255, why='RGB')
-    shoe_colours: tuple[tuple[int, int, int], ...] = within(((20, 20, 20), (230, 230, 230), (90, 60, 40), (60, 60, 70)), 0, 255, why='RGB')
+        (30, 40, 80), (25, 25, 28), (90, 90, 95), (150, 130, 100), (60, 50, 40), (70, 90, 120), (180, 170, 150)),
+        0, 255, why='RGB')
+    shoe_colours: tuple[tuple[int, int, int], ...] = within(
+        ((20, 20, 20), (230, 230, 230), (90, 60, 40), (60, 60, 70)), 0, 255, why='RGB')
     skin_colours: tuple[tuple[int, int, int], ...] = within((
         (235, 200, 175), (210, 165, 130), (170, 120, 90), (120, 80, 55), (90, 60, 45)), 0, 255, why='RGB')
-    hair_colours: tuple[tuple[int, int, int], ...] = within(((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120),
-                                                      (20, 20, 20)), 0, 255, why='RGB')
+    hair_colours: tuple[tuple[int, int, int], ...] = within(
+        ((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120), (20, 20, 20)), 0, 255, why='RGB')
     colour_jitter: float = within(0.06, 0.0, 1.0)
     # Garment textures (d2slam.synth.bodies.uv_layout): one turn round the body (m of texture at the torso's
     # radius) by the body's height (m); texel density of shirt, trousers, shoes, skin, hair relative to
@@ -778,7 +787,8 @@ class ActorsConfig(_Checked):
     # Clearances: furniture (rectangles grown by floor_clearance), chairs (discs), other people, held objects.
     floor_clearance: float = within(0.18, 0.0, 10.0)
     chair_radius: float = within(0.5, 0.0, 10.0)
-    squeeze_m: float = within(0.3, 0.0, 10.0)  # routes from within chair_radius + squeeze_m of a chair may pass it when nothing else does
+    # routes from within chair_radius + squeeze_m of a chair may pass it when nothing else does
+    squeeze_m: float = within(0.3, 0.0, 10.0)
     person_gap: float = within(0.65, 0.0, 10.0)
     object_gap: float = within(0.55, 0.0, 10.0)
     # ... a person whose last relax_after actions all failed (boxed in) keeps relax_gap of these gaps
@@ -956,7 +966,8 @@ class BaselineConfig(_Checked):
     vocab_seed: int = seed(0)
     # Synthetic training sequences (seeds 900-999 are reserved for the vocabulary): seeds, scenarios, frames per
     # sequence, every n-th frame used.
-    vocab_train_seeds: tuple[int, ...] = within((900, 901), 900, 999, why='seeds 900-999 are the vocabulary\'s; benchmarks use the others')
+    vocab_train_seeds: tuple[int, ...] = within(
+        (900, 901), 900, 999, why="seeds 900-999 are the vocabulary's; benchmarks use the others")
     vocab_train_scenarios: tuple[str, ...] = one_of(
         ("walking_xyz", "walking_halfsphere", "walking_rpy", "sitting_static"), "d2slam.synth.scene:SCENARIOS",
         lazy=True)

@@ -329,7 +329,7 @@ def check_outputs(outputs: Iterable[tuple[str, str | Path | None]],
         for other_opt, other_given, other_real in seen:
             if other_real == real or _same_file(other_real, real):
                 raise D2SlamError(f"{opt} and {other_opt} are the same file ({_shown(other_given, other_real)}, "
-                                  f"{_shown(given, real)}): each output needs its own path", path=given)
+                                  f"{_shown(given, real)}): each output needs its own path",)
         seen.append((opt, given, real))
         for what, inp in ins:
             inp_real = _real(inp)
@@ -337,21 +337,21 @@ def check_outputs(outputs: Iterable[tuple[str, str | Path | None]],
                 if _inside(real, inp_real):
                     raise D2SlamError(f"{opt} {_shown(given, real)} lies inside the input {what} "
                                       f"{_shown(inp, inp_real)}: d2slam never writes into its inputs; give another "
-                                      "path", path=given)
+                                      "path",)
             elif real == inp_real or _same_file(real, inp_real):
                 raise D2SlamError(f"{opt} {_shown(given, real)} is the input {what} {_shown(inp, inp_real)}: d2slam "
-                                  "never overwrites its inputs; give another path", path=given)
+                                  "never overwrites its inputs; give another path",)
             twin = _hard_link_into(real, inp_real) if inp_real.is_dir() else None
             if twin is not None:
                 raise D2SlamError(f"{opt} {_shown(given, real)} is a hard link to {twin} of the input {what} "
-                                  f"{inp_real}: d2slam never overwrites its inputs; give another path", path=given)
+                                  f"{inp_real}: d2slam never overwrites its inputs; give another path",)
         seq = _sequence_holding(real, include_self=folders, own=own)
         if seq is not None:
             raise D2SlamError(f"{opt} {_shown(given, real)} lies inside the sequence folder {seq} (it holds "
                               f"{'scene.json' if (seq / 'scene.json').is_file() else 'rgb.txt'}): d2slam never "
-                              "writes into a sequence; give another path", path=given)
+                              "writes into a sequence; give another path",)
         for folder, what in [(shared_dir(), "the shared folder of read-only assets")] + managed_cache_dirs():
             folder = _real(folder)
             if _inside(real, folder):
                 raise D2SlamError(f"{opt} {_shown(given, real)} lies inside {what} {folder}: that folder is "
-                                  "d2slam's own; give another path", path=given)
+                                  "d2slam's own; give another path",)

@@ -136,7 +136,7 @@ def test_every_way_of_building_checks(build):
 
 @pytest.mark.parametrize("overrides,message", [
     ({"orb": {"n_features": 1_000_000_000}}, r"orb.n_features = 1000000000 is out of range: an integer in \[1, "
-                                             r"100000\] \(beyond 100000 no frame fills the budget"),
+                                             r"100000\] \(the maximum is more than any frame yields"),
     ({"orb": {"n_features": 0}}, r"orb.n_features = 0 is out of range"),
     ({"orb": {"n_features": 100}}, "orb.n_features = 100 must be at least engine.init_min_keypoints = 500: the "
                                    "engine could never initialise"),

@@ -165,8 +165,9 @@ def run_outputs(args, method) -> list[tuple[str, object]]:
     from pathlib import Path
 
     out = Path(args.out).expanduser()
-    extra = [] if method.runner is None else [("--out's ORB-SLAM3 settings", out.with_name(out.stem + ".orbslam3.yaml")),
-                                              ("--out's online poses", out.with_name(out.stem + ".online.txt"))]
+    extra = [] if method.runner is None else [
+        ("--out's ORB-SLAM3 settings", out.with_name(out.stem + ".orbslam3.yaml")),
+        ("--out's online poses", out.with_name(out.stem + ".online.txt"))]
     return [("--out", out), ("--metrics-json", args.metrics_json)] + extra
 
 

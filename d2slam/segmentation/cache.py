@@ -507,9 +507,9 @@ class CachedSegmenter:
 
 class RgbListSequence:
     """Every RGB image listed in a TUM ``rgb.txt`` (parsed by ``d2slam.data.tum.read_file_list``; no depth, no
-    association): what ``d2slam segment SEQUENCE_DIR`` fills the cache for. The cache key depends only on the folder, ``rgb.txt`` and the timestamps,
-    so masks cached through this reader are hits for the full TUM/synthetic readers too. Frames carry an empty
-    (0, 0) depth."""
+    association): what ``d2slam segment SEQUENCE_DIR`` fills the cache for. The cache key depends only on the folder,
+    ``rgb.txt`` and the images it lists, so masks cached through this reader are hits for the full TUM/synthetic
+    readers too. Frames carry an empty (0, 0) depth."""
 
     def __init__(self, root: str | Path):
         self.root = Path(root)
