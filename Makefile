@@ -33,8 +33,9 @@ $(STAMP): environment.txt pyproject.toml
 		echo "warning: no Mesa EGL/OpenGL for the synthetic benchmark: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri"
 	@touch $(STAMP)
 
-# The segmentation models and the five real TUM frames: found in $$D2SLAM_SHARED (default ../shared) or the cache,
-# else fetched from pinned URLs (sha256-checked); does nothing when everything is found.
+# The segmentation models, the five real TUM frames and the first 120 frames of TUM fr1/rpy: found in $$D2SLAM_SHARED
+# (default ../shared) or the cache, else fetched from pinned URLs (sha256-checked); does nothing when everything is
+# found.
 # Then, once per install, the engine's kernels are compiled (numba caches them on disk), not during the first run;
 # after the assets, since the warm-up's engine closes loops with the vocabulary built from the real TUM frames.
 assets: $(STAMP)

@@ -299,8 +299,9 @@ class DynamicsConfig(_Checked):
     # eq 7 (ours): a keypoint with no observation (not matched) takes the mean P_g of its matched neighbours
     # when that is larger than its eq 7 P: of its neighbour_k nearest matched keypoints, those within delta(z) px
     # (eq 9's radius) and neighbour_depth metres, at least neighbour_min of them. False = the paper. See
-    # interaction.neighbour_p_g; measured: docs/deviations.md.
-    neighbour_p_g: bool = flag(True)
+    # interaction.neighbour_p_g; off: on real frames it spread the false alarms of eq 5 to the unmatched keypoints
+    # (measured: docs/deviations.md).
+    neighbour_p_g: bool = flag(False)
     neighbour_k: int = within(8, 1, 1000)
     neighbour_depth: float = within(0.15, 0.0, 20.0)
     neighbour_min: int = within(2, 1, 1000)
@@ -395,6 +396,13 @@ class DynamicsConfig(_Checked):
     # docs/deviations.md.
     flow_edge_band: float = within(6.0, 0.0, 1000.0)
     flow_edge_p: float = within(0.9, 0.0, 1.0)
+    # eq 5-6 and the pose test (ours): each threshold is widened, frame by frame, to at least the noise_confidence
+    # quantile of the frame's static residuals (a chi distribution fitted to their median; geometric.widening):
+    # alpha(z) (0.5-0.9 px) sits at the noise floor of a sharp sensor whose depth and colour are taken at one instant,
+    # and a real Kinect's static residuals are wider and vary with the motion (blur, the depth image's own capture
+    # time). False = the paper's fixed thresholds. Measured: docs/real_data.md, docs/deviations.md.
+    noise_widening: bool = flag(True)
+    noise_confidence: float = within(0.95, 0.5, 1.0, lo_open=True, hi_open=True, why="a quantile above the median")
     # `geometric` ablation: fixed epipolar threshold (pixels) instead of alpha(z).
     fixed_alpha: float = within(0.7, 0.0, 100.0, lo_open=True)
     # Keypoint depth: median of valid pixels in a (2 r + 1)^2 patch.
@@ -1182,8 +1190,14 @@ def _section(section_cls, data: dict, name: str):
 
 @dataclass(frozen=True)
 class EvalConfig(_Checked):
-    """How a run's loops are judged against the ground truth (``d2slam.eval.loops``); nothing here changes a
-    trajectory."""
+    """How a run is judged: the share of its frames it tracked (``d2slam.record``) and its loops against the ground
+    truth (``d2slam.eval.loops``); nothing here changes a trajectory."""
+
+    # A run that tracks less than this share of the frames it ran is a fragment, not a result: its ATE and RPE are
+    # over the tracked frames only (the TUM convention), so a run lost after a few frames can show a smaller error
+    # than one that tracked them all. `d2slam run` says so in its summary line and run JSON and exits with status 3;
+    # the study's runs.csv records it (fragment) and its tables mark the cells whose median share is below it.
+    min_tracked_share: float = within(0.9, 0.0, 1.0)
 
     # A detected loop is true when the relative pose of its two keyframes that the loop closer estimated is within
     # both of these of the ground truth's relative pose, false otherwise.

@@ -103,7 +103,8 @@ def run_method(seq, name: str, config: Config, masks: str | None = None, mask_se
                      evaluation=evaluation, stage_ms=run.stage_ms, masks=kind, masks_origin=origin,
                      keypoints=recorder.result() if recorder is not None else None,
                      loops=loop_summary(run, seq.timestamps, gt, config.evaluation), keyframes=run.keyframes,
-                     map_points=run.map_points, engine=run)
+                     map_points=run.map_points, engine=run,
+                     min_tracked_share=config.evaluation.min_tracked_share)
 
 
 def _mask_provider(seq, kind: str, mask_seq, config: Config, frames: int, progress: bool | None):

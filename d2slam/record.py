@@ -2,14 +2,48 @@
 frames), the one shape that ``d2slam run`` prints and writes and the study turns into its rows and tables; and
 :class:`EngineRun`, the engine's own account of a run (``d2slam.pipeline.run_sequence``), which a record of an
 engine method carries.
+
+A run that tracked less than ``EvalConfig.min_tracked_share`` of its frames is a fragment (:func:`is_fragment`, the
+one copy of the rule): its ATE and RPE are over the tracked part only. ``d2slam run`` and the study both ask
+:attr:`RunRecord.fragment`; the study's tables ask :func:`is_fragment` of a median share over seeds.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
+from d2slam.config import DEFAULT
 from d2slam.data.base import Trajectory
 from d2slam.eval.trajectory import Evaluation
+
+
+def tracked_share(tracked, frames) -> float:
+    """The share of its frames a run tracked: ``tracked / frames`` (NaN when either is unknown or no frame ran)."""
+    try:
+        tracked, frames = float(tracked), float(frames)
+    except (TypeError, ValueError):
+        return math.nan
+    return tracked / frames if frames > 0 and math.isfinite(tracked) and math.isfinite(frames) else math.nan
+
+
+def is_fragment(share: float, min_share: float = DEFAULT.evaluation.min_tracked_share) -> bool:
+    """Whether a run (or a median over runs) that tracked ``share`` of its frames is a fragment: below ``min_share``
+    (``EvalConfig.min_tracked_share``). An unknown share (NaN) is not."""
+    return math.isfinite(share) and share < min_share
+
+
+def fragment_fields(tracked, frames, min_share: float) -> dict:
+    """What a run JSON says of the share tracked: ``tracked_share`` (rounded, None when unknown), ``fragment``,
+    ``min_tracked_share`` and, for a fragment, ``fragment_note`` (its ATE and RPE are over the tracked part only)."""
+    share = tracked_share(tracked, frames)
+    out = {"tracked_share": round(share, 4) if math.isfinite(share) else None,
+           "fragment": is_fragment(share, min_share), "min_tracked_share": min_share}
+    if out["fragment"]:
+        out["fragment_note"] = (f"tracked {float(tracked):g} of {float(frames):g} frames ({100 * share:.1f} %, below "
+                                f"evaluation.min_tracked_share {min_share:g}): a fragment; its ATE and RPE are over "
+                                "the tracked frames only, not a result for the sequence")
+    return out
 
 
 @dataclass
@@ -80,3 +114,15 @@ class RunRecord:
     map_points: int | None = None
     engine: EngineRun | None = None  # the engine's own account (the engine's methods)
     orbslam3: dict | None = None  # ORB-SLAM3's run JSON (``d2slam.baselines.orbslam3``)
+    min_tracked_share: float = DEFAULT.evaluation.min_tracked_share  # the run's config's (``EvalConfig``)
+
+    @property
+    def tracked_share(self) -> float:
+        """``tracked / frames`` (NaN when unknown: a run that failed before its frames)."""
+        return tracked_share(self.tracked, self.frames)
+
+    @property
+    def fragment(self) -> bool:
+        """The run tracked less than ``min_tracked_share`` of its frames (:func:`is_fragment`): its ATE and RPE are
+        over the tracked part only."""
+        return is_fragment(self.tracked_share, self.min_tracked_share)

@@ -1,5 +1,6 @@
 """``d2slam assets fetch`` against a local mirror on 127.0.0.1: download, sha256, derived float models (same bytes
-as the shared files, same person masks as the int8 model), lookup order, and the messages when files are missing."""
+as the shared files, same person masks as the int8 model), the head of TUM fr1/rpy (tests/test_real_assets.py tests
+it in detail), lookup order, and the messages when files are missing."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import socket
 import numpy as np
 import onnx
 import pytest
-from local_http import Server, asset_mirror
+from local_http import Server, asset_mirror, head_as_whole
 
 from d2slam import assets as A
 from d2slam.cli import main
@@ -29,7 +30,8 @@ def sha(path) -> str:
 
 @pytest.fixture(scope="module")
 def mirror():
-    srv = asset_mirror(seconds=300)  # from this checkout's assets, found before the tests hide them
+    # from this checkout's assets, found before the tests hide them; fr1/rpy's head stands for the whole sequence
+    srv = asset_mirror(seconds=300, whole_lists="head")
     yield srv
     srv.close()
 
@@ -41,19 +43,25 @@ def real_shared():
 
 @pytest.fixture
 def fresh(tmp_path, monkeypatch, mirror, real_shared):
-    """A user's machine: no shared folder, an empty cache, the mirror in place of GitHub."""
+    """A user's machine: no shared folder, an empty cache, the mirror in place of GitHub (whose fr1/rpy lists are
+    the head's)."""
     monkeypatch.setenv("D2SLAM_SHARED", str(tmp_path / "no_shared"))
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv(A.MIRROR_ENV, mirror.url)
     monkeypatch.delenv("D2SLAM_SEG_MODEL", raising=False)
+    monkeypatch.setattr(A, "real_pins", lambda pins=A.real_pins(): head_as_whole(pins))
     return tmp_path
 
 
 def test_fetch_downloads_verifies_derives_and_is_idempotent(fresh, mirror, real_shared, capsys):
-    assert len(A.missing()) == len(A.ALL_ASSETS)
+    assert len(A.missing()) == len(A.ALL_ASSETS) and A.find_real_head() is None
     n_requests = len(mirror.requests)
     assert main(["assets", "fetch"]) == 0
     assert A.missing() == []
+    head = A.real_head()
+    assert head == fresh / "cache" / "assets" / A.real_head_rel()
+    assert sorted(p.name for p in head.iterdir()) == ["depth", "depth.txt", "groundtruth.txt", "rgb", "rgb.txt"]
+    n_fetched = len(A.DOWNLOADS) + len(A.LISTS) + len(A.real_pins()["head"]["files"])
     cache = fresh / "cache" / "assets"
     for rel in A.ALL_ASSETS:
         path = A.find(rel)
@@ -61,12 +69,12 @@ def test_fetch_downloads_verifies_derives_and_is_idempotent(fresh, mirror, real_
         if (real_shared / rel).is_file():  # same bytes as the shared folder's file (derived ones included)
             assert path.read_bytes() == (real_shared / rel).read_bytes()
     assert {sha(cache / d.path) for d in A.DERIVED} == {d.sha256 for d in A.DERIVED}
-    assert len(mirror.requests) - n_requests == len(A.DOWNLOADS)
-    assert not list(cache.rglob("*.part*"))
+    assert len(mirror.requests) - n_requests == n_fetched
+    assert not list(cache.rglob("*.part*")) and not list(cache.rglob("*.tmp-*"))
     capsys.readouterr()
     assert main(["assets", "fetch"]) == 0  # everything found: nothing downloaded
     assert "nothing to fetch" in capsys.readouterr().out
-    assert len(mirror.requests) - n_requests == len(A.DOWNLOADS)
+    assert len(mirror.requests) - n_requests == n_fetched
     seg = get_segmenter("onnx")  # the default model comes from the cache
     assert seg.model_path == cache / "models/yolov8n-seg_deq_384x512.onnx"
 
@@ -76,6 +84,8 @@ def test_shared_folder_comes_first_and_nothing_is_fetched(monkeypatch, tmp_path,
     for rel in A.ALL_ASSETS:
         (shared / rel).parent.mkdir(parents=True, exist_ok=True)
         (shared / rel).symlink_to(A.asset_path(rel))
+    (shared / A.real_head_rel()).parent.mkdir(parents=True)
+    (shared / A.real_head_rel()).symlink_to(A.real_head())
     cache = tmp_path / "cache"
     (cache / "assets" / "models").mkdir(parents=True)
     (cache / "assets" / A.INT8_MODEL).write_bytes(b"a stale copy the shared folder takes precedence over")

@@ -289,3 +289,60 @@ def test_silent_server_times_out_quickly(tmp_path):
         with pytest.raises(D2SlamError, match="cannot reach the server of the TUM archive .*timed out"):
             dl.download_sequence(NAME, tmp_path / "data", base_url=url, timeout=0.3, log=quiet)
         assert time.perf_counter() - t < 3
+
+
+@pytest.fixture(scope="module")
+def real_head_dir():
+    from d2slam.assets import real_head
+
+    return real_head()  # found before the tests move $D2SLAM_CACHE
+
+
+def test_fr1_rpy_archive_of_real_frames_downloads_and_runs_end_to_end(real_head_dir, tmp_path, monkeypatch, capsys):
+    """`d2slam download fr1_rpy` on a TUM-layout archive of real fr1/rpy frames (the first 40 of the head, laid out
+    as the official archive: one top folder with the lists, rgb/, depth/ and accelerometer.txt), from a mirror
+    ($D2SLAM_TUM_MIRROR) with the archive's checksum in the registry, then `d2slam run` on the folder it made."""
+    import dataclasses
+    import hashlib
+
+    from d2slam.assets import LISTS, cut_head
+
+    frames = 40
+    root = tmp_path / "src" / "rgbd_dataset_freiburg1_rpy"
+    cut = cut_head({name: (real_head_dir / name).read_bytes() for name in LISTS}, frames, 1.0)
+    for name, data in cut.items():
+        root.mkdir(parents=True, exist_ok=True)
+        (root / name).write_bytes(data)
+    for name in LISTS[:2]:
+        for line in cut[name].decode().splitlines():
+            if not line.startswith("#"):
+                rel = line.split()[1]
+                (root / rel).parent.mkdir(exist_ok=True)
+                (root / rel).write_bytes((real_head_dir / rel).read_bytes())
+    (root / "accelerometer.txt").write_text("# accelerometer data\n")
+    tgz = make_tgz(root, root.name)
+    srv = Server()
+    srv.files["/freiburg1/rgbd_dataset_freiburg1_rpy.tgz"] = tgz
+    real = dl.registry()
+    pinned = {**real, "fr1_rpy": dataclasses.replace(real["fr1_rpy"], size=len(tgz),
+                                                     sha256=hashlib.sha256(tgz).hexdigest())}
+    monkeypatch.setattr(dl, "registry", lambda: pinned)
+    monkeypatch.setenv(dl.MIRROR_ENV, srv.url)
+    try:
+        assert main(["download", "fr1_rpy", "--to", str(tmp_path / "data")]) == 0
+    finally:
+        srv.close()
+    folder = tmp_path / "data" / "rgbd_dataset_freiburg1_rpy"
+    out = capsys.readouterr().out
+    assert f"fr1_rpy: {frames} RGB-D frames, camera freiburg1, in {folder}" in out
+    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == [folder.name]  # archive removed
+    assert records()["rgbd_dataset_freiburg1_rpy.tgz"]["sha256"] == hashlib.sha256(tgz).hexdigest()
+    traj, js = tmp_path / "t.txt", tmp_path / "r.json"
+    assert main(["run", str(folder), "--method", "none", "--no-loop-closing", "--out", str(traj),
+                 "--metrics-json", str(js)]) == 0
+    rec = json.loads(js.read_text())
+    assert rec["tracked"] == rec["frames"] == frames and rec["camera"]["name"] == "freiburg1"
+    assert rec["camera"]["source"] == "folder name" and 0 < rec["metrics"]["ate_rmse_m"] < 0.05
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith(f"d2slam run: method none; masks none; camera freiburg1 (folder name); tracked "
+                           f"{frames}/{frames} frames; ATE ")

@@ -337,3 +337,23 @@ def test_bench_prints_the_per_run_split_and_takes_a_config(tmp_path, built_vocab
     assert main(argv + ["--out", str(tmp_path / "b"), "--config", str(tmp_path / "c.yaml")]) == 0
     rows = json.loads((tmp_path / "b" / "bench_orbslam3.json").read_text())["rows"]
     assert "frame_store" not in rows[0] and rows[0]["status"] in ("ok", "lost", "reset")
+
+
+def test_run_command_marks_an_orbslam3_fragment(tmp_path, built_vocab, monkeypatch, capsys):
+    """`d2slam run --method orbslam3` on frames that turn black after the 12th of 36 (ORB-SLAM3 cannot track them):
+    the run JSON and the line say it is a fragment and the command exits with 3 (the same rule as the engine's)."""
+    from d2slam.cli import main
+
+    seq = write_shift_sequence(tmp_path / "rgbd_dataset_freiburg3_shift")
+    for path in sorted((seq / "rgb").iterdir())[12:]:
+        cv2.imwrite(str(path), np.zeros((480, 640, 3), np.uint8))
+    monkeypatch.setenv("PYORBSLAM3_VOCAB", str(built_vocab))
+    js = tmp_path / "r.json"
+    assert main(["run", str(seq), "--method", "orbslam3", "--out", str(tmp_path / "t.txt"), "--metrics-json",
+                 str(js)]) == 3
+    rec = json.loads(js.read_text())
+    assert rec["fragment"] is True and rec["tracked"] <= 12 and rec["frames"] == 36
+    assert rec["tracked_share"] == round(rec["tracked"] / 36, 4) and "fragment_note" in rec
+    captured = capsys.readouterr()
+    (line,) = [x for x in (captured.out + captured.err).splitlines() if x.startswith("d2slam run:")]
+    assert f"tracked {rec['tracked']}/36 frames (" in line and "): a fragment, below 90 %;" in line

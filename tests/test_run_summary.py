@@ -74,6 +74,11 @@ def test_camera_origins_and_no_masks(room, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "no RPE: cannot compute RPE over 1.0 s pairs" in out and "tracked 6/6 frames; ATE 0.0" in out
     assert " m (no RPE); wrote " in summary_lines(out)[0]
+    assert main(["run", str(short), "--camera", "fr3", "--out", str(tmp_path / "t.txt"), "--metrics-json",
+                 str(tmp_path / "short.json"), "--quiet"]) == 0
+    rec = json.loads((tmp_path / "short.json").read_text())  # the ATE alone, as the line gives it
+    assert list(rec["metrics"]) == ["ate_rmse_m"] and rec["metrics_error"].startswith("no RPE: cannot compute")
+    assert f"ATE {rec['metrics']['ate_rmse_m']:.4f} m (no RPE)" in summary_lines(out)[0]
 
 
 def test_the_real_segmenter_is_the_default_everywhere():
@@ -96,3 +101,74 @@ def test_a_missing_model_names_what_works(room, tmp_path, monkeypatch, capsys):
     assert err.startswith("d2slam: error:") and len(err.splitlines()) == 1 and captured.out == ""
     assert "segmentation model not found" in err and "$D2SLAM_SEG_MODEL" in err and "d2slam assets fetch" in err
     assert "pass --model" not in err and "--allow-unknown-model (or" not in err and not out.exists()
+
+
+def test_a_run_over_a_fragment_says_so_and_exits_3(tmp_path, capsys):
+    """A run that loses track for good (the frames after the 14th are black: no keypoint) tracks 14 of 24 frames:
+    its line and run JSON mark it a fragment and its ATE as over the tracked part only, and it exits with 3."""
+    import cv2
+    import numpy as np
+
+    seq = write_room_sequence(tmp_path / "room", n=24, seed=1, fps=10.0)
+    for path in sorted((seq / "rgb").iterdir())[14:]:
+        cv2.imwrite(str(path), np.zeros((480, 640, 3), np.uint8))
+    traj, js = tmp_path / "t.txt", tmp_path / "r.json"
+    argv = ["run", str(seq), "--camera", "fr3", "--out", str(traj), "--metrics-json", str(js)]
+    assert main(argv) == 3
+    (line,) = summary_lines(capsys.readouterr().out)
+    rec = json.loads(js.read_text())
+    assert (rec["tracked"], rec["frames"]) == (14, 24) and rec["fragment"] is True
+    assert rec["tracked_share"] == round(14 / 24, 4) and rec["min_tracked_share"] == 0.9
+    assert rec["fragment_note"].startswith("tracked 14 of 24 frames (58.3 %, below evaluation.min_tracked_share 0.9)")
+    assert "over the tracked frames only" in rec["fragment_note"]
+    assert line == (f"d2slam run: method none; masks none; camera freiburg3 (--camera fr3); tracked 14/24 frames "
+                    f"(58.3 %): a fragment, below 90 %; ATE {rec['metrics']['ate_rmse_m']:.4f} m over the tracked "
+                    f"fragment only; wrote {traj}, {js}")
+    assert main([*argv, "--quiet"]) == 3 and capsys.readouterr().out == ""
+    cfg = tmp_path / "half.yaml"  # the share is a config field: at 0.5 the same run is a result
+    cfg.write_text("evaluation: {min_tracked_share: 0.5}\n")
+    assert main([*argv, "--config", str(cfg)]) == 0
+    (line,) = summary_lines(capsys.readouterr().out)
+    assert "tracked 14/24 frames; ATE " in line and "a fragment" not in line and "fragment only" not in line
+    rec = json.loads(js.read_text())
+    assert rec["fragment"] is False and "fragment_note" not in rec and rec["min_tracked_share"] == 0.5
+
+
+def test_the_fragment_rule():
+    from d2slam.config import DEFAULT
+    from d2slam.record import fragment_fields, is_fragment, tracked_share
+
+    assert DEFAULT.evaluation.min_tracked_share == 0.9
+    assert is_fragment(tracked_share(3, 120)) and is_fragment(0.0) and is_fragment(tracked_share(107, 120))
+    assert not is_fragment(tracked_share(108, 120)) and not is_fragment(1.0)  # 90 % exactly is a result
+    assert not is_fragment(tracked_share(None, 120)) and not is_fragment(tracked_share(0, 0))  # unknown: not judged
+    assert is_fragment(0.6, min_share=0.7) and not is_fragment(0.6, min_share=0.5)
+    assert fragment_fields(120, 120, 0.9) == {"tracked_share": 1.0, "fragment": False, "min_tracked_share": 0.9}
+    assert fragment_fields(None, None, 0.9) == {"tracked_share": None, "fragment": False, "min_tracked_share": 0.9}
+    assert fragment_fields(3, 120, 0.9)["fragment_note"].startswith("tracked 3 of 120 frames (2.5 %, below ")
+
+
+def test_orbslam3_runs_go_through_the_same_rule(capsys):
+    """``d2slam run --method orbslam3``'s line and exit status from its record: a fragment exits 3 whatever ORB-SLAM3's
+    own status, a failure before any frame stays 2 and is no fragment."""
+    from argparse import Namespace
+
+    from d2slam.commands.run import print_orbslam3
+    from d2slam.record import RunRecord
+
+    def record(status, tracked, frames=120):
+        report = {"method": "orbslam3", "name": "seq", "status": status, "message": "m", "camera": "freiburg1",
+                  "camera_source": "folder name", "frames_expected": frames, "trajectory": "t.txt",
+                  **({"frames": frames, "tracked": tracked} if tracked is not None else {})}
+        return RunRecord(method="orbslam3", sequence="seq", trajectory=None,
+                         frames=frames if tracked is not None else None, tracked=tracked, lost=0, fps=None,
+                         ms_per_frame=None, config_hash="x", loop_closing=True, status=status, error="",
+                         evaluation=None, orbslam3=report)
+
+    args = Namespace(sequence="seq", camera=None, metrics_json=None, quiet=False)
+    for status, tracked, code in (("ok", 120, 0), ("lost", 110, 1), ("lost", 3, 3), ("reset", 60, 3),
+                                  ("failed", None, 2), ("crashed", None, 2)):
+        assert print_orbslam3(record(status, tracked), args) == code, (status, tracked)
+        captured = capsys.readouterr()
+        (line,) = summary_lines(captured.out + captured.err)
+        assert ("a fragment, below 90 %" in line) == (code == 3), line

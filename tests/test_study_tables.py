@@ -333,3 +333,40 @@ def test_paper_numbers_and_implied_absolute():
         P.implied_absolute(2)
     sbs = P.side_by_side(_runs(), 1)
     assert sbs.loc["w/xyz"].tolist() == [97.9, pytest.approx(95.0)] and np.isnan(sbs.loc["w/rpy"].iloc[1])
+
+
+def test_a_fragment_of_a_whole_sequence_is_flagged():
+    """A real recording run whole (``frames`` 0 in the grid) is marked by the share of the frames it went through
+    (``tracked_share``, ``fragment`` of runs.csv), the rule and threshold of `d2slam run`
+    (``EvalConfig.min_tracked_share``)."""
+    from d2slam.config import DEFAULT
+
+    rows = [{"scenario": "fr1_rpy", "sequence": "fr1/rpy", "twin": 0, "method": m, "seed": 0, "frames": 0,
+             "source": "tum", "status": "ok", "ate_rmse_m": a, "rpe_trans_m": a, "rpe_rot_deg": 1.0,
+             "frames_tracked": t, "tracked_share": t / 694, "fragment": int(t / 694 < 0.9)}
+            for m, t, a in (("none", 689, 0.0277), ("d2slam", 3, 0.0086))]
+    df = T.runs_frame(rows)
+    assert T.TRACKED_FLAG == DEFAULT.evaluation.min_tracked_share == 0.9
+    assert T.tracked_fraction(df, "fr1_rpy", "d2slam") == pytest.approx(3 / 694)
+    assert T._flag(df, "fr1_rpy", "d2slam") == T.DAGGER and T._flag(df, "fr1_rpy", "none") == ""
+    assert "| fr1_rpy | 99 | 0 |" in T.tracking_markdown(df, ["none", "d2slam"])
+    table = T.absolute_markdown(df, "ate_rmse_m", 0, ["none", "d2slam"])
+    assert "0.0086 †" in table and "0.0277 †" not in table
+    old = df.drop(columns=["tracked_share"])  # a study made before the column: frames 0 says nothing of the share
+    old["tracked_share"] = np.nan
+    assert T._flag(old, "fr1_rpy", "d2slam") == ""
+
+
+def test_run_rows_carry_the_share_tracked_and_the_fragment_mark():
+    from d2slam.record import RunRecord
+    from d2slam.study.grid import RunSpec
+    from d2slam.study.runner import run_row
+
+    spec = RunSpec(scenario="fr1_rpy", seed=0, frames=0, method="orbslam3", source="tum", twin=False)
+    rec = RunRecord(method="orbslam3", sequence="fr1_rpy", trajectory=None, frames=120, tracked=3, lost=117,
+                    fps=30.0, ms_per_frame=33.0, config_hash="x", loop_closing=True, status="lost", error="lost",
+                    evaluation=None)
+    row = run_row(spec, rec, 1.0)
+    assert row["tracked_share"] == pytest.approx(0.025) and row["fragment"] == 1
+    rec.tracked = 120
+    assert run_row(spec, rec, 1.0)["fragment"] == 0

@@ -45,7 +45,7 @@ import numpy as np
 
 from d2slam.config import DEFAULT, Config
 from d2slam.errors import D2SlamError
-from d2slam.record import RunRecord
+from d2slam.record import RunRecord, fragment_fields
 
 METHOD = "orbslam3"
 MASKED_METHOD = "orbslam3-masked"
@@ -484,7 +484,8 @@ def run_record(report: dict, seq, evaluate: bool = True) -> RunRecord:
         ms_per_frame=report.get("ms_per_frame"), config_hash=report["config_hash"], loop_closing=True, status=status,
         error=error, evaluation=evaluation if metrics or aligned is not None else None, masks=report.get("masks"),
         masks_origin=report.get("masks_origin"), repeats=int(report.get("repeats", 1)),
-        ate_range=(spread["min"], spread["max"]) if spread else (ate, ate) if metrics else None, orbslam3=report)
+        ate_range=(spread["min"], spread["max"]) if spread else (ate, ate) if metrics else None, orbslam3=report,
+        min_tracked_share=report.get("min_tracked_share", DEFAULT.evaluation.min_tracked_share))
 
 
 def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, settings, camera, max_frames: int,
@@ -531,7 +532,7 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
             vinfo = resolve_vocabulary(vocab, build=True, progress=progress)
         except D2SlamError as exc:
             return _finish(dict(base, status="failed", message=f"vocabulary: {exc}", vocabulary=None),
-                           metrics_json), seq
+                           metrics_json, config), seq
         base["vocabulary"] = vinfo
         if settings is None:
             settings_path = out_traj.with_name(out_traj.stem + ".orbslam3.yaml")
@@ -542,7 +543,7 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
         try:
             check_settings(settings_path)
         except D2SlamError as exc:
-            return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json), seq
+            return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json, config), seq
         store = _frame_store_root(seq, n_frames, repeats, config, work_root)
         if store is not None:
             from d2slam.baselines._orbslam3_worker import write_frame_store
@@ -568,7 +569,7 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
                 run = dataclasses.replace(run, evaluation=evaluation,
                                           seconds={**run.seconds, "evaluate": round(time.perf_counter() - t0, 3)})
             runs.append(run.to_dict())
-        return _finish(_summarise(base, runs, out_traj), metrics_json), seq
+        return _finish(_summarise(base, runs, out_traj), metrics_json, config), seq
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
         if store is not None:
@@ -672,8 +673,13 @@ def _summarise(base: dict, runs: list[dict], out_traj: Path) -> dict:
     return out
 
 
-def _finish(result: dict, metrics_json) -> dict:
+def _finish(result: dict, metrics_json, config: Config) -> dict:
+    """The run JSON as written: its status, the share of frames tracked (``d2slam.record.fragment_fields``: whether
+    the run is a fragment by ``EvalConfig.min_tracked_share``; a run that failed before its frames has none) and
+    when it was made."""
     result.setdefault("status", "ok")
+    if result.get("tracked") is not None:
+        result.update(fragment_fields(result["tracked"], result.get("frames"), config.evaluation.min_tracked_share))
     result["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     if metrics_json:
         from d2slam.outputs import write_bytes

@@ -65,12 +65,14 @@ def _run_engine(seq: Path, out: Path) -> dict:
     proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", "none", "--out",
                            str(traj), "--metrics-json", str(run_json)], capture_output=True, text=True)
     wall = time.perf_counter() - t0
-    if proc.returncode != 0 or not run_json.is_file():
+    from d2slam.commands.run import EXIT_FRAGMENT
+
+    if proc.returncode not in (0, EXIT_FRAGMENT) or not run_json.is_file():
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         return {"method": "none", "status": "failed", "message": " | ".join(tail), "wall_s": wall}
     run = json.loads(run_json.read_text())
     run.setdefault("method", "none")
-    run.setdefault("status", "ok")
+    run.setdefault("status", "fragment" if run.get("fragment") else "ok")
     run["wall_s"] = wall
     run["trajectory"] = str(traj) if traj.is_file() else None
     return run

@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+# The exit status of a run that tracked less than EvalConfig.min_tracked_share of its frames (a fragment); 2 is bad
+# input (d2slam.cli), 1 ORB-SLAM3 losing track.
+EXIT_FRAGMENT = 3
+
 
 def register(sub) -> None:
+    from d2slam.config import DEFAULT
     from d2slam.methods import methods
+
+    min_share = DEFAULT.evaluation.min_tracked_share
 
     p = sub.add_parser(
         "run", help="run the SLAM engine on a TUM or synthetic sequence",
@@ -13,7 +20,16 @@ def register(sub) -> None:
         "with --metrics-json, frames/tracked/lost/fps, mean milliseconds per stage, the config hash, the seconds from "
         "the process start to the end of the first frame (startup_s) and (when the sequence has ground truth) "
         "ATE/RPE computed with evo. The last line printed says what was run: `d2slam run: "
-        "method M; masks KIND (where from); camera NAME (where from); tracked T/N frames; ATE X m; wrote FILES`.")
+        "method M; masks KIND (where from); camera NAME (where from); tracked T/N frames; ATE X m; wrote FILES`. "
+        f"A run that tracked less than evaluation.min_tracked_share (default {min_share:g}) of its frames is a "
+        f"fragment: the line says `tracked T/N frames (S %): a fragment, below {100 * min_share:g} %; ATE X m over "
+        "the tracked fragment only`, the "
+        "metrics JSON has \"fragment\": true with tracked_share and a fragment_note, and the exit status is 3.",
+        epilog="Exit status: 0 the run tracked at least evaluation.min_tracked_share of its frames; "
+        f"{EXIT_FRAGMENT} it tracked fewer (a fragment: its ATE/RPE are over the tracked part only, not a result for "
+        "the sequence); 2 bad input (one `d2slam: error:` line) or, for --method orbslam3 and orbslam3-masked, a "
+        "failed ORB-SLAM3 run; 1 (orbslam3 and orbslam3-masked only) ORB-SLAM3 lost track or started a new map on "
+        "some frames but tracked at least that share.")
     p.add_argument("sequence", metavar="SEQUENCE_DIR")
     p.add_argument("--method", default="none", choices=methods(), help="keypoint filter (default: none)")
     p.add_argument("--out", required=True, metavar="TRAJ.txt", help="estimated trajectory (TUM format)")
@@ -56,6 +72,7 @@ def run(args) -> int:
     from d2slam.methods import get_method, run_method
     from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
     from d2slam.pipeline import STAGES
+    from d2slam.record import fragment_fields
 
     method = get_method(args.method)
     out = check_output_file(args.out, "--out")
@@ -95,10 +112,10 @@ def run(args) -> int:
     run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
                      progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
     engine, masks_kind, ev = run.engine, run.masks, run.evaluation
-    if run.tracked == 0:  # no trajectory: nothing written (an earlier file at --out stays as it was)
-        raise D2SlamError(f"no frame of {run.frames} was tracked: no trajectory to write (see `d2slam run --help` and "
-                          "docs/inputs.md: depth scale, camera, config)", path=seq.root)
-    write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
+    if run.tracked == 0:
+        write_tum_trajectory(out, run.trajectory, header=f"d2slam run {args.method}: no frame tracked")
+    else:
+        write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
     record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
               **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
               **({"masks_origin": run.masks_origin} if run.masks_origin else {}),
@@ -123,13 +140,17 @@ def run(args) -> int:
         record["metrics_error"] = f"no ATE/RPE: only {run.tracked} frames tracked (at least 3 are needed)"
     elif ev.metrics is not None:
         record["metrics"] = ev.metrics.to_dict()
+    elif ev.ate_rmse_m is not None:  # too short for 1-second pairs: the ATE alone
+        ate_only = ev.ate_rmse_m
+        record["metrics"] = {"ate_rmse_m": ate_only}
+        record["metrics_error"] = f"no RPE: {ev.error}"
     else:
         record["metrics_error"] = f"no ATE/RPE: {ev.error}"
-        ate_only = ev.ate_rmse_m  # too short for 1-second pairs: the ATE alone, for the summary
     listed = getattr(seq, "n_rgb", run.frames)
     if run.frames < listed:
         record["frames_note"] = (f"{run.frames} of the {listed} frames of rgb.txt were run: the others have no "
                                  f"depth image within {seq.max_dt:g} s (depth.txt lists {seq.n_depth})")
+    record.update(fragment_fields(run.tracked, run.frames, run.min_tracked_share))
     for k in STAGES:
         if k in run.stage_ms:
             record[f"{k}_ms"] = round(run.stage_ms[k], 3)
@@ -145,18 +166,17 @@ def run(args) -> int:
             print(f"loops: {len(record['loops'])}" + (f" ({len(record['loops_true'])} true, "
                                                      f"{len(record['loops_false'])} false)" if ev is not None else "")
                   + "".join(f"; frames {a} -> {b}" for a, b in record["loops"]))
-        if "metrics" in record:
+        if "metrics_error" in record:
+            print(record["metrics_error"])
+        else:
             m = record["metrics"]
             print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
-        else:
-            print(record["metrics_error"].replace("no ATE/RPE:", "no RPE:") if ate_only is not None else
-                  record["metrics_error"])
         masks = f"{masks_kind} ({run.masks_origin})" if masks_kind else "none"
-        ate = record["metrics"]["ate_rmse_m"] if "metrics" in record else ate_only
+        ate = record["metrics"]["ate_rmse_m"] if "metrics" in record else None
         print(summary_line(args.method, masks, camera_text(seq.camera.name, record["camera"]["source"], args.camera),
                            run.tracked, run.frames, ate, [out, args.metrics_json],
-                           ate_note=" (no RPE)" if ate_only is not None else ""))
-    return 0
+                           ate_note=" (no RPE)" if ate_only is not None else "", min_share=run.min_tracked_share))
+    return EXIT_FRAGMENT if run.fragment else 0
 
 
 def run_outputs(args, method) -> list[tuple[str, object]]:
@@ -185,7 +205,8 @@ def run_inputs(args) -> list[tuple[str, object]]:
 
 def print_orbslam3(run, args) -> int:
     """What ``d2slam run --method orbslam3[-masked]`` prints of ORB-SLAM3's run (``RunRecord``) and its exit status:
-    0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed."""
+    0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed, :data:`EXIT_FRAGMENT` when it ran
+    but tracked less than ``EvalConfig.min_tracked_share`` of the frames (``RunRecord.fragment``)."""
     import sys
 
     report = run.orbslam3
@@ -208,9 +229,11 @@ def print_orbslam3(run, args) -> int:
                            camera_text(report.get("camera", "?"), report.get("camera_source", "?"),
                                        getattr(args, "camera", None)),
                            tracked, report.get("frames", report.get("frames_expected", 0)), ate,
-                           [report.get("trajectory"), getattr(args, "metrics_json", None)], ate_note=many),
+                           [report.get("trajectory"), getattr(args, "metrics_json", None)], ate_note=many,
+                           min_share=run.min_tracked_share if run.fragment else None),
               file=stream)
-    return {"ok": 0, "lost": 1, "reset": 1}.get(report["status"], 2)
+    code = {"ok": 0, "lost": 1, "reset": 1}.get(report["status"], 2)
+    return EXIT_FRAGMENT if code != 2 and run.fragment else code
 
 
 def _warn_depth_scale(seq, config) -> None:
@@ -234,13 +257,21 @@ def camera_text(name: str, source: str, camera_arg: str | None) -> str:
 
 
 def summary_line(method: str, masks: str, camera: str, tracked: float, frames: float, ate_m: float | None,
-                 outputs, ate_note: str = "") -> str:
+                 outputs, ate_note: str = "", min_share: float | None = None) -> str:
     """The one line ``d2slam run`` ends with (the engine's methods and the real ORB-SLAM3 alike), easy to grep:
-    ``d2slam run: method M; masks KIND (ORIGIN); camera NAME (ORIGIN); tracked T/N frames; ATE X m; wrote FILES``."""
-    ate = f"ATE {ate_m:.4f} m{ate_note}" if ate_m is not None else "no ATE"
+    ``d2slam run: method M; masks KIND (ORIGIN); camera NAME (ORIGIN); tracked T/N frames; ATE X m; wrote FILES``.
+    A fragment (less than ``min_share`` of the frames tracked, ``d2slam.record.is_fragment``; None: not judged) says
+    so: ``tracked T/N frames (S %): a fragment, below M %; ATE X m over the tracked fragment only``."""
+    from d2slam.record import is_fragment, tracked_share
+
+    share = tracked_share(tracked, frames)
+    fragment = min_share is not None and is_fragment(share, min_share)
+    note = f" ({100 * share:.1f} %): a fragment, below {100 * min_share:g} %" if fragment else ""
+    ate = (f"ATE {ate_m:.4f} m{ate_note}" + (" over the tracked fragment only" if fragment else "")
+           if ate_m is not None else "no ATE")
     wrote = ", ".join(str(o) for o in outputs if o) or "nothing"
     return (f"d2slam run: method {method}; masks {masks}; camera {camera}; tracked {tracked:.0f}/{frames:.0f} "
-            f"frames; {ate}; wrote {wrote}")
+            f"frames{note}; {ate}; wrote {wrote}")
 
 
 def process_start() -> float:

@@ -191,6 +191,8 @@ def fetch(url: str, part: Path, timeout: float = CONNECT_TIMEOUT, desc: str | No
                 continue
             raise _HttpFailure(exc.code, str(exc.reason)) from None
         except urllib.error.URLError as exc:
+            if isinstance(exc.reason, FileNotFoundError):  # a file:// mirror without the file: as an HTTP 404
+                raise _HttpFailure(404, "Not Found (no such file)") from None
             raise _Unreachable(str(exc.reason)) from None
         except (OSError, HTTPException) as exc:  # timeouts, resets, refused connections, bad status lines
             raise _Unreachable(str(exc) or type(exc).__name__) from None

@@ -79,6 +79,7 @@ class FrameDiagnostics:
     reproj_err: np.ndarray | None = None  # pose test (ours): reprojection error (px), NaN where not tested
     depth_err: np.ndarray | None = None  # pose test (ours): normalised depth residual, NaN where not tested
     pose_dynamic: np.ndarray | None = None  # the pose test's flag
+    widening: tuple[float, float, float] | None = None  # noise widening of eq 5, reprojection, depth (ours)
     edge: np.ndarray | None = None  # ours, with the flow: unobserved just outside a mask, P raised (fusion.edge_band)
     fused: np.ndarray | None = None  # eq 7 P
     prior: np.ndarray | None = None  # eq 8 bel(q)
@@ -196,7 +197,8 @@ class D2SlamFilter:
         self.last = FrameDiagnostics(
             inp.frame_index, self.mode, z, belief, p_s=sem.p_s, inside=sem.inside, uncertain=sem.uncertain,
             in_area=sem.in_area, err=geo.err, p_g=geo.p_g, observed=geo.observed, geo_dynamic=geo.dynamic,
-            reproj_err=geo.reproj_err, depth_err=geo.depth_err, pose_dynamic=geo.pose_dynamic, edge=edge, fused=p,
+            reproj_err=geo.reproj_err, depth_err=geo.depth_err, pose_dynamic=geo.pose_dynamic, widening=geo.widening,
+            edge=edge, fused=p,
             prior=prior, belief_bayes=bel, zone=zone, oim=oim, mask_depth=z_n,
             f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static, timings_ms=_ms(timer))
         return belief
@@ -304,4 +306,4 @@ class EpipolarFilter(_OneModule):
                                scale=scale)  # threshold and sigma at the detection scale
         belief = np.where(geo.observed, np.nan_to_num(geo.p_g), cfg.p_no_observation)
         return belief, dict(err=geo.err, p_g=geo.p_g, observed=geo.observed, geo_dynamic=geo.dynamic,
-                            f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static)
+                            widening=geo.widening, f_found=geo.F is not None, f_matches=geo.n_used, f_static_only=geo.used_static)

@@ -13,6 +13,13 @@ equal priors = r_dyn / (r_dyn + r_static), r_dyn and r_static the shares of matc
 that exceed alpha; ``DynamicsConfig.p_g_exceed`` = 0.7 (1.0 restores the paper; measured: docs/deviations.md,
 ``DynamicsConfig.p_g_exceed``).
 
+Deviation (ours, ``DynamicsConfig.noise_widening``): every threshold of this module (alpha(z) and eq 6's sigma, the
+pose test's reprojection and depth thresholds) is widened in each frame to the noise of that frame's static
+residuals, so that it is at least their ``noise_confidence`` (95 %) quantile (``widening``). alpha(z) keeps its
+depth-adaptive shape; on a sensor whose static residuals are narrower the paper's values hold. Why: on real Kinect
+frames the static residuals are wider than on the synthetic sensor and vary with the motion (blur, the depth image's
+own capture time); the fixed thresholds flagged 30-80 % of static matches and tracking was lost (docs/real_data.md).
+
 Eq 6 as printed is a Gaussian *density* of the error (largest at zero error); our reading
 (docs/design.md#geometric-module-eq-4-6) makes it a probability of being dynamic that is 0 at zero error and grows
 with the error, which is what eq 7 needs. Like alpha, its sigma is
@@ -46,6 +53,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from scipy.stats import chi2
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import depth_sigma, valid_depth
@@ -191,6 +200,34 @@ def pose_residuals(X: np.ndarray, p: np.ndarray, z: np.ndarray, R: np.ndarray, t
     return reproj, dres
 
 
+def widening(r: np.ndarray, threshold: np.ndarray | float, dof: int, cfg: DynamicsConfig = _DEFAULT) -> float:
+    """Noise widening (ours, ``DynamicsConfig.noise_widening``): the factor kappa >= 1 by which a test's threshold
+    grows so that it is at least the ``noise_confidence`` quantile of this frame's static residuals.
+
+        sigma = median(r) / chi_dof^-1(0.5)                  the residuals' robust scale, r ~ sigma chi_dof if static
+        kappa = max(1, sigma chi_dof^-1(noise_confidence) / median(threshold))
+
+    ``r``: residuals of the matches F is fitted on (believed static), each in units of its keypoint's detection scale;
+    ``threshold``: their thresholds in the same units (alpha(z), a fixed alpha, or a scalar); ``dof`` 1 for a distance
+    to a line (eq 5) or a normalised depth residual, 2 for a reprojection error. 1 with fewer than
+    ``f_min_static_matches`` finite residuals, or with ``noise_widening`` off (the paper).
+
+    Why: alpha(z) (0.5-0.9 px) sits at the noise floor of a sharp sensor whose depth and colour are taken at the same
+    instant. On a real Kinect the static residuals are wider and change from frame to frame with the motion (blur, the
+    depth image's own capture time): a fixed threshold then flags most static matches of a fast frame and tracking is
+    lost (measured: docs/real_data.md). Widened, a static match exceeds the threshold with about the same small
+    probability in every frame, and the depth-adaptive shape of alpha(z) (eq 5) is kept."""
+    if not cfg.noise_widening:
+        return 1.0
+    r = np.asarray(r, dtype=np.float64)
+    ok = np.isfinite(r)
+    if int(ok.sum()) < cfg.f_min_static_matches:
+        return 1.0
+    th = np.broadcast_to(np.asarray(threshold, dtype=np.float64), r.shape)[ok]
+    q = np.sqrt(chi2.ppf(cfg.noise_confidence, dof) / chi2.ppf(0.5, dof))
+    return max(1.0, float(q * np.median(r[ok]) / np.median(th)))
+
+
 @dataclass
 class GeometricResult:
     F: np.ndarray | None  # (3, 3) or None (no F: every keypoint is treated as unmatched)
@@ -205,6 +242,8 @@ class GeometricResult:
     reproj_err: np.ndarray | None = None  # (N,) reprojection error (px)
     depth_err: np.ndarray | None = None  # (N,) normalised depth residual
     pose_dynamic: np.ndarray | None = None  # (N,) bool: the pose test's flag (observed keypoints only)
+    # Noise widening (ours, ``widening``) of the thresholds of eq 5, the reprojection and the depth test; 1 = none.
+    widening: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
 def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray, prev_belief: np.ndarray,
@@ -259,25 +298,34 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     if F is None:
         empty.n_used, empty.used_static = int(sel.sum()), used_static
         return empty
-    err[m[:, 0]] = epipolar_error(F, p, q)
+    e_m = epipolar_error(F, p, q)
+    err[m[:, 0]] = e_m
     a = np.broadcast_to(np.asarray(a, dtype=np.float64), (n,))
     scale = np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,))
-    p_g, dyn = geometric_probability(err, a, cfg.sigma * scale if cfg.sigma_at_scale else cfg.sigma, cfg.p_g_exceed)
+    s_fit = scale[m[sel, 0]]
+    k_e = widening(e_m[sel] / s_fit, a[m[sel, 0]] / s_fit, 1, cfg)  # eq 5-6 at this frame's noise (ours)
+    p_g, dyn = geometric_probability(err, a * k_e, k_e * (cfg.sigma * scale if cfg.sigma_at_scale else cfg.sigma),
+                                     cfg.p_g_exceed)
     observed = np.isfinite(err)
+    k_r = k_z = 1.0
     if pose_test:
         zq = z_prev[m[:, 1]]
         has_z = valid_depth(zq)
         X = back_project(q, np.where(has_z, zq, np.nan), K)
         pose = relative_pose(X[sel & has_z], p[sel & has_z], K, cfg, seed)
         if pose is not None:
-            reproj_err[m[:, 0]], depth_err[m[:, 0]] = pose_residuals(X, p, z_cur[m[:, 0]], pose[0], pose[1], K, cfg)
+            r_m, z_m = pose_residuals(X, p, z_cur[m[:, 0]], pose[0], pose[1], K, cfg)
+            reproj_err[m[:, 0]], depth_err[m[:, 0]] = r_m, z_m
+            k_r = widening(r_m[sel] / s_fit, cfg.pose_reproj_px, 2, cfg)
+            k_z = widening(np.abs(z_m[sel]), cfg.pose_depth_sigmas, 1, cfg)
         with np.errstate(invalid="ignore"):
             flag = np.zeros(n, dtype=bool)
             if cfg.pose_reproj_px > 0:
-                flag |= reproj_err > cfg.pose_reproj_px * scale
+                flag |= reproj_err > cfg.pose_reproj_px * scale * k_r
             if cfg.pose_depth_sigmas > 0:
-                flag |= np.abs(depth_err) > cfg.pose_depth_sigmas
+                flag |= np.abs(depth_err) > cfg.pose_depth_sigmas * k_z
         pose_dyn = observed & flag
         p_g = np.where(pose_dyn, np.maximum(p_g, cfg.p_pose_exceed), p_g)
         dyn = dyn | pose_dyn
-    return GeometricResult(F, int(sel.sum()), used_static, err, p_g, observed, dyn, reproj_err, depth_err, pose_dyn)
+    return GeometricResult(F, int(sel.sum()), used_static, err, p_g, observed, dyn, reproj_err, depth_err, pose_dyn,
+                           (k_e, k_r, k_z))

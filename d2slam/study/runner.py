@@ -148,6 +148,7 @@ def run_row(spec: RunSpec, record: RunRecord, wall_s: float, features_cached: bo
     and timings (columns: :data:`d2slam.study.tables.RUN_COLUMNS`)."""
     return {**base_row(spec), "loop_closing": int(record.loop_closing), "status": record.status,
             "error": record.error, "repeats": record.repeats, "config_hash": record.config_hash,
+            "tracked_share": record.tracked_share, "fragment": int(record.fragment),
             **(_engine_columns(record, features_cached) if record.engine is not None else
                {"frames_tracked": record.tracked, "frames_lost": record.lost, "fps": record.fps,
                 "ms_per_frame": record.ms_per_frame}),

@@ -16,8 +16,9 @@ import math
 import numpy as np
 import pandas as pd
 
-from d2slam.config import EvalConfig
+from d2slam.config import DEFAULT, EvalConfig
 from d2slam.outputs import staged_file
+from d2slam.record import is_fragment
 from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, LOOP_SCENARIOS, ORACLE,
                                ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS)
 from d2slam.study.improvement import improvement, improvement_table, metric_matrix  # noqa: F401 - the tables' API
@@ -31,12 +32,15 @@ OUTCOME_COLUMNS = ["status", "error", "deterministic", "repeats", "config_hash"]
 METRIC_COLUMNS = ["ate_rmse_m", "rpe_trans_m", "rpe_rot_deg"]
 RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp_recall", "kp_f1",
                                    "kp_static_precision", "kp_object_recall", "kp_object_keypoints", "frames_tracked",
-                                   "frames_lost", "keyframes", "map_points", "loops", "loops_true", "loops_false",
-                                   "loop_closest_ratio"]
-# loops: detected by the engine's loop closing, true / false against the ground truth; loop_closest_ratio: the score
-# of the wrong place-recognition candidate that went furthest over its keyframe's minimum score (d2slam.eval.loops).
+                                   "frames_lost", "tracked_share", "fragment", "keyframes", "map_points", "loops",
+                                   "loops_true", "loops_false", "loop_closest_ratio"]
+# tracked_share: frames_tracked over the frames the run went through (``frames`` is the grid's, 0 = all); fragment:
+# 1 when that share is below EvalConfig.min_tracked_share (d2slam.record.is_fragment: its errors are over the tracked
+# part only). loops: detected by the engine's loop closing, true / false against the ground truth; loop_closest_ratio:
+# the score of the wrong place-recognition candidate that went furthest over its keyframe's minimum score
+# (d2slam.eval.loops).
 OPTIONAL_COLUMNS = ["kp_object_recall", "kp_object_keypoints", "loop_closing", "loops", "loops_true", "loops_false",
-                    "loop_closest_ratio"]
+                    "loop_closest_ratio", "tracked_share", "fragment"]
 # features_cached = 1: the run read the sequence's features extracted by an earlier run (its ms_extract and fps count
 # the extraction time stored with them, d2slam.slam.features).
 TIMING_COLUMNS = ["fps", "ms_per_frame", "ms_load", "ms_segment", "ms_extract", "ms_filter", "ms_track",
@@ -129,22 +133,31 @@ def write_summary_csv(summary: pd.DataFrame, path) -> None:
 # ------------------------------------------------------------------------------------------------------------
 # Paper-format tables
 # ------------------------------------------------------------------------------------------------------------
-TRACKED_FLAG = 0.9  # cells of runs that tracked less than this fraction of the frames (median over seeds) get a dagger
+# Cells whose runs tracked less than this share of their frames (median over seeds; d2slam.record.is_fragment) get a
+# dagger: EvalConfig.min_tracked_share, the rule `d2slam run` applies to one run.
+TRACKED_FLAG = DEFAULT.evaluation.min_tracked_share
 DAGGER = " †"
-DAGGER_NOTE = ("† the method tracked fewer than 90 % of the frames (median over seeds): its errors are over a "
-               "shorter trajectory (see the tracking table).")
+DAGGER_NOTE = (f"† the method tracked fewer than {100 * TRACKED_FLAG:g} % of the frames (median over seeds): its "
+               "errors are over a shorter trajectory (see the tracking table).")
+
+
+def tracked_shares(g: pd.DataFrame) -> np.ndarray:
+    """Each run's share of its frames tracked: its ``tracked_share``, else (a study made before that column)
+    frames_tracked / frames when the grid gave a frame count (NaN: unknown)."""
+    share = g["tracked_share"].to_numpy(np.float64)
+    frames = g["frames"].to_numpy(np.float64)
+    old = g["frames_tracked"].to_numpy(np.float64) / np.where(frames > 0, frames, np.nan)
+    return np.where(np.isfinite(share), share, old)
 
 
 def tracked_fraction(df: pd.DataFrame, scenario: str, method: str, twin: int = 0) -> float:
-    """Median over seeds of frames_tracked / frames (NaN when no run recorded it)."""
+    """Median over seeds of the share of frames tracked (:func:`tracked_shares`; NaN when no run recorded it)."""
     g = df[(df["scenario"] == scenario) & (df["method"] == method) & (df["twin"] == twin)]
-    v = g["frames_tracked"].to_numpy(np.float64) / np.maximum(g["frames"].to_numpy(np.float64), 1)
-    return _nanmedian(v)
+    return _nanmedian(tracked_shares(g))
 
 
 def _flag(df, scenario, method, twin=0) -> str:
-    f = tracked_fraction(df, scenario, method, twin)
-    return DAGGER if math.isfinite(f) and f < TRACKED_FLAG else ""
+    return DAGGER if is_fragment(tracked_fraction(df, scenario, method, twin), TRACKED_FLAG) else ""
 
 
 def _fmt_imp(cell) -> str:
@@ -480,7 +493,7 @@ def tracking_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str
             r = [LABELS.get(s, s) + (" twin" if twin else "")]
             for m in ms:
                 g = d[(d["scenario"] == s) & (d["method"] == m)]
-                v = 100.0 * g["frames_tracked"].to_numpy(np.float64) / np.maximum(g["frames"].to_numpy(np.float64), 1)
+                v = 100.0 * tracked_shares(g)
                 v = v[np.isfinite(v)]
                 r.append(f"{np.median(v):.0f}" if len(v) else "")
             rows.append(r)
@@ -656,7 +669,7 @@ def baseline_comparison(df: pd.DataFrame, methods: tuple = BASELINE_METHODS) -> 
             g = d[(d["scenario"] == s) & (d["method"] == m)]
             if g.empty:
                 continue
-            tracked = 100.0 * g["frames_tracked"].to_numpy(np.float64) / np.maximum(g["frames"].to_numpy(np.float64), 1)
+            tracked = 100.0 * tracked_shares(g)
             rows.append({"scenario": LABELS.get(s, s), "method": m,
                          "ATE m": spread_cell(g["ate_rmse_m"].to_numpy(np.float64), 4),
                          "RPE m": spread_cell(g["rpe_trans_m"].to_numpy(np.float64), 4),
