@@ -603,7 +603,7 @@ class EngineConfig(_Checked):
     loop_common_words: float = within(0.8, 0.0, 1.0)
     loop_group_size: int = within(10, 0, 1000)
     loop_group_ratio: float = within(0.75, 0.0, 1.0)
-    loop_consistency: int = within(3, 1, 1000)
+    loop_consistency: int = within(3, 0, 1000)
     # Geometry (ORB-SLAM3 Sim3 with the scale fixed for RGB-D): the keyframe's static keypoints with depth matched
     # (2-NN, ratio loop_nn_ratio, Hamming <= desc_th_low) to the points of the candidate and its loop_window best
     # covisibles; 3-point RANSAC of the rigid transform (loop_ransac_iterations, seeded), inliers by the reprojection

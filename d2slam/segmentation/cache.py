@@ -401,7 +401,7 @@ class CachedSegmenter:
             except OSError as exc:
                 raise D2SlamError(f"cannot write the mask cache ({exc.strerror or exc}); set $D2SLAM_CACHE to a "
                                   "writable folder", path=self.dir) from None
-            remove_stale_temps(self.dir, ".tmp-*")  # what a killed process was writing
+            remove_stale_temps(self.dir)  # what a killed process was writing (the mask file, meta.json)
             self._write_meta()
             path = self.dir / STORE_NAME
             fresh = not path.exists()

@@ -237,7 +237,7 @@ def remove_stale_temps(options: dict, out: Path | None = None) -> list[Path]:
 
     outs = [] if out is None else [p for d in ("", "runs", "trajectories", "plots") for p in remove(Path(out) / d)]
     return (sequences.remove_stale_temps(options.get("cache_root")) + remove(features_dir(options))
-            + remove(cache_dir("masks"), "*/*/.tmp-*") + outs)
+            + remove(cache_dir("masks"), "*/*/*.tmp-*") + outs)
 
 
 def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
