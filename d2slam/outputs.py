@@ -25,7 +25,6 @@ study's output folder take it.
 
 from __future__ import annotations
 
-import errno
 import fcntl
 import os
 import re

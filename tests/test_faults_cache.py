@@ -8,14 +8,12 @@ as a new process would."""
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import shutil
 import sys
 import warnings
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from d2slam.cli import main
@@ -134,6 +132,9 @@ def test_vocabulary_text(world, reference, tmp_path, capsys, how):
     text = world.cache / "vocab" / "d2slam_orbvoc.txt"
     before = text.read_bytes()
     _damage(text, how)
+    code = main(["vocab", "check"])  # found beforehand: a malformed file (2) or one that is not its build's (1)
+    cap = capsys.readouterr()
+    assert code in (1, 2) and str(text) in cap.out + cap.err and "Traceback" not in cap.err
     err = _run(world.seq, tmp_path / "t.txt", capsys)
     _said(err, "vocabulary", text)
     assert text.read_bytes() == before and (tmp_path / "t.txt").read_bytes() == reference["loops"]

@@ -12,12 +12,9 @@ from __future__ import annotations
 
 import hashlib
 import json
-import shutil
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
-import pytest
 
 
 def _tree(folder: Path, skip: tuple[str, ...] = ()) -> dict[str, str]:

@@ -53,14 +53,24 @@ def _build(args) -> int:
 
 
 def _check(args) -> int:
-    from d2slam.baselines.vocab import Vocabulary, resolve_vocabulary
+    from d2slam.baselines.vocab import Vocabulary, default_vocab_path, manifest_path, resolve_vocabulary
 
     info = resolve_vocabulary(args.path, build=False)
     v = Vocabulary.load(info["path"])
     import numpy as np
 
-    from d2slam.cachefiles import Damaged
+    from d2slam.cachefiles import Damaged, read_json
     from d2slam.slam.orb_vocabulary import _npz_path, read_bow
+
+    if Path(info["path"]) == default_vocab_path().resolve():  # the cache's: it must be the file its build wrote
+        try:
+            recorded = read_json(manifest_path(info["path"])).get("sha256")
+        except (FileNotFoundError, Damaged) as exc:
+            recorded = f"unreadable manifest ({exc})"
+        if recorded != info["sha256"]:
+            print(f"{info['path']}: damaged (its sha256 is not the one its manifest recorded: {recorded}): the next "
+                  "run builds it again (`d2slam cache check --fix` removes it now)")
+            return 1
 
     counts = np.bincount(v.depth()[v.is_leaf])
     depths = {d: int(c) for d, c in enumerate(counts) if c}
