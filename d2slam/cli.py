@@ -22,6 +22,7 @@ COMMANDS = [
     "eval",
     "study",
     "docs",
+    "cache",
 ]
 
 

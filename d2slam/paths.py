@@ -14,13 +14,36 @@ def shared_dir() -> Path:
     return Path(env).expanduser().resolve() if env else (REPO_ROOT.parent / "shared").resolve()
 
 
-def cache_dir(*parts: str) -> Path:
-    """``$D2SLAM_CACHE`` or ``~/.cache/d2slam``, created on demand (derived files: sequences, masks, vocabularies)."""
+def cache_root() -> Path:
+    """``$D2SLAM_CACHE`` or ``~/.cache/d2slam`` (not created)."""
     env = os.environ.get("D2SLAM_CACHE")
-    root = Path(env).expanduser() if env else Path.home() / ".cache" / "d2slam"
-    path = root.joinpath(*parts)
-    path.mkdir(parents=True, exist_ok=True)
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "d2slam"
+
+
+def cache_dir(*parts: str) -> Path:
+    """``$D2SLAM_CACHE`` or ``~/.cache/d2slam``, created on demand (derived files: sequences, masks, vocabularies).
+    A cache that cannot be created (a file in the way, a read-only parent) is a one-line ``D2SlamError``."""
+    path = cache_root().joinpath(*parts)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        from d2slam.errors import D2SlamError
+
+        raise D2SlamError(f"cannot create the cache folder ({exc.strerror or exc}); set $D2SLAM_CACHE to a writable "
+                          "folder", path=path) from None
     return path
+
+
+#: The folders of the cache that d2slam manages (what it reads back and rebuilds), with what they hold: no command
+#: writes a user's output there (``d2slam.outputs.check_outputs``). Other folders of the cache (``demo``, ``bench``)
+#: hold outputs.
+MANAGED_CACHE = (("masks", "the mask cache"), ("vocab", "the vocabulary cache"), ("assets", "the asset cache"),
+                 ("study/sequences", "the sequence cache"), ("study/features", "the feature cache"))
+
+
+def managed_cache_dirs() -> list[tuple[Path, str]]:
+    """``(folder, what it is)`` of :data:`MANAGED_CACHE` under the cache (which need not exist)."""
+    return [(cache_root() / rel, what) for rel, what in MANAGED_CACHE]
 
 
 def checkout_root() -> Path | None:

@@ -14,3 +14,78 @@ def assets_kept(monkeypatch):
 
     model = asset_path(INT8_MODEL)
     monkeypatch.setenv("D2SLAM_SHARED", str(model.parents[1]))
+
+
+class FaultWorld:
+    """A cache of its own (``cache``) holding a short synthetic sequence (``seq``: sitting_static, seed 3, 6 frames,
+    in the study's sequence cache) and a copy of the user's vocabulary; ``run`` starts ``d2slam`` (or a fault hook
+    around it: ``tests/fault_hook.py``) in a child process on that cache, ``env`` sets it in this one."""
+
+    SCENARIO, SEED, FRAMES = "sitting_static", 3, 6
+
+    def __init__(self, root, shared):
+        import os
+        import sys
+        from pathlib import Path
+
+        self.root, self.cache, self.shared = Path(root), Path(root) / "cache", str(shared)
+        self.python = sys.executable
+        self.repo = Path(__file__).resolve().parent.parent
+        self.child_env = {**os.environ, "D2SLAM_CACHE": str(self.cache), "D2SLAM_SHARED": self.shared,
+                          "PYTHONPATH": os.pathsep.join(filter(None, [str(self.repo), os.environ.get("PYTHONPATH")])),
+                          "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                          "PYTHONHASHSEED": "0"}
+        self.seq = None
+
+    def env(self, monkeypatch, cache=None) -> None:
+        """This process reads and writes ``cache`` (default the world's) with the shared assets visible."""
+        monkeypatch.setenv("D2SLAM_CACHE", str(cache or self.cache))
+        monkeypatch.setenv("D2SLAM_SHARED", self.shared)
+
+    def start(self, *args, hook=None, cache=None, **popen):
+        """``d2slam ARGS`` started in a child process (``hook``: (target, n, action[, match]) of
+        tests/fault_hook.py; ``args`` may start with ``--python`` CODE); returns the Popen (text pipes)."""
+        import subprocess
+
+        env = dict(self.child_env, **({"D2SLAM_CACHE": str(cache)} if cache else {}))
+        if hook:
+            head = [self.python, str(self.repo / "tests" / "fault_hook.py"), *map(str, hook), "--"]
+        elif args[:1] == ("--python",):
+            head, args = [self.python, "-c"], args[1:]
+        else:
+            head = [self.python, "-m", "d2slam.cli"]
+        return subprocess.Popen(head + [str(a) for a in args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, env=env, **popen)
+
+    @staticmethod
+    def wait(proc, timeout=300):
+        """The CompletedProcess of a child :meth:`start` began."""
+        import subprocess
+
+        out, err = proc.communicate(timeout=timeout)
+        return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+    def run(self, *args, timeout=300, **kwargs):
+        """:meth:`start`, then :meth:`wait`."""
+        return self.wait(self.start(*args, **kwargs), timeout)
+
+
+@pytest.fixture(scope="session")
+def fault_world(tmp_path_factory):
+    """The world of the fault-injection tests (tests/test_faults_*.py): see :class:`FaultWorld`."""
+    import shutil
+
+    from d2slam.assets import INT8_MODEL, asset_path
+    from d2slam.paths import cache_root
+
+    user_vocab = cache_root() / "vocab"
+    world = FaultWorld(tmp_path_factory.mktemp("faults"), asset_path(INT8_MODEL).parents[1])
+    if (user_vocab / "d2slam_orbvoc.txt").is_file():  # spares building it (if stale, it is built on first use)
+        shutil.copytree(user_vocab, world.cache / "vocab",
+                        ignore=shutil.ignore_patterns("*.lock", "*.tmp-*", "*.part"))
+    with pytest.MonkeyPatch.context() as mp:
+        world.env(mp)
+        from d2slam.study.sequences import ensure_sequence
+
+        world.seq = ensure_sequence(world.SCENARIO, world.SEED, world.FRAMES, progress=False)
+    return world

@@ -303,11 +303,11 @@ def test_edge_band_flags_unobserved_keypoints_just_outside_the_mask():
 
 
 def test_edge_band_bad_settings_are_clear_errors():
-    for cfg, what in ((DynamicsConfig(flow_edge_p=1.5), "flow_edge_p"),
-                      (DynamicsConfig(flow_edge_band=float("nan")), "flow_edge_band")):
+    """Refused when the config is built (its range), used by a filter or not."""
+    for kwargs, what in (({"flow_edge_p": 1.5}, r"dynamics.flow_edge_p = 1.5 .*\[0, 1\]"),
+                         ({"flow_edge_band": float("nan")}, r"dynamics.flow_edge_band = nan .*finite")):
         with pytest.raises(D2SlamError, match=what):
-            get_filter("d2slam-flow", cfg)
-        get_filter("d2slam", cfg)  # unused without flow
+            DynamicsConfig(**kwargs)
 
 
 def test_flow_area_option():
@@ -360,6 +360,5 @@ def test_property_flow_mode_on_random_images(seed, n, k, same, flat):
 
 
 def test_unknown_flow_area_is_a_clear_error():
-    with pytest.raises(D2SlamError, match="flow_area"):
-        get_filter("d2slam-flow", DynamicsConfig(flow_area="inside"))
-    get_filter("d2slam", DynamicsConfig(flow_area="inside"))  # unused without flow
+    with pytest.raises(D2SlamError, match="dynamics.flow_area = 'inside' .*'all', 'matched', 'outside'"):
+        DynamicsConfig(flow_area="inside")  # refused when the config is built, used by a filter or not

@@ -124,12 +124,14 @@ def test_boundary_band_and_keypoints_in():
 
 def test_bad_input_is_a_one_line_error():
     rgb, depth, masks = _scene()
-    with pytest.raises(D2SlamError, match="unknown mask fill"):
+    with pytest.raises(D2SlamError, match="masking.fill = 'magic' is out of range: one of 'black'"):
         M.mask_frame(rgb, depth, masks, _cfg(fill="magic"))
     with pytest.raises(D2SlamError, match="do not match"):
         M.mask_frame(rgb, depth, masks[:, :100], _cfg())
-    with pytest.raises(D2SlamError, match="dilation"):
+    with pytest.raises(D2SlamError, match=r"masking.dilate_px = -1 is out of range: an integer in \[0, 1000\]"):
         M.mask_frame(rgb, depth, masks, _cfg(dilate_px=-1))
+    with pytest.raises(D2SlamError, match="dilation"):
+        M.dilate(masks[0], -1)
     with pytest.raises(D2SlamError, match="uint8"):
         M.mask_frame(rgb.astype(np.float32), depth, masks, _cfg())
     with pytest.raises(D2SlamError, match="uint8"):

@@ -12,6 +12,7 @@ import pytest
 
 from d2slam.baselines import orbslam3 as O
 from d2slam.baselines import vocab as V
+from d2slam.cachefiles import sha256_file
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence, read_tum_trajectory
 from d2slam.data.intrinsics import FREIBURG3
@@ -109,7 +110,7 @@ def test_built_vocabulary_loads_in_orbslam3_and_tracks(tmp_path, seq_dir, built_
     assert run["vocabulary"]["kind"] == "built" and run["vocabulary"]["path"] == str(built_vocab.resolve())
     assert run["ms_per_frame"] > 0 and run["fps"] > 0 and run["method"] == "orbslam3"
     saved = json.loads((tmp_path / "run.json").read_text())
-    assert saved["status"] == "ok" and saved["vocabulary"]["sha256"] == V._sha256_file(built_vocab)
+    assert saved["status"] == "ok" and saved["vocabulary"]["sha256"] == sha256_file(built_vocab)
     traj = read_tum_trajectory(out)
     assert len(traj) == 36 and run["trajectory_source"] == "SaveTrajectoryTUM"
     # T_world_camera from the identity: the camera moves by -shift * z / f

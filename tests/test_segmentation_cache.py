@@ -140,6 +140,70 @@ def test_sequence_identity(tmp_path, seq):
     assert sequence_key(RgbListSequence(seq.root)) != key
 
 
+def _backdate(root: Path, seconds: float = 10.0) -> None:
+    """Every file of ``root`` modified ``seconds`` ago (past the memo's mtime window)."""
+    import os
+    import time
+
+    t = time.time_ns() - int(seconds * 1e9)
+    for p in root.rglob("*"):
+        os.utime(p, ns=(t, t))
+
+
+def test_replaced_images_get_a_new_key_touched_ones_keep_it(seq, monkeypatch):
+    """The key covers the images' bytes: replacing an image (same rgb.txt, same size even) is another sequence, its
+    masks segmented again; touching or copying them back (same bytes, new times) keeps the key and the masks. The
+    cheap digest (names, sizes, times) spares the hashing when nothing changed."""
+    import d2slam.segmentation.cache as SC
+
+    _backdate(seq.root)
+    key = sequence_key(seq)
+    hashed = []
+    real = SC.sha256_file
+    monkeypatch.setattr(SC, "sha256_file", lambda p: hashed.append(p) or real(p))
+    assert sequence_key(seq) == key and hashed == []  # the memo: nothing read
+    img = sorted((seq.root / "rgb").iterdir())[1]
+    before = img.read_bytes()
+    fresh = np.random.default_rng(9).integers(0, 256, (H, W, 3), dtype=np.uint8)
+    cv2.imwrite(str(img), fresh)
+    assert sequence_key(seq) != key and len(hashed) == 4  # replaced: hashed in full, another key
+    seg = CountingSegmenter()
+    CachedSegmenter(seg, seq).fill(progress=False)
+    assert seg.calls == 4  # not the old masks
+    img.write_bytes(before)  # the old bytes back, with a new time
+    assert sequence_key(seq) == key
+
+
+def test_a_memo_written_within_the_mtime_window_is_not_trusted(seq, monkeypatch):
+    """Images modified just before the memo was written are hashed again next time (a coarse file system could
+    hide a change within that window); past the window the memo is trusted."""
+    import d2slam.segmentation.cache as SC
+
+    key = sequence_key(seq)  # the images were written just now
+    hashed = []
+    real = SC.sha256_file
+    monkeypatch.setattr(SC, "sha256_file", lambda p: hashed.append(p) or real(p))
+    assert sequence_key(seq) == key and len(hashed) == 4
+    _backdate(seq.root)
+    hashed.clear()
+    assert sequence_key(seq) == key and len(hashed) == 4  # new times: hashed, same content, memo rewritten
+    hashed.clear()
+    assert sequence_key(seq) == key and hashed == []
+
+
+def test_a_damaged_memo_is_said_and_remade(seq, capsys):
+    from d2slam.paths import cache_dir
+
+    _backdate(seq.root)
+    key = sequence_key(seq)
+    (memo,) = cache_dir("masks", "stamps").glob("*.json")
+    memo.write_bytes(memo.read_bytes()[:20])
+    assert sequence_key(seq) == key
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"d2slam: damaged mask cache memo {memo} (")
+    assert sequence_key(seq) == key and capsys.readouterr().err == ""
+
+
 def test_real_segmenter_key_has_model_hash_and_mask_config(real_assets):
     m384, m256 = real_assets["m384"], real_assets["m256"]
     a = get_segmenter("onnx", model=m384)
@@ -154,8 +218,8 @@ def test_real_segmenter_key_has_model_hash_and_mask_config(real_assets):
     assert segmenter_key(e) == segmenter_key(a)  # nor how often the cache file is written
 
 
-@pytest.mark.parametrize("damage", ["garbage", "truncate", "empty", "wrong_arrays"])
-def test_corrupt_cache_file_is_recomputed_with_a_warning(seq, damage):
+@pytest.mark.parametrize("damage", ["garbage", "truncate", "empty", "wrong_arrays", "bitflip"])
+def test_damaged_cache_file_is_recomputed_with_one_line(seq, damage, capsys):
     seg = CountingSegmenter()
     cached = CachedSegmenter(seg, seq)
     cached.fill(progress=False)
@@ -167,14 +231,23 @@ def test_corrupt_cache_file_is_recomputed_with_a_warning(seq, damage):
         path.write_bytes(path.read_bytes()[:40])
     elif damage == "empty":
         path.write_bytes(b"")
+    elif damage == "bitflip":
+        blob = bytearray(path.read_bytes())
+        blob[len(blob) // 2] ^= 0x10
+        path.write_bytes(bytes(blob))
     else:  # a readable file whose arrays disagree: two frames, one instance range
         shape, frames = read_store(path)
         with np.load(path) as z:
             arrays = dict(z)
         arrays["first"] = arrays["first"][:2]
         np.savez(path, **arrays)
-    with pytest.warns(UserWarning, match=f"{path.name}.*corrupt mask cache file"):
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no raw Python warning
         fresh = CachedSegmenter(seg, seq)
+    err = capsys.readouterr().err
+    assert err.startswith(f"d2slam: damaged mask cache file {path} (") and err.count("\n") == 1
+    assert err.endswith("): segmenting its frames again\n")
     assert fresh.recovered == 1
     got = fresh.instances(2)
     assert seg.calls == 5 and fresh.misses == 1
@@ -408,8 +481,8 @@ def test_segment_command_fills_the_cache_once(tmp_path, capsys, real_assets, mon
     second = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (second["segmented"], second["cached_before"]) == (0, 2)
     seq = RgbListSequence(root)
-    for p in seq.rgb_paths:  # from now on only the cache can answer
-        p.unlink()
+    # from now on only the cache can answer: reading a frame fails (the images stay: they are the cache's key)
+    monkeypatch.setattr(RgbListSequence, "__getitem__", lambda self, i: pytest.fail("read a frame"))
     assert [len(masks_for(seq, i, "onnx")) for i in range(2)] == [2, 1]
     direct = get_segmenter("onnx")(cv2.cvtColor(cv2.imread(str(frames[0])), cv2.COLOR_BGR2RGB))
     cached = masks_for(seq, 0, "onnx")
@@ -461,11 +534,11 @@ def test_with_the_project_readers(tmp_path):
     assert seg.calls == 3
 
 
-def test_unwritable_cache_is_a_clear_error(seq):
+def test_unwritable_cache_is_a_clear_error(seq, capsys):
     cached = CachedSegmenter(CountingSegmenter(), seq, flush_frames=1)
     (cached.dir / STORE_NAME).mkdir()  # a folder where the file should go: unreadable, and the write fails
-    with pytest.warns(UserWarning, match="corrupt"), \
-            pytest.raises(D2SlamError, match="cannot write the mask cache.*D2SLAM_CACHE"):
+    with pytest.raises(D2SlamError, match="cannot write the mask cache.*D2SLAM_CACHE"):
         cached.instances(0)
+    assert "damaged mask cache file" in capsys.readouterr().err
     assert not list(cached.dir.glob(".tmp-*"))  # no temporary file left behind
     (cached.dir / STORE_NAME).rmdir()

@@ -14,7 +14,7 @@ import pytest
 from d2slam.study import run_study
 from d2slam.study import tables as T
 from d2slam.study.grid import RunSpec
-from d2slam.study.sequences import MARKER, ensure_sequence
+from d2slam.study.sequences import ensure_sequence
 
 FRAMES = 40
 GRID = dict(scenarios=["sitting_static"], methods=["none", "d2slam"], seeds=[101], frames=FRAMES, twin_methods=())
@@ -84,15 +84,18 @@ def _tables(out) -> list[str]:
 
 
 def test_failed_runs_are_recorded(tmp_path):
-    # a corrupt cached sequence (marked complete, rgb.txt garbage) and an unknown method
+    # a corrupt sequence of the user's (a TUM copy whose rgb.txt is garbage: not the cache's, which would be made
+    # again) and an unknown method
     src = ensure_sequence("sitting_static", 101, FRAMES, False)
-    root = tmp_path / "cache"
-    bad = ensure_sequence.__globals__["sequence_dir"]("sitting_static", 101, FRAMES, False, root=root)
+    tum = tmp_path / "tum"
+    from d2slam.study.grid import TUM_FOLDERS
+
+    bad = tum / TUM_FOLDERS["sitting_static"]
     shutil.copytree(src, bad)
+    (bad / "scene.json").unlink()  # a TUM folder
     (bad / "rgb.txt").write_text("# header\n1.0 rgb/missing.png\nnot-a-number rgb/x.png\n")
-    assert (bad / MARKER).is_file()
     res = run_study(tmp_path / "out", scenarios=["sitting_static"], methods=["none", "no-such-method"], seeds=[101],
-                    frames=FRAMES, twin_methods=(), cache_root=root, progress=False, plots=False)
+                    frames=FRAMES, twin_methods=(), tum_root=tum, progress=False, plots=False)
     df = res.runs
     assert len(df) == 2 and (df["status"] == "failed").all()
     assert "rgb.txt" in df.loc[0, "error"]  # the error names the corrupt file

@@ -229,11 +229,15 @@ def test_a_second_builder_waits_for_the_first(tmp_path, capsys):
     out = tmp_path / "v.txt"
     entered = threading.Event()
 
+    def lock():  # the build's lock (d2slam.outputs.file_lock)
+        return V.file_lock(out.with_name(out.name + ".lock"),
+                           waiting=f"vocabulary: another process is building {out}; waiting for it")
+
     def second():
-        with V._build_lock(out):
+        with lock():
             entered.set()
 
-    with V._build_lock(out):
+    with lock():
         t = threading.Thread(target=second)
         t.start()
         assert not entered.wait(0.5)  # blocked while the first holds the lock

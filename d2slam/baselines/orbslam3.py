@@ -595,17 +595,14 @@ def _frame_store_root(seq, n_frames: int, repeats: int, config: Config, work_roo
 
 def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool) -> str:
     """Check that the ``kind`` masks of the first ``n_frames`` frames can be had before ORB-SLAM3 starts (a clear
-    :class:`D2SlamError` otherwise: no ``mask_sim/`` on a real sequence, no ONNX model, a fill name unknown); the
+    :class:`D2SlamError` otherwise: no ``mask_sim/`` on a real sequence, no ONNX model; the fill and dilation are
+    checked by ``MaskingConfig``'s ranges); the
     ``onnx`` ones are segmented into the mask cache here (announced, :func:`d2slam.segmentation.masks_origin`), so
     the worker only reads them. Returns where the masks come from."""
-    from d2slam.baselines.masking import FILLS, dilate
     from d2slam.segmentation import KINDS, masks_for, masks_origin
 
     if kind not in KINDS:
         raise D2SlamError(f"unknown masks {kind!r}; choose one of {', '.join(KINDS)}")
-    if config.masking.fill not in FILLS:
-        raise D2SlamError(f"unknown mask fill {config.masking.fill!r}; choose one of {', '.join(FILLS)}")
-    dilate(np.zeros((1, 1), bool), config.masking.dilate_px)  # a negative dilation is an error
     if kind != "onnx" and n_frames:
         masks_for(seq, 0, kind, config)  # the label folder is there
     return masks_origin(seq, kind, config, frames=n_frames, progress=progress)
@@ -685,9 +682,11 @@ def _finish(result: dict, metrics_json, config: Config) -> dict:
         result.update(fragment_fields(result["tracked"], result.get("frames"), config.evaluation.min_tracked_share))
     result["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     if metrics_json:
+        from d2slam.outputs import write_bytes
+
         path = Path(metrics_json)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(result, indent=2, default=_json_default))
+        write_bytes(path, json.dumps(result, indent=2, default=_json_default))
     return result
 
 

@@ -35,8 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
+from d2slam.cachefiles import Damaged, folder_manifest, folder_problems, read_json, report_damaged, sha256_file
 from d2slam.config import DEFAULT, BaselineConfig, OrbConfig
 from d2slam.errors import D2SlamError, read_text
+from d2slam.outputs import file_lock, remove_stale_temps, staged_dir, write_bytes
 from d2slam.slam.matching import hamming
 
 DESCRIPTOR_BYTES = 32
@@ -182,12 +184,12 @@ class Vocabulary:
 
     def save(self, path: str | Path) -> str:
         """Write the text file (atomically) and return its sha256."""
+        from d2slam.outputs import write_bytes
+
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         data = self.to_text()
-        tmp = path.with_name(path.name + ".part")
-        tmp.write_bytes(data)
-        tmp.replace(path)
+        write_bytes(path, data)
         return hashlib.sha256(data).hexdigest()
 
     @classmethod
@@ -328,14 +330,6 @@ def orb_extractor(orb: OrbConfig = DEFAULT.orb):
                           fastThreshold=orb.fast_threshold)
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _read_gray(path: Path) -> np.ndarray:
     import cv2
 
@@ -402,8 +396,35 @@ def training_jobs(cfg: BaselineConfig = DEFAULT.baseline) -> list[dict]:
         for seed in seeds:
             out = root / f"{scenario}_s{seed}_n{cfg.vocab_train_frames}_every{cfg.vocab_train_stride}"
             jobs.append({"scenario": scenario, "seed": seed, "frames": cfg.vocab_train_frames,
-                         "stride": cfg.vocab_train_stride, "out": str(out), "done": (out / MARKER).is_file()})
+                         "stride": cfg.vocab_train_stride, "out": str(out), "done": not training_problems(out)})
     return jobs
+
+
+def training_problems(out: str | Path, full: bool = False, report: bool = True, adopt: bool = True) -> list[str]:
+    """What is wrong with a job's rendered training frames (empty: nothing): not rendered (no marker), or frames
+    that differ from the marker's manifest (sizes and times, a file whose time changed hashed again; ``full``: every
+    file). A damaged folder is said in one line (``report``) and rendered again by the build. A marker without a
+    manifest (written before markers had one) is given one from the files as they are (``adopt``)."""
+    out = Path(out)
+    marker = out / MARKER
+    try:
+        record = read_json(marker)
+    except FileNotFoundError:
+        return ["not rendered"]
+    except Damaged as exc:
+        problems = [f"{MARKER}: {exc}"]
+    else:
+        if not isinstance(record.get("files"), dict):
+            try:
+                if adopt:
+                    write_bytes(marker, json.dumps({**record, "files": folder_manifest(out, skip=(MARKER,))}))
+            except D2SlamError:
+                pass
+            return []
+        problems = folder_problems(out, record["files"], full=full)
+    if problems and report:
+        report_damaged(out, "vocabulary training frames", "; ".join(problems), "rendering them again")
+    return problems
 
 
 def _n_rendered(jobs: list[dict]) -> int:
@@ -420,6 +441,8 @@ def render_training_frames(jobs: list[dict], cfg: BaselineConfig = DEFAULT.basel
     import sys
 
     total = _n_rendered(jobs)
+    for job in jobs:  # what a killed build left half-rendered
+        remove_stale_temps(Path(job["out"]).parent, f"{Path(job['out']).name}.tmp-*")
     cmd = [sys.executable, "-m", "d2slam.baselines.vocab", "render", json.dumps(jobs)]
     bar = Progress("render training frames", total, progress, cfg.vocab_log_interval_s)
     from d2slam.baselines import child_env
@@ -438,7 +461,7 @@ def render_training_frames(jobs: list[dict], cfg: BaselineConfig = DEFAULT.basel
 
 def _render_main(jobs: list[dict]) -> None:
     """The child of :func:`render_training_frames`: one ``frame`` line on stdout per frame written."""
-    import shutil
+    import os
 
     import cv2
 
@@ -449,24 +472,24 @@ def _render_main(jobs: list[dict]) -> None:
 
     cv2.setNumThreads(1)
     synth = SynthConfig()
+    parent = os.getppid()
     for job in jobs:
         out = Path(job["out"])
-        tmp = out.with_name(out.name + ".part")
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        scene = Scene(job["scenario"], job["seed"], job["frames"], False, synth)
-        renderer = WorldRenderer(scene)
-        try:
-            for i in range(0, job["frames"], job["stride"]):
-                rgb = render_frame(scene, renderer, i)["rgb"]
-                name = stamp(scene.t0 + scene.t_rel[i]) + ".png"
-                _write(tmp / name, rgb, synth.png_compression)
-                print("frame", flush=True)
-        finally:
-            renderer.close()
-        (tmp / MARKER).write_text(json.dumps(job))
-        shutil.rmtree(out, ignore_errors=True)
-        tmp.replace(out)
+        with staged_dir(out) as tmp:  # the previous (damaged) folder is replaced only by a whole new one
+            scene = Scene(job["scenario"], job["seed"], job["frames"], False, synth)
+            renderer = WorldRenderer(scene)
+            try:
+                for i in range(0, job["frames"], job["stride"]):
+                    if os.getppid() != parent:  # the build was killed: stop (the folder is removed)
+                        raise SystemExit(1)
+                    rgb = render_frame(scene, renderer, i)["rgb"]
+                    name = stamp(scene.t0 + scene.t_rel[i]) + ".png"
+                    _write(tmp / name, rgb, synth.png_compression)
+                    print("frame", flush=True)
+            finally:
+                renderer.close()
+            done = {k: v for k, v in job.items() if k != "done"}
+            (tmp / MARKER).write_text(json.dumps({**done, "files": folder_manifest(tmp)}))
 
 
 class Progress:
@@ -551,7 +574,11 @@ def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path
     if not groups and not jobs:
         raise D2SlamError("no training images: give --images-dir or --sequences, or allow the default sources")
     out.parent.mkdir(parents=True, exist_ok=True)
-    with _build_lock(out):
+    with file_lock(out.with_name(out.name + ".lock"),
+                   waiting=f"vocabulary: another process is building {out}; waiting for it"):
+        import glob
+
+        remove_stale_temps(out.parent, f"{glob.escape(out.name)}*.tmp-*")  # what a killed build was writing
         if synthetic and not all(j["done"] for j in jobs):
             jobs = training_jobs(cfg)  # another process may have rendered them while this one waited
         todo = [j for j in jobs if not j["done"]]
@@ -591,7 +618,7 @@ def _request(groups: list, jobs: list[dict], cfg: BaselineConfig, orb: OrbConfig
     for kind, root, files in groups:
         h = hashlib.sha256()
         for f in files:
-            h.update(f"{f.name} {_sha256_file(f)}\n".encode())
+            h.update(f"{f.name} {sha256_file(f)}\n".encode())
         sources.append({"kind": kind, "path": str(root), "images": len(files), "sha256": h.hexdigest()})
     params = {"k": cfg.vocab_k, "L": cfg.vocab_levels, "levelsup": cfg.vocab_levelsup, "scoring": 0,
               "weighting": 0, "seed": cfg.vocab_seed, "max_iter": cfg.vocab_max_iter,
@@ -630,51 +657,30 @@ def _build(out: Path, groups: list, sources: list, params: dict, key: str, cfg: 
                     "total": round(t3 - t0, 3)},
         "d2slam_version": __version__, "cached": False,
     }
-    mpath = manifest_path(out)
-    tmp = mpath.with_name(mpath.name + ".part")
-    tmp.write_text(json.dumps(manifest, indent=2))
-    tmp.replace(mpath)
+    write_bytes(manifest_path(out), json.dumps(manifest, indent=2))
     return manifest
 
 
 def _cached(out: Path, key: str | None, force: bool) -> dict | None:
     """The manifest of ``out`` when it was built from the request ``key`` (any request when None) and the file is
-    unchanged since; None otherwise or with ``force``."""
+    unchanged since; None otherwise or with ``force``. A vocabulary that no longer matches the sha256 its manifest
+    recorded (or whose manifest cannot be read) is damaged: said in one line, and built again by the caller."""
     mpath = manifest_path(out)
     if force or not out.is_file() or not mpath.is_file():
         return None
     try:
-        old = json.loads(mpath.read_text())
-    except (OSError, json.JSONDecodeError):
+        old = read_json(mpath)
+    except Damaged as exc:
+        report_damaged(mpath, "vocabulary manifest", exc, "building the vocabulary again")
         return None
-    if (key is None or old.get("key") == key) and old.get("sha256") == _sha256_file(out):
+    if old.get("sha256") != sha256_file(out):
+        report_damaged(out, "vocabulary", "its sha256 is not the one its manifest recorded",
+                       "building it again")
+        return None
+    if key is None or old.get("key") == key:
         old["cached"] = True
         return old
     return None
-
-
-class _build_lock:
-    """An exclusive lock on ``VOCAB.txt.lock`` while a vocabulary is built; a process that has to wait says so."""
-
-    def __init__(self, out: Path):
-        self.path = out.with_name(out.name + ".lock")
-
-    def __enter__(self):
-        import fcntl
-        import sys
-
-        self.f = open(self.path, "w")
-        try:
-            fcntl.flock(self.f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            print(f"vocabulary: another process is building {self.path.with_suffix('')}; waiting for it",
-                  file=sys.stderr, flush=True)
-            fcntl.flock(self.f, fcntl.LOCK_EX)
-        return self
-
-    def __exit__(self, *exc):
-        self.f.close()  # releases the lock
-        return False
 
 
 # --------------------------------------------------------------------------------------------------
@@ -708,14 +714,14 @@ def resolve_vocabulary(path: str | Path | None = None, build: bool = True, progr
     chosen = chosen.expanduser().resolve()
     if not chosen.is_file():
         check_vocabulary_file(chosen)  # the reader's one-line error
-    sha = _sha256_file(chosen)
+    sha = sha256_file(chosen)
     kind = "external"
     mpath = manifest_path(chosen)
     if mpath.is_file():
         try:
-            if json.loads(mpath.read_text()).get("sha256") == sha:
+            if read_json(mpath).get("sha256") == sha:
                 kind = "built"
-        except (OSError, json.JSONDecodeError):
+        except Damaged:  # checked as any other file below
             pass
     if kind != "built" and (str(chosen), sha) not in _CHECKED:
         check_vocabulary_file(chosen)

@@ -26,10 +26,11 @@ def run(args) -> int:
 
     from d2slam.data import read_tum_trajectory
     from d2slam.eval.trajectory import evaluate
-    from d2slam.outputs import check_output_file
+    from d2slam.outputs import check_output_file, check_outputs
 
     if args.plot:
         check_output_file(args.plot, "--plot")
+        check_outputs([("--plot", args.plot)], [("ground truth", args.groundtruth), ("trajectory", args.trajectory)])
     gt_path, gt_folder = ground_truth_file(Path(args.groundtruth), Path(args.trajectory))
     gt = read_tum_trajectory(gt_path)
     est = read_tum_trajectory(args.trajectory)

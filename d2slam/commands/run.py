@@ -61,6 +61,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     import dataclasses
+    import glob
     import json
     from pathlib import Path
 
@@ -69,7 +70,7 @@ def run(args) -> int:
     from d2slam.data.intrinsics import is_camera_file, read_camera_file
     from d2slam.errors import D2SlamError
     from d2slam.methods import get_method, run_method
-    from d2slam.outputs import check_output_file
+    from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
     from d2slam.pipeline import STAGES
     from d2slam.record import fragment_fields
 
@@ -77,6 +78,10 @@ def run(args) -> int:
     out = check_output_file(args.out, "--out")
     if args.metrics_json:
         check_output_file(args.metrics_json, "--metrics-json")
+    check_outputs(run_outputs(args, method), run_inputs(args))
+    for path in filter(None, [out, args.metrics_json]):  # what a killed run was writing
+        path = Path(path).expanduser()
+        remove_stale_temps(path.parent, f"{glob.escape(path.name)}.tmp-*")
     camera, camera_source, th_depth = args.camera, None, None
     if is_camera_file(args.camera):
         settings = read_camera_file(args.camera)
@@ -151,9 +156,7 @@ def run(args) -> int:
             record[f"{k}_ms"] = round(run.stage_ms[k], 3)
     record["startup_s"] = round(engine.first_frame_at - process_start(), 3)
     if args.metrics_json:
-        tmp = Path(args.metrics_json).with_name(Path(args.metrics_json).name + ".tmp")
-        tmp.write_text(json.dumps(record, indent=2) + "\n")
-        tmp.replace(args.metrics_json)
+        write_bytes(Path(args.metrics_json).expanduser(), json.dumps(record, indent=2) + "\n")
     if not args.quiet:
         print(f"{seq.name}: {run.lost} lost, {run.keyframes} keyframes, {run.fps:.1f} fps; ms/frame: "
               + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms.items()))
@@ -174,6 +177,30 @@ def run(args) -> int:
                            run.tracked, run.frames, ate, [out, args.metrics_json],
                            ate_note=" (no RPE)" if ate_only is not None else "", min_share=run.min_tracked_share))
     return EXIT_FRAGMENT if run.fragment else 0
+
+
+def run_outputs(args, method) -> list[tuple[str, object]]:
+    """What ``d2slam run`` writes: ``--out``, ``--metrics-json``, and for the real ORB-SLAM3 the files it keeps
+    beside the trajectory (its settings and online poses)."""
+    from pathlib import Path
+
+    out = Path(args.out).expanduser()
+    extra = [] if method.runner is None else [
+        ("--out's ORB-SLAM3 settings", out.with_name(out.stem + ".orbslam3.yaml")),
+        ("--out's online poses", out.with_name(out.stem + ".online.txt"))]
+    return [("--out", out), ("--metrics-json", args.metrics_json)] + extra
+
+
+def run_inputs(args) -> list[tuple[str, object]]:
+    """What ``d2slam run`` reads: the sequence folder, ``--masks-from``, ``--camera FILE``, ``--config``, the
+    vocabulary (``$PYORBSLAM3_VOCAB``)."""
+    import os
+
+    from d2slam.data.intrinsics import is_camera_file
+
+    return [("sequence", args.sequence), ("--masks-from sequence", args.masks_from),
+            ("--camera file", args.camera if is_camera_file(args.camera) else None), ("--config file", args.config),
+            ("vocabulary ($PYORBSLAM3_VOCAB)", os.environ.get("PYORBSLAM3_VOCAB") or None)]
 
 
 def print_orbslam3(run, args) -> int:

@@ -36,14 +36,19 @@ def run(args) -> int:
         if not 0.0 < args.score < 1.0:
             raise D2SlamError(f"--score must be in (0, 1), got {args.score}")
         cfg = dataclasses.replace(cfg, score_threshold=args.score)
-    from d2slam.outputs import check_output_dir
+    from d2slam.outputs import check_output_dir, check_outputs, write_bytes
 
-    if args.overlay:
-        check_output_dir(args.overlay, "--overlay")
     paths = [Path(p) for p in args.inputs]
     dirs = [p for p in paths if p.is_dir()]
     if dirs and len(paths) > 1:
         raise D2SlamError("give either image files or one sequence folder", path=dirs[0])
+    if args.overlay:
+        check_output_dir(args.overlay, "--overlay")
+        images = [("image", p) for p in paths]
+        check_outputs([("--overlay", args.overlay)], images, folders=True)
+        # one overlay per image: none of them an input, no two the same file (two images of one name)
+        check_outputs([(f"the overlay of {p}", overlay_path(args.overlay, p)) for p in paths if not p.is_dir()],
+                      images)
     segmenter = get_segmenter("onnx", config=cfg, model=args.model,
                               allow_unknown_model=True if args.allow_unknown_model else None)
 
@@ -75,9 +80,11 @@ def run(args) -> int:
 
             from d2slam.segmentation.draw import overlay
 
-            target = out_dir / f"{path.stem}_persons.png"
-            if not cv2.imwrite(str(target), cv2.cvtColor(overlay(rgb, persons), cv2.COLOR_RGB2BGR)):
-                raise D2SlamError("cannot write overlay", path=target)
+            target = overlay_path(out_dir, path)
+            ok, png = cv2.imencode(".png", cv2.cvtColor(overlay(rgb, persons), cv2.COLOR_RGB2BGR))
+            if not ok:
+                raise D2SlamError("cannot encode the overlay", path=target)
+            write_bytes(target, png.tobytes())
         if args.json:
             print(json.dumps({"image": str(path), "width": W, "height": H, "model": segmenter.model_path.name,
                               "persons": [{"score": round(p.score, 4), "box": [round(v, 1) for v in p.box],
@@ -89,3 +96,8 @@ def run(args) -> int:
                 print(f"  {i}: score {p.score:.2f}  box {x0:.0f} {y0:.0f} {x1:.0f} {y1:.0f}  "
                       f"area {p.area} px ({100 * p.area / (H * W):.1f} %)")
     return 0
+
+
+def overlay_path(out_dir, image) -> Path:
+    """Where ``--overlay DIR`` puts the overlay of ``image``: ``DIR/<image stem>_persons.png``."""
+    return Path(out_dir) / f"{Path(image).stem}_persons.png"

@@ -68,7 +68,7 @@ def run(args) -> int:
     from d2slam.errors import D2SlamError
     from d2slam.study import grid as G
 
-    from d2slam.outputs import check_output_dir
+    from d2slam.outputs import check_output_dir, check_outputs
 
     out = Path(args.out)
     if args.tables_only:
@@ -84,6 +84,7 @@ def run(args) -> int:
         if not tum_root:
             raise D2SlamError(f"--tum needs ${ENV_TUM} pointing at a TUM RGB-D copy")
     check_output_dir(out, "--out")
+    check_outputs([("--out", out)], [("TUM root", tum_root)], folders=True)
     scenarios = args.scenarios
     if scenarios is None:
         scenarios = G.default_scenarios()

@@ -19,9 +19,10 @@ def register(sub) -> None:
         "byte-identical files.")
     p.add_argument("scenario", choices=SCENARIOS)
     p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder (created; a previous synthetic sequence there is replaced, any other non-empty "
-                   "folder refused). Written into DIR.tmp-PID@HOST beside it and renamed at the end: an interrupted "
-                   "run leaves DIR as it was")
+                   help="output folder (created; a folder holding nothing but a sequence d2slam synth wrote is "
+                   f"replaced, any other non-empty one refused, naming what would be deleted; the sequence's files "
+                   f"are listed in DIR/{OWNER}). Written into DIR.tmp-PID@HOST beside it and renamed at the end: an "
+                   "interrupted run leaves DIR as it was")
     p.add_argument("--frames", type=frames_arg, default=None, help="number of RGB-D frames at 30 Hz (default 300; "
                    "office_loop 1200), or 'tum': the duration of the TUM fr3 sequence of that name (walking_xyz "
                    "28.8 s, ...)")
@@ -57,19 +58,83 @@ def summarise(result: dict) -> str:
     return "\n".join(lines)
 
 
+# The marker ``d2slam synth`` writes into its sequence: the files it wrote (``files``, relative paths) and what it
+# generated. A folder is replaced only when everything in it is listed there.
+OWNER = ".d2slam-synth"
+OWNER_FORMAT = "d2slam-synth-owner/1"
+# A sequence written before the marker existed (``scene.json``, no marker): only the synthetic layout, PNGs in its
+# image folders, counts as the sequence's.
+LAYOUT_FILES = ("rgb.txt", "depth.txt", "groundtruth.txt", "scene.json")
+LAYOUT_DIRS = ("rgb", "depth", "mask_gt", "mask_sim")
+
+
+def _entries(folder: Path) -> tuple[list[str], list[str]]:
+    """(files, folders) under ``folder``, relative, links not followed (a link counts as a file)."""
+    import os
+
+    files, dirs = [], []
+    for top, subdirs, names in os.walk(folder, followlinks=False):
+        rel = Path(top).relative_to(folder)
+        for d in list(subdirs):
+            if (Path(top) / d).is_symlink():
+                subdirs.remove(d)
+                files.append((rel / d).as_posix())
+            else:
+                dirs.append((rel / d).as_posix())
+        files += [(rel / n).as_posix() for n in names]
+    return sorted(files), sorted(dirs)
+
+
+def foreign_entries(folder: Path) -> list[str]:
+    """What replacing ``folder`` would delete that ``d2slam synth`` did not write: everything not listed in its
+    marker (:data:`OWNER`); without a readable marker, everything outside the synthetic layout when it holds
+    ``scene.json`` (a sequence of an earlier version), else everything."""
+    from d2slam.cachefiles import Damaged, read_json
+
+    files, dirs = _entries(folder)
+    try:
+        listed = read_json(folder / OWNER).get("files")
+        ours = set(listed) | {OWNER} if isinstance(listed, list) else None
+    except (FileNotFoundError, Damaged):
+        ours = None
+    if ours is None and (folder / "scene.json").is_file():
+        ours = {f for f in files if f in LAYOUT_FILES or (
+            f.count("/") == 1 and f.split("/")[0] in LAYOUT_DIRS and f.endswith(".png"))}
+    ours = ours or set()
+    holding = {q.as_posix() for f in ours for q in Path(f).parents}  # folders holding some of ours
+    foreign_dirs = [d for d in dirs if d not in holding]
+    top = [d for d in foreign_dirs if not any(Path(d).is_relative_to(o) and d != o for o in foreign_dirs)]
+    inside = lambda f: any(Path(f).is_relative_to(d) for d in top)  # noqa: E731
+    return sorted([d + "/" for d in top] + [f for f in files if f not in ours and not inside(f)])
+
+
 def check_sequence_out(path) -> Path:
-    """``--out`` before any work: a folder that is missing, empty or holds a synthetic sequence (``scene.json``, then
-    replaced); anything else is refused."""
+    """``--out`` before any work: a folder that is missing, empty, or holds nothing but a sequence ``d2slam synth``
+    wrote (then replaced: :func:`foreign_entries` is empty); anything else is refused, naming what would be deleted.
+    Not inside another sequence, the cache's own folders or the shared folder (:func:`d2slam.outputs.check_outputs`)."""
     from d2slam.errors import D2SlamError
-    from d2slam.outputs import check_output_dir
+    from d2slam.outputs import check_output_dir, check_outputs
 
     path = check_output_dir(path, "--out")
     if path.is_symlink():  # write where the link points, not over the link
         path = path.resolve()
-    if path.is_dir() and any(path.iterdir()) and not (path / "scene.json").exists():
-        raise D2SlamError("--out: the folder is not empty and holds no synthetic sequence (scene.json); refusing to "
-                          "overwrite it", path=path)
+    check_outputs([("--out", path)], folders=True, own_sequence=path)
+    if path.is_dir():
+        foreign = foreign_entries(path)
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+            raise D2SlamError(f"--out: the folder holds what d2slam synth did not write ({shown}); replacing it would "
+                              "delete them: move them away or give another --out", path=path)
     return path
+
+
+def write_owner(folder: Path, result: dict) -> None:
+    """The marker of a sequence just generated into ``folder``: every file there, and what was generated."""
+    import json
+
+    files, _ = _entries(folder)
+    what = {k: result[k] for k in ("scenario", "seed", "frames", "static_twin") if k in result}
+    (folder / OWNER).write_text(json.dumps({"format": OWNER_FORMAT, **what, "files": files}, indent=1) + "\n")
 
 
 def run(args) -> int:
@@ -90,5 +155,6 @@ def run(args) -> int:
     with staged_dir(out) as tmp:
         result = generate(args.scenario, tmp, frames=frames, seed=args.seed, static_twin=args.static_twin,
                           workers=args.workers)
+        write_owner(tmp, result)
     print(summarise({**result, "out": out}))
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 
 def register(sub) -> None:
@@ -31,12 +32,14 @@ def register(sub) -> None:
 
 
 def _build(args) -> int:
-    from d2slam.baselines.vocab import build_vocabulary
-    from d2slam.outputs import check_output_file
+    from d2slam.baselines.vocab import build_vocabulary, default_vocab_path, manifest_path
+    from d2slam.outputs import check_output_file, check_outputs
 
-    if args.out:
-        check_output_file(args.out, "--out")
     sequences = [s for group in args.sequences for s in group]
+    if args.out and Path(args.out).expanduser().resolve() != default_vocab_path().resolve():  # the default is ours
+        out = check_output_file(args.out, "--out")
+        check_outputs([("--out", out), ("--out's manifest", manifest_path(out))],
+                      [("--images-dir folder", d) for d in args.images_dir] + [("sequence", q) for q in sequences])
     m = build_vocabulary(args.out, images_dirs=args.images_dir, sequences=sequences,
                          synthetic=not args.no_synthetic, real=not args.no_real, force=args.force)
     state = "cached (identical build)" if m.get("cached") else f"built in {m['seconds']['total']:.1f} s"
@@ -50,14 +53,36 @@ def _build(args) -> int:
 
 
 def _check(args) -> int:
-    from d2slam.baselines.vocab import Vocabulary, resolve_vocabulary
+    from d2slam.baselines.vocab import Vocabulary, default_vocab_path, manifest_path, resolve_vocabulary
 
     info = resolve_vocabulary(args.path, build=False)
     v = Vocabulary.load(info["path"])
     import numpy as np
 
+    from d2slam.cachefiles import Damaged, read_json
+    from d2slam.slam.orb_vocabulary import _npz_path, read_bow
+
+    if Path(info["path"]) == default_vocab_path().resolve():  # the cache's: it must be the file its build wrote
+        try:
+            recorded = read_json(manifest_path(info["path"])).get("sha256")
+        except (FileNotFoundError, Damaged) as exc:
+            recorded = f"unreadable manifest ({exc})"
+        if recorded != info["sha256"]:
+            print(f"{info['path']}: damaged (its sha256 is not the one its manifest recorded: {recorded}): the next "
+                  "run builds it again (`d2slam cache check --fix` removes it now)")
+            return 1
+
     counts = np.bincount(v.depth()[v.is_leaf])
     depths = {d: int(c) for d, c in enumerate(counts) if c}
+    npz = _npz_path(info["path"], info["sha256"])  # what the engine reads instead of the text
+    try:
+        derived = f"; derived for the engine: {npz}" if read_bow(npz) else ""
+    except FileNotFoundError:
+        derived = ""
+    except Damaged as exc:
+        print(f"{npz}: damaged ({exc}): the engine's bag-of-words file derived from {info['path']}; the next run "
+              "derives it again (`d2slam cache check --fix` removes it now)")
+        return 1
     print(f"{info['path']}: ok ({info['kind']}, from {info['source']}), k={v.k} L={v.L}, {v.n_nodes - 1} nodes, "
-          f"{v.n_words} words, words per depth {depths}, sha256 {info['sha256']}")
+          f"{v.n_words} words, words per depth {depths}, sha256 {info['sha256']}{derived}")
     return 0

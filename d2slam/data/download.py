@@ -24,7 +24,6 @@ Without network it fails fast: DNS failure is immediate, connections time out af
 from __future__ import annotations
 
 import gzip
-import hashlib
 import json
 import logging
 import os
@@ -44,6 +43,7 @@ from pathlib import Path, PurePosixPath
 from tqdm import tqdm
 
 from d2slam import __version__
+from d2slam.cachefiles import sha256_file
 from d2slam.config import DEFAULT
 from d2slam.errors import D2SlamError
 from d2slam.paths import cache_dir
@@ -160,18 +160,9 @@ def _save_record(archive: str, sha256: str, size: int, url: str) -> None:
     records = load_records()
     records[archive] = {"sha256": sha256, "size": size, "url": url,
                         "recorded": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    path = record_path()
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(records, indent=1, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    from d2slam.outputs import write_bytes
 
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(CHUNK), b""):
-            h.update(block)
-    return h.hexdigest()
+    write_bytes(record_path(), json.dumps(records, indent=1, sort_keys=True) + "\n")
 
 
 # ------------------------------------------------------------------------------------------------------------------

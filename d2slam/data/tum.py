@@ -29,7 +29,6 @@ sample exactly.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 from typing import Iterator
 
@@ -210,13 +209,9 @@ def write_tum_trajectory(path: str | Path, traj: Trajectory, header: str | None 
         lines += [f"{r[0]:.6f} " + " ".join(f"{v:.9f}" for v in r[1:]) for r in table]
     if not path.parent.is_dir():
         raise D2SlamError("output folder does not exist", path=path.parent)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text("\n".join(lines) + "\n")
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise D2SlamError(f"cannot write: {exc.strerror or exc}", path=path) from None
-    return path
+    from d2slam.outputs import write_bytes
+
+    return write_bytes(path, "\n".join(lines) + "\n")  # whole or not at all; a failed write is one line
 
 
 # ------------------------------------------------------------------------------------------------------------------

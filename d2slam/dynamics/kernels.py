@@ -16,6 +16,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from d2slam.kernel_cache import install as _guard_kernel_cache
+
+_guard_kernel_cache()  # before any kernel is loaded from numba's disk cache
+
 
 @njit(cache=True, nogil=True)
 def edge_rows(img):

@@ -17,6 +17,7 @@ import numpy as np
 
 from d2slam.data.base import Trajectory
 from d2slam.errors import D2SlamError
+from d2slam.outputs import save_figure
 
 # Every method of d2slam.methods and the real ORB-SLAM3 runs; related methods in related hues (ORB-SLAM3 oranges,
 # the D2SLAM variants blues, its ablations purples / greens / yellows). Pairwise CIELAB distance >= 20
@@ -98,5 +99,5 @@ def plot_trajectory(groundtruth: Trajectory, estimate: Trajectory, out: str | Pa
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(out, dpi=100)
+    save_figure(fig, out, dpi=100)
     return out

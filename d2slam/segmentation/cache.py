@@ -3,8 +3,14 @@ millisecond.
 
 Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/masks.npz``, one file per sequence and segmenter:
 
-* sequence key = ``<folder name>-<sha256(resolved root path + sha256(rgb.txt))[:16]>`` (the timestamps when there is no
-  ``rgb.txt``): a moved or edited sequence gets a new key;
+* sequence key = ``<folder name>-<sha256(resolved root path + sha256(rgb.txt) + the images' content)[:16]>`` (the
+  timestamps when there is no ``rgb.txt``): a moved or edited sequence, or one whose images were replaced, gets a
+  new key. The images' content (:func:`images_digest`) is the sha256 of every image listed in ``rgb.txt``, found
+  again cheaply from their names, sizes and modification times (a memo per folder, ``stamps/``); the images are
+  hashed in full when those changed or were never seen, and when the memo was written within
+  ``CliConfig.cache_mtime_window_s`` of an image's last modification (a change in that window could keep the same
+  time on a file system with coarse timestamps). So replaced images are never read with the old masks, and
+  touched or copied ones (same bytes, new times) keep them;
 * segmenter key = ``<kind>-<sha256(identity)[:16]>`` where ``identity()`` holds the model's sha256 (the model file,
   which also fixes its input size), the decoder version and every config value that changes masks (score
   threshold, NMS IoU, mask threshold, dilation, max persons; not the thread count): another model, input size or
@@ -21,28 +27,30 @@ is read once per process and sequence (``MaskStore``). Frames segmented since ar
 atomically (a temporary file named after the writing process, :mod:`d2slam.outputs`, then a rename; under a lock
 file, merged with what other processes added meanwhile): every
 ``SegmentationConfig.cache_flush_frames`` new frames, when every frame of the sequence is cached, at the end of
-``CachedSegmenter.fill`` and at exit. A corrupt or inconsistent file is reported with a warning naming it, and its
-frames are recomputed and the file rewritten (documented recovery). A folder of the earlier layout (one compressed
-``<timestamp>.npz`` per frame) is converted on first use; its files are left in place.
+``CachedSegmenter.fill`` and at exit. ``fill`` (what a run, ``d2slam segment SEQ`` and the study segment through)
+holds a second lock (``segment.lock``) while it segments: a second process asking for the same sequence waits,
+says so, then reads the first one's masks instead of segmenting them again. A damaged or inconsistent file is
+reported in one line naming it (:func:`d2slam.cachefiles.report_damaged`), and its frames are recomputed and the file
+rewritten (documented recovery). A folder of the earlier layout (one compressed ``<timestamp>.npz`` per frame) is
+converted on first use; its files are left in place.
 """
 
 from __future__ import annotations
 
 import atexit
-import fcntl
 import hashlib
 import json
 import os
 import tempfile
-import warnings
 import weakref
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
 from d2slam.errors import D2SlamError
-from d2slam.outputs import temp_tag
+from d2slam.outputs import file_lock, remove_stale_temps, temp_tag, write_bytes
 from d2slam.paths import cache_dir
 from d2slam.segmentation.base import PersonInstance
 
@@ -56,13 +64,68 @@ def _digest(blob: bytes) -> str:
 
 
 def sequence_key(sequence) -> str:
-    """Identity of a sequence: its name, resolved root and the content of ``rgb.txt`` (or its timestamps)."""
+    """Identity of a sequence: its name, resolved root, the content of ``rgb.txt`` and of the images it lists
+    (:func:`images_digest`); without ``rgb.txt``, its timestamps."""
     root = Path(sequence.root).resolve()
     rgb_txt = root / "rgb.txt"
-    content = _digest(rgb_txt.read_bytes()) if rgb_txt.is_file() else _digest(
-        np.ascontiguousarray(np.asarray(sequence.timestamps, dtype=np.float64)).tobytes())
+    if rgb_txt.is_file():
+        content = f"{_digest(rgb_txt.read_bytes())}|{images_digest(root)}"
+    else:
+        content = _digest(np.ascontiguousarray(np.asarray(sequence.timestamps, dtype=np.float64)).tobytes())
     name = "".join(c if c.isalnum() or c in "-_." else "_" for c in root.name)
     return f"{name[:60]}-{_digest(f'{root}|{content}'.encode())[:16]}"
+
+
+def _listed_images(root: Path) -> list[Path]:
+    from d2slam.data.tum import read_file_list
+
+    _, names, _ = read_file_list(root / "rgb.txt")  # D2SlamError naming the line on a bad row
+    return [p if p.is_absolute() else root / p for p in map(Path, names)]
+
+
+def images_digest(root: str | Path, window_s: float | None = None) -> str:
+    """sha256 of the content of every image ``root/rgb.txt`` lists (with its name): from the memo
+    ``cache_dir("masks", "stamps", <root digest>.json)`` when the images' names, sizes and modification times are
+    those it recorded and it was written at least ``window_s`` (``CliConfig.cache_mtime_window_s``) after the newest
+    of them was modified; otherwise every image is hashed and the memo rewritten. The memo is sealed
+    (:func:`d2slam.cachefiles.sealed`): a damaged one is said and made again. A missing image counts by its name."""
+    from d2slam.config import CLI
+
+    root = Path(root).resolve()
+    window = CLI.cache_mtime_window_s if window_s is None else window_s
+    images = _listed_images(root)
+    stats = []
+    for p in images:
+        try:
+            st = p.stat()
+            stats.append([str(p), st.st_size, st.st_mtime_ns])
+        except OSError:
+            stats.append([str(p), -1, 0])
+    stat = _digest(json.dumps(stats).encode())
+    memo_path = cache_dir("masks", "stamps") / f"{_digest(str(root).encode())[:16]}.json"
+    newest = max((m for _, _, m in stats), default=0)
+    try:
+        memo = unsealed(read_json(memo_path))
+        if memo.get("stat") == stat and memo.get("recorded_ns", 0) - newest >= window * 1e9 and \
+                isinstance(memo.get("content"), str):
+            return memo["content"]
+    except FileNotFoundError:
+        pass
+    except Damaged as exc:
+        report_damaged(memo_path, "mask cache memo", exc, "hashing the images again")
+    h = hashlib.sha256()
+    for p, (_, size, _) in zip(images, stats):
+        h.update(f"{p.relative_to(root) if p.is_relative_to(root) else p}|".encode())
+        h.update((sha256_file(p) if size >= 0 else "missing").encode())
+    content = h.hexdigest()
+    import time
+
+    try:
+        write_bytes(memo_path, json.dumps(sealed({"root": str(root), "stat": stat, "content": content,
+                                                  "recorded_ns": time.time_ns()})))
+    except D2SlamError:  # a read-only cache: hashed again next time
+        pass
+    return content
 
 
 def segmenter_key(segmenter) -> str:
@@ -120,13 +183,9 @@ class FrameRecord:
 
 # ---------------------------------------------------------------------------------------------- the file
 def read_store(path: Path) -> tuple[tuple[int, int], dict[str, FrameRecord]]:
-    """``(shape, {timestamp stem: FrameRecord})`` of a ``masks.npz``; ``ValueError`` (or an I/O / zip error) when it
-    is corrupt or inconsistent."""
-    with np.load(path, allow_pickle=False) as data:
-        missing = [k for k in _ARRAYS if k not in data.files]
-        if missing:
-            raise ValueError(f"missing arrays {missing}")
-        a = {k: data[k] for k in _ARRAYS}
+    """``(shape, {timestamp stem: FrameRecord})`` of a ``masks.npz``; :class:`~d2slam.cachefiles.Damaged` (or
+    ``ValueError``) when it is damaged or inconsistent."""
+    a = load_npz(path, _ARRAYS)
     if str(a["format"]) != FORMAT:
         raise ValueError(f"format {a['format']!s} is not {FORMAT}")
     shape = tuple(int(v) for v in a["shape"].reshape(-1))
@@ -222,14 +281,18 @@ class MaskStore:
             return
         try:
             shape, frames = read_store(self.path)
-        except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
-            warnings.warn(f"{self.path}: corrupt mask cache file ({type(exc).__name__}: {exc}); recomputing its "
-                          "frames", stacklevel=4)
+        except (Damaged, ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            report_damaged(self.path, "mask cache file", exc, "segmenting its frames again")
             self.recovered = 1
             self.pending = max(self.pending, 1)  # rewritten on the next flush even if nothing new is segmented
             return
         self.shape, self._stamp = shape, stamp
         self.frames = {**frames, **self.frames}
+
+    def reload(self) -> None:
+        """Read the frames another process wrote since this one read the file (this one's are kept)."""
+        if _stamp(self.path) != self._stamp and not self.recovered:
+            self._load()
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -258,15 +321,11 @@ class MaskStore:
             return
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            with open(self.path.with_name(self.path.name + ".lock"), "w") as lock:
-                fcntl.flock(lock, fcntl.LOCK_EX)
-                try:
-                    if not self.recovered and _stamp(self.path) != self._stamp:
-                        self._load()  # another process wrote frames: keep them (ours take precedence)
-                    write_store(self.path, self.shape or (1, 1), self.frames)
-                    self._stamp = _stamp(self.path)
-                finally:
-                    fcntl.flock(lock, fcntl.LOCK_UN)
+            with file_lock(self.path.with_name(self.path.name + ".lock")):
+                if not self.recovered and _stamp(self.path) != self._stamp:
+                    self._load()  # another process wrote frames: keep them (ours take precedence)
+                write_store(self.path, self.shape or (1, 1), self.frames)
+                self._stamp = _stamp(self.path)
         except OSError as exc:
             raise D2SlamError(f"cannot write the mask cache ({exc.strerror or exc}); set $D2SLAM_CACHE to a "
                               "writable folder", path=self.path) from None
@@ -337,7 +396,12 @@ class CachedSegmenter:
         if self.cacheable:
             seq_key, seg_key = sequence_key(sequence), segmenter_key(segmenter)
             self.dir = (Path(root) / seq_key / seg_key) if root is not None else cache_dir("masks", seq_key, seg_key)
-            self.dir.mkdir(parents=True, exist_ok=True)
+            try:
+                self.dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise D2SlamError(f"cannot write the mask cache ({exc.strerror or exc}); set $D2SLAM_CACHE to a "
+                                  "writable folder", path=self.dir) from None
+            remove_stale_temps(self.dir)  # what a killed process was writing (the mask file, meta.json)
             self._write_meta()
             path = self.dir / STORE_NAME
             fresh = not path.exists()
@@ -354,14 +418,11 @@ class CachedSegmenter:
             return
         text = json.dumps({"sequence": str(Path(self.sequence.root).resolve()), "format": FORMAT,
                            "segmenter": self.segmenter.identity()}, indent=1, sort_keys=True)
-        tmp = meta.with_name(f"{temp_tag()}-meta.json")
         try:
-            tmp.write_text(text)
-            os.replace(tmp, meta)
-        except OSError as exc:
-            tmp.unlink(missing_ok=True)
-            raise D2SlamError(f"cannot write the mask cache ({exc.strerror or exc}); set $D2SLAM_CACHE to a "
-                              "writable folder", path=meta) from None
+            write_bytes(meta, text)
+        except D2SlamError as exc:
+            raise D2SlamError(f"cannot write the mask cache ({getattr(exc, 'reason', exc)}); set $D2SLAM_CACHE to "
+                              "a writable folder", path=meta) from None
 
     def _lookup(self, timestamp: float) -> list[PersonInstance] | None:
         found = self.store.get(timestamp)
@@ -411,16 +472,26 @@ class CachedSegmenter:
     def fill(self, progress: bool = True, frames: int | None = None, recheck: bool = True) -> tuple[int, int]:
         """Segment the first ``frames`` frames (all by default) not yet cached, then write the cache file; ``recheck``
         also decodes the cached ones. With ``progress`` the segmentation is announced with an estimate
-        (``CliConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Returns (hits, misses) of this
+        (``CliConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Segmenting holds the sequence's
+        ``segment.lock``: a second process waits for the first and reads its masks. Returns (hits, misses) of this
         call."""
+        if not self.cacheable:
+            raise D2SlamError(f"the '{self.name}' masks are read from the sequence and need no cache")
+        n = len(self.sequence) if frames is None else min(len(self.sequence), int(frames))
+        if not self.missing(n):
+            return self._fill(n, [], progress, recheck)
+        name = getattr(self.sequence, "name", Path(self.sequence.root).name)
+        with file_lock(self.dir / "segment.lock",
+                       waiting=f"d2slam: another process is segmenting {name} into the mask cache {self.dir}; "
+                               "waiting for it, then reading its masks"):
+            self.store.reload()  # what that process segmented meanwhile
+            return self._fill(n, self.missing(n), progress, recheck)
+
+    def _fill(self, n: int, todo: list[int], progress: bool, recheck: bool) -> tuple[int, int]:
         from d2slam.config import CLI
         from d2slam.progress import announce
         from d2slam.progress import progress as follow
 
-        if not self.cacheable:
-            raise D2SlamError(f"the '{self.name}' masks are read from the sequence and need no cache")
-        n = len(self.sequence) if frames is None else min(len(self.sequence), int(frames))
-        todo = self.missing(n)
         if todo and progress:
             model = getattr(self.segmenter, "model_path", None)
             announce(f"segmenting {len(todo)} frames of {self.sequence.name} with "
@@ -436,9 +507,9 @@ class CachedSegmenter:
 
 class RgbListSequence:
     """Every RGB image listed in a TUM ``rgb.txt`` (parsed by ``d2slam.data.tum.read_file_list``; no depth, no
-    association): what ``d2slam segment SEQUENCE_DIR`` fills the cache for. The cache key depends only on the folder, ``rgb.txt`` and the timestamps,
-    so masks cached through this reader are hits for the full TUM/synthetic readers too. Frames carry an empty
-    (0, 0) depth."""
+    association): what ``d2slam segment SEQUENCE_DIR`` fills the cache for. The cache key depends only on the folder,
+    ``rgb.txt`` and the images it lists, so masks cached through this reader are hits for the full TUM/synthetic
+    readers too. Frames carry an empty (0, 0) depth."""
 
     def __init__(self, root: str | Path):
         self.root = Path(root)

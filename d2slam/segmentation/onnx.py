@@ -22,7 +22,6 @@ Grey (2-D or HxWx1) frames are converted to RGB by replicating the channel and R
 
 from __future__ import annotations
 
-import hashlib
 import os
 import time
 import warnings
@@ -78,11 +77,9 @@ def file_sha256(path: str | Path) -> str:
     st = path.stat()
     key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
     if key not in _SHA_CACHE:
-        h = hashlib.sha256()
-        with open(path, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
-        _SHA_CACHE[key] = h.hexdigest()
+        from d2slam.cachefiles import sha256_file
+
+        _SHA_CACHE[key] = sha256_file(path)
     return _SHA_CACHE[key]
 
 

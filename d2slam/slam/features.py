@@ -64,31 +64,30 @@ class CachedFeatures:
     """Frames rebuilt from a saved feature file (fresh arrays on every call: the engine mutates its frames)."""
 
     def __init__(self, path: str | Path):
+        """:class:`~d2slam.cachefiles.Damaged` when the file cannot be read in full or its arrays disagree."""
+        from d2slam.cachefiles import Damaged, load_npz
+
         self.path = Path(path)
-        try:
-            with np.load(self.path, allow_pickle=False) as z:
-                if str(z["format"]) != FORMAT:
-                    raise D2SlamError(f"not a {FORMAT} feature file", path=self.path)
-                self._arrays = {k: z[k] for k in FIELDS}
-                self.offsets = z["offsets"]
-                self.timestamps = z["timestamps"]
-                self.extract_ms = z["extract_ms"]
-        except (OSError, ValueError, KeyError) as exc:
-            raise D2SlamError(f"unreadable feature file ({type(exc).__name__}: {exc})", path=self.path) from None
+        z = load_npz(self.path, ("format", "offsets", "timestamps", "extract_ms") + FIELDS)
+        if str(z["format"]) != FORMAT:
+            raise Damaged(f"not a {FORMAT} feature file")
+        self._arrays = {k: z[k] for k in FIELDS}
+        self.offsets, self.timestamps, self.extract_ms = z["offsets"], z["timestamps"], z["extract_ms"]
         n = len(self.timestamps)
         if len(self.offsets) != n + 1 or len(self.extract_ms) != n or \
                 any(len(a) != self.offsets[-1] for a in self._arrays.values()):
-            raise D2SlamError("inconsistent feature file (array lengths)", path=self.path)
+            raise Damaged("inconsistent array lengths")
 
     def __len__(self) -> int:
         return len(self.timestamps)
 
     def check(self, timestamps) -> None:
         """Raise unless the file holds exactly the frames with these timestamps."""
+        from d2slam.cachefiles import Damaged
+
         ts = np.asarray(timestamps, dtype=np.float64)
         if len(ts) != len(self) or not np.array_equal(ts, self.timestamps):
-            raise D2SlamError(f"feature file does not match the sequence ({len(self)} frames stored, "
-                              f"{len(ts)} in the sequence)", path=self.path)
+            raise Damaged(f"it does not match the sequence ({len(self)} frames stored, {len(ts)} in the sequence)")
 
     def frame(self, index: int) -> Frame:
         a, b = int(self.offsets[index]), int(self.offsets[index + 1])

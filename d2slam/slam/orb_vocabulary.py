@@ -116,9 +116,9 @@ def load_vocabulary(path: str | None = None) -> BowVocabulary:
 
 @lru_cache(maxsize=4)
 def _sha256(path: str, size: int, mtime_ns: int) -> str:
-    from d2slam.baselines.vocab import _sha256_file
+    from d2slam.cachefiles import sha256_file
 
-    return _sha256_file(Path(path))
+    return sha256_file(Path(path))
 
 
 def _npz_path(path: str, sha256: str) -> Path:
@@ -127,15 +127,35 @@ def _npz_path(path: str, sha256: str) -> Path:
     return cache_dir("vocab", "bow") / f"{Path(path).stem}-{sha256[:16]}.npz"
 
 
+BOW_ARRAYS = ("k", "L", "children", "desc", "weight")
+
+
+def read_bow(npz: Path) -> tuple:
+    """The arrays of a derived ``.npz`` (:data:`BOW_ARRAYS`), checked against each other;
+    :class:`~d2slam.cachefiles.Damaged` when they cannot be read or do not fit."""
+    from d2slam.cachefiles import Damaged, load_npz
+
+    z = load_npz(npz, BOW_ARRAYS)
+    k, L, children, desc, weight = (z[n] for n in BOW_ARRAYS)
+    n = len(weight)
+    if children.ndim != 2 or children.shape != (n, int(k)) or desc.shape != (n, 4) or \
+            not (-1 <= children.min(initial=0) and children.max(initial=0) < n):
+        raise Damaged("its arrays do not fit together")
+    return int(k), int(L), children, desc, weight
+
+
 @lru_cache(maxsize=2)
 def _load(path: str, sha256: str) -> BowVocabulary:
+    from d2slam.cachefiles import Damaged, report_damaged
+    from d2slam.outputs import remove_stale_temps, staged_file
+
     npz = _npz_path(path, sha256)
     if npz.is_file():
         try:
-            with np.load(npz) as z:
-                return BowVocabulary(int(z["k"]), int(z["L"]), z["children"], z["desc"], z["weight"], sha256, path)
-        except (OSError, ValueError, KeyError):
-            pass  # a damaged derived file is made again
+            k, L, children, desc, weight = read_bow(npz)
+            return BowVocabulary(k, L, children, desc, weight, sha256, path)
+        except Damaged as exc:  # derived from the text file: made again
+            report_damaged(npz, "bag-of-words vocabulary", exc, "deriving it again from the vocabulary")
     from d2slam.baselines.vocab import Vocabulary
 
     v = Vocabulary.load(path)
@@ -144,7 +164,7 @@ def _load(path: str, sha256: str) -> BowVocabulary:
                           f"weighting {v.weighting}, scoring {v.scoring}", path=path)
     children = v.children_table()
     desc = np.ascontiguousarray(v.descriptors).view(np.uint64)
-    tmp = npz.with_name(f"{npz.name}.{os.getpid()}.part.npz")
-    np.savez(tmp, k=v.k, L=v.L, children=children, desc=desc, weight=v.weight)
-    tmp.replace(npz)
+    remove_stale_temps(npz.parent)  # what a killed process was writing
+    with staged_file(npz, ".npz") as tmp:
+        np.savez(tmp, k=v.k, L=v.L, children=children, desc=desc, weight=v.weight)
     return BowVocabulary(v.k, v.L, children, desc, np.asarray(v.weight, np.float64), sha256, path)

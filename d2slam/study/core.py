@@ -28,7 +28,8 @@ import numpy as np
 import pandas as pd
 
 from d2slam.errors import D2SlamError
-from d2slam.outputs import staged_file
+from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
+from d2slam.outputs import file_lock, staged_file, write_bytes
 from d2slam.progress import announce
 from d2slam.study import grid as G
 from d2slam.study import tables as T
@@ -50,11 +51,32 @@ class StudyResult:
     files: dict = field(default_factory=dict)
 
 
-def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None = None, jobs: int = 1,
-              scheduler=None, config=None, specs: list[RunSpec] | None = None, twin_methods=None,
-              cache_root=None, tum_root=None, masks: str | None = None, orbslam3_repeats: int | None = None,
-              orbslam3_timeout: float | None = None, plots: bool = True, progress: bool | None = None,
-              resume: bool = False) -> StudyResult:
+LOCK = ".d2slam-study.lock"  # in the output folder: one study writes there at a time
+
+
+def out_lock(out: Path) -> file_lock:
+    """The output folder's lock: a second study (or ``--tables-only``) on the folder is refused in one line."""
+    return file_lock(Path(out) / LOCK, refuse="another d2slam study is writing into this folder (it holds this "
+                                              "lock); wait for it to end, or give another --out")
+
+
+def run_study(out, *args, **kwargs) -> StudyResult:
+    """Run the study grid and write its results into ``out`` (created), holding the folder's lock (:func:`out_lock`):
+    see :func:`_run_study` for the arguments."""
+    out = Path(out).expanduser()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise D2SlamError(f"cannot create the output folder ({exc.strerror or exc})", path=out) from None
+    with out_lock(out):
+        return _run_study(out, *args, **kwargs)
+
+
+def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None = None, jobs: int = 1,
+               scheduler=None, config=None, specs: list[RunSpec] | None = None, twin_methods=None,
+               cache_root=None, tum_root=None, masks: str | None = None, orbslam3_repeats: int | None = None,
+               orbslam3_timeout: float | None = None, plots: bool = True, progress: bool | None = None,
+               resume: bool = False) -> StudyResult:
     """Run the study grid and write its results into ``out`` (created). See the module docstring.
 
     ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.keys.run_key`: the run, config,
@@ -149,7 +171,7 @@ def run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None 
     # the finished runs are on disk already (saved as they finished, or read from there by --resume)
     res = write_results(out, specs, results, method_order, manifest, plots=plots, saved=set(by_id))
     manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
+    write_bytes(out / "manifest.json", json.dumps(manifest, indent=2, default=_json_default) + "\n")
     return res
 
 
@@ -213,16 +235,22 @@ def remove_stale_temps(options: dict, out: Path | None = None) -> list[Path]:
     from d2slam.paths import cache_dir
     from d2slam.study import sequences
 
+    outs = [] if out is None else [p for d in ("", "runs", "trajectories", "plots") for p in remove(Path(out) / d)]
     return (sequences.remove_stale_temps(options.get("cache_root")) + remove(features_dir(options))
-            + remove(cache_dir("masks"), "*/*/.tmp-*") + (remove(Path(out) / "runs") if out is not None else []))
+            + remove(cache_dir("masks"), "*/*/*.tmp-*") + outs)
 
 
 def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
-    """The result of a finished run in ``out/runs/`` when its key is ``key`` and it did not fail, else None."""
+    """The result of a finished run in ``out/runs/`` when its key is ``key`` and it did not fail, else None. A
+    record or array file that does not match its seal (:func:`d2slam.cachefiles.unsealed`) is damaged: said in one
+    line, and the run is done again."""
     path = out / "runs" / f"{spec.run_id}.json"
     try:
-        record = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
+        record = unsealed(read_json(path))
+    except FileNotFoundError:
+        return None
+    except Damaged as exc:
+        report_damaged(path, "study run record", exc, "running it again")
         return None
     row = record.get("row") or {}
     if record.get("key") != key or row.get("status") in RETRY:
@@ -230,15 +258,18 @@ def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
     res = {"row": row, "trajectory": None, "aligned": None, "keypoints": record.get("keypoints"),
            "stage_ms": record.get("stage_ms") or {}, "loops": record.get("loops")}
     npz = out / "runs" / f"{spec.run_id}.npz"
-    if npz.is_file():
+    if npz.is_file() or record.get("arrays_sha256"):
         try:
-            with np.load(npz) as z:
-                if "timestamps" in z:
-                    res["trajectory"] = (z["timestamps"], z["poses"])
-                if "gt_xyz" in z:
-                    res["aligned"] = (z["gt_xyz"], z["est_xyz"])
-        except (OSError, ValueError, KeyError):
+            if record.get("arrays_sha256") not in (None, sha256_file(npz) if npz.is_file() else "missing"):
+                raise Damaged("its sha256 is not the one its record holds")
+            z = load_npz(npz)
+        except (Damaged, OSError) as exc:
+            report_damaged(npz, "study run arrays", exc, "running it again")
             return None
+        if "timestamps" in z:
+            res["trajectory"] = (z["timestamps"], z["poses"])
+        if "gt_xyz" in z:
+            res["aligned"] = (z["gt_xyz"], z["est_xyz"])
     return res
 
 
@@ -268,12 +299,14 @@ def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_o
     for s, r in zip(specs, results):
         if s.run_id not in saved:
             save_run(out, s, r)
+        else:  # its record is there; its trajectory file is written again (whatever became of it)
+            write_trajectory(out, s, r)
     df = T.sort_runs(T.runs_frame([r["row"] for r in results]), method_order)
     T.write_runs_csv(df, out / "runs.csv")
     summary = T.summarise(df)
     T.write_summary_csv(summary, out / "summary.csv")
-    (out / "tables.md").write_text(T.tables_markdown(df, method_order, manifest))
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
+    write_bytes(out / "tables.md", T.tables_markdown(df, method_order, manifest))
+    write_bytes(out / "manifest.json", json.dumps(manifest, indent=2, default=_json_default) + "\n")
     files.update(runs=out / "runs.csv", summary=out / "summary.csv", tables=out / "tables.md",
                  manifest=out / "manifest.json")
     if plots:
@@ -284,14 +317,8 @@ def write_results(out: Path, specs: list[RunSpec], results: list[dict], method_o
 def save_run(out: Path, s: RunSpec, r: dict) -> None:
     """Write one run: ``runs/<run>.json`` (run, key, row, keypoint metrics, stage timings), ``runs/<run>.npz``
     (trajectory and aligned positions) and ``trajectories/<run>.txt`` (TUM format)."""
-    from d2slam.data import Trajectory, write_tum_trajectory
-
-    (out / "trajectories").mkdir(parents=True, exist_ok=True)
     (out / "runs").mkdir(parents=True, exist_ok=True)
-    if r.get("trajectory") is not None and len(r["trajectory"][0]):
-        ts, poses = r["trajectory"]
-        write_tum_trajectory(out / "trajectories" / f"{s.run_id}.txt", Trajectory(ts, poses),
-                             header=f"d2slam study {s.run_id}")
+    write_trajectory(out, s, r)
     arrays = {}
     if r.get("trajectory") is not None:
         arrays.update(timestamps=r["trajectory"][0], poses=r["trajectory"][1])
@@ -303,11 +330,24 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
             np.savez_compressed(tmp, **arrays)
     else:
         npz.unlink(missing_ok=True)
-    # the record last, whole or not at all: --resume reuses a run only when its record is there
+    # the record last, whole or not at all: --resume reuses a run only when its record is there; sealed with the
+    # sha256 of its content and of the arrays, so that a damaged one is not reused
     record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
-              "stage_ms": r.get("stage_ms"), "loops": r.get("loops")}
-    with staged_file(out / "runs" / f"{s.run_id}.json") as tmp:
-        tmp.write_text(json.dumps(record, indent=1, default=_json_default) + "\n")
+              "stage_ms": r.get("stage_ms"), "loops": r.get("loops"),
+              "arrays_sha256": sha256_file(npz) if arrays else None}
+    record = sealed(json.loads(json.dumps(record, default=_json_default)))  # sealed as it will be read back
+    write_bytes(out / "runs" / f"{s.run_id}.json", json.dumps(record, indent=1) + "\n")
+
+
+def write_trajectory(out: Path, s: RunSpec, r: dict) -> None:
+    """``trajectories/<run>.txt`` (TUM format) of a run that has one."""
+    from d2slam.data import Trajectory, write_tum_trajectory
+
+    if r.get("trajectory") is not None and len(r["trajectory"][0]):
+        (out / "trajectories").mkdir(parents=True, exist_ok=True)
+        ts, poses = r["trajectory"]
+        write_tum_trajectory(out / "trajectories" / f"{s.run_id}.txt", Trajectory(ts, poses),
+                             header=f"d2slam study {s.run_id}")
 
 
 def module_f1(specs: list[RunSpec], results: list[dict]) -> pd.DataFrame:
@@ -346,11 +386,16 @@ def make_plots(out: Path, specs, results, df, summary, method_order) -> dict:
 def rebuild_tables(out) -> Path:
     """Re-render ``tables.md`` and ``summary.csv`` of a finished study from its ``runs.csv`` (and manifest)."""
     out = Path(out)
+    with out_lock(out):
+        return _rebuild_tables(out)
+
+
+def _rebuild_tables(out: Path) -> Path:
     df = T.read_runs_csv(out / "runs.csv")
     manifest = json.loads((out / "manifest.json").read_text()) if (out / "manifest.json").is_file() else None
     methods = (manifest or {}).get("grid", {}).get("methods") or list(dict.fromkeys(df["method"]))
     T.write_summary_csv(T.summarise(df), out / "summary.csv")
-    (out / "tables.md").write_text(T.tables_markdown(df, methods, manifest))
+    write_bytes(out / "tables.md", T.tables_markdown(df, methods, manifest))
     return out / "tables.md"
 
 

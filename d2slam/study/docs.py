@@ -63,9 +63,9 @@ def replace_headline(readme: str, table: str) -> str:
 
 
 def _write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    from d2slam.outputs import write_bytes
+
+    write_bytes(path, text)
 
 
 def write_docs(results: str | Path, docs: str | Path, readme: str | Path | None = None) -> list[Path]:

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from d2slam.eval.plots import GROUND_TRUTH, legend, method_colour
+from d2slam.outputs import save_figure
 from d2slam.study.grid import LABELS, SCENARIOS
 
 
@@ -53,7 +54,7 @@ def plot_trajectories(aligned: dict, out: Path, seed: int) -> Path | None:
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(out, dpi=90)
+    save_figure(fig, out, dpi=90)
     return out
 
 
@@ -96,7 +97,7 @@ def plot_summary_bars(summary: pd.DataFrame, out: Path, methods: list[str], metr
     ax.grid(axis="y", alpha=0.3)
     legend(ax, fontsize=7, ncol=min(4, len(ms)))
     fig.tight_layout()
-    fig.savefig(out, dpi=90)
+    save_figure(fig, out, dpi=90)
     return out
 
 
@@ -119,7 +120,7 @@ def plot_keypoint_f1(module_f1: pd.DataFrame, out: Path) -> Path | None:
     ax.grid(axis="y", alpha=0.3)
     legend(ax, fontsize=7, ncol=3)
     fig.tight_layout()
-    fig.savefig(out, dpi=90)
+    save_figure(fig, out, dpi=90)
     return out
 
 
@@ -145,5 +146,5 @@ def plot_runtime(df: pd.DataFrame, out: Path, methods: list[str]) -> Path | None
     ax.grid(axis="y", alpha=0.3)
     legend(ax, fontsize=7)
     fig.tight_layout()
-    fig.savefig(out, dpi=90)
+    save_figure(fig, out, dpi=90)
     return out

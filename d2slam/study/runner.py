@@ -266,7 +266,9 @@ def features_dir(options: dict) -> Path:
 
 def _features(seq, path: Path, config, options: dict, frames: int | None = None):
     """(features for ``run_sequence``, where to save them afterwards or None): the cached features of the sequence's
-    first ``frames`` frames when a run already saved them, else a recorder. A corrupt cache file is replaced."""
+    first ``frames`` frames when a run already saved them, else a recorder. A damaged cache file is said (one line)
+    and replaced."""
+    from d2slam.cachefiles import Damaged, report_damaged
     from d2slam.slam.features import CachedFeatures, FeatureRecorder
 
     n = len(seq) if frames is None else frames
@@ -276,7 +278,8 @@ def _features(seq, path: Path, config, options: dict, frames: int | None = None)
             cached = CachedFeatures(target)
             cached.check(seq.timestamps[:n])
             return cached, None
-        except D2SlamError:
+        except Damaged as exc:
+            report_damaged(target, "feature file", exc, "extracting the features again")
             target.unlink(missing_ok=True)
     return FeatureRecorder(), target
 

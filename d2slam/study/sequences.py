@@ -5,20 +5,25 @@ static twin and *generator version* (:func:`d2slam.digests.generator_version`).
 is a digest of the synthetic format, the package version, every ``SynthConfig`` value and the code of
 ``d2slam/synth/*.py`` (comments and docstrings left out, as in the run keys): a changed generator never feeds a
 study a stale sequence. A sequence counts as present only
-when its ``.complete`` marker (written last, holding the key) is there; it is generated into a temporary folder and
-renamed into place (:func:`d2slam.outputs.staged_dir`), under a lock file, so concurrent workers (processes or a Dask
-cluster sharing the cache) never read a half-written sequence and never generate the same one twice.
-:func:`remove_stale_temps` removes the temporary folders of processes that were killed before they could.
+when its ``.complete`` marker (written last, holding the key and the manifest of its files: size, modification time,
+sha256) is there and its files match it (:func:`d2slam.cachefiles.folder_problems`: sizes and times on every use,
+a file whose time changed hashed again); a damaged one is said in one line and generated again (the generator is
+deterministic: the same bytes). A sequence cached before markers held a manifest is adopted: its files are recorded
+as they are. It is generated into a temporary folder and renamed into place (:func:`d2slam.outputs.staged_dir`),
+under a lock file, so concurrent workers (processes or a Dask cluster sharing the cache) never read a half-written
+sequence and never generate the same one twice. :func:`remove_stale_temps` removes the temporary folders of
+processes that were killed before they could.
 """
 
 from __future__ import annotations
 
-import fcntl
 import json
 from pathlib import Path
 
+from d2slam.cachefiles import Damaged, folder_manifest, folder_problems, read_json, report_damaged
 from d2slam.digests import generator_version
 from d2slam.errors import D2SlamError
+from d2slam.outputs import file_lock, write_bytes
 
 MARKER = ".complete"
 
@@ -36,40 +41,61 @@ def sequence_dir(scenario: str, seed: int, frames: int, twin: bool, root: str | 
 
 
 def is_complete(path: Path) -> bool:
+    """The sequence is there (its marker is; :func:`sequence_problems` says whether its files are intact)."""
     return (Path(path) / MARKER).is_file()
+
+
+def sequence_problems(path: Path, full: bool = False, adopt: bool = True) -> list[str]:
+    """What is wrong with the cached sequence at ``path`` (empty: nothing): a marker missing or damaged, files that
+    differ from its manifest (``full``: every file hashed). A marker without a manifest (written before markers had
+    one) is given one now (``adopt``), from the files as they are."""
+    marker = Path(path) / MARKER
+    try:
+        record = read_json(marker)
+    except FileNotFoundError:
+        return ["not generated (no marker)"]
+    except Damaged as exc:
+        return [f"{MARKER}: {exc}"]
+    if not isinstance(record.get("files"), dict):
+        try:
+            if adopt:
+                write_bytes(marker, json.dumps({**record, "files": folder_manifest(path, skip=(MARKER,))}) + "\n")
+        except D2SlamError:  # a read-only cache: checked again next time
+            pass
+        return []
+    return folder_problems(path, record["files"], full=full)
 
 
 def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, root: str | Path | None = None,
                     progress: bool = True) -> Path:
-    """The cached sequence's folder, generated (single process, deterministic) if missing or incomplete; with
-    ``progress`` the generation is announced with an estimate and followed (:mod:`d2slam.progress`)."""
+    """The cached sequence's folder, generated (single process, deterministic) if missing, incomplete or damaged
+    (said in one line); with ``progress`` the generation is announced with an estimate and followed
+    (:mod:`d2slam.progress`)."""
     path = sequence_dir(scenario, seed, frames, twin, root)
-    if is_complete(path):
+    if is_complete(path) and not sequence_problems(path):
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
-    lock_path = path.parent / (path.name + ".lock")
-    with open(lock_path, "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # another worker may be generating it: wait, then reuse
-        try:
-            if is_complete(path):
-                return path
-            from d2slam.outputs import staged_dir
-            from d2slam.synth import generate
+    name = sequence_name(scenario, seed, frames, twin)
+    with file_lock(path.parent / (path.name + ".lock")):  # another worker may be generating it: wait, then reuse
+        problems = sequence_problems(path)
+        if not problems:
+            return path
+        from d2slam.outputs import staged_dir
+        from d2slam.synth import generate
 
-            if progress:
-                from d2slam.progress import announce
-                from d2slam.synth.generate import estimated_seconds
+        if is_complete(path):
+            report_damaged(path, "cached sequence", "; ".join(problems), "generating it again")
+        if progress:
+            from d2slam.progress import announce
+            from d2slam.synth.generate import estimated_seconds
 
-                announce(f"generating {sequence_name(scenario, seed, frames, twin)} (once; cached in {path.parent})",
-                         estimated_seconds(int(frames), 1))
-            with staged_dir(path) as tmp:  # replaces an incomplete earlier attempt; removed if interrupted
-                generate(scenario, tmp, frames=int(frames), seed=int(seed), static_twin=bool(twin), workers=1,
-                         progress=progress)
-                key = {"scenario": scenario, "seed": int(seed), "frames": int(frames), "static_twin": bool(twin),
-                       "generator_version": generator_version()}
-                (tmp / MARKER).write_text(json.dumps(key) + "\n")
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
+            announce(f"generating {name} (once; cached in {path.parent})", estimated_seconds(int(frames), 1))
+        with staged_dir(path) as tmp:  # replaces an incomplete or damaged one; removed if interrupted
+            generate(scenario, tmp, frames=int(frames), seed=int(seed), static_twin=bool(twin), workers=1,
+                     progress=progress)
+            key = {"scenario": scenario, "seed": int(seed), "frames": int(frames), "static_twin": bool(twin),
+                   "generator_version": generator_version()}
+            (tmp / MARKER).write_text(json.dumps({**key, "files": folder_manifest(tmp)}) + "\n")
     return path
 
 

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from d2slam.config import DEFAULT, EvalConfig
+from d2slam.outputs import staged_file
 from d2slam.record import is_fragment
 from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, LOOP_SCENARIOS, ORACLE,
                                REAL_SCENARIOS,
@@ -84,7 +85,8 @@ def sort_runs(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFram
 
 
 def write_runs_csv(df: pd.DataFrame, path) -> None:
-    df[RUN_COLUMNS].to_csv(path, index=False)  # repr: exact round trip
+    with staged_file(path) as tmp:  # whole or not at all
+        df[RUN_COLUMNS].to_csv(tmp, index=False)  # repr: exact round trip
 
 
 def read_runs_csv(path) -> pd.DataFrame:
@@ -125,7 +127,8 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def write_summary_csv(summary: pd.DataFrame, path) -> None:
-    summary.to_csv(path, index=False)  # repr: exact round trip
+    with staged_file(path) as tmp:  # whole or not at all
+        summary.to_csv(tmp, index=False)  # repr: exact round trip
 
 
 # ------------------------------------------------------------------------------------------------------------
