@@ -259,81 +259,113 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     ``a`` (N,) is the threshold of each current keypoint (alpha(z_p), or ``fixed_alpha`` for the `geometric`
     ablation). Matches with non-finite coordinates are ignored. A previous belief that is NaN counts as the prior
     (0.5, static since "dynamic" means > 0.5). With ``kp_depth`` (N,), ``prev_kp_depth`` (M,) and intrinsics ``K``
-    given and ``cfg.pose_test`` on, the pose test (module docstring) runs on the matches that have eq 5's error, with
-    the pose from the matches RANSAC used for F (those with a valid previous depth); ``scale`` (N,) or scalar is each
-    keypoint's detection scale 1.2^octave (``depth.octave_factor``), for eq 6's sigma and the reprojection
-    threshold. ``fit`` (K,) bool: the matches F may be fitted on (default all; ``flow.flow_matches``)."""
+    given and ``cfg.pose_test`` on, the pose test (module docstring, :func:`pose_test`) runs on the matches that have
+    eq 5's error, with the pose from the matches RANSAC used for F (those with a valid previous depth), skipping the
+    depth residual where ``depth_edge`` (N,) or ``prev_depth_edge`` (M,) says a depth was read across an edge;
+    ``scale`` (N,) or scalar is each keypoint's detection scale 1.2^octave (``depth.octave_factor``), for eq 6's
+    sigma and the reprojection threshold. ``fit`` (K,) bool: the matches F may be fitted on (default all;
+    ``flow.flow_matches``)."""
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     prev_kps = np.asarray(prev_kps, dtype=np.float64).reshape(-1, 2)
     n = len(kps)
-    m = check_matches(matches, n, len(prev_kps))
-    pose_test = cfg.pose_test and K is not None and kp_depth is not None and prev_kp_depth is not None
-    if pose_test:
-        z_cur = np.asarray(kp_depth, dtype=np.float64).reshape(-1)
-        z_prev = np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1)
-        if len(z_cur) != n or len(z_prev) != len(prev_kps):
-            raise D2SlamError(f"keypoint depths ({len(z_cur)}, {len(z_prev)}) do not match the keypoints "
-                              f"({n}, {len(prev_kps)})")
+    depths = _pose_depths(kp_depth, prev_kp_depth, n, len(prev_kps)) if cfg.pose_test and K is not None else None
     err = np.full(n, np.nan)
-    reproj_err, depth_err, pose_dyn = (np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool)) if pose_test else \
-        (None, None, None)
-    empty = GeometricResult(None, 0, False, err, np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool),
-                            reproj_err, depth_err, pose_dyn)
+    res = GeometricResult(None, 0, False, err, np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool))
+    if depths is not None:
+        res.reproj_err, res.depth_err, res.pose_dynamic = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool)
+    m, fit = _finite_matches(kps, prev_kps, matches, fit)
     if len(m) == 0:
-        return empty
+        return res
     p, q = kps[m[:, 0]], prev_kps[m[:, 1]]
-    ok = np.isfinite(p[:, 0]) & np.isfinite(p[:, 1]) & np.isfinite(q[:, 0]) & np.isfinite(q[:, 1])
-    fit = np.ones(len(m), dtype=bool) if fit is None else np.asarray(fit, dtype=bool).reshape(-1)
-    if len(fit) != len(m):
-        raise D2SlamError(f"fit has {len(fit)} entries for {len(m)} matches")
-    if not ok.all():
-        m, p, q, fit = m[ok], p[ok], q[ok], fit[ok]
-    pb = np.asarray(prev_belief, dtype=np.float64).reshape(-1)
-    if len(pb) != len(prev_kps):
-        raise D2SlamError(f"prev_belief has {len(pb)} entries for {len(prev_kps)} previous keypoints")
-    bel_q = pb[m[:, 1]]
-    with np.errstate(invalid="ignore"):
-        static = np.where(np.isnan(bel_q), cfg.prior, bel_q) <= cfg.dynamic_threshold  # NaN belief = the prior
-    static &= fit
-    used_static = int(static.sum()) >= cfg.f_min_static_matches
-    sel = static if used_static else fit
-    F, _ = fundamental_matrix(q[sel], p[sel], cfg, seed)
-    if F is None:
-        empty.n_used, empty.used_static = int(sel.sum()), used_static
-        return empty
-    e_m = epipolar_error(F, p, q)
+    sel, res.used_static = _fit_set(m, prev_belief, fit, len(prev_kps), cfg)
+    res.n_used = int(sel.sum())
+    res.F, _ = fundamental_matrix(q[sel], p[sel], cfg, seed)
+    if res.F is None:
+        return res
+    e_m = epipolar_error(res.F, p, q)
     err[m[:, 0]] = e_m
     a = np.broadcast_to(np.asarray(a, dtype=np.float64), (n,))
     scale = np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,))
     s_fit = scale[m[sel, 0]]
     k_e = widening(e_m[sel] / s_fit, a[m[sel, 0]] / s_fit, 1, cfg)  # eq 5-6 at this frame's noise (ours)
-    p_g, dyn = geometric_probability(err, a * k_e, k_e * (cfg.sigma * scale if cfg.sigma_at_scale else cfg.sigma),
-                                     cfg.p_g_exceed)
-    observed = np.isfinite(err)
+    res.p_g, res.dynamic = geometric_probability(err, a * k_e, k_e * (cfg.sigma * scale if cfg.sigma_at_scale
+                                                                       else cfg.sigma), cfg.p_g_exceed)
+    res.observed = np.isfinite(err)
+    res.widening = (k_e, 1.0, 1.0)
+    if depths is not None:
+        edges = None if depth_edge is None or prev_depth_edge is None else (depth_edge, prev_depth_edge)
+        pose_test(res, m, p, q, sel, scale, *depths, K, edges, cfg, seed)
+    return res
+
+
+def _pose_depths(kp_depth, prev_kp_depth, n: int, n_prev: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(current, previous) keypoint depths as float arrays, None when either is not given; a clear error when their
+    lengths differ from the keypoints'."""
+    if kp_depth is None or prev_kp_depth is None:
+        return None
+    z_cur = np.asarray(kp_depth, dtype=np.float64).reshape(-1)
+    z_prev = np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1)
+    if len(z_cur) != n or len(z_prev) != n_prev:
+        raise D2SlamError(f"keypoint depths ({len(z_cur)}, {len(z_prev)}) do not match the keypoints ({n}, {n_prev})")
+    return z_cur, z_prev
+
+
+def _finite_matches(kps: np.ndarray, prev_kps: np.ndarray, matches, fit) -> tuple[np.ndarray, np.ndarray]:
+    """The checked matches (K', 2) whose two keypoints are finite, and their ``fit`` flags (default all True)."""
+    m = check_matches(matches, len(kps), len(prev_kps))
+    fit = np.ones(len(m), dtype=bool) if fit is None else np.asarray(fit, dtype=bool).reshape(-1)
+    if len(fit) != len(m):
+        raise D2SlamError(f"fit has {len(fit)} entries for {len(m)} matches")
+    ok = np.isfinite(kps[m[:, 0]]).all(axis=1) & np.isfinite(prev_kps[m[:, 1]]).all(axis=1)
+    return m[ok], fit[ok]
+
+
+def _fit_set(m: np.ndarray, prev_belief, fit: np.ndarray, n_prev: int, cfg: DynamicsConfig) -> tuple[np.ndarray,
+                                                                                                      bool]:
+    """(the matches F is fitted on, whether they are the static-believed ones): the matches ``fit`` allows whose
+    previous keypoint is believed static (a NaN belief counts as the prior), when there are at least
+    ``f_min_static_matches`` of them, else every match ``fit`` allows."""
+    pb = np.asarray(prev_belief, dtype=np.float64).reshape(-1)
+    if len(pb) != n_prev:
+        raise D2SlamError(f"prev_belief has {len(pb)} entries for {n_prev} previous keypoints")
+    bel_q = pb[m[:, 1]]
+    with np.errstate(invalid="ignore"):
+        static = (np.where(np.isnan(bel_q), cfg.prior, bel_q) <= cfg.dynamic_threshold) & fit
+    used_static = int(static.sum()) >= cfg.f_min_static_matches
+    return (static if used_static else fit), used_static
+
+
+def pose_test(res: GeometricResult, m: np.ndarray, p: np.ndarray, q: np.ndarray, sel: np.ndarray, scale: np.ndarray,
+              z_cur: np.ndarray, z_prev: np.ndarray, K: np.ndarray, edges, cfg: DynamicsConfig = _DEFAULT,
+              seed: int | None = None) -> None:
+    """The pose test (ours, module docstring) on the matches ``m`` (K, 2) with pixels ``p`` / ``q``, filling ``res``:
+    the relative pose by PnP from the fit set ``sel`` with a previous depth, the residuals of every match, the flags
+    (reprojection above ``pose_reproj_px`` x scale, depth residual above ``pose_depth_sigmas``, both widened to the
+    frame's noise; the depth residual not tested where ``edges`` = (current (N,), previous (M,)) flags a depth read
+    across an edge) on the observed keypoints, P_g raised to ``p_pose_exceed`` where flagged."""
+    n = len(res.err)
+    zq = z_prev[m[:, 1]]
+    has_z = valid_depth(zq)
+    X = back_project(q, np.where(has_z, zq, np.nan), K)
+    pose = relative_pose(X[sel & has_z], p[sel & has_z], K, cfg, seed)
     k_r = k_z = 1.0
-    if pose_test:
-        zq = z_prev[m[:, 1]]
-        has_z = valid_depth(zq)
-        X = back_project(q, np.where(has_z, zq, np.nan), K)
-        pose = relative_pose(X[sel & has_z], p[sel & has_z], K, cfg, seed)
-        if pose is not None:
-            r_m, z_m = pose_residuals(X, p, z_cur[m[:, 0]], pose[0], pose[1], K, cfg)
-            reproj_err[m[:, 0]], depth_err[m[:, 0]] = r_m, z_m
-            k_r = widening(r_m[sel] / s_fit, cfg.pose_reproj_px, 2, cfg)
-            k_z = widening(np.abs(z_m[sel]), cfg.pose_depth_sigmas, 1, cfg)
-        with np.errstate(invalid="ignore"):
-            flag = np.zeros(n, dtype=bool)
-            if cfg.pose_reproj_px > 0:
-                flag |= reproj_err > cfg.pose_reproj_px * scale * k_r
-            if cfg.pose_depth_sigmas > 0:
-                dz_flag = np.abs(depth_err) > cfg.pose_depth_sigmas * k_z
-                if depth_edge is not None and prev_depth_edge is not None:  # a depth read across an edge: no test
-                    at_edge = np.asarray(depth_edge, dtype=bool).copy()
-                    at_edge[m[:, 0]] |= np.asarray(prev_depth_edge, dtype=bool)[m[:, 1]]
-                    dz_flag &= ~at_edge
-                flag |= dz_flag
-        pose_dyn = observed & flag
-        p_g = np.where(pose_dyn, np.maximum(p_g, cfg.p_pose_exceed), p_g)
-        dyn = dyn | pose_dyn
-    return GeometricResult(F, int(sel.sum()), used_static, err, p_g, observed, dyn, reproj_err, depth_err, pose_dyn,
-                           (k_e, k_r, k_z))
+    if pose is not None:
+        r_m, z_m = pose_residuals(X, p, z_cur[m[:, 0]], pose[0], pose[1], K, cfg)
+        res.reproj_err[m[:, 0]], res.depth_err[m[:, 0]] = r_m, z_m
+        k_r = widening(r_m[sel] / scale[m[sel, 0]], cfg.pose_reproj_px, 2, cfg)
+        k_z = widening(np.abs(z_m[sel]), cfg.pose_depth_sigmas, 1, cfg)
+    flag = np.zeros(n, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        if cfg.pose_reproj_px > 0:
+            flag |= res.reproj_err > cfg.pose_reproj_px * scale * k_r
+        if cfg.pose_depth_sigmas > 0:
+            dz_flag = np.abs(res.depth_err) > cfg.pose_depth_sigmas * k_z
+            if edges is not None:
+                at_edge = np.asarray(edges[0], dtype=bool).copy()
+                at_edge[m[:, 0]] |= np.asarray(edges[1], dtype=bool)[m[:, 1]]
+                dz_flag &= ~at_edge
+            flag |= dz_flag
+    res.pose_dynamic = res.observed & flag
+    res.p_g = np.where(res.pose_dynamic, np.maximum(res.p_g, cfg.p_pose_exceed), res.p_g)
+    res.dynamic = res.dynamic | res.pose_dynamic
+    res.widening = (res.widening[0], k_r, k_z)
