@@ -200,8 +200,12 @@ class EngineConfig:
     # px over 1-3 m); ORB-SLAM's 1 px x scale lets points slide in depth and local BA drag keyframes with them.
     # Measured: docs/deviations.md.
     disparity_sigma_px: float = 0.057
-    # ... in motion-only BA, the first rounds use ORB-SLAM's information all the same (wide basin from a coarse pose).
-    pose_opt_coarse_rounds: int = 1
+    # Motion-only BA weighs u_R as ORB-SLAM3 does (1 px x scale) in its first pose_opt_coarse_rounds rounds and with
+    # disparity_sigma_px after them; 4 = all rounds (ORB-SLAM3 PoseOptimization): the disparity model serves local BA
+    # only. With 1, real Kinect frames whose depth image was taken ~15 ms before or after the colour image while the
+    # camera turned lost their correct matches as outliers (fr1/rpy), and `none` held on the synthetic walking
+    # sequences because people's depths disagree with the map. Measured: docs/real_data.md.
+    pose_opt_coarse_rounds: int = 4
     # Chi-square thresholds at 95 % (ORB-SLAM): 2 dof mono, 3 dof stereo.
     chi2_mono: float = 5.991
     chi2_stereo: float = 7.815
@@ -223,7 +227,10 @@ class EngineConfig:
     search_radius_last_frame: float = 15.0  # ORB-SLAM3 RGB-D (non-stereo sensor): th = 15
     search_radius_local_map: float = 3.0  # ORB-SLAM3 RGB-D: th = 3
     search_radius_relocalisation: float = 10.0
-    search_radius_after_relocalisation: float = 5.0  # local-map search radius on the frame after a relocalisation
+    # Local-map search radius on the relocalised frame (ORB-SLAM3 SearchLocalPoints: 15 while the state is still
+    # RECENTLY_LOST) and on the frame after it (5).
+    search_radius_relocalised: float = 15.0
+    search_radius_after_relocalisation: float = 5.0
     # Local-map search radius factor by viewing angle (ORB-SLAM RadiusByViewingCos): frontal (cos above this) or not.
     local_map_frontal_cos: float = 0.998
     local_map_radius_frontal: float = 2.5
@@ -281,6 +288,9 @@ class EngineConfig:
     mappoint_min_obs: int = 3  # ORB-SLAM cnThObs (RGB-D): weighted observations (stereo counts 2)
     mappoint_cull_age: int = 2  # ... checked once a point is this many keyframes old
     mappoint_recent_age: int = 3  # points stay on the recent list (MapPointCulling) for this many keyframes
+    # KeyFrameCulling (ORB-SLAM3): a keyframe is redundant when more than keyframe_redundancy of its close points are
+    # seen by more than keyframe_redundant_obs other keyframes (ORB-SLAM3 1.0 counts nObs > 3; its comment and
+    # ORB-SLAM2, >= 3) at the same or a finer scale.
     keyframe_redundancy: float = 0.9
     keyframe_redundant_obs: int = 3
     # Tracking the local map: keyframes sharing points with the frame (at most this many) + their covisibles.

@@ -191,8 +191,8 @@ class LocalMapper:
             M.erase_observations(rows[outlier])
 
     def keyframe_culling(self, kf: KeyFrame) -> list[int]:
-        """ORB-SLAM KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by
-        >= ``keyframe_redundant_obs`` other keyframes at the same or a finer scale is redundant (the first keyframe
+        """ORB-SLAM3 KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by
+        more than ``keyframe_redundant_obs`` other keyframes at the same or a finer scale is redundant (the first keyframe
         is never culled). Returns the culled keyframes."""
         cfg, M = self.cfg, self.map
         P = M.points
@@ -213,7 +213,7 @@ class LocalMapper:
             rows = rows[M.obs.kf[rows] != k]
             ok = M.obs.octave[rows] <= oct_here[M.obs.pt[rows]] + 1
             cnt = np.bincount(M.obs.pt[rows][ok], minlength=P.n)
-            redundant = int((cnt[pts] >= cfg.keyframe_redundant_obs).sum())
+            redundant = int((cnt[pts] > cfg.keyframe_redundant_obs).sum())
             if redundant > cfg.keyframe_redundancy * len(sel):
                 M.set_keyframe_bad(k)
                 culled.append(k)

@@ -269,10 +269,10 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     ``pose_opt_rounds`` rounds of ``pose_opt_iterations`` LM iterations; after each round every edge is classified
     (chi2 against 5.991 mono / 7.815 stereo), outliers are left out of the next round and may come back; the robust
     kernel is dropped after the third round, as in ORB-SLAM. Each round stops early when the relative chi2
-    decrease falls below ``pose_opt_gain_threshold``. The first ``pose_opt_coarse_rounds`` rounds use ORB-SLAM's
-    isotropic information (a wide basin from a coarse initial pose). Each round continues from the last estimate
-    (ORB-SLAM restarts from the initial pose: same fixed point, fewer iterations). ``EngineConfig.optimizer``:
-    the compiled kernels of ``d2slam.slam.lm`` or g2o."""
+    decrease falls below ``pose_opt_gain_threshold``. The first ``pose_opt_coarse_rounds`` rounds (by default all,
+    as ORB-SLAM3) use ORB-SLAM's isotropic information, the others the disparity model of ``stereo_information``.
+    Each round continues from the last estimate (ORB-SLAM restarts from the initial pose: same fixed point, fewer
+    iterations). ``EngineConfig.optimizer``: the compiled kernels of ``d2slam.slam.lm`` or g2o."""
     m = len(X)
     if m < 3:
         return Tcw.copy(), np.zeros(m, dtype=bool)
