@@ -269,6 +269,13 @@ class EngineConfig:
     kf_new_points_depth: float = 4.5
     # Local mapping.
     local_ba_iterations: int = 10
+    # True (ours): after local BA, an observation above the chi-square thresholds whose image residual alone passes
+    # the monocular test keeps its image observation, and its keyframe's depth at the keypoint is dropped (u_R = -1);
+    # False: the whole observation is erased (ORB-SLAM3, whose 1 px x scale u_R rarely fails where the image passes).
+    # With disparity_sigma_px a Kinect depth taken ~15 ms away from the colour image while the camera turns fails, and
+    # erasing cost a real keyframe its observations (fr1/rpy: the reference keyframe left with 4 points seen twice, no
+    # keyframe for 40 frames). Measured: docs/real_data.md.
+    lba_depth_outliers_mono: bool = True
     # True: a keyframe's local BA and keyframe culling run at the next frame that makes no keyframe, and are skipped
     # when that frame makes one (ORB-SLAM3's local mapping runs beside tracking and skips them while another keyframe
     # waits in its queue, aborting a running BA when one arrives). False: right after the keyframe, every time.

@@ -502,6 +502,41 @@ def test_keyframe_culling_needs_more_than_three_other_observers():
     # with 5, four others: keyframe 1 goes, and then 2-4 are back to three other observers each
     assert mapper.keyframe_culling(M.keyframes[5]) == [1]
 
+
+@pytest.mark.parametrize("keep_image", [True, False])
+def test_local_ba_drops_a_disagreeing_depth_but_keeps_the_image_observation(room, keep_image):
+    """After local BA, an observation whose depth disagrees with the map (3 px of disparity: a depth image taken while
+    the camera turned) but whose image residual fits stays as a monocular observation, the keyframe's u_R dropped and
+    counted once (``lba_depth_outliers_mono``); ORB-SLAM3's rule (False) erases it."""
+    frames, _, ts = room
+    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, lba_depth_outliers_mono=keep_image,
+                                                                  ba_when_idle=False))
+    eng = Engine(FR3, cfg)
+    for i in range(8):
+        assert eng.process(*frames[i], i, ts[i]).tracked
+    M = eng.map
+    kf = eng.tracker.create_keyframe(eng.last)  # a second keyframe, mapped (its local BA run)
+    eng.mapper.insert(kf)
+    assert eng.mapper.covisible(kf.id, 10) == [0]
+    seen = np.flatnonzero((kf.mp >= 0) & (kf.ur >= 0))
+    seen = seen[M.points.nobs[kf.mp[seen]] >= 4]  # points keyframe 0 sees with depth too
+    bad = seen[::5]
+    pts = kf.mp[bad]
+    nobs = M.points.nobs[pts].copy()
+    kf.ur[bad] -= 3.0
+    kf.grids.clear()
+    eng.mapper.local_bundle_adjustment(kf)
+    kept = kf.mp[bad] == pts
+    if keep_image:
+        assert kept.mean() > 0.9
+        assert (kf.ur[bad][kept] == -1).all()
+        rows = M.observation_rows(np.isin(np.arange(M.points.n), pts[kept]))
+        assert (M.obs.weight[rows[M.obs.kf[rows] == kf.id]] == 1).all()  # counted once now
+        assert np.isin(nobs[kept] - M.points.nobs[pts][kept], [1, 2]).all()  # (keyframe 0 may have lost its depth too)
+        assert (kf.ur[seen[1::5]] >= 0).mean() > 0.9  # the others keep their depth
+    else:
+        assert kept.mean() < 0.1
+
 def test_fusion_adds_observations_but_never_to_dynamic_keypoints(room):
     frames, gt, ts = room
     f = LeftHalfDynamic()

@@ -8,7 +8,7 @@ import numpy as np
 from d2slam.config import Config
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import CHECK_CHI2, search_by_projection, unique_by_target
-from d2slam.slam.optimizer import local_bundle_adjustment
+from d2slam.slam.optimizer import image_chi2, local_bundle_adjustment
 from d2slam.slam.projection import Projector
 
 
@@ -166,7 +166,9 @@ class LocalMapper:
                erase_outliers: bool) -> None:
         """Bundle adjustment of the keyframes ``cams`` (sorted; ``fixed`` held constant) and the points of the
         observation ``rows`` (their keyframes ``obs_kf``), written back to the map; with ``erase_outliers`` the
-        observations above the chi2 thresholds afterwards are erased."""
+        observations above the chi2 thresholds afterwards are erased, except (``lba_depth_outliers_mono``) those whose
+        image residual alone passes the monocular test: their keyframe's depth at the keypoint is dropped
+        (``Map.drop_depth``) and they stay as monocular observations."""
         M, cfg = self.map, self.cfg
         P = M.points
         cam_of = np.full(len(M.keyframes), -1)
@@ -188,7 +190,14 @@ class LocalMapper:
                 M.keyframes[c].Tcw = new_poses[i]
         P.pos[pts] = new_X
         if erase_outliers:
-            M.erase_observations(rows[outlier])
+            out = np.flatnonzero(outlier)
+            if cfg.lba_depth_outliers_mono:  # only the depth disagrees: the image observation stays
+                chi2, front = image_chi2(new_poses[cam_of[obs_kf[out]]], new_X[pinv[out]], uv[out], inv_s2[out],
+                                         self.proj.K)
+                depth_only = (ur[out] >= 0) & (chi2 <= cfg.chi2_mono) & front
+                M.drop_depth(rows[out[depth_only]])
+                out = out[~depth_only]
+            M.erase_observations(rows[out])
 
     def keyframe_culling(self, kf: KeyFrame) -> list[int]:
         """ORB-SLAM3 KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by

@@ -23,7 +23,7 @@ def make_keyframe(map_: Map, frame: Frame) -> KeyFrame:
     """A keyframe of ``frame`` (its pose and features; no observations yet), added to the map."""
     kf = KeyFrame(id=len(map_.keyframes), frame_index=frame.index, timestamp=frame.timestamp, Tcw=frame.Tcw.copy(),
                   kps=frame.kps, octave=frame.octave, angle=frame.angle, desc=frame.desc, depth=frame.depth,
-                  ur=frame.ur, inv_sigma2=frame.inv_sigma2, mp=np.full(frame.n, -1, dtype=np.int64),
+                  ur=frame.ur.copy(), inv_sigma2=frame.inv_sigma2, mp=np.full(frame.n, -1, dtype=np.int64),
                   dynamic=frame.dynamic.copy() if frame.belief is not None else None)
     map_.add_keyframe(kf)
     return kf
