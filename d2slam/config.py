@@ -274,7 +274,7 @@ class EngineConfig:
     # False: the whole observation is erased (ORB-SLAM3, whose 1 px x scale u_R rarely fails where the image passes).
     # With disparity_sigma_px a Kinect depth taken ~15 ms away from the colour image while the camera turns fails, and
     # erasing cost a real keyframe its observations (fr1/rpy: the reference keyframe left with 4 points seen twice, no
-    # keyframe for 40 frames). Measured: docs/real_data.md.
+    # keyframe for 43 frames). Measured: docs/real_data.md.
     lba_depth_outliers_mono: bool = True
     # True: a keyframe's local BA and keyframe culling run at the next frame that makes no keyframe, and are skipped
     # when that frame makes one (ORB-SLAM3's local mapping runs beside tracking and skips them while another keyframe

@@ -201,8 +201,8 @@ class LocalMapper:
 
     def keyframe_culling(self, kf: KeyFrame) -> list[int]:
         """ORB-SLAM3 KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by
-        more than ``keyframe_redundant_obs`` other keyframes at the same or a finer scale is redundant (the first keyframe
-        is never culled). Returns the culled keyframes."""
+        more than ``keyframe_redundant_obs`` other keyframes at the same or a finer scale is redundant (the first
+        keyframe is never culled). Returns the culled keyframes."""
         cfg, M = self.cfg, self.map
         P = M.points
         culled = []
