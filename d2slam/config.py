@@ -469,8 +469,12 @@ class EngineConfig(_Checked):
     # px over 1-3 m); ORB-SLAM's 1 px x scale lets points slide in depth and local BA drag keyframes with them.
     # Measured: docs/deviations.md.
     disparity_sigma_px: float = within(0.057, 0.0, 100.0)
-    # ... in motion-only BA, the first rounds use ORB-SLAM's information all the same (wide basin from a coarse pose).
-    pose_opt_coarse_rounds: int = within(1, 0, 100)
+    # Motion-only BA weighs u_R as ORB-SLAM3 does (1 px x scale) in its first pose_opt_coarse_rounds rounds and with
+    # disparity_sigma_px after them; 4 = all rounds (ORB-SLAM3 PoseOptimization): the disparity model serves local BA
+    # only. With 1, real Kinect frames whose depth image was taken ~15 ms before or after the colour image while the
+    # camera turned lost their correct matches as outliers (fr1/rpy), and `none` held on the synthetic walking
+    # sequences because people's depths disagree with the map. Measured: docs/real_data.md.
+    pose_opt_coarse_rounds: int = within(4, 0, 100)
     # Chi-square thresholds at 95 % (ORB-SLAM): 2 dof mono, 3 dof stereo.
     chi2_mono: float = within(5.991, 0.0, 1000.0, lo_open=True)
     chi2_stereo: float = within(7.815, 0.0, 1000.0, lo_open=True)
@@ -495,7 +499,9 @@ class EngineConfig(_Checked):
     search_radius_last_frame: float = within(15.0, 0.0, 1000.0, lo_open=True)
     search_radius_local_map: float = within(3.0, 0.0, 1000.0, lo_open=True)  # ORB-SLAM3 RGB-D: th = 3
     search_radius_relocalisation: float = within(10.0, 0.0, 1000.0, lo_open=True)
-    # local-map search radius on the frame after a relocalisation
+    # Local-map search radius on the relocalised frame (ORB-SLAM3 SearchLocalPoints: 15 while the state is still
+    # RECENTLY_LOST) and on the frame after it (5).
+    search_radius_relocalised: float = within(15.0, 0.0, 1000.0, lo_open=True)
     search_radius_after_relocalisation: float = within(5.0, 0.0, 1000.0, lo_open=True)
     # Local-map search radius factor by viewing angle (ORB-SLAM RadiusByViewingCos): frontal (cos above this) or not.
     local_map_frontal_cos: float = within(0.998, -1.0, 1.0)
@@ -538,6 +544,13 @@ class EngineConfig(_Checked):
     kf_new_points_depth: float = within(4.5, 0.0, 100.0)
     # Local mapping.
     local_ba_iterations: int = within(10, 0, 1000)
+    # True (ours): after local BA, an observation above the chi-square thresholds whose image residual alone passes
+    # the monocular test keeps its image observation, and its keyframe's depth at the keypoint is dropped (u_R = -1);
+    # False: the whole observation is erased (ORB-SLAM3, whose 1 px x scale u_R rarely fails where the image passes).
+    # With disparity_sigma_px a Kinect depth taken ~15 ms away from the colour image while the camera turns fails, and
+    # erasing cost a real keyframe its observations (fr1/rpy: the reference keyframe left with 4 points seen twice, no
+    # keyframe for 43 frames). Measured: docs/real_data.md.
+    lba_depth_outliers_mono: bool = flag(True)
     # True: a keyframe's local BA and keyframe culling run at the next frame that makes no keyframe, and are skipped
     # when that frame makes one (ORB-SLAM3's local mapping runs beside tracking and skips them while another keyframe
     # waits in its queue, aborting a running BA when one arrives). False: right after the keyframe, every time.
@@ -559,6 +572,9 @@ class EngineConfig(_Checked):
     mappoint_cull_age: int = within(2, 0, 1000)  # ... checked once a point is this many keyframes old
     # points stay on the recent list (MapPointCulling) for this many keyframes
     mappoint_recent_age: int = within(3, 0, 1000)
+    # KeyFrameCulling (ORB-SLAM3): a keyframe is redundant when more than keyframe_redundancy of its close points are
+    # seen by more than keyframe_redundant_obs other keyframes (ORB-SLAM3 1.0 counts nObs > 3; its comment and
+    # ORB-SLAM2, >= 3) at the same or a finer scale.
     keyframe_redundancy: float = within(0.9, 0.0, 1.0)
     keyframe_redundant_obs: int = within(3, 1, 1000)
     # Tracking the local map: keyframes sharing points with the frame (at most this many) + their covisibles.

@@ -108,6 +108,24 @@ def test_undistort_applied_with_distortion():
     np.testing.assert_array_equal(undistort(pts, FR3), pts)
 
 
+
+def test_image_bounds_are_the_undistorted_corners():
+    """ORB-SLAM3 Frame::ComputeImageBounds: projections are kept within the box of the undistorted image corners
+    (the freiburg1 lens), the image itself without distortion."""
+    from d2slam.data.intrinsics import FREIBURG1
+    from d2slam.slam.frame import undistort
+    from d2slam.slam.projection import Projector, image_bounds
+
+    assert image_bounds(FR3) == (0.0, 640.0, 0.0, 480.0)
+    corners = undistort(np.array([[0.0, 0.0], [640.0, 0.0], [0.0, 480.0], [640.0, 480.0]]), FREIBURG1)
+    x0, x1, y0, y1 = image_bounds(FREIBURG1)
+    assert (x0, x1, y0, y1) == (corners[[0, 2], 0].min(), corners[[1, 3], 0].max(), corners[[0, 1], 1].min(),
+                                corners[[2, 3], 1].max())
+    assert 5 < x0 < 20 and 620 < x1 < 635 and 5 < y0 < 20 and 465 < y1 < 478  # fr1's barrel: inside the image
+    proj = Projector(FREIBURG1, DEFAULT)
+    assert proj.in_image(np.array([x0, x0 - 0.1, x1, 320.0]), np.array([240.0, 240.0, y1, y0])).tolist() == \
+        [True, False, True, True]
+
 # ------------------------------------------------------------------ matching
 def test_hamming_matches_opencv():
     rng = np.random.default_rng(1)
@@ -149,6 +167,29 @@ def test_pose_optimization_recovers_pose_and_flags_outliers():
     assert np.abs(T_est[:3, 3] - T[:3, 3]).max() < 5e-3
     assert inl[:30].sum() == 0 and inl[30:].mean() > 0.9
 
+
+
+def test_motion_only_ba_weighs_depth_as_orbslam3():
+    """Motion-only BA uses ORB-SLAM3's information in every round (pose_opt_coarse_rounds = pose_opt_rounds): the same
+    pose and inliers as with disparity_sigma_px 0, so disparities 1-2 px off the map (a real Kinect's depth image
+    taken while the camera turned) keep their matches; the disparity model in its last rounds (1) loses them."""
+    rng = np.random.default_rng(7)
+    X, T, uv, ur = _points_problem(rng, noise=0.3)
+    stereo = ur >= 0
+    ur[stereo] += rng.choice([-1, 1], stereo.sum()) * rng.uniform(1, 2, stereo.sum())
+    cfg = EngineConfig()
+    assert cfg.pose_opt_coarse_rounds == cfg.pose_opt_rounds
+    T0 = T.copy()
+    T0[:3, 3] += [0.02, -0.01, 0.03]
+    T_est, inl = pose_optimization(T0, X, uv, ur, np.ones(len(X)), K, BF, cfg)
+    T_orb, inl_orb = pose_optimization(T0, X, uv, ur, np.ones(len(X)), K, BF,
+                                       dataclasses.replace(cfg, disparity_sigma_px=0.0))
+    np.testing.assert_array_equal(T_est, T_orb)
+    np.testing.assert_array_equal(inl, inl_orb)
+    assert inl.mean() > 0.9 and np.abs(T_est[:3, 3] - T[:3, 3]).max() < 0.01
+    _, inl_fine = pose_optimization(T0, X, uv, ur, np.ones(len(X)), K, BF,
+                                    dataclasses.replace(cfg, pose_opt_coarse_rounds=1))
+    assert inl_fine[stereo].mean() < 0.1
 
 @pytest.mark.parametrize("sigma_d", [0.0, 0.057])
 def test_local_ba_reduces_error_and_keeps_fixed_poses(sigma_d):
@@ -192,8 +233,8 @@ def test_local_ba_reduces_error_and_keeps_fixed_poses(sigma_d):
 @pytest.mark.parametrize("sigma_d", [0.0, 0.057])
 def test_compiled_lm_matches_g2o(sigma_d):
     """The compiled Levenberg-Marquardt (``optimizer = "lm"``) and g2o solve the same problems to the same poses,
-    points and outliers: motion-only BA with gross outliers (its rounds, Huber, coarse information) and a local BA
-    with fixed keyframes."""
+    points and outliers: motion-only BA with gross outliers (its rounds, Huber, coarse information, then the
+    disparity model) and a local BA with fixed keyframes."""
     from d2slam.bench.engine import local_ba_problem
 
     rng = np.random.default_rng(5)
@@ -205,7 +246,7 @@ def test_compiled_lm_matches_g2o(sigma_d):
     out = {}
     p = local_ba_problem(seed=1, n_cams=6, n_points=300)
     for name in ("lm", "g2o"):
-        cfg = dataclasses.replace(EngineConfig(), optimizer=name, disparity_sigma_px=sigma_d)
+        cfg = dataclasses.replace(EngineConfig(), optimizer=name, disparity_sigma_px=sigma_d, pose_opt_coarse_rounds=1)
         pose = pose_optimization(T0, X, uv, ur, s2, K, BF, cfg)
         ba = local_bundle_adjustment(p["start"], p["fixed"], p["X0"], p["cams"], p["pts"], p["uv"], p["ur"],
                                      np.ones(len(p["cams"])), p["K"], p["bf"], cfg)
@@ -250,6 +291,41 @@ def test_engine_tracks_room_and_is_deterministic(room):
     eng2, _ = _run(frames, ts)
     np.testing.assert_array_equal(eng2.trajectory()[2], P)  # same input -> identical trajectory
 
+
+
+def test_a_frame_whose_depth_disagrees_stays_tracked(room):
+    """A depth image 10 % off the map (disparities 1-3 px off: as a real Kinect's depth image taken ~15 ms away from
+    the colour image while the camera turns) keeps the frame tracked by the motion model, as ORB-SLAM3 tracks it; with
+    the disparity model in motion-only BA's last rounds (pose_opt_coarse_rounds 1) the frame was lost."""
+    frames, _, ts = room
+    states = {}
+    for rounds in (DEFAULT.engine.pose_opt_rounds, 1):
+        cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, pose_opt_coarse_rounds=rounds))
+        eng = Engine(FR3, cfg)
+        for i in range(7):
+            gray, depth = frames[i]
+            res = eng.process(gray, depth * np.float32(1.1) if i == 6 else depth, i, ts[i])
+        states[rounds] = (res.state, res.how)
+    assert states[DEFAULT.engine.pose_opt_rounds] == ("ok", "motion")
+    assert states[1][0] == "lost"
+
+
+def test_the_last_frame_follows_its_reference_keyframe(room):
+    """ORB-SLAM3 UpdateLastFrame: before the motion model predicts, the last frame is put back where its reference
+    keyframe now is (local BA may have moved the keyframe since the frame was tracked)."""
+    frames, _, ts = room
+    eng = Engine(FR3)
+    for i in range(4):
+        assert eng.process(*frames[i], i, ts[i]).tracked
+    tr = eng.tracker
+    last, ref = tr.last_tracked, eng.map.keyframes[tr.last_tracked.ref_kf]
+    np.testing.assert_allclose(last.Tcr @ ref.Tcw, last.Tcw, atol=1e-12)
+    shift = np.eye(4)
+    shift[:3, 3] = [0.01, 0.0, -0.02]
+    ref.Tcw = shift @ ref.Tcw
+    f = eng.extractor(*frames[4], 4, ts[4])
+    tr.track_with_motion_model(f)
+    np.testing.assert_allclose(last.Tcw, last.Tcr @ ref.Tcw, atol=1e-12)
 
 def test_textureless_and_invalid_depth_frames_are_lost(room):
     frames, gt, ts = room
@@ -400,6 +476,66 @@ def test_replace_points_moves_observations_and_kills_old():
     rows = M.observation_rows(np.arange(P.n) == b)
     assert sorted(M.obs.kf[rows].tolist()) == [0, 1]
 
+
+
+def test_keyframe_culling_needs_more_than_three_other_observers():
+    """ORB-SLAM3 1.0 KeyFrameCulling: a keyframe is redundant when 90 % of its close points are seen by more than
+    three other keyframes at the same or a finer scale (ORB-SLAM2: at least three)."""
+    from d2slam.slam.local_mapping import LocalMapper
+    from d2slam.slam.map import KeyFrame, Map
+    from d2slam.slam.projection import Projector
+
+    n = 20
+    M = Map()
+    ids = M.add_points(np.zeros((n, 3)), np.zeros((n, 32), np.uint8), np.zeros((n, 3)), np.zeros(n), np.ones(n),
+                       np.zeros(n), 0, np.zeros(n, np.float32), np.zeros(n, np.int64))
+    mapper = LocalMapper(M, Projector(FR3, DEFAULT), DEFAULT)
+    for i in range(6):
+        kf = KeyFrame(id=i, frame_index=i, timestamp=float(i), Tcw=np.eye(4), kps=np.zeros((n, 2)),
+                      octave=np.zeros(n, np.int64), angle=np.zeros(n, np.float32), desc=np.zeros((n, 32), np.uint8),
+                      depth=np.ones(n), ur=np.zeros(n), inv_sigma2=np.ones(n), mp=np.full(n, -1, np.int64))
+        M.add_keyframe(kf)
+        if i > 0:  # keyframe 0 sees none of them
+            M.add_observations(kf, np.arange(n), ids)
+        if i == 4:  # keyframe 1's points seen by keyframes 2, 3, 4: three others
+            assert mapper.keyframe_culling(kf) == []
+    # with 5, four others: keyframe 1 goes, and then 2-4 are back to three other observers each
+    assert mapper.keyframe_culling(M.keyframes[5]) == [1]
+
+
+@pytest.mark.parametrize("keep_image", [True, False])
+def test_local_ba_drops_a_disagreeing_depth_but_keeps_the_image_observation(room, keep_image):
+    """After local BA, an observation whose depth disagrees with the map (3 px of disparity: a depth image taken while
+    the camera turned) but whose image residual fits stays as a monocular observation, the keyframe's u_R dropped and
+    counted once (``lba_depth_outliers_mono``); ORB-SLAM3's rule (False) erases it."""
+    frames, _, ts = room
+    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, lba_depth_outliers_mono=keep_image,
+                                                                  ba_when_idle=False))
+    eng = Engine(FR3, cfg)
+    for i in range(8):
+        assert eng.process(*frames[i], i, ts[i]).tracked
+    M = eng.map
+    kf = eng.tracker.create_keyframe(eng.last)  # a second keyframe, mapped (its local BA run)
+    eng.mapper.insert(kf)
+    assert eng.mapper.covisible(kf.id, 10) == [0]
+    seen = np.flatnonzero((kf.mp >= 0) & (kf.ur >= 0))
+    seen = seen[M.points.nobs[kf.mp[seen]] >= 4]  # points keyframe 0 sees with depth too
+    bad = seen[::5]
+    pts = kf.mp[bad]
+    nobs = M.points.nobs[pts].copy()
+    kf.ur[bad] -= 3.0
+    kf.grids.clear()
+    eng.mapper.local_bundle_adjustment(kf)
+    kept = kf.mp[bad] == pts
+    if keep_image:
+        assert kept.mean() > 0.9
+        assert (kf.ur[bad][kept] == -1).all()
+        rows = M.observation_rows(np.isin(np.arange(M.points.n), pts[kept]))
+        assert (M.obs.weight[rows[M.obs.kf[rows] == kf.id]] == 1).all()  # counted once now
+        assert np.isin(nobs[kept] - M.points.nobs[pts][kept], [1, 2]).all()  # (keyframe 0 may have lost its depth too)
+        assert (kf.ur[seen[1::5]] >= 0).mean() > 0.9  # the others keep their depth
+    else:
+        assert kept.mean() < 0.1
 
 def test_fusion_adds_observations_but_never_to_dynamic_keypoints(room):
     frames, gt, ts = room

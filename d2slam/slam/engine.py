@@ -136,7 +136,7 @@ class Engine:
         with timer("track"):
             tracker.finish(frame, ok)
             if ok:
-                self.frame_refs[index] = (tracker.ref_kf.id, frame.Tcw @ inv(tracker.ref_kf.Tcw))
+                self.frame_refs[index] = (frame.ref_kf, frame.Tcr)
                 self.timestamps[index] = timestamp
             self.last, self.last_gray, self.last_depth = frame, gray, depth
         state = OK if ok else (NOT_INITIALIZED if tracker.state == NOT_INITIALIZED else LOST)

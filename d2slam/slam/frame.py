@@ -39,7 +39,8 @@ class Frame(Gridded):
     outlier: np.ndarray = field(default=None)  # (N,) bool
     belief: np.ndarray | None = None  # (N,) dynamic belief from the hook (None: no filter)
     Tcw: np.ndarray | None = None
-    ref_kf: int = -1
+    ref_kf: int = -1  # reference keyframe of a tracked frame (ORB-SLAM mpReferenceKF) ...
+    Tcr: np.ndarray | None = None  # ... and the frame's pose relative to it
     grids: dict = field(default_factory=dict, repr=False)  # cell size -> KeypointGrid (``Gridded.grid``)
 
     def __post_init__(self):

@@ -8,7 +8,7 @@ import numpy as np
 from d2slam.config import Config
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import CHECK_CHI2, search_by_projection, unique_by_target
-from d2slam.slam.optimizer import local_bundle_adjustment
+from d2slam.slam.optimizer import image_chi2, local_bundle_adjustment
 from d2slam.slam.projection import Projector
 
 
@@ -166,7 +166,9 @@ class LocalMapper:
                erase_outliers: bool) -> None:
         """Bundle adjustment of the keyframes ``cams`` (sorted; ``fixed`` held constant) and the points of the
         observation ``rows`` (their keyframes ``obs_kf``), written back to the map; with ``erase_outliers`` the
-        observations above the chi2 thresholds afterwards are erased."""
+        observations above the chi2 thresholds afterwards are erased, except (``lba_depth_outliers_mono``) those whose
+        image residual alone passes the monocular test: their keyframe's depth at the keypoint is dropped
+        (``Map.drop_depth``) and they stay as monocular observations."""
         M, cfg = self.map, self.cfg
         P = M.points
         cam_of = np.full(len(M.keyframes), -1)
@@ -188,12 +190,19 @@ class LocalMapper:
                 M.keyframes[c].Tcw = new_poses[i]
         P.pos[pts] = new_X
         if erase_outliers:
-            M.erase_observations(rows[outlier])
+            out = np.flatnonzero(outlier)
+            if cfg.lba_depth_outliers_mono:  # only the depth disagrees: the image observation stays
+                chi2, front = image_chi2(new_poses[cam_of[obs_kf[out]]], new_X[pinv[out]], uv[out], inv_s2[out],
+                                         self.proj.K)
+                depth_only = (ur[out] >= 0) & (chi2 <= cfg.chi2_mono) & front
+                M.drop_depth(rows[out[depth_only]])
+                out = out[~depth_only]
+            M.erase_observations(rows[out])
 
     def keyframe_culling(self, kf: KeyFrame) -> list[int]:
-        """ORB-SLAM KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by
-        >= ``keyframe_redundant_obs`` other keyframes at the same or a finer scale is redundant (the first keyframe
-        is never culled). Returns the culled keyframes."""
+        """ORB-SLAM3 KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by
+        more than ``keyframe_redundant_obs`` other keyframes at the same or a finer scale is redundant (the first
+        keyframe is never culled). Returns the culled keyframes."""
         cfg, M = self.cfg, self.map
         P = M.points
         culled = []
@@ -213,7 +222,7 @@ class LocalMapper:
             rows = rows[M.obs.kf[rows] != k]
             ok = M.obs.octave[rows] <= oct_here[M.obs.pt[rows]] + 1
             cnt = np.bincount(M.obs.pt[rows][ok], minlength=P.n)
-            redundant = int((cnt[pts] >= cfg.keyframe_redundant_obs).sum())
+            redundant = int((cnt[pts] > cfg.keyframe_redundant_obs).sum())
             if redundant > cfg.keyframe_redundancy * len(sel):
                 M.set_keyframe_bad(k)
                 culled.append(k)

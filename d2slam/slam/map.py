@@ -123,6 +123,21 @@ class Map:
         pts = np.unique(self.obs.pt[rows])
         self.points.alive[pts[self.points.nobs[pts] <= 0]] = False
 
+    def drop_depth(self, rows: np.ndarray) -> None:
+        """Observation rows whose keyframe's depth at the keypoint is dropped: the keyframe's ``u_R`` there becomes
+        -1 (a monocular observation from now on) and the row counts once, as ORB-SLAM counts an observation without
+        depth."""
+        rows = rows[self.obs.valid[rows]]
+        if len(rows) == 0:
+            return
+        kfs = self.obs.kf[rows]
+        for kid in np.unique(kfs):
+            kf = self.keyframes[kid]
+            kf.ur[self.obs.kp[rows[kfs == kid]]] = -1.0
+            kf.grids.clear()  # the search grids hold u_R
+        np.add.at(self.points.nobs, self.obs.pt[rows], 1 - self.obs.weight[rows])
+        self.obs.weight[rows] = 1
+
     def cull_points(self, ids: np.ndarray) -> None:
         """Set points bad and erase all their observations."""
         ids = np.asarray(ids, dtype=np.int64)

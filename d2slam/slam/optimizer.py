@@ -97,6 +97,18 @@ def reprojection_chi2(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     return stereo_chi2(uv[:, 0] - u, uv[:, 1] - v, ur - (u - bf / zs), ur >= 0, inv_sigma2, disparity_sigma), z > 0
 
 
+def image_chi2(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, inv_sigma2: np.ndarray,
+               K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Chi2 of the image part ``(u, v)`` of observations (each with its own pose: ``Tcw`` (M, 4, 4), points ``X``
+    (M, 3)), whatever their depth says, and whether the point is in front of the camera."""
+    Xc = np.einsum("nij,nj->ni", Tcw[:, :3, :3], X) + Tcw[:, :3, 3]
+    z = Xc[:, 2]
+    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
+    du = uv[:, 0] - (K[0, 0] * Xc[:, 0] / zs + K[0, 2])
+    dv = uv[:, 1] - (K[1, 1] * Xc[:, 1] / zs + K[1, 2])
+    return (du ** 2 + dv ** 2) * inv_sigma2, z > 0
+
+
 def stereo_chi2(du, dv, dur, stereo, inv_sigma2, disparity_sigma: float = 0.0):
     """``r^T I r`` for residuals (du, dv, du_R) with the information of ``stereo_information`` (du_R ignored where
     ``stereo`` is False: a monocular observation). Broadcasts."""
@@ -269,10 +281,10 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     ``pose_opt_rounds`` rounds of ``pose_opt_iterations`` LM iterations; after each round every edge is classified
     (chi2 against 5.991 mono / 7.815 stereo), outliers are left out of the next round and may come back; the robust
     kernel is dropped after the third round, as in ORB-SLAM. Each round stops early when the relative chi2
-    decrease falls below ``pose_opt_gain_threshold``. The first ``pose_opt_coarse_rounds`` rounds use ORB-SLAM's
-    isotropic information (a wide basin from a coarse initial pose). Each round continues from the last estimate
-    (ORB-SLAM restarts from the initial pose: same fixed point, fewer iterations). ``EngineConfig.optimizer``:
-    the compiled kernels of ``d2slam.slam.lm`` or g2o."""
+    decrease falls below ``pose_opt_gain_threshold``. The first ``pose_opt_coarse_rounds`` rounds (by default all,
+    as ORB-SLAM3) use ORB-SLAM's isotropic information, the others the disparity model of ``stereo_information``.
+    Each round continues from the last estimate (ORB-SLAM restarts from the initial pose: same fixed point, fewer
+    iterations). ``EngineConfig.optimizer``: the compiled kernels of ``d2slam.slam.lm`` or g2o."""
     m = len(X)
     if m < 3:
         return Tcw.copy(), np.zeros(m, dtype=bool)

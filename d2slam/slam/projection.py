@@ -7,7 +7,7 @@ import numpy as np
 
 from d2slam.config import Config
 from d2slam.data.base import Camera
-from d2slam.slam.frame import close_depth
+from d2slam.slam.frame import close_depth, undistort
 
 EPS_Z = 1e-9  # depths below this count as behind the camera (no division by ~0)
 
@@ -21,6 +21,16 @@ def inv(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def image_bounds(camera: Camera) -> tuple[float, float, float, float]:
+    """(min x, max x, min y, max y) of the undistorted image: ORB-SLAM3 ``Frame::ComputeImageBounds`` (the image
+    corners undistorted; without distortion the image itself, 0..width by 0..height)."""
+    if not camera.has_distortion:
+        return 0.0, float(camera.width), 0.0, float(camera.height)
+    w, h = float(camera.width), float(camera.height)
+    c = undistort(np.array([[0.0, 0.0], [w, 0.0], [0.0, h], [w, h]]), camera)
+    return min(c[0, 0], c[2, 0]), max(c[1, 0], c[3, 0]), min(c[0, 1], c[1, 1]), max(c[2, 1], c[3, 1])
+
+
 class Projector:
     """What every stage needs of the camera: intrinsics, ``bf`` and its baseline, the close-point depth, the
     pyramid scales."""
@@ -32,6 +42,7 @@ class Projector:
         self.bf = float(camera.bf)
         self.b = self.bf / camera.fx
         self.width, self.height = camera.width, camera.height
+        self.bounds = image_bounds(camera)
         self.th_depth_m = close_depth(camera, config.engine)
         self.n_levels = config.orb.n_levels
         self.scales = config.orb.scale_factor ** np.arange(config.orb.n_levels)
@@ -50,7 +61,9 @@ class Projector:
         return u, v, z
 
     def in_image(self, u, v):
-        return (u >= 0) & (u < self.width) & (v >= 0) & (v < self.height)
+        """Whether undistorted pixel coordinates fall within the undistorted image (``image_bounds``)."""
+        x0, x1, y0, y1 = self.bounds
+        return (u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)
 
     def backproject(self, kps: np.ndarray, z: np.ndarray) -> np.ndarray:
         """(M, 3) camera coordinates of pixels ``kps`` (M, 2) at depths ``z``."""

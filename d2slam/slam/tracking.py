@@ -23,7 +23,7 @@ def make_keyframe(map_: Map, frame: Frame) -> KeyFrame:
     """A keyframe of ``frame`` (its pose and features; no observations yet), added to the map."""
     kf = KeyFrame(id=len(map_.keyframes), frame_index=frame.index, timestamp=frame.timestamp, Tcw=frame.Tcw.copy(),
                   kps=frame.kps, octave=frame.octave, angle=frame.angle, desc=frame.desc, depth=frame.depth,
-                  ur=frame.ur, inv_sigma2=frame.inv_sigma2, mp=np.full(frame.n, -1, dtype=np.int64),
+                  ur=frame.ur.copy(), inv_sigma2=frame.inv_sigma2, mp=np.full(frame.n, -1, dtype=np.int64),
                   dynamic=frame.dynamic.copy() if frame.belief is not None else None)
     map_.add_keyframe(kf)
     return kf
@@ -93,6 +93,7 @@ class Tracker:
             last = self.last_tracked
             self.velocity = frame.Tcw @ inv(last.Tcw) if last is not None and last.index == frame.index - 1 else None
             frame.ref_kf = self.ref_kf.id
+            frame.Tcr = frame.Tcw @ inv(self.ref_kf.Tcw)
             frame.mp[frame.outlier] = -1
             frame.outlier[:] = False
             self.last_tracked = frame
@@ -178,7 +179,11 @@ class Tracker:
         return self.assign(frame, best[ok], pid[ok], d1[ok], last.angle[sel][ok])
 
     def track_with_motion_model(self, frame: Frame) -> bool:
+        """ORB-SLAM3 TrackWithMotionModel: the last frame follows its reference keyframe (``UpdateLastFrame``: local
+        BA may have moved it since), the constant velocity predicts the pose, the last frame's points are searched
+        (twice the radius when few match), motion-only BA."""
         last = self.last_tracked
+        last.Tcw = last.Tcr @ self.map.keyframes[last.ref_kf].Tcw
         frame.Tcw = self.velocity @ last.Tcw
         frame.mp[:] = -1
         th = self.cfg.search_radius_last_frame
@@ -270,11 +275,15 @@ class Tracker:
         """ORB-SLAM TrackLocalMap: the local keyframes' points searched by projection, motion-only BA; enough
         inliers (more just after a relocalisation) keep the frame tracked."""
         cfg = self.cfg
+        matched = frame.mp[frame.mp >= 0]
+        self.map.points.visible[matched[self.map.points.alive[matched]]] += 1  # seen, as ORB-SLAM3 counts them
         local = self.local_keyframes(frame)
         if local:
             pts = self.map.points_of(local)
             th = cfg.search_radius_local_map
-            if frame.index - self.last_reloc_frame < 2:
+            if frame.index == self.last_reloc_frame:
+                th = cfg.search_radius_relocalised
+            elif frame.index - self.last_reloc_frame < 2:
                 th = cfg.search_radius_after_relocalisation
             self.search_local_points(frame, pts, th)
         n_in = self.optimize_pose(frame)
