@@ -558,11 +558,32 @@ class EngineConfig(_Checked):
     # Both optimisations: "lm" (compiled Levenberg-Marquardt, d2slam.slam.lm) or "g2o" (the g2opy wheel, same
     # model; its graph is built edge by edge from Python, several times slower).
     optimizer: Literal["lm", "g2o"] = one_of("lm", "lm", "g2o")
-    # SearchInNeighbors (observation part, no point merging): the new keyframe and its best covisibles (+ their
-    # neighbours) exchange points by projection (radius th x scale, chi-square test, Hamming <= desc_th_low).
-    fuse_neighbours: int = within(0, 0, 1000)  # 0 = off; 10 = ORB-SLAM (measured: docs/deviations.md)
-    fuse_second_neighbours: int = within(5, 0, 1000)
+    # SearchInNeighbors (ORB-SLAM3 LocalMapping, with ORBmatcher::Fuse): the new keyframe's points are projected into
+    # its best fuse_neighbours covisibles and their best fuse_second_neighbours covisibles (ORB-SLAM3 1.0: 10 and 20),
+    # and theirs into it (radius fuse_radius x scale, chi-square test, Hamming <= desc_th_low): a free keypoint gains
+    # an observation, a keypoint with a point merges the two points. 0 = off.
+    fuse_neighbours: int = within(0, 0, 1000)
+    fuse_second_neighbours: int = within(20, 0, 1000)
     fuse_radius: float = within(3.0, 0.0, 1000.0, lo_open=True)
+    # ... its chi-square test weighs u_R at disparity_sigma_px (True, as local BA) or at 1 px x scale (False, ORB-SLAM3)
+    fuse_disparity_model: bool = flag(False)
+    # CreateNewMapPoints (ORB-SLAM3 LocalMapping, with ORBmatcher::SearchForTriangulation): the new keyframe's
+    # keypoints without a point are matched with the free keypoints of its best triangulate_neighbours covisibles
+    # (ORB-SLAM3 RGB-D: 10; same vocabulary node, Hamming <= desc_th_low, within triangulation_epipolar_chi2 x sigma^2
+    # of the epipolar line, away from the epipole, orientation check) and each match becomes a point, triangulated
+    # (rays' cos below triangulation_max_cos_parallax without depth) or from a keyframe's depth, in front of both
+    # keyframes, within the chi-square tests in both, its distances to them consistent with the octaves within
+    # triangulation_ratio_factor x OrbConfig.scale_factor. 0 = off.
+    triangulate_neighbours: int = within(0, 0, 1000)
+    triangulation_max_cos_parallax: float = within(0.9998, -1.0, 1.0)
+    triangulation_epipolar_chi2: float = within(3.84, 0.0, 1000.0, lo_open=True, why="chi-square, 1 dof (95 %: 3.84)")
+    triangulation_epipole_px: float = within(10.0, 0.0, 1000.0)  # ... px x sqrt(scale) from the epipole (ORB-SLAM3)
+    triangulation_ratio_factor: float = within(1.5, 1.0, 100.0)
+    # ORB-SLAM3 MapPoint::ComputeDistinctiveDescriptors and UpdateNormalAndDepth whenever local mapping adds
+    # observations (ProcessNewKeyFrame, CreateNewMapPoints, SearchInNeighbors): a point's descriptor becomes the medoid
+    # of its observations', its normal the mean viewing ray, its distance range from its reference keyframe. False: the
+    # descriptor, normal and range it was made with.
+    update_points: bool = flag(False)
     local_ba_window: int = within(10, 1, 1000)  # covisible keyframes optimised with the new one (best by shared points)
     # keyframes held fixed (best by observations of the local points; ours, for speed)
     local_ba_max_fixed: int = within(5, 0, 1000)

@@ -70,7 +70,7 @@ class Engine:
         self._drop_upcoming()
         self.map = Map()
         self.tracker = Tracker(self.map, self.proj, self.config)
-        self.mapper = LocalMapper(self.map, self.proj, self.config)
+        self.mapper = LocalMapper(self.map, self.proj, self.config, self.vocabulary)
         self.loop = None
         if self.vocabulary is not None:
             self.loop = LoopCloser(self.map, self.proj, self.config, self.vocabulary, self.mapper)

@@ -1,22 +1,29 @@
-"""Local mapping (ORB-SLAM3 ``LocalMapping``) for a new keyframe, run synchronously (deterministic): culling of
-recent points, the observation part of SearchInNeighbors, local bundle adjustment, keyframe culling."""
+"""Local mapping (ORB-SLAM3 ``LocalMapping``) for a new keyframe, run synchronously (deterministic): the points'
+descriptors, normals and distance ranges (``ProcessNewKeyFrame``), culling of recent points, new points triangulated
+with the covisible keyframes (``CreateNewMapPoints``), the fusion of duplicate points with the neighbours
+(``SearchInNeighbors``), local bundle adjustment, keyframe culling. Each ORB-SLAM3 step that our engine long did
+without is a switch of ``EngineConfig``."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from d2slam.config import Config
+from d2slam.slam import geometric_tools
 from d2slam.slam.map import KeyFrame, Map
-from d2slam.slam.matching import CHECK_CHI2, search_by_projection, unique_by_target
+from d2slam.slam.matching import (CHECK_CHI2, rotation_consistent, search_by_projection, search_for_triangulation,
+                                  unique_by_target)
 from d2slam.slam.optimizer import image_chi2, local_bundle_adjustment
-from d2slam.slam.projection import Projector
+from d2slam.slam.projection import Projector, inv
 
 
 class LocalMapper:
-    def __init__(self, map_: Map, proj: Projector, config: Config):
+    def __init__(self, map_: Map, proj: Projector, config: Config, vocabulary=None):
         self.map = map_
         self.proj = proj
         self.cfg = config.engine
+        self.orb = config.orb
+        self.vocabulary = vocabulary  # BowVocabulary: the feature-vector nodes of triangulation's search (or None)
         self.pending: KeyFrame | None = None  # keyframe whose local BA and culling wait for an idle frame
 
     def insert(self, kf: KeyFrame) -> list[int]:
@@ -24,10 +31,15 @@ class LocalMapper:
         its local BA and keyframe culling wait for ``idle`` (a waiting keyframe's are dropped, as ORB-SLAM3's local
         mapping skips them when the next keyframe is already queued), or run now. Returns the keyframes culled."""
         self.pending = None
+        cfg = self.cfg
+        if cfg.update_points:  # ProcessNewKeyFrame: the points the keyframe observes now
+            self.map.update_points(kf.mp[kf.mp >= 0], self.proj.scales)
         self.map_point_culling(kf)
-        if self.cfg.fuse_neighbours:
+        if cfg.triangulate_neighbours:
+            self.create_new_map_points(kf)
+        if cfg.fuse_neighbours:
             self.search_in_neighbors(kf)
-        if self.cfg.ba_when_idle:
+        if cfg.ba_when_idle:
             self.pending = kf
             return []
         return self.optimise(kf)
@@ -60,30 +72,39 @@ class LocalMapper:
         self.map.recent_points = r[~bad & (age < cfg.mappoint_recent_age)]
 
     def search_in_neighbors(self, kf: KeyFrame) -> None:
-        """ORB-SLAM SearchInNeighbors (observation part): the new keyframe's points are searched in its covisible
-        keyframes and their neighbours, and those keyframes' points in the new keyframe, so that points seen but not
-        tracked gain observations (and survive MapPointCulling); a keypoint that already has another point merges the
-        two (``fuse_into``). Off by default (``fuse_neighbours = 0``, see ``EngineConfig``)."""
-        first = self.covisible(kf.id, self.cfg.fuse_neighbours)
+        """ORB-SLAM3 SearchInNeighbors: the targets are the new keyframe's best ``fuse_neighbours`` covisibles and
+        their best ``fuse_second_neighbours`` covisibles; the new keyframe's points are fused into every target, then
+        all the targets' points into the new keyframe (``fuse_into``: an observation where the keypoint is free, the
+        two points merged into one where it has a point); then (``update_points``) the descriptors, normals and
+        distance ranges of its points and of the merged ones. The reprojection test weighs u_R at 1 px x scale as
+        ORB-SLAM3 (``fuse_disparity_model``: with ``disparity_sigma_px``)."""
+        cfg = self.cfg
+        first = self.covisible(kf.id, cfg.fuse_neighbours)
         targets = list(first)
         for k in first:
-            targets += [c for c in self.covisible(k, self.cfg.fuse_second_neighbours) if c != kf.id]
+            targets += [c for c in self.covisible(k, cfg.fuse_second_neighbours) if c != kf.id]
         targets = list(dict.fromkeys(targets))
         if not targets:
             return
-        th = self.cfg.fuse_radius
+        sigma = cfg.disparity_sigma_px if cfg.fuse_disparity_model else 0.0
         own = kf.mp[kf.mp >= 0]
-        for k in targets:
-            self.fuse_into(self.map.keyframes[k], own, th)
+        merged = [self.fuse_into(self.map.keyframes[k], own, cfg.fuse_radius, sigma, merge_all=True) for k in targets]
         pts = np.concatenate([self.map.keyframes[k].mp for k in targets])
-        self.fuse_into(kf, pts[pts >= 0], th)
+        merged.append(self.fuse_into(kf, pts[pts >= 0], cfg.fuse_radius, sigma, merge_all=True))
+        if cfg.update_points:
+            self.map.update_points(np.concatenate([kf.mp[kf.mp >= 0], *merged]), self.proj.scales)
 
-    def fuse_into(self, kf: KeyFrame, pids: np.ndarray, th: float) -> int:
-        """ORB-SLAM ORBmatcher::Fuse(pKF, points), observation part, vectorised: points not yet seen by ``kf`` are
-        projected into it (depth, frustum, scale range, viewing angle), their predicted level gives the radius
-        ``th`` x scale and the levels [level - 1, level]; a free, static keypoint whose reprojection (with u_R when it
-        has depth) passes the chi-square test and whose Hamming distance is <= TH_LOW becomes an observation, one
-        point per keypoint. Returns the number of observations added."""
+    def fuse_into(self, kf: KeyFrame, pids: np.ndarray, th: float, disparity_sigma: float | None = None,
+                  merge_all: bool = False) -> np.ndarray:
+        """ORB-SLAM ORBmatcher::Fuse(pKF, points), vectorised: points not yet seen by ``kf`` are projected into it
+        (depth, frustum, scale range, viewing angle), their predicted level gives the radius ``th`` x scale and the
+        levels [level - 1, level]; the nearest (Hamming) static keypoint whose reprojection passes the chi-square
+        test (u_R weighed with ``disparity_sigma``, default ``disparity_sigma_px``; 0: 1 px x scale) is the point's
+        match when the distance is <= TH_LOW. The best point of each keypoint becomes an observation where the
+        keypoint is free; where it has a point, the two are one point: the one with more observations survives (ties:
+        the projected one, as ORB-SLAM3). ``merge_all``: the other points matched to the same keypoint merge into it
+        too (ORB-SLAM3 fuses points one after the other, so a second point meets the first one there). Returns the
+        surviving points of the merges."""
         cfg, proj = self.cfg, self.proj
         P = self.map.points
         pids = np.unique(pids)
@@ -92,27 +113,121 @@ class LocalMapper:
         seen[kf.mp[kf.mp >= 0]] = True
         pids = pids[~seen[pids]]
         if len(pids) == 0 or len(kf.kps) == 0:
-            return 0
+            return np.zeros(0, dtype=np.int64)
         pids, u, v, z, level, _ = proj.in_frustum(P, kf.Tcw, pids)
         if len(pids) == 0:
-            return 0
+            return np.zeros(0, dtype=np.int64)
         usable = np.ones(len(kf.kps), dtype=bool) if kf.dynamic is None else ~kf.dynamic
+        sigma = cfg.disparity_sigma_px if disparity_sigma is None else disparity_sigma
         best, d1, _, _, _ = search_by_projection(kf.grid(cfg.search_grid_cell), np.c_[u, v], u - proj.bf / z,
                                                  th * proj.scales[level], level - 1, level, P.desc[pids], usable,
-                                                 CHECK_CHI2, kf.inv_sigma2, cfg.disparity_sigma_px, cfg.chi2_mono,
-                                                 cfg.chi2_stereo)
+                                                 CHECK_CHI2, kf.inv_sigma2, sigma, cfg.chi2_mono, cfg.chi2_stereo)
         sel = (best >= 0) & (d1 <= cfg.desc_th_low)
         kp, pid, d = best[sel], pids[sel], d1[sel].astype(np.float64)
         keep = unique_by_target(pid, kp, d)
-        kp, pid = kp[keep], pid[keep]
+        free = kf.mp[kp[keep]] < 0
+        self.map.add_observations(kf, kp[keep][free], pid[keep][free])
+        if not merge_all:
+            kp, pid = kp[keep], pid[keep]
+        return self._merge_at_keypoints(kf, kp, pid)
+
+    def _merge_at_keypoints(self, kf: KeyFrame, kp: np.ndarray, pid: np.ndarray) -> np.ndarray:
+        """Each point ``pid`` matched to keypoint ``kp`` of ``kf`` (which has a point now) is one point with the point
+        there: per keypoint the point with the most observations survives (ties: not the one already there), the
+        others are replaced by it (``Map.replace_points``). Returns the survivors."""
+        P = self.map.points
         there = kf.mp[kp]
-        free = there < 0
-        self.map.add_observations(kf, kp[free], pid[free])
-        # The keypoint already has a point: the two are one (ORB-SLAM keeps the one with more observations).
-        a, b = pid[~free], there[~free]
-        b_wins = P.nobs[b] > P.nobs[a]
-        self.map.replace_points(np.r_[a[b_wins], b[~b_wins]], np.r_[b[b_wins], a[~b_wins]])
-        return len(kp)
+        other = pid != there
+        kp, pid, there = kp[other], pid[other], there[other]
+        if len(kp) == 0:
+            return np.zeros(0, dtype=np.int64)
+        group = np.r_[kp, np.unique(kp)]
+        member = np.r_[pid, kf.mp[np.unique(kp)]]
+        is_there = np.r_[np.zeros(len(kp), bool), np.ones(len(group) - len(kp), bool)]
+        order = np.lexsort((is_there, -P.nobs[member], group))
+        group, member = group[order], member[order]
+        head = np.r_[True, group[1:] != group[:-1]]
+        survivor = member[head][np.cumsum(head) - 1]
+        self.map.replace_points(member[~head], survivor[~head])
+        return np.unique(member[head])
+
+    # ------------------------------------------------------------------ CreateNewMapPoints
+    def create_new_map_points(self, kf: KeyFrame) -> int:
+        """ORB-SLAM3 CreateNewMapPoints: the new keyframe's keypoints without a point are matched with those of each
+        of its best ``triangulate_neighbours`` covisibles (whose centre lies at least the baseline b away):
+        ``triangulation_matches``; each match that passes ``geometric_tools.new_points`` becomes a point observed by
+        both keyframes (descriptor, normal and distance range from its observations), on the recent list of
+        MapPointCulling. Returns the points made."""
+        cfg, made = self.cfg, 0
+        C1 = inv(kf.Tcw)[:3, 3]
+        for k in self.covisible(kf.id, cfg.triangulate_neighbours):
+            kf2 = self.map.keyframes[k]
+            if np.linalg.norm(inv(kf2.Tcw)[:3, 3] - C1) < self.proj.b:
+                continue
+            i1, i2 = self.triangulation_matches(kf, kf2)
+            if len(i1) == 0:
+                continue
+            v1 = geometric_tools.View(kf.Tcw, kf.kps[i1], kf.ur[i1], kf.depth[i1], kf.octave[i1])
+            v2 = geometric_tools.View(kf2.Tcw, kf2.kps[i2], kf2.ur[i2], kf2.depth[i2], kf2.octave[i2])
+            X, ok = geometric_tools.new_points(v1, v2, self.proj.K, self.proj.bf, self.proj.scales,
+                                               cfg.triangulation_max_cos_parallax, cfg.chi2_mono, cfg.chi2_stereo,
+                                               cfg.triangulation_ratio_factor * self.orb.scale_factor)
+            made += len(self._add_triangulated(kf, kf2, i1[ok], i2[ok], X[ok]))
+        return made
+
+    def triangulation_matches(self, kf1: KeyFrame, kf2: KeyFrame) -> tuple[np.ndarray, np.ndarray]:
+        """ORB-SLAM3 ORBmatcher::SearchForTriangulation: the free static keypoints of ``kf1`` and ``kf2`` under the
+        same vocabulary feature-vector node (every pair without a vocabulary) within Hamming ``desc_th_low``, the
+        epipolar test at ``triangulation_epipolar_chi2`` x sigma^2 and, for two keypoints without depth, outside
+        ``triangulation_epipole_px`` x sqrt(scale) of the epipole; the orientation check; one keypoint of ``kf2`` per
+        keypoint of ``kf1`` and back (the nearest; ORB-SLAM3 1.0 lets two share one)."""
+        cfg, proj = self.cfg, self.proj
+        f1 = np.flatnonzero((kf1.mp < 0) & self._static(kf1))
+        f2 = np.flatnonzero((kf2.mp < 0) & self._static(kf2))
+        if len(f1) == 0 or len(f2) == 0:
+            return f1[:0], f2[:0]
+        rows = search_for_triangulation(self._nodes(kf1)[f1], kf1.kps[f1], kf1.ur[f1] >= 0, kf1.desc[f1],
+                                        self._nodes(kf2)[f2], kf2.kps[f2], kf2.ur[f2] >= 0, kf2.octave[f2],
+                                        kf2.desc[f2], geometric_tools.fundamental_matrix(kf1.Tcw, kf2.Tcw, proj.K),
+                                        geometric_tools.epipole(kf1.Tcw, kf2.Tcw, proj.K), proj.scales ** 2,
+                                        cfg.desc_th_low, cfg.triangulation_epipolar_chi2,
+                                        cfg.triangulation_epipole_px ** 2, proj.scales)
+        i1, i2 = f1[rows[:, 0]], f2[rows[:, 1]]
+        if cfg.check_orientation and len(i1):
+            ok = rotation_consistent(kf1.angle[i1], kf2.angle[i2], cfg.rotation_histogram_bins)
+            i1, i2, rows = i1[ok], i2[ok], rows[ok]
+        keep = unique_by_target(i1, i2, rows[:, 2].astype(np.float64))
+        return i1[keep], i2[keep]
+
+    @staticmethod
+    def _static(kf: KeyFrame) -> np.ndarray:
+        return np.ones(len(kf.kps), dtype=bool) if kf.dynamic is None else ~kf.dynamic
+
+    def _nodes(self, kf: KeyFrame) -> np.ndarray:
+        """The keypoints' vocabulary feature-vector nodes (ORB-SLAM3 ``ComputeBoW``), computed once per keyframe; all
+        0 without a vocabulary."""
+        if kf.fv_nodes is None:
+            kf.fv_nodes = np.zeros(len(kf.kps), dtype=np.int64) if self.vocabulary is None else \
+                self.vocabulary.transform(kf.desc, self.cfg.bow_levelsup)[1]
+        return kf.fv_nodes
+
+    def _add_triangulated(self, kf1: KeyFrame, kf2: KeyFrame, i1: np.ndarray, i2: np.ndarray,
+                          X: np.ndarray) -> np.ndarray:
+        """New points at ``X`` observed by keypoints ``i1`` of ``kf1`` (their maker) and ``i2`` of ``kf2``, belief 0
+        (both keypoints static), their descriptor, normal and distance range from the two observations."""
+        M = self.map
+        if len(i1) == 0:
+            return i1
+        C1 = inv(kf1.Tcw)[:3, 3]
+        PO = X - C1
+        dist = np.linalg.norm(PO, axis=1)
+        dmax = dist * self.proj.scales[kf1.octave[i1]]
+        ids = M.add_points(X, kf1.desc[i1], PO / dist[:, None], dmax / self.proj.scales[-1], dmax, np.zeros(len(i1)),
+                           kf1.id, kf1.angle[i1], kf1.octave[i1])
+        M.add_observations(kf1, i1, ids)
+        M.add_observations(kf2, i2, ids)
+        M.update_points(ids, self.proj.scales)
+        return ids
 
     def local_bundle_adjustment(self, kf: KeyFrame) -> None:
         """ORB-SLAM3 LocalBundleAdjustment: the new keyframe and its best covisibles are optimised with all the

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from d2slam.slam.matching import Gridded
+from d2slam.slam.matching import Gridded, medoid_descriptors
 
 
 class Columns:
@@ -58,6 +58,7 @@ class KeyFrame(Gridded):
     mp: np.ndarray  # (N,) map point ids, -1 none
     bad: bool = False
     dynamic: np.ndarray | None = None  # (N,) bool: the hook's verdict when the keyframe was made (None: no filter)
+    fv_nodes: np.ndarray | None = field(default=None, repr=False)  # (N,) vocabulary feature-vector nodes, when needed
     grids: dict = field(default_factory=dict, repr=False)  # cell size -> KeypointGrid (``Gridded.grid``)
 
 
@@ -137,6 +138,41 @@ class Map:
             kf.grids.clear()  # the search grids hold u_R
         np.add.at(self.points.nobs, self.obs.pt[rows], 1 - self.obs.weight[rows])
         self.obs.weight[rows] = 1
+
+    def update_points(self, ids: np.ndarray, scales: np.ndarray) -> None:
+        """ORB-SLAM ``MapPoint::ComputeDistinctiveDescriptors`` and ``UpdateNormalAndDepth`` for the live points
+        ``ids``, from their valid observations: the descriptor becomes the medoid of the observing keypoints'
+        (``medoid_descriptors``); the normal the mean of the unit rays from the observing keyframes' centres (not
+        normalised again, as ORB-SLAM3); the distance range ``dmax = |X - O_ref| x scales[level in ref]``, ``dmin =
+        dmax / scales[-1]``, ref being the keyframe that made the point while it observes it (``first_kf``), else
+        the observing keyframe of the lowest id (ORB-SLAM3 takes the first of its observations then)."""
+        P = self.points
+        ids = np.unique(np.asarray(ids, dtype=np.int64))
+        ids = ids[P.alive[ids]]
+        if len(ids) == 0:
+            return
+        mask = np.zeros(P.n, dtype=bool)
+        mask[ids] = True
+        rows = self.observation_rows(mask)
+        rows = rows[np.lexsort((self.obs.kf[rows], self.obs.pt[rows]))]  # by point, then keyframe
+        pt, kf, kp = self.obs.pt[rows], self.obs.kf[rows], self.obs.kp[rows]
+        ids, start = np.unique(pt, return_index=True)
+        desc = np.empty((len(rows), 32), dtype=np.uint8)
+        centre = np.empty((len(rows), 3))
+        for k in np.unique(kf):
+            sel = kf == k
+            K_ = self.keyframes[k]
+            desc[sel] = K_.desc[kp[sel]]
+            centre[sel] = -K_.Tcw[:3, :3].T @ K_.Tcw[:3, 3]
+        P.desc[ids] = desc[medoid_descriptors(desc, np.r_[start, len(rows)])]
+        ray = P.pos[pt] - centre
+        dist = np.linalg.norm(ray, axis=1)
+        count = np.diff(np.r_[start, len(rows)])
+        P.normal[ids] = np.add.reduceat(ray / np.maximum(dist, 1e-12)[:, None], start, axis=0) / count[:, None]
+        ref = np.where(kf == P.first_kf[pt], 0, 1) * (1 << 40) + kf  # the maker first, else the lowest id
+        first = np.flatnonzero(ref == np.repeat(np.minimum.reduceat(ref, start), count))  # one row per point
+        P.dmax[ids] = dist[first] * scales[self.obs.octave[rows[first]]]
+        P.dmin[ids] = P.dmax[ids] / scales[-1]
 
     def cull_points(self, ids: np.ndarray) -> None:
         """Set points bad and erase all their observations."""

@@ -200,6 +200,89 @@ def search_by_projection(grid: KeypointGrid, uv: np.ndarray, ur_proj: np.ndarray
                         int(check), float(disparity_sigma), float(chi2_mono), float(chi2_stereo))
 
 
+def search_for_triangulation(nodes1: np.ndarray, kps1: np.ndarray, stereo1: np.ndarray, desc1: np.ndarray,
+                             nodes2: np.ndarray, kps2: np.ndarray, stereo2: np.ndarray, oct2: np.ndarray,
+                             desc2: np.ndarray, F12: np.ndarray, ep: np.ndarray, sigma2: np.ndarray, th_low: int,
+                             epipolar_chi2: float, epipole_px2: float, scales: np.ndarray) -> np.ndarray:
+    """ORB-SLAM3 ``ORBmatcher::SearchForTriangulation``'s search between the free keypoints of two keyframes (arrays
+    of those keypoints only): keypoints are compared only under the same vocabulary node (``nodes*``: feature-vector
+    nodes; all equal: every pair); for each keypoint of 1 the nearest of 2 within Hamming ``th_low`` whose pixel
+    lies within ``epipolar_chi2 x sigma2[octave]`` (squared px) of the epipolar line ``x1^T F12`` and, when neither
+    has depth (``stereo*``), at least ``epipole_px2 x scale`` (squared px) from the epipole ``ep`` (equal distances:
+    the later keypoint, as ORB-SLAM3). Returns (K, 3) int rows (index in 1, index in 2, distance), not yet one-to-one
+    nor checked for orientation."""
+    o1, o2 = np.argsort(nodes1, kind="stable"), np.argsort(nodes2, kind="stable")
+    d1 = np.ascontiguousarray(desc1[o1], dtype=np.uint8).reshape(-1, 32).view(np.uint64)
+    d2 = np.ascontiguousarray(desc2[o2], dtype=np.uint8).reshape(-1, 32).view(np.uint64)
+    f64 = np.float64
+    best, dist = _triangulation_pairs(np.ascontiguousarray(nodes1[o1], dtype=np.int64),
+                                      np.ascontiguousarray(kps1[o1], dtype=f64), np.ascontiguousarray(stereo1[o1]),
+                                      d1, np.ascontiguousarray(nodes2[o2], dtype=np.int64),
+                                      np.ascontiguousarray(kps2[o2], dtype=f64), np.ascontiguousarray(stereo2[o2]),
+                                      np.ascontiguousarray(oct2[o2], dtype=np.int64), d2,
+                                      np.ascontiguousarray(F12, dtype=f64), np.ascontiguousarray(ep, dtype=f64),
+                                      np.ascontiguousarray(sigma2, dtype=f64), int(th_low), float(epipolar_chi2),
+                                      float(epipole_px2), np.ascontiguousarray(scales, dtype=f64))
+    ok = best >= 0
+    return np.stack([o1[ok], o2[best[ok]], dist[ok]], axis=1).astype(np.int64).reshape(-1, 3)
+
+
+@njit(cache=True, nogil=True)
+def _triangulation_pairs(n1, kp1, st1, d1, n2, kp2, st2, oct2, d2, F, ep, sigma2, th_low, epi_chi2, epipole_px2,
+                         scales):
+    best = np.full(len(n1), -1, np.int64)
+    dist = np.zeros(len(n1), np.int64)
+    j0 = 0
+    for i in range(len(n1)):
+        while j0 < len(n2) and n2[j0] < n1[i]:
+            j0 += 1
+        a = kp1[i, 0] * F[0, 0] + kp1[i, 1] * F[1, 0] + F[2, 0]
+        b = kp1[i, 0] * F[0, 1] + kp1[i, 1] * F[1, 1] + F[2, 1]
+        c = kp1[i, 0] * F[0, 2] + kp1[i, 1] * F[1, 2] + F[2, 2]
+        den = a * a + b * b
+        b_idx, b_dist = -1, th_low
+        j = j0
+        while j < len(n2) and n2[j] == n1[i]:
+            d = _hamming(d1, i, d2, j)
+            ok = d <= b_dist and den > 0
+            if ok and not st1[i] and not st2[j]:
+                ex, ey = ep[0] - kp2[j, 0], ep[1] - kp2[j, 1]
+                ok = ex * ex + ey * ey >= epipole_px2 * scales[oct2[j]]
+            if ok:
+                num = a * kp2[j, 0] + b * kp2[j, 1] + c
+                if num * num / den < epi_chi2 * sigma2[oct2[j]]:
+                    b_idx, b_dist = j, d
+            j += 1
+        best[i], dist[i] = b_idx, b_dist
+    return best, dist
+
+
+def medoid_descriptors(desc: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """ORB-SLAM ``MapPoint::ComputeDistinctiveDescriptors`` for groups of descriptors: group g is ``desc[start[g]:
+    start[g + 1]]`` ((N, 32) uint8); its medoid is the descriptor whose median Hamming distance to the group (itself
+    included, ``sorted(d)[(n - 1) // 2]``) is the least (ties: the first). Returns each group's medoid's row in
+    ``desc``."""
+    d = np.ascontiguousarray(desc, dtype=np.uint8).reshape(-1, 32).view(np.uint64)
+    return _medoids(d, np.ascontiguousarray(start, dtype=np.int64))
+
+
+@njit(cache=True, nogil=True)
+def _medoids(d, start):
+    out = np.empty(len(start) - 1, np.int64)
+    for g in range(len(start) - 1):
+        a, n = start[g], start[g + 1] - start[g]
+        best, best_med = a, 1 << 20
+        row = np.empty(n, np.int64)
+        for i in range(n):
+            for j in range(n):
+                row[j] = _hamming(d, a + i, d, a + j)
+            med = np.sort(row)[(n - 1) // 2]
+            if med < best_med:
+                best, best_med = a + i, med
+        out[g] = best
+    return out
+
+
 def unique_by_target(query: np.ndarray, target: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Boolean mask keeping, for every target index, only the query with the smallest distance (one-to-one; equal
     distances: the first query; a NaN distance loses to any number), in one compiled pass."""
