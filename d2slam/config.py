@@ -550,6 +550,58 @@ class ActorsConfig:
 
 
 @dataclass(frozen=True)
+class TwinConfig:
+    """The synthetic twin of a real recording (``d2slam synth fr1_rpy_twin --on-trajectory TUM_DIR``): our office,
+    static, along the recording's ground truth, at its frame and depth times, seen through its camera (the freiburg1
+    intrinsics and lens distortion of ``d2slam.data.intrinsics``, from the folder name) by a sensor calibrated against
+    the recording. Every value is a measurement of the real fr1/rpy (docs/real_data.md, "The synthetic twin and the
+    sensor model", with the commands that print them). Only the twin scenarios read this; the other scenarios'
+    sensor is the rest of ``SynthConfig``, unchanged."""
+
+    # Where the recording's first camera pose is put in the room: its optical centre at anchor_xy (m; its height is
+    # the recording's own) and its optical axis, seen from above, heading anchor_heading_deg (degrees from +x, +y =
+    # 90: towards the desks). The whole trajectory follows rigidly (a rotation about the vertical and a shift).
+    # Chosen so that the twin's depths are fr1/rpy's (``d2slam bench realism --anchor``: the depth percentiles of the
+    # head's frames, real against twin, over a grid of anchors).
+    anchor_xy: tuple[float, float] = (0.75, 2.9)
+    anchor_heading_deg: float = 90.0
+    # The images are rendered through a pinhole and then distorted with the camera's lens model (cv2.remap; RGB
+    # bilinear, depth nearest), so that the camera model's undistortion gives back the pinhole geometry.
+    distortion: bool = True
+    # RGB exposure (s), measured: the motion blur's extent along the ground truth's image motion against the image
+    # speed (d2slam.eval.realism.fit_exposure), its slope. Rendered by averaging sub-frames over the exposure
+    # (no cap, unlike blur_max_px's linear kernel).
+    exposure: float = 0.0185
+    # The RGB images show the scene this long after (negative: before) their timestamps on the ground truth's clock,
+    # measured: the epipolar error of the matches against the ground truth's motion is smallest with this shift
+    # (d2slam.eval.realism.fit_time_offset).
+    rgb_time_shift: float = -0.005
+    # The depth images show the scene this long after (negative: before) their own timestamps, measured: the depth of
+    # one frame moved into the next by the ground truth's motion agrees best with it with this shift
+    # (d2slam.eval.realism.depth_consistency). The Kinect stamps depth and colour alike (equal timestamps in fr1/rpy's
+    # first second) but captures its depth earlier: the depth is misregistered with the colour by the camera's motion
+    # over the difference.
+    depth_time_shift: float = -0.02
+    # Rolling shutter: each image row is exposed this much later (s) than the row above it (0: a global shutter).
+    row_readout: float = 0.0
+    # RGB noise (grey levels, rgb_noise_sigma's model), set so that the twin's images measure the real recording's
+    # noise (d2slam.eval.realism.noise_sigma: 0.49 grey levels on fr1/rpy; on the twin's images it reads 0.49 for this
+    # sigma, rounded to whole grey levels, 1.40 for rgb_noise_sigma's 2.0): the Kinect's colour images are smooth.
+    rgb_noise_sigma: float = 0.5
+    # Sub-frames: as many as keep the image motion between two of them within subframe_px anywhere in the image (at
+    # the scene's depths), at most subframes_max; their average is the exposure's image.
+    subframe_px: float = 1.0
+    subframes_max: int = 40
+    # Depth is rendered at the depth image's own instant (its timestamp, the recording's, up to 20 ms from the RGB's,
+    # plus depth_time_shift), so that a moving camera's depth is misregistered with its colour as the Kinect's is;
+    # False: at the RGB image's instant.
+    depth_at_depth_time: bool = True
+    # The Kinect's depth, registered to the colour camera, does not cover the colour image's border: rows at the top
+    # and bottom, columns at the left and right (px) where the real depth is a hole in at least half of the frames.
+    depth_border: tuple[int, int, int, int] = (39, 2, 14, 49)
+
+
+@dataclass(frozen=True)
 class SynthConfig:
     width: int = 640
     height: int = 480
@@ -634,6 +686,8 @@ class SynthConfig:
     # Articulated people (ANNY / MakeHuman bodies) and what they do.
     body: BodyConfig = field(default_factory=BodyConfig)
     actors: ActorsConfig = field(default_factory=ActorsConfig)
+    # The synthetic twin of a real recording and its calibrated sensor (only the twin scenarios read it).
+    twin: TwinConfig = field(default_factory=TwinConfig)
 
 
 @dataclass(frozen=True)
@@ -648,6 +702,20 @@ class SynthEvalConfig:
     realism_window: int = 7
     realism_texture_sd: float = 8.0
     realism_fast_threshold: int = 20
+    # Motion blur (d2slam.eval.realism.blur_extent): measured in realism_blur_patch-px square patches on a
+    # realism_blur_grid (columns, rows) of the image, along the ground truth's image motion, at lags up to
+    # realism_blur_max_lag px; a dip of the derivative's autocorrelation below -realism_blur_min_dip is a blur (a
+    # weaker one is texture).
+    realism_blur_patch: int = 96
+    realism_blur_grid: tuple[int, int] = (5, 4)
+    realism_blur_max_lag: int = 48
+    realism_blur_min_dip: float = 0.1
+    # Real against twin (`d2slam bench realism --real SEQ --twin SEQ`, d2slam.eval.realism.measure): per-frame image
+    # statistics on every realism_stride-th frame; epipolar errors are also given by keypoint depth (inner bin
+    # edges, m) and by image radius (px from the principal point).
+    realism_stride: int = 5
+    realism_depth_bins: tuple[float, ...] = (1.0, 1.5, 2.5)
+    realism_radius_bins: tuple[float, ...] = (100.0, 200.0, 300.0)
     # Segmenter against the truth (`d2slam bench detection`): people covering at least seg_eval_min_area of the image
     # count; detected when a predicted mask has IoU >= seg_eval_iou with the visible mask; target detection rate per
     # scenario; inner edges (m) of the IoU-by-depth table; the boundary error of a person's best mask is the mean and

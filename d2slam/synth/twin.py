@@ -1,0 +1,385 @@
+"""The synthetic twin of a real recording: our office, static (no people), along the recording's ground truth, at
+its frame and depth times, through its camera, seen by a sensor calibrated against it (``SynthConfig.twin``,
+``TwinConfig``; the measurements: docs/real_data.md, "The synthetic twin and the sensor model").
+
+``d2slam synth fr1_rpy_twin --on-trajectory TUM_DIR --out DIR`` (the recording is an input: it is not in git):
+
+- **Times**: the recording's associated RGB-D frames (TUM's association of its ``rgb.txt`` and ``depth.txt``): the
+  twin's RGB images carry the real RGB timestamps and its depth images the real depth timestamps.
+- **Path**: the recording's ground truth, interpolated at each instant (linear position, SLERP rotation, bridging the
+  motion capture's short dropouts), placed in the room by one rigid motion about the vertical (:func:`placement`:
+  the first pose's optical centre at ``anchor_xy``, its heading ``anchor_heading_deg``). ``groundtruth.txt`` is the
+  recording's ground truth samples so placed, over the frames plus ``gt_margin``.
+- **Camera**: the recording's (from the folder name: freiburg1 for fr1/rpy), with its lens distortion: every image is
+  rendered through a pinhole camera of the same focal lengths and then distorted (:class:`LensMap`, ``cv2.remap``;
+  the pinhole canvas grows when the distorted image sees beyond it), so the camera model's undistortion gives the
+  pinhole geometry back.
+- **RGB**: the exposure's image: the average of sub-frames rendered at instants spread over the exposure (and, with a
+  rolling shutter, each row over its own window), ``rgb_time_shift`` after the timestamp; then the sensor noise of
+  ``d2slam.synth.sensor.rgb_sensor``.
+- **Depth**: rendered at the depth image's instant (its timestamp plus ``depth_time_shift``: misregistered with the
+  colour by the motion in between, ``depth_at_depth_time``), distorted, the Kinect model of
+  ``d2slam.synth.sensor.depth_to_png``, and the border the registered depth does not cover (``depth_border``).
+
+Deterministic: each frame's noise comes from generators seeded with (seed, scenario, frame index, stream), as for the
+other scenarios.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from d2slam.config import SynthConfig
+from d2slam.data.base import Camera
+from d2slam.errors import D2SlamError
+
+
+# --------------------------------------------------------------------------------------------------
+# the recording
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Recording:
+    """What the twin takes from a real TUM recording: its camera, associated frame times and ground truth."""
+
+    name: str
+    camera: Camera
+    rgb_times: np.ndarray  # (N,) RGB timestamps of the associated frames
+    depth_times: np.ndarray  # (N,) their depth images' timestamps
+    gt_times: np.ndarray  # (M,) ground truth timestamps
+    gt_poses: np.ndarray  # (M, 4, 4) T_world_camera in the recording's world (Z up)
+
+    def __len__(self) -> int:
+        return len(self.rgb_times)
+
+
+def read_recording(path: str | Path) -> Recording:
+    """A TUM folder (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``; the camera from its name) as a
+    :class:`Recording`; frames outside the ground truth's span are left out (the twin needs a pose for each)."""
+    from d2slam.data.tum import TumSequence
+
+    seq = TumSequence(path)
+    gt = seq.groundtruth
+    if gt is None or len(gt) < 2:
+        raise D2SlamError("the recording has no ground truth (groundtruth.txt): the twin follows it", path=seq.root)
+    ts, dts = np.asarray(seq.timestamps, float), np.asarray(seq.depth_timestamps, float)
+    inside = (ts >= gt.timestamps[0]) & (ts <= gt.timestamps[-1])
+    if not inside.any():
+        raise D2SlamError("no frame lies within the ground truth's time span", path=seq.root)
+    return Recording(seq.name, seq.camera, ts[inside], dts[inside], np.asarray(gt.timestamps, float),
+                     np.asarray(gt.poses, float))
+
+
+def placement(first_pose: np.ndarray, anchor_xy: tuple[float, float], heading_deg: float) -> np.ndarray:
+    """The rigid motion (4x4) about the vertical (world Z) that puts the optical centre of ``first_pose``
+    (``T_world_camera``) at ``anchor_xy`` (its height kept) with its optical axis heading ``heading_deg`` (degrees
+    from +x, seen from above)."""
+    c0 = first_pose[:3, 3]
+    axis = first_pose[:3, 2]
+    if np.hypot(axis[0], axis[1]) < 1e-6:
+        raise D2SlamError("the first camera pose looks straight up or down: its heading is undefined")
+    phi = np.radians(heading_deg) - np.arctan2(axis[1], axis[0])
+    c, s = np.cos(phi), np.sin(phi)
+    A = np.eye(4)
+    A[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    A[:3, 3] = np.array([anchor_xy[0], anchor_xy[1], c0[2]]) - A[:3, :3] @ c0
+    return A
+
+
+class RecordedPath:
+    """The twin's camera path: ``poses(t)`` -> (N, 4, 4) ``T_world_camera`` in the room at ``t`` seconds after
+    ``t0`` (the first frame's timestamp), the recording's ground truth interpolated (linear position, SLERP rotation;
+    a motion-capture dropout is bridged) and placed by ``A``; times beyond the ground truth take its end poses."""
+
+    def __init__(self, rec: Recording, A: np.ndarray, t0: float):
+        self.t0 = float(t0)
+        self.gt_times = rec.gt_times
+        self.gt_poses = np.einsum("ij,njk->nik", A, rec.gt_poses)
+        self.A = A
+
+    def poses(self, t) -> np.ndarray:
+        from d2slam.data.tum import interpolate_poses
+
+        tt = np.clip(self.t0 + np.atleast_1d(np.asarray(t, float)), self.gt_times[0], self.gt_times[-1])
+        return interpolate_poses(self.gt_times, self.gt_poses, tt, max_gap=None)
+
+
+# --------------------------------------------------------------------------------------------------
+# the lens
+# --------------------------------------------------------------------------------------------------
+def distort_normalised(x: np.ndarray, dist) -> np.ndarray:
+    """OpenCV's lens model (k1, k2, p1, p2, k3) on normalised image coordinates (N, 2): what ``cv2.projectPoints``
+    applies between the pinhole projection and the intrinsics."""
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
+    x = np.asarray(x, np.float64)
+    u, v = x[..., 0], x[..., 1]
+    r2 = u * u + v * v
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    return np.stack([u * radial + 2 * p1 * u * v + p2 * (r2 + 2 * u * u),
+                     v * radial + p1 * (r2 + 2 * v * v) + 2 * p2 * u * v], axis=-1)
+
+
+def undistort_normalised(xd: np.ndarray, dist, iterations: int = 12) -> np.ndarray:
+    """The inverse of :func:`distort_normalised` by Newton's method (Jacobian by central differences), started at
+    the distorted point; converged to far below a thousandth of a pixel within the image of a real camera."""
+    xd = np.asarray(xd, np.float64)
+    x = xd.copy()
+    h = 1e-7
+    for _ in range(iterations):
+        f = distort_normalised(x, dist) - xd
+        ju = (distort_normalised(x + [h, 0.0], dist) - distort_normalised(x - [h, 0.0], dist)) / (2 * h)
+        jv = (distort_normalised(x + [0.0, h], dist) - distort_normalised(x - [0.0, h], dist)) / (2 * h)
+        a, b, c, d = ju[..., 0], jv[..., 0], ju[..., 1], jv[..., 1]
+        det = a * d - b * c
+        x = x - np.stack([(d * f[..., 0] - b * f[..., 1]) / det, (a * f[..., 1] - c * f[..., 0]) / det], axis=-1)
+    return x
+
+
+class LensMap:
+    """Distorts images rendered by a pinhole camera into the image of ``camera`` (with its lens distortion).
+
+    ``K``, ``width``, ``height``: the pinhole canvas to render (the camera's focal lengths; grown, with the principal
+    point shifted, when the distorted image sees beyond the camera's own pinhole frame). ``__call__(img, nearest)``:
+    the camera's image, each pixel taken at its undistorted position in the canvas (bilinear, or nearest for depth
+    and ids); outside the canvas 0. Without distortion the canvas is the camera's and the map the identity."""
+
+    def __init__(self, camera: Camera, distortion: bool = True):
+        W, H = int(camera.width), int(camera.height)
+        K = camera.K
+        self.camera = camera
+        self.identity = not (distortion and camera.has_distortion)
+        if self.identity:
+            self.K, self.width, self.height = K, W, H
+            self.map_x = self.map_y = None
+            return
+        u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+        xd = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]], axis=-1)
+        x = undistort_normalised(xd, camera.dist)
+        pu, pv = x[..., 0] * K[0, 0] + K[0, 2], x[..., 1] * K[1, 1] + K[1, 2]
+        # canvas: the camera's pinhole frame, grown by whole pixels where the undistorted image reaches beyond it
+        left = int(np.ceil(max(0.0, -pu.min() + 1)))
+        top = int(np.ceil(max(0.0, -pv.min() + 1)))
+        right = int(np.ceil(max(0.0, pu.max() - (W - 1) + 1)))
+        bottom = int(np.ceil(max(0.0, pv.max() - (H - 1) + 1)))
+        self.width, self.height = W + left + right, H + top + bottom
+        self.K = K.copy()
+        self.K[0, 2] += left
+        self.K[1, 2] += top
+        self.map_x = (pu + left).astype(np.float32)
+        self.map_y = (pv + top).astype(np.float32)
+
+    def __call__(self, img: np.ndarray, nearest: bool = False) -> np.ndarray:
+        if self.identity:
+            return img
+        return cv2.remap(img, self.map_x, self.map_y, cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def twin_config(cfg: SynthConfig, camera: Camera) -> SynthConfig:
+    """The twin's ``SynthConfig``: ``cfg`` with the recording camera's intrinsics, size and depth factor, and the
+    twin's RGB noise (``TwinConfig.rgb_noise_sigma``)."""
+    import dataclasses
+
+    return dataclasses.replace(cfg, fx=float(camera.fx), fy=float(camera.fy), cx=float(camera.cx),
+                               cy=float(camera.cy), width=int(camera.width), height=int(camera.height),
+                               depth_factor=float(camera.depth_factor), rgb_noise_sigma=cfg.twin.rgb_noise_sigma)
+
+
+# --------------------------------------------------------------------------------------------------
+# one frame
+# --------------------------------------------------------------------------------------------------
+def exposure_windows(t: float, cfg: SynthConfig, height: int) -> tuple[float, float, np.ndarray]:
+    """(start, end, (H, 2) row windows) of the exposure of the frame stamped ``t`` (s from the first frame): row r is
+    exposed over ``[c_r - e/2, c_r + e/2]`` with ``c_r = t + rgb_time_shift + (r - (H - 1) / 2) row_readout`` (the
+    timestamp, shifted, is the middle row's exposure centre)."""
+    tw = cfg.twin
+    c = t + tw.rgb_time_shift + (np.arange(height) - (height - 1) / 2.0) * tw.row_readout
+    win = np.stack([c - tw.exposure / 2.0, c + tw.exposure / 2.0], axis=1)
+    return float(win[:, 0].min()), float(win[:, 1].max()), win
+
+
+def subframe_count(scene, start: float, end: float, z: np.ndarray) -> int:
+    """Sub-frames over ``[start, end]``: enough that no pixel of a 3 x 3 grid (at its rendered depth ``z``, the
+    median where there is none) moves more than ``subframe_px`` between two, at most ``subframes_max``."""
+    tw = scene.cfg.twin
+    if end <= start:
+        return 1
+    K, H, W = scene.canvas_K, z.shape[0], z.shape[1]
+    u, v = np.meshgrid(np.linspace(0, W - 1, 3), np.linspace(0, H - 1, 3))
+    zz = z[v.astype(int), u.astype(int)].astype(np.float64)
+    valid = zz[zz > 0]
+    zz = np.where(zz > 0, zz, np.median(valid) if valid.size else 1.0)
+    Xc = np.stack([(u - K[0, 2]) / K[0, 0] * zz, (v - K[1, 2]) / K[1, 1] * zz, zz], axis=-1).reshape(-1, 3)
+    Ta, Tb = scene.camera.poses([start, end])
+    Xw = Xc @ Ta[:3, :3].T + Ta[:3, 3]
+    Xb = (Xw - Tb[:3, 3]) @ Tb[:3, :3]
+    ub = K[0, 0] * Xb[:, 0] / Xb[:, 2] + K[0, 2]
+    vb = K[1, 1] * Xb[:, 1] / Xb[:, 2] + K[1, 2]
+    move = float(np.nanmax(np.hypot(ub - u.ravel(), vb - v.ravel())))
+    return int(np.clip(np.ceil(move / tw.subframe_px), 1, tw.subframes_max))
+
+
+def row_weights(start: float, end: float, n: int, windows: np.ndarray) -> np.ndarray:
+    """(H, n) weight of each of ``n`` equal sub-frames of ``[start, end]`` (each stands for its slice of time) in each
+    row's exposure window (H, 2): the share of the window the slice covers; rows sum to 1. A window shorter than a
+    slice (or empty) takes the slice it lies in."""
+    edges = np.linspace(start, end, n + 1)
+    lo = np.maximum(edges[None, :-1], windows[:, :1])
+    hi = np.minimum(edges[None, 1:], windows[:, 1:])
+    w = np.clip(hi - lo, 0.0, None)
+    s = w.sum(axis=1, keepdims=True)
+    point = s[:, 0] <= 0
+    if point.any():
+        k = np.clip(np.searchsorted(edges, windows[point].mean(axis=1)) - 1, 0, n - 1)
+        w[point] = 0.0
+        w[np.flatnonzero(point), k] = 1.0
+        s = w.sum(axis=1, keepdims=True)
+    return w / s
+
+
+def render_twin_frame(scene, renderer, i: int) -> dict:
+    """Frame ``i`` of a twin scene, as ``d2slam.synth.generate.render_frame`` returns a frame (see the module
+    docstring for what the sensor does)."""
+    import time
+
+    from d2slam.synth.segsim import simulate_segmenter
+    from d2slam.synth.sensor import depth_to_png, rgb_sensor
+
+    cfg, tw = scene.cfg, scene.cfg.twin
+    t = float(scene.t_rel[i])
+    rngs = [np.random.default_rng([scene.seed, scene.sidx, i, k]) for k in (11, 12, 13)]
+    ms, cpu = {}, {}
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+
+    def lap(name):
+        nonlocal wall0, cpu0
+        w, c = time.perf_counter(), time.process_time()
+        ms[name], cpu[name] = 1e3 * (w - wall0), 1e3 * (c - cpu0)
+        wall0, cpu0 = w, c
+
+    renderer.update(t)
+    lap("bodies")
+    td = t + float(scene.depth_offset[i]) + tw.depth_time_shift if tw.depth_at_depth_time else t + tw.rgb_time_shift
+    z, ids = renderer.gl.render_depth(scene.camera.poses([td])[0])
+    start, end, windows = exposure_windows(t, cfg, cfg.height)
+    n = subframe_count(scene, start, end, z)
+    weights = row_weights(start, end, n, windows)
+    lens = scene.lens
+    acc = np.zeros((cfg.height, cfg.width, 3), np.float32)
+    for k, Tk in enumerate(scene.camera.poses(start + (np.arange(n) + 0.5) * (end - start) / n)):
+        img = lens(renderer.gl.render_colour(Tk)).astype(np.float32)
+        acc += weights[:, k, None, None].astype(np.float32) * img
+    lap("gl")
+    rgb = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
+    rgb = rgb_sensor(rgb, (0.0, 0.0), rngs[1], cfg, bank_seed=scene.seed)
+    zd = lens(z, nearest=True)
+    idd = lens(ids, nearest=True)
+    depth = depth_to_png(zd, rngs[0], cfg)
+    top, bottom, left, right = tw.depth_border
+    H, W = depth.shape
+    depth[:top] = 0
+    depth[H - bottom:] = 0
+    depth[:, :left] = 0
+    depth[:, W - right:] = 0
+    lap("sensor")
+    sim = simulate_segmenter(idd, zd, scene.person_ids, scene.K, rngs[2], cfg)
+    lap("segmenter")
+    return {"rgb": rgb, "depth": depth, "depth_clean": zd, "mask_gt": idd, "mask_sim": sim,
+            "pose": scene.camera.poses([t])[0], "subframes": n, "ms": ms, "cpu_ms": cpu}
+
+
+def twin_groundtruth(scene) -> tuple[np.ndarray, np.ndarray]:
+    """(timestamps, (N, 7) tx ty tz qx qy qz qw): the recording's ground truth samples over the frames plus
+    ``gt_margin``, placed in the room (``d2slam.synth.generate.pose_rows``)."""
+    from d2slam.synth.generate import pose_rows
+
+    path = scene.camera
+    a = scene.t0 + scene.t_rel[0] - scene.cfg.gt_margin
+    b = scene.t0 + scene.t_rel[-1] + scene.cfg.gt_margin
+    sel = (path.gt_times >= a) & (path.gt_times <= b)
+    return path.gt_times[sel], pose_rows(path.gt_poses[sel])
+
+
+def twin_scene_json(scene) -> dict:
+    """``scene.json`` of a twin: the common keys (CONTRIBUTING.md), its camera with the lens distortion and the
+    recording it follows (name, frames, the placement in the room)."""
+    import dataclasses
+
+    from d2slam import __version__
+    from d2slam.synth.generate import FORMAT
+
+    c, rec = scene.cfg, scene.recording
+    cam = rec.camera
+    camera = {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height,
+              "depth_factor": c.depth_factor, "bf": float(cam.bf), "name": f"{cam.name}-twin"}
+    if c.twin.distortion and cam.has_distortion:
+        camera["dist"] = [float(v) for v in cam.dist]
+    return {
+        "format": FORMAT, "scenario": scene.scenario, "seed": scene.seed, "frames": scene.frames,
+        "static_twin": True, "camera": camera, "objects": [], "person_ids": [], "moved_object_ids": [],
+        "recording": {"name": rec.name, "frames": len(rec), "placement": scene.camera.A.round(9).tolist()},
+        "generator": {
+            "name": "d2slam.synth", "version": __version__,
+            "depth_rendered_at": "depth_timestamp" if c.twin.depth_at_depth_time else "rgb_timestamp",
+            "notes": "The synthetic twin of a real recording: the office, static, along the recording's ground truth "
+                     "(placed in the room by recording.placement, a 4x4 applied to its poses), at its RGB and depth "
+                     "timestamps, through its camera with the lens distortion, the sensor of generator.config.twin. "
+                     "Poses: T_world_camera of the optical centre, camera x right / y down / z forward, world Z up.",
+            "start_time": scene.t0, "duration": scene.duration, "config": dataclasses.asdict(c),
+        },
+    }
+
+
+# --------------------------------------------------------------------------------------------------
+# where the recording goes in the room
+# --------------------------------------------------------------------------------------------------
+DEPTH_PERCENTILES = (10, 25, 50, 75, 90)
+
+
+def depth_percentiles(depths: list[np.ndarray], border: tuple[int, int, int, int] = (0, 0, 0, 0)) -> np.ndarray:
+    """``DEPTH_PERCENTILES`` (m) of the valid depths (> 0) of images (H, W), pooled, inside ``border`` (top, bottom,
+    left, right px left out)."""
+    t, b, l, r = border
+    vals = [d[t:d.shape[0] - b, l:d.shape[1] - r] for d in depths]
+    v = np.concatenate([x[x > 0].ravel() for x in vals])
+    if v.size == 0:
+        raise D2SlamError("no valid depth to take percentiles of")
+    return np.percentile(v, DEPTH_PERCENTILES)
+
+
+def anchor_scan(rec: Recording, real_depths: list[np.ndarray], indices: np.ndarray, xs, ys, headings,
+                cfg: SynthConfig | None = None, seed: int = 0) -> list[dict]:
+    """For every anchor (x, y, heading) of the grid: the depth percentiles of the twin's clean depth (distorted,
+    inside ``depth_border``) at the frames ``indices`` against the real ones (``real_depths``, the same frames), and
+    the mismatch: the mean |log(twin / real)| over the percentiles. Sorted best first. Renders depth only."""
+    from d2slam.synth.scene import Scene
+    from d2slam.synth.world import WorldRenderer
+
+    cfg = cfg or SynthConfig()
+    indices = np.asarray(indices, int)
+    scene = Scene("fr1_rpy_twin", seed, int(indices.max()) + 1, cfg=cfg, recording=rec)
+    border = scene.cfg.twin.depth_border
+    want = depth_percentiles(real_depths, border)
+    first = RecordedPath(rec, np.eye(4), scene.t0).poses([0.0])[0]
+    tw = scene.cfg.twin
+    times = scene.t_rel[indices] + scene.depth_offset[indices] + tw.depth_time_shift if tw.depth_at_depth_time \
+        else scene.t_rel[indices] + tw.rgb_time_shift
+    raw = RecordedPath(rec, np.eye(4), scene.t0).poses(times)
+    renderer = WorldRenderer(scene)
+    rows = []
+    try:
+        for h in headings:
+            for x in xs:
+                for y in ys:
+                    A = placement(first, (float(x), float(y)), float(h))
+                    zs = [scene.lens(renderer.gl.render_depth(A @ T)[0], nearest=True) for T in raw]
+                    got = depth_percentiles(zs, border) if any((z > 0).any() for z in zs) else np.full(5, np.nan)
+                    err = float(np.mean(np.abs(np.log(got / want)))) if np.isfinite(got).all() else float("inf")
+                    rows.append({"x": float(x), "y": float(y), "heading": float(h), "twin": got, "real": want,
+                                 "mismatch": err})
+    finally:
+        renderer.close()
+    return sorted(rows, key=lambda r: r["mismatch"])
