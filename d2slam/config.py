@@ -571,19 +571,21 @@ class TwinConfig:
     # RGB exposure (s), measured: the motion blur's extent along the ground truth's image motion against the image
     # speed (d2slam.eval.realism.fit_exposure), its slope. Rendered by averaging sub-frames over the exposure
     # (no cap, unlike blur_max_px's linear kernel).
-    exposure: float = 0.0185
+    exposure: float = 0.0182
     # The RGB images show the scene this long after (negative: before) their timestamps on the ground truth's clock,
     # measured: the epipolar error of the matches against the ground truth's motion is smallest with this shift
     # (d2slam.eval.realism.fit_time_offset).
-    rgb_time_shift: float = -0.005
+    rgb_time_shift: float = -0.006
     # The depth images show the scene this long after (negative: before) their own timestamps, measured: the depth of
     # one frame moved into the next by the ground truth's motion agrees best with it with this shift
     # (d2slam.eval.realism.depth_consistency). The Kinect stamps depth and colour alike (equal timestamps in fr1/rpy's
     # first second) but captures its depth earlier: the depth is misregistered with the colour by the camera's motion
     # over the difference.
-    depth_time_shift: float = -0.02
-    # Rolling shutter: each image row is exposed this much later (s) than the row above it (0: a global shutter).
-    row_readout: float = 0.0
+    depth_time_shift: float = -0.0175
+    # Rolling shutter: each RGB row is exposed this much later (s) than the row above it (0: a global shutter),
+    # measured with rgb_time_shift: the epipolar error against the ground truth's motion is least with both
+    # (d2slam.eval.realism.fit_time_offset; 60 us a row: a 29 ms readout, about a frame).
+    row_readout: float = 6e-5
     # RGB noise (grey levels, rgb_noise_sigma's model), set so that the twin's images measure the real recording's
     # noise (d2slam.eval.realism.noise_sigma: 0.49 grey levels on fr1/rpy; on the twin's images it reads 0.49 for this
     # sigma, rounded to whole grey levels, 1.40 for rgb_noise_sigma's 2.0): the Kinect's colour images are smooth.
@@ -598,7 +600,14 @@ class TwinConfig:
     depth_at_depth_time: bool = True
     # The Kinect's depth, registered to the colour camera, does not cover the colour image's border: rows at the top
     # and bottom, columns at the left and right (px) where the real depth is a hole in at least half of the frames.
-    depth_border: tuple[int, int, int, int] = (39, 2, 14, 49)
+    depth_border: tuple[int, int, int, int] = (40, 3, 14, 49)
+    # Inside the border, the Kinect's holes are at depth edges (6.7 % of the image, median over frames; 0.2 % are
+    # other holes), measured (d2slam.eval.realism.hole_kinds): where the nearer surface is on the right of a depth
+    # edge, the hole runs about shadow_px (its median, measured along the rows) into the farther surface on the left
+    # (the projector's shadow); on the other side, hole_edge_* as for the other scenarios (its 3 px median is the
+    # real one there). Other holes: hole_blob_fraction of the image (hole_blob_fraction's model).
+    shadow_px: int = 10
+    hole_blob_fraction: float = 0.002
 
 
 @dataclass(frozen=True)

@@ -506,13 +506,16 @@ def depth_border(depths: list[np.ndarray], share: float = 0.5) -> tuple[int, int
 
 
 def depth_consistency(seq, indices, offset: float, step: int = 4, edge_m: float = 0.05,
-                      depth_range: tuple[float, float] = (0.5, 4.0)) -> np.ndarray:
+                      depth_range: tuple[float, float] = (0.5, 4.0), readout: float = 0.0) -> np.ndarray:
     """Per frame i of ``indices`` (>= 1): the median normalised depth residual |dz| / sigma(z) of frame i-1's depth
     image (every ``step``-th pixel, away from depth edges: no jump above ``edge_m`` within 5 x 5 px) moved into frame
     i by the ground truth's motion between the two depth images' instants, when each depth image shows the scene
-    ``offset`` s after its timestamp, against frame i's depth. Each depth pixel is the ray of the camera's distorted
-    pixel (the depth is registered to the colour image). A wrong ``offset`` gives the wrong relative motion wherever
-    the camera's motion changes between the frames, so the residual over many frames is least at the true one."""
+    ``offset`` s after its timestamp (with a rolling shutter, ``readout`` > 0: each row that much later than the one
+    above it, the middle row at the shifted timestamp), against frame i's depth. Each depth pixel is the ray of the
+    camera's distorted pixel (the depth is registered to the colour image). A wrong ``offset`` gives the wrong
+    relative motion wherever the camera's motion changes between the frames, so the residual over many frames is
+    least at the true one; a wrong ``readout`` gives each row the wrong motion, the more so the faster the camera
+    turns."""
     from d2slam.data.tum import interpolate_poses
     from d2slam.slam.frame import undistort
     from d2slam.synth.sensor import depth_sigma
@@ -543,18 +546,55 @@ def depth_consistency(seq, indices, offset: float, step: int = 4, edge_m: float 
         zs = z0[vv, uu].ravel().astype(np.float64)
         ok = (zs > depth_range[0]) & (zs < depth_range[1]) & (jump[vv, uu].ravel() <= edge_m)
         lo, hi = gt.timestamps[0], gt.timestamps[-1]
-        Ta, Tb = interpolate_poses(gt.timestamps, gt.poses, np.clip(dts[[i - 1, i]] + offset, lo, hi), None)
-        rel = np.linalg.inv(Tb) @ Ta
+        rows_t = (np.arange(H) - (H - 1) / 2.0) * readout
+        Ta = interpolate_poses(gt.timestamps, gt.poses, np.clip(dts[i - 1] + offset + rows_t, lo, hi), None)
+        Tb = interpolate_poses(gt.timestamps, gt.poses, np.clip(dts[i] + offset + rows_t, lo, hi), None)
+        src = vv.ravel()[ok]
         X = rays[ok] * zs[ok, None]
-        Xb = X @ rel[:3, :3].T + rel[:3, 3]
-        front = Xb[:, 2] > 0.1
-        uv, _ = cv2.projectPoints(Xb[front].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.asarray(cam.dist))
-        uv = np.rint(uv.reshape(-1, 2)).astype(np.int64)
+        Xw = np.einsum("nij,nj->ni", Ta[src, :3, :3], X) + Ta[src, :3, 3]
+        row = np.full(len(X), (H - 1) // 2)
+        for _ in range(2):  # the row a point lands on decides the instant it is seen at: twice is enough
+            Xb = np.einsum("nji,nj->ni", Tb[row, :3, :3], Xw - Tb[row, :3, 3])
+            front = Xb[:, 2] > 0.1
+            uv, _ = cv2.projectPoints(np.where(front[:, None], Xb, [0.0, 0.0, 1.0]).reshape(-1, 1, 3), np.zeros(3),
+                                      np.zeros(3), K, np.asarray(cam.dist))
+            uv = uv.reshape(-1, 2)
+            row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+            if readout == 0:
+                break
+        Xb, uv = Xb[front], np.rint(uv[front]).astype(np.int64)
         inside = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
         zb = cur[uv[inside, 1], uv[inside, 0]].astype(np.float64)
-        zp = Xb[front][inside, 2]
+        zp = Xb[inside, 2]
         valid = zb > 0
         r = np.abs(zb[valid] - zp[valid]) / np.hypot(depth_sigma(zb[valid]), depth_sigma(zp[valid]))
         out.append(float(np.median(r)) if r.size else np.nan)
         prev = (i, cur)
     return np.array(out)
+
+
+def hole_kinds(depth: np.ndarray, border: tuple[int, int, int, int], jump_a: float, jump_b: float) -> dict:
+    """Where a depth image's holes are, inside ``border`` (top, bottom, left, right px left out): shares of the
+    inner image that are holes at depth edges (a connected hole whose rim's valid depths span more than ``jump_a +
+    jump_b z``, z its rim's nearest depth: the Kinect's occlusion shadows and mixed edge pixels), other holes (blobs:
+    dark, glossy or out-of-range surfaces), and the hole components' median area (px)."""
+    t, b, l, r = border
+    d = np.asarray(depth, np.float32)[t:depth.shape[0] - b, l:depth.shape[1] - r]
+    hole = (d <= 0).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(hole, connectivity=8)
+    if n <= 1:
+        return {"edge": 0.0, "blob": 0.0, "median_area": 0.0}
+    rim = cv2.dilate(hole, np.ones((3, 3), np.uint8)).astype(bool) & (hole == 0)
+    # each rim pixel takes the label of a neighbouring hole (the largest label among its neighbours)
+    near = cv2.dilate(lab.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int64)
+    ids, z = near[rim], d[rim].astype(np.float64)
+    lo = np.full(n, np.inf)
+    hi = np.full(n, -np.inf)
+    np.minimum.at(lo, ids, z)
+    np.maximum.at(hi, ids, z)
+    area = stats[:, cv2.CC_STAT_AREA].astype(np.float64)
+    edge = np.isfinite(lo) & (hi - lo > jump_a + jump_b * np.where(np.isfinite(lo), lo, 0.0))
+    edge[0] = False
+    total = float(d.size)
+    return {"edge": float(area[1:][edge[1:]].sum()) / total, "blob": float(area[1:][~edge[1:]].sum()) / total,
+            "median_area": float(np.median(area[1:]))}

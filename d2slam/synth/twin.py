@@ -19,7 +19,8 @@ its frame and depth times, through its camera, seen by a sensor calibrated again
   ``d2slam.synth.sensor.rgb_sensor``.
 - **Depth**: rendered at the depth image's instant (its timestamp plus ``depth_time_shift``: misregistered with the
   colour by the motion in between, ``depth_at_depth_time``), distorted, the Kinect model of
-  ``d2slam.synth.sensor.depth_to_png``, and the border the registered depth does not cover (``depth_border``).
+  ``d2slam.synth.sensor.depth_to_png``, the projector's shadows (:func:`shadow_holes`) and the border the registered
+  depth does not cover (``depth_border``).
 
 Deterministic: each frame's noise comes from generators seeded with (seed, scenario, frame index, stream), as for the
 other scenarios.
@@ -180,12 +181,29 @@ class LensMap:
 
 def twin_config(cfg: SynthConfig, camera: Camera) -> SynthConfig:
     """The twin's ``SynthConfig``: ``cfg`` with the recording camera's intrinsics, size and depth factor, and the
-    twin's RGB noise (``TwinConfig.rgb_noise_sigma``)."""
+    twin's RGB noise and hole blobs (``TwinConfig.rgb_noise_sigma``, ``hole_blob_fraction``)."""
     import dataclasses
 
+    tw = cfg.twin
     return dataclasses.replace(cfg, fx=float(camera.fx), fy=float(camera.fy), cx=float(camera.cx),
                                cy=float(camera.cy), width=int(camera.width), height=int(camera.height),
-                               depth_factor=float(camera.depth_factor), rgb_noise_sigma=cfg.twin.rgb_noise_sigma)
+                               depth_factor=float(camera.depth_factor), rgb_noise_sigma=tw.rgb_noise_sigma,
+                               hole_blob_fraction=tw.hole_blob_fraction)
+
+
+def shadow_holes(z: np.ndarray, cfg: SynthConfig) -> np.ndarray:
+    """(H, W) bool: the projector's shadow of a clean depth image ``z`` (m, 0 = nothing): ``TwinConfig.shadow_px``
+    pixels to the left of every depth edge whose nearer side is on the right (a step of more than ``hole_edge_jump_a
+    + hole_edge_jump_b z`` between horizontal neighbours)."""
+    w = int(cfg.twin.shadow_px)
+    out = np.zeros(z.shape, bool)
+    if w <= 0:
+        return out
+    left, right = z[:, :-1], z[:, 1:]
+    step = (right > 0) & (left - right > cfg.hole_edge_jump_a + cfg.hole_edge_jump_b * right)
+    out[:, :-1] = step
+    band = cv2.dilate(out.view(np.uint8), np.ones((1, w), np.uint8), anchor=(0, 0))  # each step and w - 1 to its left
+    return band.astype(bool)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -278,6 +296,7 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
     zd = lens(z, nearest=True)
     idd = lens(ids, nearest=True)
     depth = depth_to_png(zd, rngs[0], cfg)
+    depth[shadow_holes(zd, cfg)] = 0
     top, bottom, left, right = tw.depth_border
     H, W = depth.shape
     depth[:top] = 0
