@@ -576,12 +576,17 @@ class TwinConfig:
     # measured: the epipolar error of the matches against the ground truth's motion is smallest with this shift
     # (d2slam.eval.realism.fit_time_offset).
     rgb_time_shift: float = -0.006
-    # The depth images show the scene this long after (negative: before) their own timestamps, measured: the depth of
-    # one frame moved into the next by the ground truth's motion agrees best with it with this shift
-    # (d2slam.eval.realism.depth_consistency). The Kinect stamps depth and colour alike (equal timestamps in fr1/rpy's
-    # first second) but captures its depth earlier: the depth is misregistered with the colour by the camera's motion
-    # over the difference.
-    depth_time_shift: float = -0.0175
+    # The depth images show the scene this long after (negative: before) their own timestamps (their middle row),
+    # measured: the depth of one frame moved into the next by the ground truth's motion agrees best with it with this
+    # shift and depth_row_readout (d2slam.eval.realism.depth_consistency). The Kinect stamps depth and colour alike
+    # (equal timestamps in fr1/rpy's first second) but captures its depth earlier: the depth is misregistered with
+    # the colour by the camera's motion over the difference.
+    depth_time_shift: float = -0.025
+    # The depth's rolling shutter: each depth row this much later (s) than the row above it (the middle row at the
+    # shifted timestamp), measured with depth_time_shift by the same agreement (d2slam.eval.realism.depth_consistency
+    # with its readout). Rendered row by row from depth sub-frames at most depth_subframe_px of image motion apart.
+    depth_row_readout: float = 7.5e-5
+    depth_subframe_px: float = 2.0
     # Rolling shutter: each RGB row is exposed this much later (s) than the row above it (0: a global shutter),
     # measured with rgb_time_shift: the epipolar error against the ground truth's motion is least with both
     # (d2slam.eval.realism.fit_time_offset; 60 us a row: a 29 ms readout, about a frame).

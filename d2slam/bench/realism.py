@@ -140,13 +140,19 @@ def run_calibrate(args) -> int:
           f"[{1e6 * tw.row_readout:.0f}]; the readout's gain over a global shutter: "
           f"{table[list(offsets).index(best_o), 0] - table.min():.3f} px")
 
-    shifts = np.round(np.arange(-0.03, 0.0051, 0.0025), 4)
-    consistency = [float(np.nanmean(depth_consistency(seq, np.arange(1, n), float(o)))) for o in shifts]
+    shifts = np.round(np.arange(-0.03, -0.0149, 0.0025), 4)
+    dreadouts = np.round(np.arange(0.0, 1.01e-4, 2.5e-5), 7)
+    cons = np.array([[float(np.nanmean(depth_consistency(seq, np.arange(1, n), float(o), readout=float(r))))
+                      for r in dreadouts] for o in shifts])
     print("  depth of one frame moved into the next by the ground truth's motion, mean over frames of the median "
-          "|dz| / sigma, by the depth images' time shift (ms):")
-    print("    " + "  ".join(f"{1e3 * o:+.1f}: {c:.3f}" for o, c in zip(shifts, consistency)))
-    print(f"  best: depth time shift {1e3 * shifts[int(np.argmin(consistency))]:+.1f} ms "
-          f"[{1e3 * tw.depth_time_shift:+.1f}]")
+          "|dz| / sigma, by the depth images' time shift (rows, ms) and row readout (columns, us/row):")
+    print("           " + " ".join(f"{1e6 * r:6.0f}" for r in dreadouts))
+    for o, line in zip(shifts, cons):
+        print(f"    {1e3 * o:+6.1f} " + " ".join(f"{v:6.3f}" for v in line))
+    i, j = np.unravel_index(int(np.argmin(cons)), cons.shape)
+    print(f"  best: depth time shift {1e3 * shifts[i]:+.1f} ms [{1e3 * tw.depth_time_shift:+.1f}], readout "
+          f"{1e6 * dreadouts[j]:.0f} us/row [{1e6 * tw.depth_row_readout:.0f}]; the readout's gain over a global "
+          f"shutter: {cons[:, 0].min() - cons.min():.3f}")
 
     def poses_at(t):
         return interpolate_poses(gt.timestamps, gt.poses, np.clip(np.asarray(t) + best_o, gt.timestamps[0],
@@ -184,7 +190,8 @@ def run_anchor(args) -> int:
     """The twin's placement: its depth percentiles against the recording's over a grid of anchors."""
     from d2slam.config import DEFAULT
     from d2slam.data import open_sequence
-    from d2slam.synth.twin import anchor_scan, read_recording
+    from d2slam.eval.realism import anchor_scan
+    from d2slam.synth.twin import read_recording
 
     t0 = time.perf_counter()
     rec, seq = read_recording(args.anchor), open_sequence(args.anchor)

@@ -598,3 +598,57 @@ def hole_kinds(depth: np.ndarray, border: tuple[int, int, int, int], jump_a: flo
     total = float(d.size)
     return {"edge": float(area[1:][edge[1:]].sum()) / total, "blob": float(area[1:][~edge[1:]].sum()) / total,
             "median_area": float(np.median(area[1:]))}
+
+
+# --------------------------------------------------------------------------------------------------
+# where the recording goes in the room
+# --------------------------------------------------------------------------------------------------
+DEPTH_PERCENTILES = (10, 25, 50, 75, 90)
+
+
+def depth_percentiles(depths: list[np.ndarray], border: tuple[int, int, int, int] = (0, 0, 0, 0)) -> np.ndarray:
+    """``DEPTH_PERCENTILES`` (m) of the valid depths (> 0) of images (H, W), pooled, inside ``border`` (top, bottom,
+    left, right px left out)."""
+    t, b, l, r = border
+    vals = [d[t:d.shape[0] - b, l:d.shape[1] - r] for d in depths]
+    v = np.concatenate([x[x > 0].ravel() for x in vals])
+    if v.size == 0:
+        raise D2SlamError("no valid depth to take percentiles of")
+    return np.percentile(v, DEPTH_PERCENTILES)
+
+
+def anchor_scan(rec, real_depths: list[np.ndarray], indices: np.ndarray, xs, ys, headings,
+                cfg=None, seed: int = 0) -> list[dict]:
+    """For every anchor (x, y, heading) of the grid: the depth percentiles of the twin's clean depth (distorted,
+    inside ``depth_border``) at the frames ``indices`` against the real ones (``real_depths``, the same frames), and
+    the mismatch: the mean |log(twin / real)| over the percentiles. Sorted best first. Renders depth only."""
+    from d2slam.config import SynthConfig
+    from d2slam.synth.scene import Scene
+    from d2slam.synth.twin import RecordedPath, placement
+    from d2slam.synth.world import WorldRenderer
+
+    cfg = cfg or SynthConfig()
+    indices = np.asarray(indices, int)
+    scene = Scene("fr1_rpy_twin", seed, int(indices.max()) + 1, cfg=cfg, recording=rec)
+    border = scene.cfg.twin.depth_border
+    want = depth_percentiles(real_depths, border)
+    first = RecordedPath(rec, np.eye(4), scene.t0).poses([0.0])[0]
+    tw = scene.cfg.twin
+    times = scene.t_rel[indices] + scene.depth_offset[indices] + tw.depth_time_shift if tw.depth_at_depth_time \
+        else scene.t_rel[indices] + tw.rgb_time_shift  # the middle row's instant
+    raw = RecordedPath(rec, np.eye(4), scene.t0).poses(times)
+    renderer = WorldRenderer(scene)
+    rows = []
+    try:
+        for h in headings:
+            for x in xs:
+                for y in ys:
+                    A = placement(first, (float(x), float(y)), float(h))
+                    zs = [scene.lens(renderer.gl.render_depth(A @ T)[0], nearest=True) for T in raw]
+                    got = depth_percentiles(zs, border) if any((z > 0).any() for z in zs) else np.full(5, np.nan)
+                    err = float(np.mean(np.abs(np.log(got / want)))) if np.isfinite(got).all() else float("inf")
+                    rows.append({"x": float(x), "y": float(y), "heading": float(h), "twin": got, "real": want,
+                                 "mismatch": err})
+    finally:
+        renderer.close()
+    return sorted(rows, key=lambda r: r["mismatch"])

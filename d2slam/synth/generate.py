@@ -33,7 +33,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 from zlib_ng import zlib_ng
 from d2slam import __version__
 from d2slam.config import SynthConfig
@@ -42,7 +41,8 @@ from d2slam.progress import progress as _progress
 from d2slam.synth.scene import Scene
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor
-from d2slam.synth.twin import render_twin_frame, twin_groundtruth, twin_scene_json
+from d2slam.synth.rigid import pose_rows
+from d2slam.synth.twin import render_twin_frame, twin_groundtruth
 from d2slam.synth.world import WorldRenderer
 
 FORMAT = "d2slam-synth/2"
@@ -198,18 +198,6 @@ def groundtruth(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return ts, pose_rows(scene.camera.poses(ts - scene.t0))
 
 
-def pose_rows(T: np.ndarray) -> np.ndarray:
-    """(N, 7) ``tx ty tz qx qy qz qw`` of poses (N, 4, 4), the quaternion's sign kept continuous (no flips between
-    samples) and its first qw >= 0."""
-    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # x y z w
-    flip = np.concatenate([[1.0], np.sign(np.sum(q[1:] * q[:-1], axis=1))])
-    flip[flip == 0] = 1.0
-    q *= np.cumprod(flip)[:, None]
-    if q[0, 3] < 0:
-        q = -q
-    return np.concatenate([T[:, :3, 3], q], axis=1)
-
-
 def scene_json(scene: Scene) -> dict:
     c = scene.cfg
     if scene.recording is not None:
@@ -235,6 +223,31 @@ def scene_json(scene: Scene) -> dict:
             "start_time": scene.t0,
             "duration": scene.duration,
             "config": dataclasses.asdict(c),
+        },
+    }
+
+
+def twin_scene_json(scene: Scene) -> dict:
+    """``scene.json`` of a twin: the common keys (CONTRIBUTING.md), its camera with the lens distortion and the
+    recording it follows (name, frames, the placement in the room)."""
+    c, rec = scene.cfg, scene.recording
+    cam = rec.camera
+    camera = {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height,
+              "depth_factor": c.depth_factor, "bf": float(cam.bf), "name": f"{cam.name}-twin"}
+    if c.twin.distortion and cam.has_distortion:
+        camera["dist"] = [float(v) for v in cam.dist]
+    return {
+        "format": FORMAT, "scenario": scene.scenario, "seed": scene.seed, "frames": scene.frames,
+        "static_twin": True, "camera": camera, "objects": [], "person_ids": [], "moved_object_ids": [],
+        "recording": {"name": rec.name, "frames": len(rec), "placement": scene.camera.A.round(9).tolist()},
+        "generator": {
+            "name": "d2slam.synth", "version": __version__,
+            "depth_rendered_at": "depth_timestamp" if c.twin.depth_at_depth_time else "rgb_timestamp",
+            "notes": "The synthetic twin of a real recording: the office, static, along the recording's ground truth "
+                     "(placed in the room by recording.placement, a 4x4 applied to its poses), at its RGB and depth "
+                     "timestamps, through its camera with the lens distortion, the sensor of generator.config.twin. "
+                     "Poses: T_world_camera of the optical centre, camera x right / y down / z forward, world Z up.",
+            "start_time": scene.t0, "duration": scene.duration, "config": dataclasses.asdict(c),
         },
     }
 

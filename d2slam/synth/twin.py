@@ -209,19 +209,19 @@ def shadow_holes(z: np.ndarray, cfg: SynthConfig) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # one frame
 # --------------------------------------------------------------------------------------------------
-def exposure_windows(t: float, cfg: SynthConfig, height: int) -> tuple[float, float, np.ndarray]:
-    """(start, end, (H, 2) row windows) of the exposure of the frame stamped ``t`` (s from the first frame): row r is
-    exposed over ``[c_r - e/2, c_r + e/2]`` with ``c_r = t + rgb_time_shift + (r - (H - 1) / 2) row_readout`` (the
-    timestamp, shifted, is the middle row's exposure centre)."""
-    tw = cfg.twin
-    c = t + tw.rgb_time_shift + (np.arange(height) - (height - 1) / 2.0) * tw.row_readout
-    win = np.stack([c - tw.exposure / 2.0, c + tw.exposure / 2.0], axis=1)
+def row_windows(t: float, shift: float, readout: float, exposure: float,
+                height: int) -> tuple[float, float, np.ndarray]:
+    """(start, end, (H, 2) row windows) of an image stamped ``t`` (s from the first frame): row r is exposed over
+    ``[c_r - exposure / 2, c_r + exposure / 2]`` with ``c_r = t + shift + (r - (H - 1) / 2) readout`` (a rolling
+    shutter reads a row ``readout`` s after the row above it; the shifted timestamp is the middle row's instant)."""
+    c = t + shift + (np.arange(height) - (height - 1) / 2.0) * readout
+    win = np.stack([c - exposure / 2.0, c + exposure / 2.0], axis=1)
     return float(win[:, 0].min()), float(win[:, 1].max()), win
 
 
-def subframe_count(scene, start: float, end: float, z: np.ndarray) -> int:
+def subframe_count(scene, start: float, end: float, z: np.ndarray, step_px: float) -> int:
     """Sub-frames over ``[start, end]``: enough that no pixel of a 3 x 3 grid (at its rendered depth ``z``, the
-    median where there is none) moves more than ``subframe_px`` between two, at most ``subframes_max``."""
+    median where there is none) moves more than ``step_px`` between two, at most ``subframes_max``."""
     tw = scene.cfg.twin
     if end <= start:
         return 1
@@ -237,7 +237,7 @@ def subframe_count(scene, start: float, end: float, z: np.ndarray) -> int:
     ub = K[0, 0] * Xb[:, 0] / Xb[:, 2] + K[0, 2]
     vb = K[1, 1] * Xb[:, 1] / Xb[:, 2] + K[1, 2]
     move = float(np.nanmax(np.hypot(ub - u.ravel(), vb - v.ravel())))
-    return int(np.clip(np.ceil(move / tw.subframe_px), 1, tw.subframes_max))
+    return int(np.clip(np.ceil(move / step_px), 1, tw.subframes_max))
 
 
 def row_weights(start: float, end: float, n: int, windows: np.ndarray) -> np.ndarray:
@@ -258,6 +258,11 @@ def row_weights(start: float, end: float, n: int, windows: np.ndarray) -> np.nda
     return w / s
 
 
+def subframe_times(start: float, end: float, n: int) -> np.ndarray:
+    """The middles of ``n`` equal slices of ``[start, end]``: the sub-frames' instants."""
+    return start + (np.arange(n) + 0.5) * (end - start) / n
+
+
 def render_twin_frame(scene, renderer, i: int) -> dict:
     """Frame ``i`` of a twin scene, as ``d2slam.synth.generate.render_frame`` returns a frame (see the module
     docstring for what the sensor does)."""
@@ -267,6 +272,7 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
     from d2slam.synth.sensor import depth_to_png, rgb_sensor
 
     cfg, tw = scene.cfg, scene.cfg.twin
+    H, W = cfg.height, cfg.width
     t = float(scene.t_rel[i])
     rngs = [np.random.default_rng([scene.seed, scene.sidx, i, k]) for k in (11, 12, 13)]
     ms, cpu = {}, {}
@@ -280,25 +286,39 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
 
     renderer.update(t)
     lap("bodies")
-    td = t + float(scene.depth_offset[i]) + tw.depth_time_shift if tw.depth_at_depth_time else t + tw.rgb_time_shift
-    z, ids = renderer.gl.render_depth(scene.camera.poses([td])[0])
-    start, end, windows = exposure_windows(t, cfg, cfg.height)
-    n = subframe_count(scene, start, end, z)
-    weights = row_weights(start, end, n, windows)
     lens = scene.lens
-    acc = np.zeros((cfg.height, cfg.width, 3), np.float32)
-    for k, Tk in enumerate(scene.camera.poses(start + (np.arange(n) + 0.5) * (end - start) / n)):
-        img = lens(renderer.gl.render_colour(Tk)).astype(np.float32)
-        acc += weights[:, k, None, None].astype(np.float32) * img
+    # depth: each row at its own instant (the depth image's timestamp, shifted, and its rolling shutter), from the
+    # sub-frame whose slice of time holds it
+    if tw.depth_at_depth_time:
+        dstart, dend, dwin = row_windows(t + float(scene.depth_offset[i]), tw.depth_time_shift,
+                                         tw.depth_row_readout, 0.0, H)
+    else:
+        dstart, dend, dwin = row_windows(t, tw.rgb_time_shift, 0.0, 0.0, H)
+    z, ids = renderer.gl.render_depth(scene.camera.poses([0.5 * (dstart + dend)])[0])
+    nd = subframe_count(scene, dstart, dend, z, tw.depth_subframe_px)
+    if nd == 1:
+        zd, idd = lens(z, nearest=True), lens(ids, nearest=True)
+    else:
+        pick = np.argmax(row_weights(dstart, dend, nd, dwin), axis=1)
+        zd, idd = np.zeros((H, W), np.float32), np.zeros((H, W), np.uint8)
+        for k, Tk in enumerate(scene.camera.poses(subframe_times(dstart, dend, nd))):
+            rows = pick == k
+            if rows.any():
+                zk, ik = renderer.gl.render_depth(Tk)
+                zd[rows], idd[rows] = lens(zk, nearest=True)[rows], lens(ik, nearest=True)[rows]
+    # RGB: the average of sub-frames over each row's exposure
+    start, end, windows = row_windows(t, tw.rgb_time_shift, tw.row_readout, tw.exposure, H)
+    n = subframe_count(scene, start, end, z, tw.subframe_px)
+    weights = row_weights(start, end, n, windows).astype(np.float32)
+    acc = np.zeros((H, W, 3), np.float32)
+    for k, Tk in enumerate(scene.camera.poses(subframe_times(start, end, n))):
+        acc += weights[:, k, None, None] * lens(renderer.gl.render_colour(Tk)).astype(np.float32)
     lap("gl")
     rgb = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
     rgb = rgb_sensor(rgb, (0.0, 0.0), rngs[1], cfg, bank_seed=scene.seed)
-    zd = lens(z, nearest=True)
-    idd = lens(ids, nearest=True)
     depth = depth_to_png(zd, rngs[0], cfg)
     depth[shadow_holes(zd, cfg)] = 0
     top, bottom, left, right = tw.depth_border
-    H, W = depth.shape
     depth[:top] = 0
     depth[H - bottom:] = 0
     depth[:, :left] = 0
@@ -307,98 +327,16 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
     sim = simulate_segmenter(idd, zd, scene.person_ids, scene.K, rngs[2], cfg)
     lap("segmenter")
     return {"rgb": rgb, "depth": depth, "depth_clean": zd, "mask_gt": idd, "mask_sim": sim,
-            "pose": scene.camera.poses([t])[0], "subframes": n, "ms": ms, "cpu_ms": cpu}
+            "pose": scene.camera.poses([t])[0], "subframes": n, "depth_subframes": nd, "ms": ms, "cpu_ms": cpu}
 
 
 def twin_groundtruth(scene) -> tuple[np.ndarray, np.ndarray]:
     """(timestamps, (N, 7) tx ty tz qx qy qz qw): the recording's ground truth samples over the frames plus
-    ``gt_margin``, placed in the room (``d2slam.synth.generate.pose_rows``)."""
-    from d2slam.synth.generate import pose_rows
+    ``gt_margin``, placed in the room (``d2slam.synth.rigid.pose_rows``)."""
+    from d2slam.synth.rigid import pose_rows
 
     path = scene.camera
     a = scene.t0 + scene.t_rel[0] - scene.cfg.gt_margin
     b = scene.t0 + scene.t_rel[-1] + scene.cfg.gt_margin
     sel = (path.gt_times >= a) & (path.gt_times <= b)
     return path.gt_times[sel], pose_rows(path.gt_poses[sel])
-
-
-def twin_scene_json(scene) -> dict:
-    """``scene.json`` of a twin: the common keys (CONTRIBUTING.md), its camera with the lens distortion and the
-    recording it follows (name, frames, the placement in the room)."""
-    import dataclasses
-
-    from d2slam import __version__
-    from d2slam.synth.generate import FORMAT
-
-    c, rec = scene.cfg, scene.recording
-    cam = rec.camera
-    camera = {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height,
-              "depth_factor": c.depth_factor, "bf": float(cam.bf), "name": f"{cam.name}-twin"}
-    if c.twin.distortion and cam.has_distortion:
-        camera["dist"] = [float(v) for v in cam.dist]
-    return {
-        "format": FORMAT, "scenario": scene.scenario, "seed": scene.seed, "frames": scene.frames,
-        "static_twin": True, "camera": camera, "objects": [], "person_ids": [], "moved_object_ids": [],
-        "recording": {"name": rec.name, "frames": len(rec), "placement": scene.camera.A.round(9).tolist()},
-        "generator": {
-            "name": "d2slam.synth", "version": __version__,
-            "depth_rendered_at": "depth_timestamp" if c.twin.depth_at_depth_time else "rgb_timestamp",
-            "notes": "The synthetic twin of a real recording: the office, static, along the recording's ground truth "
-                     "(placed in the room by recording.placement, a 4x4 applied to its poses), at its RGB and depth "
-                     "timestamps, through its camera with the lens distortion, the sensor of generator.config.twin. "
-                     "Poses: T_world_camera of the optical centre, camera x right / y down / z forward, world Z up.",
-            "start_time": scene.t0, "duration": scene.duration, "config": dataclasses.asdict(c),
-        },
-    }
-
-
-# --------------------------------------------------------------------------------------------------
-# where the recording goes in the room
-# --------------------------------------------------------------------------------------------------
-DEPTH_PERCENTILES = (10, 25, 50, 75, 90)
-
-
-def depth_percentiles(depths: list[np.ndarray], border: tuple[int, int, int, int] = (0, 0, 0, 0)) -> np.ndarray:
-    """``DEPTH_PERCENTILES`` (m) of the valid depths (> 0) of images (H, W), pooled, inside ``border`` (top, bottom,
-    left, right px left out)."""
-    t, b, l, r = border
-    vals = [d[t:d.shape[0] - b, l:d.shape[1] - r] for d in depths]
-    v = np.concatenate([x[x > 0].ravel() for x in vals])
-    if v.size == 0:
-        raise D2SlamError("no valid depth to take percentiles of")
-    return np.percentile(v, DEPTH_PERCENTILES)
-
-
-def anchor_scan(rec: Recording, real_depths: list[np.ndarray], indices: np.ndarray, xs, ys, headings,
-                cfg: SynthConfig | None = None, seed: int = 0) -> list[dict]:
-    """For every anchor (x, y, heading) of the grid: the depth percentiles of the twin's clean depth (distorted,
-    inside ``depth_border``) at the frames ``indices`` against the real ones (``real_depths``, the same frames), and
-    the mismatch: the mean |log(twin / real)| over the percentiles. Sorted best first. Renders depth only."""
-    from d2slam.synth.scene import Scene
-    from d2slam.synth.world import WorldRenderer
-
-    cfg = cfg or SynthConfig()
-    indices = np.asarray(indices, int)
-    scene = Scene("fr1_rpy_twin", seed, int(indices.max()) + 1, cfg=cfg, recording=rec)
-    border = scene.cfg.twin.depth_border
-    want = depth_percentiles(real_depths, border)
-    first = RecordedPath(rec, np.eye(4), scene.t0).poses([0.0])[0]
-    tw = scene.cfg.twin
-    times = scene.t_rel[indices] + scene.depth_offset[indices] + tw.depth_time_shift if tw.depth_at_depth_time \
-        else scene.t_rel[indices] + tw.rgb_time_shift
-    raw = RecordedPath(rec, np.eye(4), scene.t0).poses(times)
-    renderer = WorldRenderer(scene)
-    rows = []
-    try:
-        for h in headings:
-            for x in xs:
-                for y in ys:
-                    A = placement(first, (float(x), float(y)), float(h))
-                    zs = [scene.lens(renderer.gl.render_depth(A @ T)[0], nearest=True) for T in raw]
-                    got = depth_percentiles(zs, border) if any((z > 0).any() for z in zs) else np.full(5, np.nan)
-                    err = float(np.mean(np.abs(np.log(got / want)))) if np.isfinite(got).all() else float("inf")
-                    rows.append({"x": float(x), "y": float(y), "heading": float(h), "twin": got, "real": want,
-                                 "mismatch": err})
-    finally:
-        renderer.close()
-    return sorted(rows, key=lambda r: r["mismatch"])
