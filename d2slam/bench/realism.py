@@ -136,8 +136,8 @@ def run_calibrate(args) -> int:
     print("           " + " ".join(f"{1e6 * r:6.0f}" for r in readouts))
     for o, line in zip(offsets, table):
         print(f"    {1e3 * o:+6.1f} " + " ".join(f"{v:6.3f}" for v in line))
-    print(f"  best: RGB time shift {1e3 * best_o:+.1f} ms [{1e3 * tw.rgb_time_shift:+.1f}], readout {1e6 * best_r:.0f} us/row "
-          f"[{1e6 * tw.row_readout:.0f}]; the readout's gain over a global shutter: "
+    print(f"  best: RGB time shift {1e3 * best_o:+.1f} ms [{1e3 * tw.rgb_time_shift:+.1f}], readout "
+          f"{1e6 * best_r:.0f} us/row [{1e6 * tw.row_readout:.0f}]; the readout's gain over a global shutter: "
           f"{table[list(offsets).index(best_o), 0] - table.min():.3f} px")
 
     shifts = np.round(np.arange(-0.03, -0.0149, 0.0025), 4)

@@ -25,14 +25,14 @@ def register(sub) -> None:
                    "folder refused). Written into DIR.tmp-PID@HOST beside it and renamed at the end: an interrupted "
                    "run leaves DIR as it was")
     p.add_argument("--frames", type=frames_arg, default=None, help="number of RGB-D frames at 30 Hz (default 300; "
-                   "office_loop 1200; a twin: all of its recording's), or 'tum': the duration of the TUM fr3 sequence of that name (walking_xyz "
-                   "28.8 s, ...)")
+                   "office_loop 1200; a twin: all of its recording's), or 'tum': the duration of the TUM fr3 sequence "
+                   "of that name (walking_xyz 28.8 s, ...)")
     p.add_argument("--seed", type=int, default=0, help="seed of the room, people, paths and noise (default 0)")
     p.add_argument("--static-twin", action="store_true",
                    help="same camera path and room, no people and no moved objects (all masks 0)")
     p.add_argument("--on-trajectory", metavar="TUM_DIR", default=None,
-                   help="fr1_rpy_twin: the real TUM recording (rgb.txt, depth.txt, groundtruth.txt) whose ground truth, "
-                   "frame and depth times and camera the twin takes")
+                   help="fr1_rpy_twin: the real TUM recording (rgb.txt, depth.txt, groundtruth.txt) whose ground "
+                   "truth, frame and depth times and camera the twin takes")
     p.add_argument("--workers", type=int, default=None,
                    help="processes rendering frames (default: min(2, cores)); the files do not depend on it")
     p.set_defaults(func=run)
@@ -95,7 +95,8 @@ def run(args) -> int:
     on = f" on {recording.name}" if recording is not None else ""
     announce(f"generating {frames} frames of {args.scenario}{on} (seed {args.seed}"
              f"{', static twin' if args.static_twin else ''}) into {out} with {workers} "
-             f"worker{'s' if workers > 1 else ''}", estimated_seconds(frames, args.workers))
+             f"worker{'s' if workers > 1 else ''}",
+             estimated_seconds(frames, args.workers, twin=recording is not None))
     with staged_dir(out) as tmp:
         result = generate(args.scenario, tmp, frames=frames, seed=args.seed, static_twin=args.static_twin,
                           workers=args.workers, recording=recording)

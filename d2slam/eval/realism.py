@@ -52,7 +52,8 @@ class Observer:
             "index": int(inp.frame_index), "timestamp": float(inp.timestamp), "n_kp": len(inp.kps),
             "kp_holes": int(np.count_nonzero(np.asarray(inp.kp_depth) <= 0)),
             "p": np.asarray(inp.kps, np.float64)[m[:, 0]], "q": np.asarray(inp.prev_kps, np.float64)[m[:, 1]],
-            "zp": np.asarray(inp.kp_depth, np.float64)[m[:, 0]], "zq": np.asarray(inp.prev_kp_depth, np.float64)[m[:, 1]],
+            "zp": np.asarray(inp.kp_depth, np.float64)[m[:, 0]],
+            "zq": np.asarray(inp.prev_kp_depth, np.float64)[m[:, 1]],
             "octave": (np.asarray(inp.octave)[m[:, 0]] if inp.octave is not None else np.zeros(len(m), np.int64)),
             "hole_share": float(np.count_nonzero(np.asarray(inp.depth) <= 0)) / max(np.asarray(inp.depth).size, 1),
         })

@@ -273,12 +273,14 @@ def worker_count(frames: int, workers: int | None = None, cfg: SynthConfig | Non
     return max(1, min(int(workers), frames))
 
 
-def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig | None = None) -> float:
-    """What generating ``frames`` frames should take (``CliConfig.synth_setup_s``, ``synth_frame_s``), announced
-    before it starts."""
+def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig | None = None,
+                      twin: bool = False) -> float:
+    """What generating ``frames`` frames should take (``CliConfig.synth_setup_s``, ``synth_frame_s``; a twin's:
+    ``synth_twin_frame_s``), announced before it starts."""
     from d2slam.config import CLI
 
-    return CLI.synth_setup_s + frames * CLI.synth_frame_s / worker_count(frames, workers, cfg)
+    per_frame = CLI.synth_twin_frame_s if twin else CLI.synth_frame_s
+    return CLI.synth_setup_s + frames * per_frame / worker_count(frames, workers, cfg)
 
 
 def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, static_twin: bool = False,
