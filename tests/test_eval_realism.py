@@ -91,24 +91,44 @@ def test_percentiles_and_bins():
     assert R.within(2.0, 2.4, 0.25) and not R.within(2.0, 2.6, 0.25) and not R.within(np.nan, 1.0, 0.25)
 
 
-def test_measure_and_compare_a_tiny_twin(tmp_path):
-    """The whole set of statistics on three frames of a twin, compared with itself."""
-    from d2slam.data import open_sequence
+@pytest.fixture(scope="module")
+def tiny_twin(tmp_path_factory):
+    """Three frames of a twin (of the fixture recording)."""
     from d2slam.data.fixtures import recording_folder
     from d2slam.synth import generate
     from d2slam.synth.twin import read_recording
 
-    rec = read_recording(recording_folder(tmp_path))
-    out = generate("fr1_rpy_twin", tmp_path / "twin", frames=3, workers=1, progress=False, recording=rec)["out"]
-    seq = open_sequence(out)
+    root = tmp_path_factory.mktemp("tiny_twin")
+    rec = read_recording(recording_folder(root))
+    return generate("fr1_rpy_twin", root / "twin", frames=3, workers=1, progress=False, recording=rec)["out"]
+
+
+def test_measure_and_compare_a_tiny_twin(tiny_twin):
+    """The whole set of statistics on three frames of a twin, compared with itself."""
+    from d2slam.data import open_sequence
+
+    seq = open_sequence(tiny_twin)
     m = R.measure(seq, 3, stride=1)
     assert m.frames == 3 and len(m.sampled) == 3 and len(m.corners) == 3 and np.all(m.hole_share > 0.15)
     assert len(m.matches.epi) > 50 and np.nanmedian(m.matches.epi) < 5 and np.isfinite(m.speed[1:]).all()
     rows = R.comparison(m, m)
     assert rows[0] == ("frames tracked (engine, no filter)", f"{m.tracked}/3", f"{m.tracked}/3")
     assert all(a == b for _, a, b in rows)
-    # the ground truth explains the twin's matches best at the shift it was rendered with (none from the timing)
     log = R.engine_log(seq, 3)
     tab, shift, readout = R.fit_time_offset(log, seq, np.array([-0.03, DEFAULT.synth.twin.rgb_time_shift, 0.03]),
                                             np.array([0.0]))
     assert tab.shape == (3, 1) and np.all(np.isfinite(tab))
+    cons = R.depth_consistency(seq, [1, 2], DEFAULT.synth.twin.depth_time_shift,
+                               readout=DEFAULT.synth.twin.depth_row_readout)
+    assert cons.shape == (2,) and np.all(cons < 2.0)  # the twin's own timing: depth agrees to its noise
+
+
+def test_bench_realism_real_against_twin(tiny_twin, capsys):
+    from d2slam.cli import main
+
+    assert main(["bench", "realism", "--real", str(tiny_twin), "--twin", str(tiny_twin), "--frames", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "epipolar error (px) p50/p90/p99" in out and "FAST corners" in out
+    assert "target: the synthetic sequence's epipolar p50 and p90 within 25 % of the real's" in out
+    assert main(["bench", "realism", "--real", str(tiny_twin)]) == 2
+    assert "--real and --twin go together" in capsys.readouterr().err

@@ -92,11 +92,12 @@ def run_compare(args) -> int:
     s = measure(twin, frames, progress=True)
     rows = comparison(r, s)
     w = max(len(a) for a, _, _ in rows) + 2
+    w2 = max([len(a) for _, a, _ in rows] + [len(r.name) + 6]) + 2
     print(f"The sensor, real against synthetic: first {frames} frames, the engine with nothing filtered (as --method "
           "none), its frame-to-frame matches as the geometric module sees them")
-    print(f"  {'':<{w}}{'real: ' + r.name:<30}{'synthetic: ' + s.name}")
+    print(f"  {'':<{w}}{'real: ' + r.name:<{w2}}{'synthetic: ' + s.name}")
     for what, a, b in rows:
-        print(f"  {what:<{w}}{a:<30}{b}")
+        print(f"  {what:<{w}}{a:<{w2}}{b}")
     er, es = pct(r.matches.epi, (50, 90)), pct(s.matches.epi, (50, 90))
     ok = [within(a, b, TWIN_TOLERANCE) for a, b in zip(er, es)]
     print(f"target: the synthetic sequence's epipolar p50 and p90 within {100 * TWIN_TOLERANCE:.0f} % of the real's: "
