@@ -579,8 +579,8 @@ class TwinConfig:
     # The depth images show the scene this long after (negative: before) their own timestamps (their middle row),
     # measured: the depth of one frame moved into the next by the ground truth's motion agrees best with it with this
     # shift and depth_row_readout (d2slam.eval.realism.depth_consistency). The Kinect stamps depth and colour alike
-    # (equal timestamps in fr1/rpy's first second) but captures its depth earlier: the depth is misregistered with
-    # the colour by the camera's motion over the difference.
+    # (equal timestamps over fr1/rpy's first 23 frames) but captures its depth earlier: the depth is misregistered
+    # with the colour by the camera's motion over the difference.
     depth_time_shift: float = -0.025
     # The depth's rolling shutter: each depth row this much later (s) than the row above it (the middle row at the
     # shifted timestamp), measured with depth_time_shift by the same agreement (d2slam.eval.realism.depth_consistency
@@ -607,10 +607,10 @@ class TwinConfig:
     # and bottom, columns at the left and right (px) where the real depth is a hole in at least half of the frames.
     depth_border: tuple[int, int, int, int] = (40, 3, 14, 49)
     # Inside the border, the Kinect's holes are at depth edges (6.7 % of the image, median over frames; 0.2 % are
-    # other holes), measured (d2slam.eval.realism.hole_kinds): where the nearer surface is on the right of a depth
-    # edge, the hole runs about shadow_px (its median, measured along the rows) into the farther surface on the left
-    # (the projector's shadow); on the other side, hole_edge_* as for the other scenarios (its 3 px median is the
-    # real one there). Other holes: hole_blob_fraction of the image (hole_blob_fraction's model).
+    # other holes), measured (d2slam.eval.realism.hole_kinds, edge_hole_runs): where the nearer surface is on the
+    # right of a depth edge, the hole runs shadow_px (the runs' median along the rows) into the farther surface on the
+    # left (the projector's shadow); on the other side, hole_edge_* as for the other scenarios (their 3 px median is
+    # the real one there). Other holes: hole_blob_fraction of the image (hole_blob_fraction's model).
     shadow_px: int = 10
     hole_blob_fraction: float = 0.002
 

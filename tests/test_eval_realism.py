@@ -84,6 +84,19 @@ def test_hole_kinds_and_border():
     assert R.depth_border([z, zz]) == (5, 0, 3, 0)  # in half of them: a border
 
 
+def test_edge_hole_runs_tell_the_shadowed_side():
+    z = np.full((10, 60), 2.0, np.float32)
+    z[:, 30:] = 1.0  # nearer on the right of column 30
+    z[:, 22:30] = 0  # its shadow: 8 px on the farther side
+    z[:, 45:48] = 0  # a hole on a flat surface: no edge, not counted
+    z[:5, 10:12] = 3.0
+    z[:5, 12:14] = 0  # 2 px between 3 m (left) and 2 m (right): nearer on the right too
+    right, left = R.edge_hole_runs(z, (0, 0, 0, 0), 0.05, 0.03)
+    assert sorted(right.tolist()) == [2] * 5 + [8] * 10 and left.size == 0
+    right, left = R.edge_hole_runs(z[:, ::-1], (0, 0, 0, 0), 0.05, 0.03)
+    assert right.size == 0 and sorted(left.tolist()) == [2] * 5 + [8] * 10
+
+
 def test_percentiles_and_bins():
     assert np.allclose(R.pct([1, 2, 3, np.nan, np.inf], (0, 50, 100)), [1, 2, 3])
     assert np.isnan(R.pct([], (50,))).all()

@@ -113,8 +113,8 @@ def run_calibrate(args) -> int:
     from d2slam.data import open_sequence
     from d2slam.data.tum import interpolate_poses
     from d2slam.errors import D2SlamError
-    from d2slam.eval.realism import (depth_border, depth_consistency, engine_log, fit_exposure, fit_time_offset,
-                                     frame_blur, noise_sigma, pct)
+    from d2slam.eval.realism import (depth_border, depth_consistency, edge_hole_runs, engine_log, fit_exposure,
+                                     fit_time_offset, frame_blur, hole_kinds, noise_sigma, pct)
 
     t0 = time.perf_counter()
     seq = open_sequence(args.calibrate)
@@ -181,6 +181,15 @@ def run_calibrate(args) -> int:
     inner = [d[t_:d.shape[0] - b_, l_:d.shape[1] - r_] for d in depths]
     print(f"  depth holes: whole image {100 * np.mean([np.mean(d <= 0) for d in depths]):.1f} %, inside the border "
           f"{100 * np.mean([np.mean(d <= 0) for d in inner]):.1f} %")
+    syn = DEFAULT.synth
+    kinds = [hole_kinds(d, border, syn.hole_edge_jump_a, syn.hole_edge_jump_b) for d in depths]
+    runs = [edge_hole_runs(d, border, syn.hole_edge_jump_a, syn.hole_edge_jump_b) for d in depths]
+    right, left = (np.concatenate([r[k] for r in runs]) for k in (0, 1))
+    print(f"  inside the border, holes at depth edges {100 * np.median([k['edge'] for k in kinds]):.1f} %, other "
+          f"holes {100 * np.median([k['blob'] for k in kinds]):.2f} % of the image (medians over frames) "
+          f"[hole_blob_fraction {100 * tw.hole_blob_fraction:.2f} %]; hole runs along the rows at depth edges: nearer "
+          f"surface on the right {np.median(right) if right.size else np.nan:.0f} px ({right.size} runs) "
+          f"[shadow_px {tw.shadow_px}], on the left {np.median(left) if left.size else np.nan:.0f} px ({left.size})")
     print(f"  image noise (grey levels) p10/p50/p90: {'/'.join(f'{v:.2f}' for v in pct(noise, (10, 50, 90)))} "
           f"[the twin's rgb_noise_sigma {tw.rgb_noise_sigma}: reads 0.49 on its images]")
     print(f"({time.perf_counter() - t0:.1f} s)")

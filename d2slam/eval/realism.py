@@ -653,3 +653,27 @@ def anchor_scan(rec, real_depths: list[np.ndarray], indices: np.ndarray, xs, ys,
     finally:
         renderer.close()
     return sorted(rows, key=lambda r: r["mismatch"])
+
+
+def edge_hole_runs(depth: np.ndarray, border: tuple[int, int, int, int], jump_a: float, jump_b: float,
+                   max_px: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """Widths (px) of the runs of holes along the rows, inside ``border``, that separate two valid depths differing by
+    more than ``jump_a + jump_b z`` (z the nearer; runs up to ``max_px``): (those whose nearer side is on the right,
+    those whose nearer side is on the left). A structured-light sensor's projector shadows the farther surface on one
+    side of a near object, so one side's runs are the wider."""
+    t, b, l, r = border
+    d = np.asarray(depth, np.float32)[t:depth.shape[0] - b, l:depth.shape[1] - r]
+    H, W = d.shape
+    hole = np.zeros((H, W + 2), np.int8)
+    hole[:, 1:-1] = d <= 0
+    step = np.diff(hole, axis=1)  # +1 where a run starts (at column c), -1 where it ends (column c is past it)
+    rs, cs = np.nonzero(step == 1)
+    re_, ce = np.nonzero(step == -1)  # row-major order: the k-th start and the k-th end belong to one run
+    ok = (cs > 0) & (ce < W) & (ce - cs <= max_px)
+    rs, cs, ce = rs[ok], cs[ok], ce[ok]
+    zl, zr = d[rs, cs - 1], d[rs, ce]
+    near = np.minimum(zl, zr)
+    edge = (zl > 0) & (zr > 0) & (np.abs(zl - zr) > jump_a + jump_b * near)
+    width = (ce - cs)[edge]
+    right = (zr < zl)[edge]
+    return width[right], width[~right]
