@@ -606,8 +606,9 @@ class TwinConfig:
     # The Kinect's depth, registered to the colour camera, does not cover the colour image's border: rows at the top
     # and bottom, columns at the left and right (px) where the real depth is a hole in at least half of the frames.
     depth_border: tuple[int, int, int, int] = (40, 3, 14, 49)
-    # Inside the border, the Kinect's holes are at depth edges (6.7 % of the image, median over frames; 0.2 % are
-    # other holes), measured (d2slam.eval.realism.hole_kinds, edge_hole_runs): where the nearer surface is on the
+    # Inside the border, the Kinect's holes are at depth edges (6.6 % of the image, median over frames; 0.26 % are
+    # other holes; 6.7 % and 0.22 % on every 5th frame instead of every 2nd), measured (d2slam.eval.realism.hole_kinds,
+    # edge_hole_runs: `d2slam bench realism --calibrate`): where the nearer surface is on the
     # right of a depth edge, the hole runs shadow_px (the runs' median along the rows) into the farther surface on the
     # left (the projector's shadow); on the other side, hole_edge_* as for the other scenarios (their 3 px median is
     # the real one there). Other holes: hole_blob_fraction of the image (hole_blob_fraction's model).
