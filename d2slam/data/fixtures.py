@@ -74,3 +74,34 @@ def write_tum_folder(root: str | Path, n_frames: int = 5, width: int = 64, heigh
                   for t, p, q in zip(gt_ts, poses, quat)]
         (root / "groundtruth.txt").write_text("\n".join(lines) + "\n")
     return {"root": root, "rgb_ts": rgb_ts, "depth_ts": depth_ts, "gt_ts": gt_ts}
+
+
+def recording_folder(root: str | Path, frames: int = 6) -> Path:
+    """``root/rgbd_dataset_freiburg1_fake``: a TUM folder of a real recording as the synthetic twin reads it
+    (``d2slam.synth.twin.read_recording``): ``frames`` (at most 6) RGB and depth entries, the depth 4-9 ms after each
+    RGB, and a turning, moving 100 Hz ground truth (z up, the camera 1.55 m high looking about 35 degrees down, like
+    fr1/rpy's). The images are empty placeholders: the twin reads only the lists and the ground truth."""
+    seq = Path(root) / "rgbd_dataset_freiburg1_fake"
+    for d in ("rgb", "depth"):
+        (seq / d).mkdir(parents=True)
+    t0 = 1305031229.5
+    ts = t0 + np.arange(frames) * 0.032 + np.array([0.0, 0.0013, -0.0008, 0.0021, 0.0, 0.001][:frames])
+    dts = ts + np.linspace(0.004, 0.009, frames)
+    rgb = "".join(f"{t:.6f} rgb/{t:.6f}.png\n" for t in ts)
+    dep = "".join(f"{t:.6f} depth/{t:.6f}.png\n" for t in dts)
+    for t in ts:
+        (seq / "rgb" / f"{t:.6f}.png").write_bytes(b"")
+    for t in dts:
+        (seq / "depth" / f"{t:.6f}.png").write_bytes(b"")
+    (seq / "rgb.txt").write_text("# color images\n# timestamp filename\n" + rgb)
+    (seq / "depth.txt").write_text("# depth maps\n# timestamp filename\n" + dep)
+    g = np.arange(np.floor((t0 - 1.0) * 100), np.ceil((ts[-1] + 1.0) * 100) + 1) / 100
+    s = g - t0
+    rot = Rotation.from_euler("ZYX", np.stack([2.0 + 0.8 * s, 0.1 * np.sin(3 * s), np.zeros_like(s)], 1)) \
+        * Rotation.from_euler("x", -np.pi / 2 - 0.6)  # optical axis forward and 35 degrees down, z up
+    q = rot.as_quat()
+    pos = np.stack([1.3 + 0.05 * s, 0.6 + 0.02 * s, np.full_like(s, 1.55)], 1)
+    (seq / "groundtruth.txt").write_text("# ground truth trajectory\n# timestamp tx ty tz qx qy qz qw\n" + "".join(
+        f"{t:.4f} " + " ".join(f"{v:.6f}" for v in p) + " " + " ".join(f"{v:.7f}" for v in qq) + "\n"
+        for t, p, qq in zip(g, pos, q)))
+    return seq

@@ -21,6 +21,8 @@ alpha(z) * 1.2^octave, alpha at the keypoint's detection scale, in every mode th
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from d2slam.config import DynamicsConfig
@@ -106,12 +108,18 @@ def depth_edge(depth: np.ndarray, px: np.ndarray, z: np.ndarray, cfg: DynamicsCo
     """(N,) bool: the keypoint's depth patch (the engine's, ``depth_patch_radius``) spans more than the noise can: its
     range exceeds the ``noise_confidence`` quantile of the range of that many samples of sigma(z) (the studentized
     range). ``px`` where the keypoints are in the depth image, ``z`` their robust depths."""
-    from scipy.stats import studentized_range
-
-    n = (2 * int(cfg.depth_patch_radius) + 1) ** 2
-    q = float(studentized_range.ppf(cfg.noise_confidence, n, 1e6))
+    q = range_quantile(cfg.noise_confidence, (2 * int(cfg.depth_patch_radius) + 1) ** 2)
     with np.errstate(invalid="ignore"):
         return keypoint_depth_range(depth, px, cfg.depth_patch_radius) > q * depth_sigma(z, cfg)
+
+
+@lru_cache(maxsize=None)
+def range_quantile(confidence: float, n: int) -> float:
+    """The ``confidence`` quantile of the range of ``n`` samples of a unit normal (the studentized range with
+    infinite degrees of freedom: 4.39 for 9 samples at 95 %); computed once per (confidence, n)."""
+    from scipy.stats import studentized_range
+
+    return float(studentized_range.ppf(confidence, n, 1e6))  # 1e6 degrees of freedom: infinite, and fast
 
 
 def uncertainty_width(b: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:

@@ -50,11 +50,12 @@ alone.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
 
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import depth_sigma, valid_depth
@@ -226,8 +227,14 @@ def widening(r: np.ndarray, threshold: np.ndarray | float, dof: int, cfg: Dynami
     th = float(np.median(np.broadcast_to(np.asarray(threshold, dtype=np.float64), r.shape)[ok]))
     if not th > 0:  # a test turned off (threshold 0) is not widened
         return 1.0
-    q = np.sqrt(chi2.ppf(cfg.noise_confidence, dof) / chi2.ppf(0.5, dof))
-    return max(1.0, float(q * np.median(r[ok]) / th))
+    return max(1.0, float(chi_quantile_over_median(cfg.noise_confidence, dof) * np.median(r[ok]) / th))
+
+
+@lru_cache(maxsize=None)
+def chi_quantile_over_median(confidence: float, dof: int) -> float:
+    """chi_dof^-1(confidence) / chi_dof^-1(0.5): the ``confidence`` quantile of a chi distribution in units of its
+    median (1.96 / 0.674 = 2.91 for one degree of freedom)."""
+    return float(np.sqrt(gammaincinv(dof / 2, confidence) / gammaincinv(dof / 2, 0.5)))  # chi2 = 2 Gamma(dof / 2)
 
 
 @dataclass

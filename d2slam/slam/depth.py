@@ -13,9 +13,9 @@ def valid_depth(z: np.ndarray) -> np.ndarray:
         return np.isfinite(z) & (z > 0)
 
 
-def _patches(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarray:
-    """(N, (2 radius + 1)^2) depths of each keypoint's patch around its rounded pixel, sorted, with +inf for the
-    pixels outside the image or without a valid depth (and for every pixel of a non-finite keypoint)."""
+def _patches(depth: np.ndarray, kps: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """((N, (2 radius + 1)^2) depths of each keypoint's patch around its rounded pixel, (N, P) bool: the pixel is in
+    the image with a valid depth (never for a non-finite keypoint))."""
     r = int(radius)
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     depth = np.asarray(depth)
@@ -28,8 +28,7 @@ def _patches(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarray:
     v = c[:, 1:2] + dv.ravel()[None, :]
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     vals = depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)].astype(np.float64)
-    ok = inside & valid_depth(vals)
-    return np.sort(np.where(ok, vals, np.inf), axis=1)
+    return vals, inside & valid_depth(vals)
 
 
 def keypoint_depth(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarray:
@@ -41,11 +40,12 @@ def keypoint_depth(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarra
     are gathered as an (N, P) array, invalid entries sorted to the end as +inf, and the median is read at the middle
     of each row's valid count (mean of the two middle values when the count is even).
     """
-    vals = _patches(depth, kps, radius)
+    vals, ok = _patches(depth, kps, radius)
     n = len(vals)
     if n == 0:
         return np.zeros(0, dtype=np.float32)
-    cnt = np.isfinite(vals).sum(axis=1)
+    vals = np.sort(np.where(ok, vals, np.inf), axis=1)
+    cnt = ok.sum(axis=1)
     lo = np.maximum((cnt - 1) // 2, 0)
     hi = np.maximum(cnt // 2, 0)
     rows = np.arange(n)
@@ -56,11 +56,8 @@ def keypoint_depth(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarra
 def keypoint_depth_range(depth: np.ndarray, kps: np.ndarray, radius: int) -> np.ndarray:
     """(N,) max - min of the valid depths of each keypoint's (2 radius + 1)^2 patch (the patch of
     :func:`keypoint_depth`), NaN with fewer than two valid pixels: how far the patch spans a depth edge."""
-    vals = _patches(depth, kps, radius)
+    vals, ok = _patches(depth, kps, radius)
     if len(vals) == 0:
         return np.zeros(0)
-    cnt = np.isfinite(vals).sum(axis=1)
-    rows = np.arange(len(vals))
-    with np.errstate(invalid="ignore"):
-        out = vals[rows, np.maximum(cnt - 1, 0)] - vals[:, 0]
-    return np.where(cnt >= 2, out, np.nan)
+    spread = np.where(ok, vals, -np.inf).max(axis=1) - np.where(ok, vals, np.inf).min(axis=1)
+    return np.where(ok.sum(axis=1) >= 2, spread, np.nan)

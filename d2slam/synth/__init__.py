@@ -5,7 +5,8 @@
 people, moved objects, fr3-like camera paths), ``bodies`` (articulated MakeHuman bodies: gait, clothes), ``gl``
 (pyrender offscreen OpenGL renderer), ``world`` (the scene as meshes for it), ``render`` (textured quads as arrays,
 and a small OpenCV rasteriser of them), ``textures``, ``sensor`` (Kinect-like depth noise, holes, RGB blur and
-noise), ``segsim`` (simulated segmenter), ``generate``.
+noise), ``segsim`` (simulated segmenter), ``generate``; ``twin`` (the synthetic twin of a real recording: its
+ground truth, times, camera and a sensor calibrated against it, ``SynthConfig.twin``).
 """
 
 from d2slam.synth.generate import FORMAT, generate, render_frame  # noqa: F401

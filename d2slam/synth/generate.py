@@ -33,15 +33,16 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 from zlib_ng import zlib_ng
 from d2slam import __version__
 from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
 from d2slam.progress import progress as _progress
-from d2slam.synth.scene import SCENARIOS, Scene
+from d2slam.synth.scene import Scene
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor
+from d2slam.synth.rigid import pose_rows
+from d2slam.synth.twin import render_twin_frame, twin_groundtruth
 from d2slam.synth.world import WorldRenderer
 
 FORMAT = "d2slam-synth/2"
@@ -77,10 +78,11 @@ def render_frame(scene: Scene, renderer: WorldRenderer, i: int) -> dict:
     mask_gt, mask_sim (uint8), plus the wall time (``ms``) and the CPU time of this process (``cpu_ms``: its OpenGL
     rasteriser threads included) of each stage: posing the bodies (``bodies``), the two OpenGL passes (``gl``), the
     sensor model, the simulated segmenter."""
+    if scene.recording is not None:
+        return render_twin_frame(scene, renderer, i)
     cfg = scene.cfg
     t = float(scene.t_rel[i])
-    sidx = SCENARIOS.index(scene.scenario)
-    rngs = [np.random.default_rng([scene.seed, sidx, i, k]) for k in (11, 12, 13)]
+    rngs = [np.random.default_rng([scene.seed, scene.sidx, i, k]) for k in (11, 12, 13)]
     clock = _Stages()
     T = scene.camera.poses([t])[0]
     renderer.update(t)
@@ -178,31 +180,28 @@ def _init_worker(args) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it stops the pool, workers say nothing
     cv2.setNumThreads(1)
     if "scene" not in _STATE:  # a spawned worker rebuilds the (deterministic) scene instead of inheriting it
-        scenario, seed, frames, static_twin, cfg, out = args
-        scene = Scene(scenario, seed, frames, static_twin, cfg)
+        scenario, seed, frames, static_twin, cfg, out, recording = args
+        scene = Scene(scenario, seed, frames, static_twin, cfg, recording)
         _STATE.update(scene=scene, renderer=WorldRenderer(scene), out=Path(out))
 
 
 def groundtruth(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """(timestamps, (N, 7) tx ty tz qx qy qz qw) at ``gt_rate`` Hz on an absolute grid covering the frames."""
+    """(timestamps, (N, 7) tx ty tz qx qy qz qw) at ``gt_rate`` Hz on an absolute grid covering the frames (a twin:
+    its recording's samples, ``twin_groundtruth``)."""
+    if scene.recording is not None:
+        return twin_groundtruth(scene)
     c = scene.cfg
     a = scene.t0 + scene.t_rel[0] - c.gt_margin
     b = scene.t0 + scene.t_rel[-1] + c.gt_margin
     k = np.arange(np.ceil(a * c.gt_rate), np.floor(b * c.gt_rate) + 1)
     ts = k / c.gt_rate
-    T = scene.camera.poses(ts - scene.t0)
-    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # x y z w
-    # keep the quaternion sign continuous (no flips between samples)
-    flip = np.concatenate([[1.0], np.sign(np.sum(q[1:] * q[:-1], axis=1))])
-    flip[flip == 0] = 1.0
-    q *= np.cumprod(flip)[:, None]
-    if q[0, 3] < 0:
-        q = -q
-    return ts, np.concatenate([T[:, :3, 3], q], axis=1)
+    return ts, pose_rows(scene.camera.poses(ts - scene.t0))
 
 
 def scene_json(scene: Scene) -> dict:
     c = scene.cfg
+    if scene.recording is not None:
+        return twin_scene_json(scene)
     return {
         "format": FORMAT,
         "scenario": scene.scenario,
@@ -228,6 +227,31 @@ def scene_json(scene: Scene) -> dict:
     }
 
 
+def twin_scene_json(scene: Scene) -> dict:
+    """``scene.json`` of a twin: the common keys (CONTRIBUTING.md), its camera with the lens distortion and the
+    recording it follows (name, frames, the placement in the room)."""
+    c, rec = scene.cfg, scene.recording
+    cam = rec.camera
+    camera = {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height,
+              "depth_factor": c.depth_factor, "bf": float(cam.bf), "name": f"{cam.name}-twin"}
+    if c.twin.distortion and cam.has_distortion:
+        camera["dist"] = [float(v) for v in cam.dist]
+    return {
+        "format": FORMAT, "scenario": scene.scenario, "seed": scene.seed, "frames": scene.frames,
+        "static_twin": True, "camera": camera, "objects": [], "person_ids": [], "moved_object_ids": [],
+        "recording": {"name": rec.name, "frames": len(rec), "placement": scene.camera.A.round(9).tolist()},
+        "generator": {
+            "name": "d2slam.synth", "version": __version__,
+            "depth_rendered_at": "depth_timestamp" if c.twin.depth_at_depth_time else "rgb_timestamp",
+            "notes": "The synthetic twin of a real recording: the office, static, along the recording's ground truth "
+                     "(placed in the room by recording.placement, a 4x4 applied to its poses), at its RGB and depth "
+                     "timestamps, through its camera with the lens distortion, the sensor of generator.config.twin. "
+                     "Poses: T_world_camera of the optical centre, camera x right / y down / z forward, world Z up.",
+            "start_time": scene.t0, "duration": scene.duration, "config": dataclasses.asdict(c),
+        },
+    }
+
+
 def _prepare_out(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise D2SlamError("output path exists and is not a folder", path=out)
@@ -249,28 +273,34 @@ def worker_count(frames: int, workers: int | None = None, cfg: SynthConfig | Non
     return max(1, min(int(workers), frames))
 
 
-def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig | None = None) -> float:
-    """What generating ``frames`` frames should take (``CliConfig.synth_setup_s``, ``synth_frame_s``), announced
-    before it starts."""
+def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig | None = None,
+                      twin: bool = False) -> float:
+    """What generating ``frames`` frames should take (``CliConfig.synth_setup_s``, ``synth_frame_s``; a twin's:
+    ``synth_twin_frame_s``), announced before it starts."""
     from d2slam.config import CLI
 
-    return CLI.synth_setup_s + frames * CLI.synth_frame_s / worker_count(frames, workers, cfg)
+    per_frame = CLI.synth_twin_frame_s if twin else CLI.synth_frame_s
+    return CLI.synth_setup_s + frames * per_frame / worker_count(frames, workers, cfg)
 
 
 def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, static_twin: bool = False,
-             workers: int | None = None, cfg: SynthConfig | None = None, progress: bool = True) -> dict:
-    """Generate one sequence into ``out``; returns a summary (paths, per-frame fractions and stage timings)."""
+             workers: int | None = None, cfg: SynthConfig | None = None, progress: bool = True,
+             recording=None) -> dict:
+    """Generate one sequence into ``out``; returns a summary (paths, per-frame fractions and stage timings). A twin
+    scenario takes its ``recording`` (``d2slam.synth.twin.read_recording``), at most ``frames`` of its frames."""
     cfg = cfg or SynthConfig()
     out = Path(out)
     t_start = time.perf_counter()
-    scene = Scene(scenario, seed, frames, static_twin, cfg)
+    scene = Scene(scenario, seed, frames, static_twin, cfg, recording)
+    frames, static_twin = scene.frames, scene.static_twin
     t_scene = time.perf_counter() - t_start
     _prepare_out(out)
     stamps = [stamp(scene.t0 + t) for t in scene.t_rel]
     dstamps = [stamp(scene.t0 + t + d) for t, d in zip(scene.t_rel, scene.depth_offset)]
     if len(set(stamps)) != len(stamps):
         raise D2SlamError("duplicate frame timestamps (frame_jitter too large for fps)")
-    head = f"# file: 'd2slam-synth {scenario} seed {seed}{' static twin' if static_twin else ''}'\n"
+    on = f" on {recording.name}" if recording is not None else ""
+    head = f"# file: 'd2slam-synth {scenario}{on} seed {seed}{' static twin' if static_twin else ''}'\n"
     (out / "rgb.txt").write_text("# color images\n" + head + "# timestamp filename\n"
                                  + "".join(f"{s} rgb/{s}.png\n" for s in stamps))
     (out / "depth.txt").write_text("# depth maps\n" + head + "# timestamp filename\n"
@@ -301,7 +331,7 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
             # spawn, not fork: a forked child inherits OpenCV's (possibly locked) thread pool and can hang;
             # each worker rebuilds the scene from its arguments, which is deterministic
             ctx = mp.get_context("spawn")
-            initargs = ((scenario, seed, frames, static_twin, cfg, str(out)),)
+            initargs = ((scenario, seed, frames, static_twin, cfg, str(out), recording),)
             with ctx.Pool(n_workers, initializer=_init_worker, initargs=initargs) as pool:
                 stats = list(_progress(pool.imap(_frame_job, range(frames), chunksize=2), **bar))
     finally:

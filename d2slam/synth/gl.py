@@ -144,14 +144,23 @@ class GLRenderer:
 
     def render(self, T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres (0 = nothing), ``ids`` (H, W) uint8."""
-        pr = self.pr
+        rgb = self.render_colour(T_world_camera)
+        depth, ids = self.render_depth(T_world_camera)
+        return rgb, depth, ids
+
+    def render_colour(self, T_world_camera: np.ndarray) -> np.ndarray:
+        """The colour pass alone: ``rgb`` (H, W, 3) uint8."""
         self.scene.set_pose(self.cam_node, np.asarray(T_world_camera, float) @ _GL_FROM_CV)
-        rgb, _ = self.renderer.render(self.scene, flags=pr.RenderFlags.FLAT)
+        rgb, _ = self.renderer.render(self.scene, flags=self.pr.RenderFlags.FLAT)
+        return np.ascontiguousarray(rgb)
+
+    def render_depth(self, T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The id pass alone: ``depth`` (H, W) float32 metres (0 = nothing), ``ids`` (H, W) uint8."""
+        self.scene.set_pose(self.cam_node, np.asarray(T_world_camera, float) @ _GL_FROM_CV)
         seg_map = {n: (0, 0, 0) for n in self.static_nodes}
         seg_map.update({n: (int(oid), 0, 0) for oid, n in self.dynamic})
-        ids, depth = self.renderer.render(self.scene, flags=pr.RenderFlags.SEG, seg_node_map=seg_map)
-        return (np.ascontiguousarray(rgb), np.ascontiguousarray(depth, dtype=np.float32),
-                np.ascontiguousarray(ids))
+        ids, depth = self.renderer.render(self.scene, flags=self.pr.RenderFlags.SEG, seg_node_map=seg_map)
+        return np.ascontiguousarray(depth, dtype=np.float32), np.ascontiguousarray(ids)
 
     def close(self) -> None:
         self.renderer.delete()

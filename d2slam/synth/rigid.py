@@ -61,3 +61,17 @@ def look_at(C: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray
     r /= np.linalg.norm(r, axis=1, keepdims=True)
     d = np.cross(f, r)
     return np.stack([r, d, f], axis=2)
+
+
+def pose_rows(T: np.ndarray) -> np.ndarray:
+    """(N, 7) ``tx ty tz qx qy qz qw`` of poses (N, 4, 4) (a TUM ground truth's columns), the quaternion's sign kept
+    continuous (no flips between samples) and its first qw >= 0."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # x y z w
+    flip = np.concatenate([[1.0], np.sign(np.sum(q[1:] * q[:-1], axis=1))])
+    flip[flip == 0] = 1.0
+    q *= np.cumprod(flip)[:, None]
+    if q[0, 3] < 0:
+        q = -q
+    return np.concatenate([T[:, :3, 3], q], axis=1)

@@ -29,6 +29,11 @@ INTERACTION_SCENARIOS = ("walking_carry", "walking_push")
 # every wall in turn, comes back to where it started and goes round part of the loop again; people as in w/xyz.
 LOOP_SCENARIOS = ("office_loop",)
 SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS
+# The synthetic twins of real recordings (d2slam.synth.twin): our office, static, along a real recording's ground
+# truth (an input: ``d2slam synth fr1_rpy_twin --on-trajectory TUM_DIR``), through its camera, with the sensor
+# calibrated against it (SynthConfig.twin). Not part of the study's grid.
+TWIN_SCENARIOS = ("fr1_rpy_twin",)
+ALL_SCENARIOS = SCENARIOS + TWIN_SCENARIOS
 # ``--frames tum``: the durations (s) of the real TUM fr3 sequences as the dataset lists them; our interaction
 # scenarios take 30 s, about the fr3 walking sequences' mean (office_loop: its default frames).
 TUM_DURATIONS = {"walking_xyz": 28.83, "walking_halfsphere": 35.81, "walking_static": 24.83, "walking_rpy": 30.61,
@@ -50,6 +55,13 @@ PERSON_IDS_START = 1
 MOVED_BOX_ID = 11
 MOVED_CHAIR_ID = 12
 DESK_CHAIR_IDS = (13, 14)
+
+
+def scenario_index(scenario: str) -> int:
+    """The scenario's place in ``ALL_SCENARIOS``: part of every seeded stream of its sequences."""
+    if scenario not in ALL_SCENARIOS:
+        raise D2SlamError(f"unknown scenario {scenario!r}; choose one of {', '.join(ALL_SCENARIOS)}")
+    return ALL_SCENARIOS.index(scenario)
 
 
 def tum_frames(scenario: str, fps: float = 30.0) -> int:
@@ -76,9 +88,12 @@ def default_frames(scenario: str) -> int:
     return SCENARIO_FRAMES.get(scenario, DEFAULT_FRAMES)
 
 
-def resolve_frames(scenario: str, frames: int | str | None, fps: float = 30.0) -> int:
+def resolve_frames(scenario: str, frames: int | str | None, fps: float = 30.0, recorded: int | None = None) -> int:
     """``frames`` as a number of frames for ``scenario`` (``tum``: its TUM duration; None, or ``tum`` for a scenario
-    without one: ``default_frames``)."""
+    without one: ``default_frames``). A twin (``recorded``: its recording's frames) takes the recording's frames, at
+    most ``frames``."""
+    if scenario in TWIN_SCENARIOS:
+        return int(recorded) if frames in (None, "tum") else min(int(frames), int(recorded))
     if frames is None or (frames == "tum" and scenario in SCENARIO_FRAMES):
         return default_frames(scenario)
     return tum_frames(scenario, fps) if frames == "tum" else int(frames)
@@ -181,27 +196,35 @@ class Scene:
     """Room, people, moved objects, camera path and clock of one synthetic sequence."""
 
     def __init__(self, scenario: str, seed: int = 0, frames: int = 300, static_twin: bool = False,
-                 cfg: SynthConfig | None = None):
-        if scenario not in SCENARIOS:
-            raise D2SlamError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+                 cfg: SynthConfig | None = None, recording=None):
+        sidx = scenario_index(scenario)
+        twin = scenario in TWIN_SCENARIOS
+        self.check_recording(scenario, recording)
         if int(frames) < 1:
             raise D2SlamError(f"--frames must be at least 1 (got {frames})")
         if int(seed) < 0:
             raise D2SlamError(f"--seed must be a non-negative integer (got {seed})")
         self.cfg = cfg or SynthConfig()
-        self.scenario, self.seed, self.frames, self.static_twin = scenario, int(seed), int(frames), bool(static_twin)
-        sidx = SCENARIOS.index(scenario)
-        c = self.cfg
-        self.K = np.array([[c.fx, 0, c.cx], [0, c.fy, c.cy], [0, 0, 1.0]])
-        # clock: frame times (relative) with small jitter, depth a few ms later (rendered at the RGB instant)
-        clock = np.random.default_rng([self.seed, 4, sidx])
-        jit = clock.uniform(-c.frame_jitter, c.frame_jitter, size=frames)
-        jit[0] = 0.0
-        self.t_rel = np.arange(frames) / c.fps + jit
-        self.depth_offset = clock.uniform(*c.depth_time_offset, size=frames)
-        self.duration = frames / c.fps
-        self.t0 = c.start_time
-        self.camera = CameraPath(scenario, np.random.default_rng([self.seed, 3, sidx]), self.duration)
+        self.recording = recording
+        self.sidx = sidx
+        if twin:
+            self._twin_clock(recording, int(frames))
+        else:
+            self.scenario, self.seed, self.frames = scenario, int(seed), int(frames)
+            self.static_twin = bool(static_twin)
+            c = self.cfg
+            self.K = np.array([[c.fx, 0, c.cx], [0, c.fy, c.cy], [0, 0, 1.0]])
+            self.canvas_K, self.canvas_size = self.K, (c.width, c.height)
+            # clock: frame times (relative) with small jitter, depth a few ms later (rendered at the RGB instant)
+            clock = np.random.default_rng([self.seed, 4, sidx])
+            jit = clock.uniform(-c.frame_jitter, c.frame_jitter, size=frames)
+            jit[0] = 0.0
+            self.t_rel = np.arange(frames) / c.fps + jit
+            self.depth_offset = clock.uniform(*c.depth_time_offset, size=frames)
+            self.duration = frames / c.fps
+            self.t0 = c.start_time
+            self.camera = CameraPath(scenario, np.random.default_rng([self.seed, 3, sidx]), self.duration)
+        self.scenario, self.seed = scenario, int(seed)
         self.textures: list[np.ndarray] = []
         self.static_quads: list[Quad] = []
         self.floor_rects: list[tuple[float, float, float, float]] = []  # furniture on the floor (people avoid it)
@@ -213,6 +236,38 @@ class Scene:
             for o in self.objects:
                 for T, half, tex in o.parts(float(self.t_rel[0])):
                     self.static_quads += box_quads(T, half, tex, 0)
+
+    @staticmethod
+    def check_recording(scenario: str, recording) -> None:
+        """A twin scenario needs its recording, and only a twin takes one."""
+        scenario_index(scenario)
+        if scenario in TWIN_SCENARIOS and recording is None:
+            raise D2SlamError(f"{scenario} follows a real recording's trajectory: give its TUM folder "
+                              "(--on-trajectory TUM_DIR)")
+        if scenario not in TWIN_SCENARIOS and recording is not None:
+            raise D2SlamError(f"{scenario} has its own camera path; --on-trajectory is for the twin scenarios "
+                              f"({', '.join(TWIN_SCENARIOS)})")
+
+    def _twin_clock(self, rec, frames: int) -> None:
+        """A twin's camera, clock and path: the recording's camera and first ``frames`` frames (RGB and depth
+        times), its ground truth placed in the room (d2slam.synth.twin); static (no people)."""
+        from d2slam.synth.twin import LensMap, RecordedPath, placement, twin_config
+
+        tw = self.cfg.twin
+        self.cfg = twin_config(self.cfg, rec.camera)
+        self.frames = min(frames, len(rec))
+        self.static_twin = True
+        c = self.cfg
+        self.K = np.array([[c.fx, 0, c.cx], [0, c.fy, c.cy], [0, 0, 1.0]])
+        self.lens = LensMap(rec.camera, tw.distortion)
+        self.canvas_K, self.canvas_size = self.lens.K, (self.lens.width, self.lens.height)
+        ts = np.asarray(rec.rgb_times[:self.frames], float)
+        self.t0 = float(ts[0])
+        self.t_rel = ts - self.t0
+        self.depth_offset = np.asarray(rec.depth_times[:self.frames], float) - ts
+        self.duration = float(self.t_rel[-1]) + 1.0 / c.fps
+        first = RecordedPath(rec, np.eye(4), self.t0).poses([0.0])[0]
+        self.camera = RecordedPath(rec, placement(first, tw.anchor_xy, tw.anchor_heading_deg), self.t0)
 
     # ---- textures ----
     def _tex(self, rng, kind, w_m, h_m, tpm) -> int:
@@ -311,7 +366,7 @@ class Scene:
     def _texture_rng(self, k: int) -> np.random.Generator:
         """Texture stream of actor k (its clothes and the object it moves), apart from the paths' stream so that
         the clothes can change without moving anyone."""
-        return np.random.default_rng([self.seed, 5, SCENARIOS.index(self.scenario), k])
+        return np.random.default_rng([self.seed, 5, self.sidx, k])
 
     def _person_look(self, rng) -> tuple[tuple, bodies.Clothes, float, np.ndarray]:
         """Body shape (six ANNY controls), clothes, gait style factor and garment textures of one person."""
@@ -344,6 +399,8 @@ class Scene:
 
     def _build_actors(self, rng):
         c, a = self.cfg, self.cfg.actors
+        if self.scenario in TWIN_SCENARIOS:  # a static twin: nobody, nothing moved
+            return
         if self.scenario == "sitting_static":  # two people seated throughout, their chairs part of the room
             seats = [(-0.55, 2.55, -np.pi / 2 + 0.35), (0.6, 2.45, -np.pi / 2 - 0.35)]
             for k, (x, y, hd) in enumerate(seats):

@@ -73,7 +73,7 @@ class WorldRenderer:
         c = scene.cfg
         self.scene = scene
         atlas, self.rects = build_atlas(scene.textures)
-        self.gl = GLRenderer(scene.K, c.width, c.height, atlas, c.near_plane, c.far_plane, c.gl_threads)
+        self.gl = GLRenderer(scene.canvas_K, *scene.canvas_size, atlas, c.near_plane, c.far_plane, c.gl_threads)
         self.gl.set_static(*quad_mesh(scene.static_set, self.rects))
 
     def update(self, t: float) -> None:

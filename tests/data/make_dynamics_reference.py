@@ -21,7 +21,7 @@ from d2slam.slam.hook import FilterInput
 OUT = Path(__file__).with_name("dynamics_reference.npz")
 # Diagnostics of ``filter.last`` compared (arrays), and its scalar counters.
 FIELDS = ("z", "belief", "p_s", "inside", "uncertain", "in_area", "err", "p_g", "observed", "geo_dynamic", "fused",
-          "prior", "belief_bayes", "zone", "oim", "mask_depth")
+          "prior", "belief_bayes", "zone", "oim", "mask_depth", "reproj_err", "depth_err", "pose_dynamic", "widening")
 COUNTERS = ("f_found", "f_matches", "f_static_only")
 # (seed, persons) of the toy scenes; small scenes keep the file small.
 SCENES = ((0, 2), (2, 3), (3, 0), (7, 2))
