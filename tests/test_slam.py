@@ -477,6 +477,28 @@ def test_replace_points_moves_observations_and_kills_old():
     assert sorted(M.obs.kf[rows].tolist()) == [0, 1]
 
 
+def test_replace_points_keeps_one_observation_per_keyframe():
+    """Two old points seen by one keyframe at two keypoints, both replaced by a point that keyframe does not see:
+    the keyframe observes the new point once (the first keypoint), the other observation is erased."""
+    from d2slam.slam.map import KeyFrame, Map
+
+    M = Map()
+    n = 4
+    kf = KeyFrame(id=0, frame_index=0, timestamp=0.0, Tcw=np.eye(4), kps=np.zeros((n, 2)),
+                  octave=np.zeros(n, np.int64), angle=np.zeros(n, np.float32), desc=np.zeros((n, 32), np.uint8),
+                  depth=np.ones(n), ur=np.zeros(n), inv_sigma2=np.ones(n), mp=np.full(n, -1, np.int64))
+    M.add_keyframe(kf)
+    a1, a2, b = M.add_points(np.zeros((3, 3)), np.zeros((3, 32), np.uint8), np.zeros((3, 3)), np.zeros(3),
+                             np.ones(3), np.zeros(3), 0, np.zeros(3, np.float32), np.zeros(3, np.int64))
+    M.add_observations(kf, np.array([0, 2]), np.array([a1, a2]))
+    M.replace_points(np.array([a1, a2]), np.array([b, b]))
+    P = M.points
+    assert kf.mp.tolist() == [b, -1, -1, -1]
+    assert P.nobs[b] == 2 and not P.alive[a1] and not P.alive[a2]
+    rows = M.observation_rows(P.view("alive"))
+    assert M.obs.pt[rows].tolist() == [b] and M.obs.kp[rows].tolist() == [0]
+
+
 
 def test_keyframe_culling_needs_more_than_three_other_observers():
     """ORB-SLAM3 1.0 KeyFrameCulling: a keyframe is redundant when 90 % of its close points are seen by more than

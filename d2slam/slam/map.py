@@ -202,9 +202,14 @@ class Map:
         new_rows = np.flatnonzero(valid & is_new[pt])
         stride = P.n
         seen = np.isin(kf[rows] * stride + target[pt[rows]], kf[new_rows] * stride + pt[new_rows])
-        self.erase_observations(rows[seen])
         move = rows[~seen]
         dest = target[pt[move]]
+        # Two old points of one keyframe with the same new point: the first observation moves, the others are erased
+        # (ORB-SLAM3 replaces one point after the other, and the second then finds the new point in that keyframe).
+        first = np.zeros(len(move), dtype=bool)
+        first[np.unique(kf[move] * stride + dest, return_index=True)[1]] = True
+        self.erase_observations(np.r_[rows[seen], move[~first]])
+        move, dest = move[first], dest[first]
         np.add.at(P.nobs, pt[move], -self.obs.weight[move])
         np.add.at(P.nobs, dest, self.obs.weight[move])
         self.obs.pt[move] = dest
