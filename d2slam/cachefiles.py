@@ -24,7 +24,10 @@ from __future__ import annotations
 import hashlib
 import json
 import sys
+import time
 from pathlib import Path
+
+import numpy as np
 
 from d2slam.errors import D2SlamError
 
@@ -67,7 +70,6 @@ def sha256_file(path: str | Path) -> str:
 def load_npz(path: str | Path, names: tuple[str, ...] | None = None) -> dict:
     """Every array of the ``.npz`` at ``path`` (or the arrays ``names``, which must all be there), read in full;
     :class:`Damaged` when it cannot be, whatever the reason (a missing file is ``FileNotFoundError``)."""
-    import numpy as np
 
     path = Path(path)
     if not path.is_file():
@@ -160,6 +162,5 @@ def read_json(path: str | Path) -> dict:
 def mtime_settled(mtime_ns: int, window_s: float, now_ns: int | None = None) -> bool:
     """Whether a file modified at ``mtime_ns`` was last modified at least ``window_s`` before ``now_ns`` (default:
     now): a later change within the file system's timestamp resolution then shows as a new time."""
-    import time
 
     return (time.time_ns() if now_ns is None else now_ns) - mtime_ns >= window_s * 1e9

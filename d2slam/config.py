@@ -17,12 +17,16 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib
 import json
 import math
 import numbers
 import typing
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar, Literal
+
+import yaml
 
 from d2slam.errors import D2SlamError
 
@@ -69,7 +73,6 @@ class Range:
     def _choices(self) -> tuple | None:
         if self.choices_from is None:
             return self.choices
-        import importlib
 
         module, name = self.choices_from.split(":")
         return tuple(getattr(importlib.import_module(module), name))
@@ -1297,7 +1300,7 @@ def _section(section_cls, data: dict, name: str):
 
 @dataclass(frozen=True)
 class EvalConfig(_Checked):
-    """How a run is judged: the share of its frames it tracked (``d2slam.record``) and its loops against the ground
+    """How a run is judged: the share of its frames it tracked (``d2slam.run.record``) and its loops against the ground
     truth (``d2slam.eval.loops``); nothing here changes a trajectory."""
 
     # A run that tracks less than this share of the frames it ran is a fragment, not a result: its ATE and RPE are
@@ -1377,11 +1380,8 @@ def with_overrides(base: Config, overrides: dict[str, Any]) -> Config:
 def load_config_file(path, base: Config = DEFAULT) -> tuple[Config, dict[str, Any]]:
     """``base`` overridden by a YAML file of ``section: {field: value}`` (``--config FILE.yaml``); returns the config
     and the overrides as read. A bad file is a ``D2SlamError`` naming it."""
-    from pathlib import Path
 
-    import yaml
 
-    from d2slam.errors import D2SlamError
 
     path = Path(path).expanduser()
     if not path.is_file():

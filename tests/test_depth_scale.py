@@ -124,7 +124,7 @@ def test_run_warns_once_with_the_factor_and_runs(moving, tmp_path, capsys):
 def test_orbslam3_runs_are_checked_too(moving, tmp_path, monkeypatch, capsys):
     """The real ORB-SLAM3 has its own runner; the depth is checked before it starts all the same."""
     import d2slam.commands.run as run_command
-    from d2slam import methods
+    from d2slam.run import methods
 
     ran = []
     for name in ("orbslam3", "orbslam3-masked"):

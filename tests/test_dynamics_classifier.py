@@ -11,7 +11,7 @@ from d2slam.dynamics.switches import Switches
 from d2slam.dynamics.toy import two_view_scene
 from d2slam.errors import D2SlamError
 from d2slam.eval.keypoints import ModuleMetrics
-from d2slam.methods import DYNAMICS, get_filter, methods
+from d2slam.run.methods import DYNAMICS, get_filter, methods
 from d2slam.slam.hook import FilterInput, KeypointFilter
 
 H, W = 48, 64

@@ -16,7 +16,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent / "data"))
 import make_dynamics_reference as R  # noqa: E402
 
-from d2slam.methods import DYNAMICS, get_filter  # noqa: E402
+from d2slam.run.methods import DYNAMICS, get_filter  # noqa: E402
 
 MODES = tuple(DYNAMICS)
 

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from d2slam.config import DynamicsConfig
-from d2slam.methods import get_filter
+from d2slam.run.methods import get_filter
 from d2slam.dynamics.depth import keypoint_depth
 from d2slam.dynamics.flow import flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import geometric_module

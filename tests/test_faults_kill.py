@@ -127,7 +127,7 @@ def test_vocabulary_training_render_killed_then_rerun(fault_world, tmp_path):
             "m = build_vocabulary(cfg=cfg, real=True, progress=True)\nprint(m['sha256'])\n")
     uninterrupted = w.start("--python", code, cache=tmp_path / "ref")
     cache = tmp_path / "cache"
-    killed = w.run("--python", code, cache=cache, hook=("d2slam.baselines.vocab:Progress.update", 2, "SIGKILL"))
+    killed = w.run("--python", code, cache=cache, hook=("d2slam.progress:Progress.update", 2, "SIGKILL"))
     _faulted(killed, "SIGKILL")
     ref = w.wait(uninterrupted)
     assert ref.returncode == 0, ref.stderr

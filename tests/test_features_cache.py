@@ -13,8 +13,8 @@ from d2slam.cachefiles import Damaged
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
-from d2slam.methods import get_method
-from d2slam.pipeline import run_sequence
+from d2slam.run.methods import get_method
+from d2slam.run.sequence import run_sequence
 from d2slam.segmentation import masks_for, stack_masks
 from d2slam.slam.engine import Engine
 from d2slam.slam.features import CachedFeatures, FeatureRecorder

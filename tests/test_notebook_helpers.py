@@ -14,7 +14,7 @@ from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.eval.keypoints import KeypointRecorder, keypoint_truth
 from d2slam.errors import D2SlamError
-from d2slam.methods import run_method
+from d2slam.run.runner import run_method
 from d2slam.notebook import (config_values, development_sequence, mask_provider, recorded_run,
                              seed_showing)
 from d2slam.study.sequences import MARKER, sequence_dir

@@ -15,7 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from d2slam.baselines.orbslam3 import run_orbslam3, settings_yaml
+from d2slam.baselines.orbslam3 import settings_yaml
+from d2slam.run.orbslam3 import run_orbslam3
 from d2slam.cli import main
 from d2slam.config import DEFAULT, load_config_file
 from d2slam.data import open_sequence

@@ -582,14 +582,14 @@ def test_keyframe_points_from_depth_up_to_the_kinect_range(room, new_points_dept
 
 
 def test_the_warm_up_compiles_every_kernel_a_run_uses():
-    """After ``d2slam.warmup.warm_up`` a run of the engine with the d2slam filter on other frames compiles nothing
+    """After ``d2slam.run.warmup.warm_up`` a run of the engine with the d2slam filter on other frames compiles nothing
     (no kernel gets a new signature): what make install and the study rely on."""
     import importlib
 
     from numba.core.registry import CPUDispatcher
 
-    from d2slam.methods import get_filter
-    from d2slam.warmup import warm_up
+    from d2slam.run.methods import get_filter
+    from d2slam.run.warmup import warm_up
 
     def signatures():
         out = {}

@@ -358,7 +358,7 @@ def test_a_fragment_of_a_whole_sequence_is_flagged():
 
 
 def test_run_rows_carry_the_share_tracked_and_the_fragment_mark():
-    from d2slam.record import RunRecord
+    from d2slam.run.record import RunRecord
     from d2slam.study.grid import RunSpec
     from d2slam.study.runner import run_row
 

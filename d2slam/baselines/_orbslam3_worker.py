@@ -1,5 +1,5 @@
 """Child process that runs the real ORB-SLAM3 (pyorbslam3) on one sequence; started by
-:func:`d2slam.baselines.orbslam3.run_orbslam3`, never by users.
+:func:`d2slam.baselines.orbslam3.orbslam3_report`, never by users.
 
 ORB-SLAM3 calls ``exit(-1)`` on a bad settings file, accepts a garbage vocabulary and then crashes, and runs
 threads: it lives in this process so that the caller survives and can time it out. Each run gets a fresh process
@@ -30,9 +30,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from d2slam.baselines.masking import mask_frame
+from d2slam.config import Config
+from d2slam.data import open_sequence
+from d2slam.errors import D2SlamError
+from d2slam.segmentation import masks_for, stack_masks
 
 T_START = time.perf_counter()  # the interpreter's own start-up precedes this; the parent measures the whole
 
@@ -41,8 +51,6 @@ def remove_people(seq, i: int, rgb, depth, kind: str, config):
     """Frame ``i``'s ``(rgb, depth)`` without its ``kind`` person masks (:func:`d2slam.segmentation.masks_for`,
     :func:`d2slam.baselines.masking.mask_frame` with ``config.masking``), seconds reading the masks, seconds removing
     them."""
-    from d2slam.baselines.masking import mask_frame
-    from d2slam.segmentation import masks_for, stack_masks
 
     t = time.perf_counter()
     masks = stack_masks(masks_for(seq, i, kind, config), rgb.shape[:2])
@@ -55,7 +63,6 @@ def sequence_frame(seq, i: int, masks: str | None = None, config=None):
     """What ORB-SLAM3 is given for frame ``i``: ``(timestamp, rgb, depth, io_s, segment_s, mask_s)`` with the RGB
     image in RGB order (the settings say ``Camera.RGB: 1``) and the depth back in sensor units (ORB-SLAM3 divides by
     ``RGBD.DepthMapFactor``), the people removed when ``masks`` is given. Raises the reader's D2SlamError."""
-    import numpy as np
 
     t = time.perf_counter()
     frame = seq[i]
@@ -79,10 +86,7 @@ def write_frame_store(seq, n: int, root: Path, masks: str | None = None, config=
     :func:`sequence_frame` gives ORB-SLAM3. A frame that cannot be read ends the store there: ``frames`` counts the
     frames before it and ``error`` holds the reader's message (the worker tracks those, then fails with it, as it
     does when it decodes). Returns the meta dict (``io_s``, ``segment_s``, ``mask_s``, ``cpu_s``)."""
-    import numpy as np
-    from tqdm import tqdm
 
-    from d2slam.errors import D2SlamError
 
     cpu0 = time.process_time()
     root.mkdir(parents=True, exist_ok=True)
@@ -115,9 +119,7 @@ def write_frame_store(seq, n: int, root: Path, masks: str | None = None, config=
 def store_frames(root: Path):
     """The frames of a store (opened now), as :func:`sequence_frame` tuples (``io_s`` = mapping the arrays), then,
     if the store ended on an unreadable frame, its error as a D2SlamError."""
-    import numpy as np
 
-    from d2slam.errors import D2SlamError
 
     meta = json.loads((root / STORE_META).read_text())
     rgb = np.load(root / "rgb.npy", mmap_mode="r")
@@ -137,13 +139,10 @@ def store_frames(root: Path):
 
 def _sequence_frames(args):
     """The frames of ``--sequence`` (opened now: a bad folder fails before ORB-SLAM3 starts), decoded one by one."""
-    from d2slam.data import open_sequence
 
     seq = open_sequence(args.sequence, camera=args.camera) if args.camera else open_sequence(args.sequence)
     config = None
     if args.masks:
-        from d2slam.config import Config
-
         config = Config.from_dict(json.loads(Path(args.config).read_text()))
     n = len(seq) if args.max_frames <= 0 else min(len(seq), args.max_frames)
     return (sequence_frame(seq, i, args.masks, config) for i in range(n))
@@ -169,11 +168,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"d2slam worker: {message}", file=sys.stderr, flush=True)
         return code
 
-    import resource
 
-    import numpy as np
 
-    from d2slam.errors import D2SlamError
 
     try:
         frames = store_frames(Path(args.frames)) if args.frames else _sequence_frames(args)

@@ -1,6 +1,6 @@
 """The real ORB-SLAM3 (PyPI wheel ``pyorbslam3``, GPL-3.0) in RGB-D mode, as a baseline.
 
-``run_orbslam3(sequence_dir, out_traj, metrics_json=None, repeats=1, ...)``:
+``orbslam3_report(sequence_dir, out_traj, metrics_json=None, repeats=1, ...)``:
 
 1. resolves the vocabulary (argument, ``$PYORBSLAM3_VOCAB`` = e.g. the official ORBvoc.txt, or the one the project
    builds, :mod:`d2slam.baselines.vocab`) and checks its structure (ORB-SLAM3's loader accepts garbage and crashes
@@ -35,17 +35,28 @@ import dataclasses
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
+from d2slam.baselines import child_env
+from d2slam.baselines._orbslam3_worker import STORE_META, write_frame_store
+from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.config import DEFAULT, Config
+from d2slam.data import SyntheticSequence, Trajectory, open_sequence, read_tum_trajectory, write_tum_trajectory
+from d2slam.data.intrinsics import is_camera_file, read_camera_file
 from d2slam.errors import D2SlamError
-from d2slam.record import RunRecord, fragment_fields
+from d2slam.eval.fragment import fragment_fields
+from d2slam.eval.trajectory import evaluate
+from d2slam.outputs import check_output_file, write_bytes
+from d2slam.segmentation import KINDS, masks_for, masks_origin
 
 METHOD = "orbslam3"
 MASKED_METHOD = "orbslam3-masked"
@@ -116,7 +127,6 @@ def settings_yaml(camera, config: Config = DEFAULT) -> str:
 def check_settings(path: str | Path) -> None:
     """Fail with a clear message where ORB-SLAM3 would ``exit(-1)`` (or silently misread): not an OpenCV YAML,
     not the 1.0 format, a required key missing or not a number."""
-    import cv2
 
     path = Path(path)
     if not path.is_file():
@@ -187,7 +197,6 @@ def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: P
                max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
                masks: str | None = None, store: Path | None = None) -> dict:
     """Start the worker, follow its progress, enforce the time limits. Returns raw outcome fields."""
-    from tqdm import tqdm
 
     cfg = config.baseline
     log = work / "orbslam3.log"
@@ -202,7 +211,6 @@ def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: P
         config_path = work / "config.json"
         config_path.write_text(json.dumps(config.to_dict(), default=list))
         cmd += ["--masks", masks, "--config", str(config_path)]
-    from d2slam.baselines import child_env
 
     env = child_env()
     env.pop("DISPLAY", None)  # headless: Pangolin is never started (use_viewer=False)
@@ -258,7 +266,6 @@ def _seconds(wall_s: float, done: dict, ms: np.ndarray) -> dict:
 
 def _kill(proc: subprocess.Popen) -> None:
     """End the worker we started (its own process group, by id) and reap it."""
-    import signal
 
     try:
         os.killpg(proc.pid, signal.SIGKILL)
@@ -272,7 +279,7 @@ def _kill(proc: subprocess.Popen) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class Attempt:
-    """One ORB-SLAM3 run of a sequence (a repeat of :func:`run_orbslam3`), as its run JSON lists it (``runs``):
+    """One ORB-SLAM3 run of a sequence (a repeat of :func:`orbslam3_report`), as its run JSON lists it (``runs``):
     frames run and expected, tracked / lost / not initialised, the maps it started (``resets`` = maps - 1), its
     timings (per frame, the worker's load, wall, the split of ``_seconds``, CPU, per stage), the log kept (None:
     removed), its outcome (``status``, ``message``: see the module docstring) and the trajectory written."""
@@ -325,8 +332,6 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
             done = {}
     stages = done  # per-frame stage times: the worker's, or the frame store's (decoded once, people removed once)
     if store is not None:
-        from d2slam.baselines._orbslam3_worker import STORE_META
-
         stages = json.loads((store / STORE_META).read_text())
         if len(rec["ms"]):  # the masking time of each frame joins its tracking time, as when the worker masks
             rec["ms"] = rec["ms"] + np.load(store / "mask_ms.npy")[rec["index"]]
@@ -398,7 +403,6 @@ def _outcome(raw: dict, done: dict, work: Path, log: Path, frames: int, n_frames
 def _trajectory(rec: dict, ok: np.ndarray, final_path: Path, out_traj: Path, sequence_dir: Path):
     """Write the tracked frames' poses to ``out_traj`` (ORB-SLAM3's final poses where it saved them, else the
     online ones) and the online poses beside it (``.online.txt``); returns (the trajectory or None, its source)."""
-    from d2slam.data import Trajectory, read_tum_trajectory, write_tum_trajectory
 
     source, traj = None, None
     tracked_ts = rec["timestamp"][ok]
@@ -431,13 +435,14 @@ def _trajectory(rec: dict, ok: np.ndarray, final_path: Path, out_traj: Path, seq
 # --------------------------------------------------------------------------------------------------
 # Public entry point
 # --------------------------------------------------------------------------------------------------
-def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: str | Path | None = None,
+def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json: str | Path | None = None,
                  repeats: int = 1, vocab: str | Path | None = None, settings: str | Path | None = None,
                  camera: str | None = None, max_frames: int = 0, timeout: float | None = None,
                  config: Config = DEFAULT, progress: bool = True, evaluate: bool = True,
-                 keep_work: bool = False, masks: str | None = None) -> RunRecord:
+                 keep_work: bool = False, masks: str | None = None) -> tuple[dict, object]:
     """Run the real ORB-SLAM3 RGB-D on ``sequence_dir`` ``repeats`` times; write ``out_traj`` (TUM) and the run
-    JSON (``metrics_json``); return the run (``RunRecord``, the JSON as its ``orbslam3``). Never raises for an
+    JSON (``metrics_json``); return the run JSON and the sequence read (``d2slam.run.orbslam3.run_orbslam3`` makes
+    the run's ``RunRecord`` of them). Never raises for an
     ORB-SLAM3 failure: the record's ``status`` says what happened and ``error`` why (see the module docstring).
     Bad arguments (no sequence, repeats < 1) raise :class:`D2SlamError`.
 
@@ -450,51 +455,12 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     out_traj = Path(out_traj).expanduser()
     report, seq = _report(sequence_dir, out_traj, metrics_json, repeats, vocab, settings, camera, max_frames, timeout,
                           config, progress, evaluate, keep_work, masks)
-    return run_record(report, seq, evaluate)
-
-
-def run_record(report: dict, seq, evaluate: bool = True) -> RunRecord:
-    """The :class:`RunRecord` of an ORB-SLAM3 run JSON (``report``) on ``seq``: its trajectory (read back), ORB-SLAM3's
-    status (``unevaluated`` when it tracked but gave no metrics), the median ATE and RPE over the repeats with the
-    ATE's range, and the aligned positions of the trajectory written (with ``evaluate`` and ground truth)."""
-    from d2slam.data import read_tum_trajectory
-    from d2slam.eval.trajectory import Evaluation, TrajectoryMetrics, aligned_estimate
-
-    status = report.get("status", "failed")
-    metrics = report.get("metrics") or {}
-    spread = (report.get("metrics_spread") or {}).get("ate_rmse_m")
-    error = "" if status == "ok" else str(report.get("message") or report.get("metrics_error") or "")
-    if not metrics:
-        status = status if status in ("failed", "crashed", "timeout") else "unevaluated"
-        error = error or str(report.get("metrics_error") or "no metrics")
-    path = report.get("trajectory")
-    traj = read_tum_trajectory(path) if path and Path(path).is_file() else None
-    aligned = None
-    if evaluate and traj is not None and seq.groundtruth is not None:
-        try:
-            aligned = aligned_estimate(seq.groundtruth, traj)[:2]
-        except Exception:  # noqa: BLE001 - only the plot misses it
-            aligned = None
-    evaluation = Evaluation(TrajectoryMetrics(**metrics) if metrics else None, metrics.get("ate_rmse_m"),
-                            str(report.get("metrics_error") or ""), aligned)
-    ate = metrics.get("ate_rmse_m")
-    return RunRecord(
-        method=report["method"], sequence=report.get("name", ""), trajectory=traj, frames=report.get("frames"),
-        tracked=report.get("tracked"), lost=report.get("lost"), fps=report.get("fps"),
-        ms_per_frame=report.get("ms_per_frame"), config_hash=report["config_hash"], loop_closing=True, status=status,
-        error=error, evaluation=evaluation if metrics or aligned is not None else None, masks=report.get("masks"),
-        masks_origin=report.get("masks_origin"), repeats=int(report.get("repeats", 1)),
-        ate_range=(spread["min"], spread["max"]) if spread else (ate, ate) if metrics else None, orbslam3=report,
-        min_tracked_share=report.get("min_tracked_share", DEFAULT.evaluation.min_tracked_share))
+    return report, seq
 
 
 def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, settings, camera, max_frames: int,
             timeout, config: Config, progress: bool, evaluate: bool, keep_work: bool, masks) -> tuple[dict, object]:
-    """:func:`run_orbslam3`'s runs: (the run JSON, the sequence)."""
-    from d2slam.baselines.vocab import resolve_vocabulary
-    from d2slam.data import open_sequence
-    from d2slam.data.intrinsics import is_camera_file, read_camera_file
-    from d2slam.outputs import check_output_file
+    """:func:`orbslam3_report`'s runs: (the run JSON, the sequence)."""
 
     sequence_dir = Path(sequence_dir).expanduser().resolve()
     if repeats < 1:
@@ -512,7 +478,6 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
     seq_camera = camera_file.camera if camera_file is not None else camera
     seq = open_sequence(sequence_dir, camera=seq_camera) if seq_camera else open_sequence(sequence_dir)
     n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
-    from d2slam.data import SyntheticSequence
 
     camera_source = (str(Path(camera).expanduser().resolve()) if camera_file is not None else
                      "scene.json" if isinstance(seq, SyntheticSequence) else camera or "folder name")
@@ -546,8 +511,6 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
             return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json, config), seq
         store = _frame_store_root(seq, n_frames, repeats, config, work_root)
         if store is not None:
-            from d2slam.baselines._orbslam3_worker import write_frame_store
-
             t0 = time.perf_counter()
             meta = write_frame_store(seq, n_frames, store, masks, config, progress)
             base["frame_store"] = dict(meta, wall_s=round(time.perf_counter() - t0, 3),
@@ -599,7 +562,6 @@ def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool
     checked by ``MaskingConfig``'s ranges); the
     ``onnx`` ones are segmented into the mask cache here (announced, :func:`d2slam.segmentation.masks_origin`), so
     the worker only reads them. Returns where the masks come from."""
-    from d2slam.segmentation import KINDS, masks_for, masks_origin
 
     if kind not in KINDS:
         raise D2SlamError(f"unknown masks {kind!r}; choose one of {', '.join(KINDS)}")
@@ -611,8 +573,6 @@ def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool
 def evaluate_trajectory(seq, traj_path: str) -> dict:
     """``{"metrics": {ate_rmse_m, rpe_trans_m, rpe_rot_deg, ...}}`` with :mod:`d2slam.eval.trajectory` (evo), as in
     the engine's run JSON; ``{"metrics_error": ...}`` when the trajectory cannot be evaluated."""
-    from d2slam.data import read_tum_trajectory
-    from d2slam.eval.trajectory import evaluate
 
     try:
         return {"metrics": evaluate(seq.groundtruth, read_tum_trajectory(traj_path)).to_dict()}
@@ -674,7 +634,7 @@ def _summarise(base: dict, runs: list[dict], out_traj: Path) -> dict:
 
 
 def _finish(result: dict, metrics_json, config: Config) -> dict:
-    """The run JSON as written: its status, the share of frames tracked (``d2slam.record.fragment_fields``: whether
+    """The run JSON as written: its status, the share of frames tracked (``d2slam.run.record.fragment_fields``: whether
     the run is a fragment by ``EvalConfig.min_tracked_share``; a run that failed before its frames has none) and
     when it was made."""
     result.setdefault("status", "ok")
@@ -682,8 +642,6 @@ def _finish(result: dict, metrics_json, config: Config) -> dict:
         result.update(fragment_fields(result["tracked"], result.get("frames"), config.evaluation.min_tracked_share))
     result["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     if metrics_json:
-        from d2slam.outputs import write_bytes
-
         path = Path(metrics_json)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_bytes(path, json.dumps(result, indent=2, default=_json_default))

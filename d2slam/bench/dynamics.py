@@ -23,6 +23,16 @@ import time
 import cv2
 import numpy as np
 
+from d2slam.config import DEFAULT, DynamicsConfig
+from d2slam.data import SyntheticSequence, open_sequence
+from d2slam.dynamics.toy import two_view_scene
+from d2slam.errors import D2SlamError
+from d2slam.run.methods import DYNAMICS, get_filter, get_method, mask_kind
+from d2slam.run.sequence import ensure_vocabulary
+from d2slam.segmentation import masks_for, stack_masks
+from d2slam.slam.depth import keypoint_depth
+from d2slam.slam.engine import Engine
+
 DESCRIPTION = "time the dynamics modules per frame (1000 keypoints, ~800 matches, two masks, 640x480)"
 TARGET_STAGE_MS = 5.0  # the engine's whole filter stage on a walking sequence (--sequence)
 
@@ -50,9 +60,6 @@ def _stats(values: list[float]) -> tuple[float, float, float]:
 
 
 def _run_mode(mode: str, scenes, args) -> dict[str, list[float]]:
-    from d2slam.config import DynamicsConfig
-    from d2slam.methods import get_filter
-
     flt = get_filter(mode, DynamicsConfig())
     out: dict[str, list[float]] = {}
     for i in range(args.warmup + args.frames):
@@ -93,15 +100,11 @@ def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dic
     mask cache). ``stage`` (a dict) receives the engine's filter stage of those frames, milliseconds per frame:
     ``wall``, ``cpu`` (thread CPU time) of the whole hook (frame-to-frame matches, the inputs, the classifier) and
     ``filter_cpu`` of the classifier alone."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import SyntheticSequence, open_sequence
-    from d2slam.methods import get_filter, get_method, mask_kind
-    from d2slam.segmentation import masks_for, stack_masks
-    from d2slam.slam.engine import Engine
 
     seq = open_sequence(path)
     kind = mask_kind(get_method("d2slam"), masks, synthetic=isinstance(seq, SyntheticSequence))
     shape = (seq.camera.height, seq.camera.width)
+    ensure_vocabulary(DEFAULT)
     engine = Engine(seq.camera, DEFAULT, get_filter("d2slam", DEFAULT))
     engine.hook.filter = flt = _Timed(engine.hook.filter)
     engine.hook = hook = _Timed(engine.hook)
@@ -117,17 +120,11 @@ def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dic
 
 
 def run(args) -> int:
-    from d2slam.config import DEFAULT
-    from d2slam.methods import DYNAMICS, get_filter
-    from d2slam.slam.depth import keypoint_depth
-    from d2slam.dynamics.toy import two_view_scene
-
     cv2.setNumThreads(args.threads)
     stage: dict = {}
     if args.sequence:
         scenes = recorded_inputs(args.sequence, args.sequence_frames, args.masks_kind, stage)
         if not scenes:
-            from d2slam.errors import D2SlamError
 
             raise D2SlamError("--sequence needs at least 2 frames", path=args.sequence)
         n_masks = [0 if inp.masks is None else len(inp.masks) for inp in scenes]
@@ -153,7 +150,6 @@ def run(args) -> int:
         kd.append((time.perf_counter() - t0) * 1e3)
     modes = list(DYNAMICS) if args.method == "all" else [args.method]
     if args.method not in DYNAMICS and args.method != "all":
-        from d2slam.errors import D2SlamError
 
         raise D2SlamError(f"unknown method {args.method!r}; choose one of all, {', '.join(DYNAMICS)}")
     for mode in modes:

@@ -8,9 +8,29 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
+
+from d2slam.config import DEFAULT, EngineConfig
+from d2slam.data import open_sequence
+from d2slam.errors import D2SlamError
+from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candidates
+from d2slam.eval.trajectory import evaluate
+from d2slam.outputs import check_output_file
+from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.record import EXIT_FRAGMENT
+from d2slam.run.runner import run_method
+from d2slam.run.sequence import run_sequence
+from d2slam.slam import optimizer as opt_mod
+from d2slam.slam.fixture import FR3
+from d2slam.study.sequences import ensure_sequence
+from d2slam.synth.scene import default_frames
 
 DESCRIPTION = ("SLAM engine: ATE/RPE on static twins and walking sequences (--method none), fps and ms per stage, "
                "loop detection per keyframe; --loops: loop closing on office_loop; --compare-optimisers: g2o vs gtsam "
@@ -45,12 +65,6 @@ def add_arguments(parser) -> None:
 
 # ---------------------------------------------------------------------------------------------- accuracy / speed
 def _run_one(scenario: str, seed: int, frames: int, twin: bool) -> dict:
-    from d2slam.data import open_sequence
-    from d2slam.errors import D2SlamError
-    from d2slam.eval.trajectory import evaluate
-    from d2slam.pipeline import run_sequence
-    from d2slam.study.sequences import ensure_sequence
-
     path = ensure_sequence(scenario, seed, frames, twin)
     seq = open_sequence(path)
     c0 = time.process_time()
@@ -87,8 +101,6 @@ def run(args) -> int:
     args.frames = args.frames or 300
     if args.against:
         return against_orbslam3(args)
-    from d2slam.config import DEFAULT
-    from d2slam.outputs import check_output_file
 
     if args.json:
         check_output_file(args.json, "--json")
@@ -139,14 +151,6 @@ def loops(args) -> int:
     tracking on average (their total over the frames) against one frame's budget; with loop closing on, the wrong
     place-recognition candidates (ground-truth views apart) by the stage they reached and the closest call
     (``d2slam.eval.loops``)."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
-    from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candidates
-    from d2slam.eval.trajectory import evaluate
-    from d2slam.methods import run_method
-    from d2slam.outputs import check_output_file
-    from d2slam.study.sequences import ensure_sequence
-    from d2slam.synth.scene import default_frames
 
     if args.json:
         check_output_file(args.json, "--json")
@@ -221,7 +225,6 @@ def local_ba_problem(seed: int = 0, n_cams: int = 10, n_points: int = 800, noise
     cameras fixed (as ORB-SLAM's fixed keyframes)."""
     from scipy.spatial.transform import Rotation
 
-    from d2slam.slam.fixture import FR3
 
     rng = np.random.default_rng(seed)
     K, bf = FR3.K, FR3.bf
@@ -257,8 +260,6 @@ def local_ba_problem(seed: int = 0, n_cams: int = 10, n_points: int = 800, noise
 def solve_g2o(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, float, float]:
     import g2opy as g2o
 
-    from d2slam.config import EngineConfig
-    from d2slam.slam import optimizer as opt_mod
 
     # ORB-SLAM's isotropic stereo information, as the gtsam side (the problem's u_R noise is a stereo match's)
     cfg = dataclasses.replace(EngineConfig(), disparity_sigma_px=0.0)
@@ -281,7 +282,6 @@ def solve_gtsam(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, 
     import gtsam
     from gtsam.symbol_shorthand import L, P
 
-    from d2slam.config import EngineConfig
 
     cfg = EngineConfig()
     K = p["K"]
@@ -347,14 +347,11 @@ def compare_optimisers(args) -> int:
 # ---------------------------------------------------------------------------------------------- against ORB-SLAM3
 def _engine_run(seq, method: str, out) -> dict:
     """``d2slam run SEQ --method METHOD`` in a child process (as a user runs it); its run JSON."""
-    import subprocess
-    import sys
 
     traj, js = out / f"{method}.txt", out / f"{method}.json"
     js.unlink(missing_ok=True)
     proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
                            "--metrics-json", str(js), "--quiet"], capture_output=True, text=True)
-    from d2slam.commands.run import EXIT_FRAGMENT
 
     if proc.returncode not in (0, EXIT_FRAGMENT) or not js.is_file():
         tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
@@ -371,12 +368,7 @@ def engine_ms_per_frame(run: dict) -> float:
 
 def against_orbslam3(args) -> int:
     """The real ORB-SLAM3 and our engine one after the other on the same sequence (and ``none`` on its twin)."""
-    import tempfile
-    from pathlib import Path
 
-    from d2slam.baselines.orbslam3 import run_orbslam3
-    from d2slam.errors import D2SlamError
-    from d2slam.study.sequences import ensure_sequence
 
     if args.sequence:
         seq = Path(args.sequence)
@@ -433,6 +425,4 @@ def against_orbslam3(args) -> int:
 
 
 def _loadavg() -> tuple:
-    import os
-
     return os.getloadavg()

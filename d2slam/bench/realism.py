@@ -27,6 +27,18 @@ import time
 
 import numpy as np
 
+from d2slam.assets import tum_frames
+from d2slam.config import DEFAULT
+from d2slam.data import open_sequence
+from d2slam.data.tum import interpolate_poses
+from d2slam.errors import D2SlamError
+from d2slam.eval.realism import (anchor_scan, comparison, depth_border, depth_consistency, edge_hole_runs, fit_exposure,
+                                 fit_time_offset, frame_blur, hole_kinds, measure, noise_sigma, pct, within)
+from d2slam.run.observe import engine_log
+from d2slam.synth.realism import extractor, real_stats, summary, synthetic_stats
+from d2slam.synth.scene import SCENARIOS
+from d2slam.synth.twin import read_recording
+
 DESCRIPTION = ("synthetic vs real TUM people: person area, ORB keypoints on people, their ratio; the sensor, real "
                "against its synthetic twin (--real/--twin, --calibrate, --anchor)")
 TWIN_TOLERANCE = 0.25  # the twin's epipolar p50 and p90 within this fraction of the real recording's
@@ -36,8 +48,6 @@ TARGET_RATIO = (0.4, 0.7)
 
 
 def add_arguments(parser) -> None:
-    from d2slam.synth.scene import SCENARIOS
-
     parser.add_argument("--seed", type=int, default=0, help="synthetic seed (default 0, a development seed)")
     parser.add_argument("--frames", type=int, default=None,
                         help="synthetic sequence length (default 300); with --real/--twin/--calibrate the frames "
@@ -54,8 +64,6 @@ def add_arguments(parser) -> None:
 
 
 def _row(name: str, area, kp, ratio, n_kp, textured=None, corners=None) -> str:
-    from d2slam.synth.realism import summary
-
     cells = []
     for v in (area, kp, ratio):
         m, lo, hi = summary(v)
@@ -79,17 +87,13 @@ def run(args) -> int:
 
 
 def run_compare(args) -> int:
-    from d2slam.data import open_sequence
-    from d2slam.errors import D2SlamError
-    from d2slam.eval.realism import comparison, measure, pct, within
-
     if not (args.real and args.twin):
         raise D2SlamError("--real and --twin go together: a real recording and its synthetic twin")
     t0 = time.perf_counter()
     frames = args.frames or 200
     real, twin = open_sequence(args.real), open_sequence(args.twin)
-    r = measure(real, frames, progress=True)
-    s = measure(twin, frames, progress=True)
+    r = measure(real, engine_log(real, frames, progress=True))
+    s = measure(twin, engine_log(twin, frames, progress=True))
     rows = comparison(r, s)
     w = max(len(a) for a, _, _ in rows) + 2
     w2 = max([len(a) for _, a, _ in rows] + [len(r.name) + 6]) + 2
@@ -109,12 +113,6 @@ def run_compare(args) -> int:
 
 def run_calibrate(args) -> int:
     """The real recording's sensor, as ``SynthConfig.twin`` holds it (docs/real_data.md)."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
-    from d2slam.data.tum import interpolate_poses
-    from d2slam.errors import D2SlamError
-    from d2slam.eval.realism import (depth_border, depth_consistency, edge_hole_runs, engine_log, fit_exposure,
-                                     fit_time_offset, frame_blur, hole_kinds, noise_sigma, pct)
 
     t0 = time.perf_counter()
     seq = open_sequence(args.calibrate)
@@ -198,10 +196,6 @@ def run_calibrate(args) -> int:
 
 def run_anchor(args) -> int:
     """The twin's placement: its depth percentiles against the recording's over a grid of anchors."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
-    from d2slam.eval.realism import anchor_scan
-    from d2slam.synth.twin import read_recording
 
     t0 = time.perf_counter()
     rec, seq = read_recording(args.anchor), open_sequence(args.anchor)
@@ -220,10 +214,6 @@ def run_anchor(args) -> int:
 
 
 def run_people(args) -> int:
-    from d2slam.assets import tum_frames
-    from d2slam.synth.realism import extractor, real_stats, summary, synthetic_stats
-    from d2slam.synth.scene import SCENARIOS
-
     t0 = time.perf_counter()
     ext = extractor()
     head = (f"  {'source':<34} {'n':>3}  {'area mean [min-max]':<19}  {'kp on mask':<19}  {'kp/area ratio':<19}"

@@ -2,15 +2,30 @@
 
 from __future__ import annotations
 
-# The exit status of a run that tracked less than EvalConfig.min_tracked_share of its frames (a fragment); 2 is bad
-# input (d2slam.cli), 1 ORB-SLAM3 losing track.
-EXIT_FRAGMENT = 3
+import dataclasses
+import glob
+import json
+import os
+import sys
+from pathlib import Path
+
+import psutil
+
+from d2slam.config import DEFAULT, load_config_file
+from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
+from d2slam.data.depth_scale import depth_scale_warning
+from d2slam.data.intrinsics import is_camera_file, read_camera_file
+from d2slam.errors import D2SlamError
+from d2slam.eval.fragment import fragment_fields, is_fragment, tracked_share
+from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
+from d2slam.run.methods import get_method, methods
+from d2slam.run.record import EXIT_FRAGMENT
+from d2slam.run.runner import run_method
+from d2slam.run.sequence import STAGES
+from d2slam.slam.orb_vocabulary import load_vocabulary
 
 
 def register(sub) -> None:
-    from d2slam.config import DEFAULT
-    from d2slam.methods import methods
-
     min_share = DEFAULT.evaluation.min_tracked_share
 
     p = sub.add_parser(
@@ -60,20 +75,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import dataclasses
-    import glob
-    import json
-    from pathlib import Path
-
-    from d2slam.config import DEFAULT, load_config_file
-    from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
-    from d2slam.data.intrinsics import is_camera_file, read_camera_file
-    from d2slam.errors import D2SlamError
-    from d2slam.methods import get_method, run_method
-    from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
-    from d2slam.pipeline import STAGES
-    from d2slam.record import fragment_fields
-
     method = get_method(args.method)
     out = check_output_file(args.out, "--out")
     if args.metrics_json:
@@ -129,7 +130,6 @@ def run(args) -> int:
         record["keypoints"] = run.keypoints
     record.update(run.loops)
     if run.loop_closing:
-        from d2slam.slam.orb_vocabulary import load_vocabulary
 
         voc = load_vocabulary(config.engine.vocabulary or None)
         record["vocabulary"] = {"path": voc.path, "sha256": voc.sha256}
@@ -182,7 +182,6 @@ def run(args) -> int:
 def run_outputs(args, method) -> list[tuple[str, object]]:
     """What ``d2slam run`` writes: ``--out``, ``--metrics-json``, and for the real ORB-SLAM3 the files it keeps
     beside the trajectory (its settings and online poses)."""
-    from pathlib import Path
 
     out = Path(args.out).expanduser()
     extra = [] if method.runner is None else [
@@ -194,9 +193,7 @@ def run_outputs(args, method) -> list[tuple[str, object]]:
 def run_inputs(args) -> list[tuple[str, object]]:
     """What ``d2slam run`` reads: the sequence folder, ``--masks-from``, ``--camera FILE``, ``--config``, the
     vocabulary (``$PYORBSLAM3_VOCAB``)."""
-    import os
 
-    from d2slam.data.intrinsics import is_camera_file
 
     return [("sequence", args.sequence), ("--masks-from sequence", args.masks_from),
             ("--camera file", args.camera if is_camera_file(args.camera) else None), ("--config file", args.config),
@@ -207,7 +204,6 @@ def print_orbslam3(run, args) -> int:
     """What ``d2slam run --method orbslam3[-masked]`` prints of ORB-SLAM3's run (``RunRecord``) and its exit status:
     0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed, :data:`EXIT_FRAGMENT` when it ran
     but tracked less than ``EvalConfig.min_tracked_share`` of the frames (``RunRecord.fragment``)."""
-    import sys
 
     report = run.orbslam3
     stream = sys.stdout if report["status"] in ("ok", "lost") else sys.stderr
@@ -238,9 +234,7 @@ def print_orbslam3(run, args) -> int:
 
 def _warn_depth_scale(seq, config) -> None:
     """The depth-scale check (:mod:`d2slam.data.depth_scale`): a warning on stderr naming the factor to set."""
-    import sys
 
-    from d2slam.data.depth_scale import depth_scale_warning
 
     warning = depth_scale_warning(seq, config)
     if warning:
@@ -250,7 +244,6 @@ def _warn_depth_scale(seq, config) -> None:
 def camera_text(name: str, source: str, camera_arg: str | None) -> str:
     """The camera of a run and where it came from (the run JSON's ``camera.source``: a settings file, the synthetic
     sequence's ``scene.json``, the TUM folder name, or ``--camera NAME``), for the summary line."""
-    from d2slam.data.intrinsics import is_camera_file
 
     named = camera_arg and source == camera_arg and not is_camera_file(camera_arg)
     return f"{name} ({'--camera ' + source if named else source})"
@@ -260,9 +253,8 @@ def summary_line(method: str, masks: str, camera: str, tracked: float, frames: f
                  outputs, ate_note: str = "", min_share: float | None = None) -> str:
     """The one line ``d2slam run`` ends with (the engine's methods and the real ORB-SLAM3 alike), easy to grep:
     ``d2slam run: method M; masks KIND (ORIGIN); camera NAME (ORIGIN); tracked T/N frames; ATE X m; wrote FILES``.
-    A fragment (less than ``min_share`` of the frames tracked, ``d2slam.record.is_fragment``; None: not judged) says
+    A fragment (less than ``min_share`` of the frames tracked, ``d2slam.run.record.is_fragment``; None: not judged) says
     so: ``tracked T/N frames (S %): a fragment, below M %; ATE X m over the tracked fragment only``."""
-    from d2slam.record import is_fragment, tracked_share
 
     share = tracked_share(tracked, frames)
     fragment = min_share is not None and is_fragment(share, min_share)
@@ -277,6 +269,5 @@ def summary_line(method: str, masks: str, camera: str, tracked: float, frames: f
 def process_start() -> float:
     """When this process started (epoch seconds): ``startup_s`` of the run JSON is the time from there to the end
     of the first frame (imports, opening the sequence, loading or compiling kernels, the first frame)."""
-    import psutil
 
     return psutil.Process().create_time()

@@ -4,14 +4,21 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
+
+from d2slam.errors import D2SlamError
+from d2slam.outputs import check_output_dir, check_outputs
+from d2slam.run.methods import methods as registered
+from d2slam.study import grid as G, run_study
+from d2slam.study.core import rebuild_tables
+from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS, SCENARIOS, TUM_FOLDERS, TWIN_METHODS
+from d2slam.study.sequences import is_complete, sequence_dir
+from d2slam.synth.scene import frames_arg
 
 ENV_TUM = "D2SLAM_TUM_ROOT"
 
 
 def register(sub) -> None:
-    from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS, SCENARIOS, TWIN_METHODS
-    from d2slam.synth.scene import frames_arg
-
     p = sub.add_parser(
         "study", help="run the study grid and write runs.csv, summary.csv, tables.md, plots, manifest.json",
         description="Run every (scenario, method, seed) of the grid on synthetic TUM-like sequences (generated once "
@@ -63,16 +70,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
-
-    from d2slam.errors import D2SlamError
-    from d2slam.study import grid as G
-
-    from d2slam.outputs import check_output_dir, check_outputs
-
     out = Path(args.out)
     if args.tables_only:
-        from d2slam.study.core import rebuild_tables
 
         if not (out / "runs.csv").is_file():
             raise D2SlamError("no runs.csv to build tables from", path=out / "runs.csv")
@@ -98,7 +97,6 @@ def run(args) -> int:
             raise D2SlamError(f"{', '.join(ours)} is ours, not a TUM sequence: give fr3 scenarios with --tum-root")
         scenarios = _downloaded(tum_root, [s for s in scenarios if s in G.FR3_SCENARIOS])
     methods = args.methods or G.default_methods("tum" if tum_root else "synth")
-    from d2slam.methods import methods as registered
 
     unknown = [m for m in methods if m not in registered() and m != G.ORBSLAM3]
     if unknown:
@@ -112,7 +110,6 @@ def run(args) -> int:
                           source="tum" if tum_root else "synth")
     if args.dry_run:
         return _dry_run(specs)
-    from d2slam.study import run_study
 
     res = run_study(out, specs=specs, jobs=args.jobs, scheduler=args.scheduler, tum_root=tum_root,
                     masks=args.masks, orbslam3_repeats=args.orbslam3_repeats, plots=not args.no_plots,
@@ -136,10 +133,7 @@ def run(args) -> int:
 def _downloaded(tum_root, scenarios: list[str]) -> list[str]:
     """The scenarios whose fr3 folder is under ``tum_root``; the others are listed as skipped (not downloaded).
     A missing root, or one holding none of them, is an error."""
-    from pathlib import Path
 
-    from d2slam.errors import D2SlamError
-    from d2slam.study.grid import TUM_FOLDERS
 
     root = Path(tum_root).expanduser()
     if not root.is_dir():
@@ -155,8 +149,6 @@ def _downloaded(tum_root, scenarios: list[str]) -> list[str]:
 
 
 def _dry_run(specs) -> int:
-    from d2slam.study.sequences import is_complete, sequence_dir
-
     keys = list(dict.fromkeys(s.sequence_key for s in specs))
     cached = [k for k in keys if k[0] == "synth" and is_complete(sequence_dir(*k[1:]))]
     print(f"{len(specs)} runs on {len(keys)} sequences ({len(cached)} already cached)")

@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import glob
+import json
+import os
 from pathlib import Path
 
 import numpy as np
 
-from d2slam.synth.scene import ALL_SCENARIOS, frames_arg
+from d2slam.cachefiles import Damaged, read_json
+from d2slam.errors import D2SlamError
+from d2slam.outputs import check_output_dir, check_outputs, remove_stale_temps, staged_dir
+from d2slam.progress import announce
+from d2slam.synth.generate import estimated_seconds, generate, worker_count
+from d2slam.synth.scene import ALL_SCENARIOS, Scene, frames_arg, resolve_frames
+from d2slam.synth.twin import read_recording
 
 
 def register(sub) -> None:
@@ -75,7 +83,6 @@ LAYOUT_DIRS = ("rgb", "depth", "mask_gt", "mask_sim")
 
 def _entries(folder: Path) -> tuple[list[str], list[str]]:
     """(files, folders) under ``folder``, relative, links not followed (a link counts as a file)."""
-    import os
 
     files, dirs = [], []
     for top, subdirs, names in os.walk(folder, followlinks=False):
@@ -94,7 +101,6 @@ def foreign_entries(folder: Path) -> list[str]:
     """What replacing ``folder`` would delete that ``d2slam synth`` did not write: everything not listed in its
     marker (:data:`OWNER`); without a readable marker, everything outside the synthetic layout when it holds
     ``scene.json`` (a sequence of an earlier version), else everything."""
-    from d2slam.cachefiles import Damaged, read_json
 
     files, dirs = _entries(folder)
     try:
@@ -117,8 +123,6 @@ def check_sequence_out(path) -> Path:
     """``--out`` before any work: a folder that is missing, empty, or holds nothing but a sequence ``d2slam synth``
     wrote (then replaced: :func:`foreign_entries` is empty); anything else is refused, naming what would be deleted.
     Not inside another sequence, the cache's own folders or the shared folder (:func:`d2slam.outputs.check_outputs`)."""
-    from d2slam.errors import D2SlamError
-    from d2slam.outputs import check_output_dir, check_outputs
 
     path = check_output_dir(path, "--out")
     if path.is_symlink():  # write where the link points, not over the link
@@ -135,7 +139,6 @@ def check_sequence_out(path) -> Path:
 
 def write_owner(folder: Path, result: dict) -> None:
     """The marker of a sequence just generated into ``folder``: every file there, and what was generated."""
-    import json
 
     files, _ = _entries(folder)
     what = {k: result[k] for k in ("scenario", "seed", "frames", "static_twin") if k in result}
@@ -143,14 +146,6 @@ def write_owner(folder: Path, result: dict) -> None:
 
 
 def run(args) -> int:
-    from d2slam.outputs import remove_stale_temps, staged_dir
-    from d2slam.synth.generate import generate
-    from d2slam.synth.scene import Scene, resolve_frames
-    from d2slam.synth.twin import read_recording
-
-    from d2slam.progress import announce
-    from d2slam.synth.generate import estimated_seconds, worker_count
-
     out = check_sequence_out(args.out)
     Scene.check_recording(args.scenario, args.on_trajectory)
     recording = read_recording(args.on_trajectory) if args.on_trajectory is not None else None

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Protocol, runtime_checkable
 
+import cv2
 import numpy as np
 
 
@@ -52,8 +53,6 @@ class RGBDFrame:
 
     @property
     def gray(self) -> np.ndarray:
-        import cv2
-
         return cv2.cvtColor(self.rgb, cv2.COLOR_RGB2GRAY)
 
 
@@ -78,11 +77,8 @@ class Sequence(Protocol):
     root: Path
     camera: Camera
     timestamps: np.ndarray  # RGB timestamps of the associated frames, increasing
-
     def __len__(self) -> int: ...
-
     def __getitem__(self, index: int) -> RGBDFrame: ...
-
     def __iter__(self) -> Iterator[RGBDFrame]: ...
 
     @property

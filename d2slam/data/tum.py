@@ -36,10 +36,11 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from d2slam.config import DEFAULT
 from d2slam.data.base import Camera, RGBDFrame, Trajectory
 from d2slam.data.intrinsics import resolve_camera
-from d2slam.config import DEFAULT
 from d2slam.errors import D2SlamError
+from d2slam.outputs import write_bytes
 
 # The constants live in ``d2slam.config.DataConfig``; these names are their defaults here.
 #: RGB/depth association tolerance of TUM's associate.py (seconds).
@@ -209,7 +210,6 @@ def write_tum_trajectory(path: str | Path, traj: Trajectory, header: str | None 
         lines += [f"{r[0]:.6f} " + " ".join(f"{v:.9f}" for v in r[1:]) for r in table]
     if not path.parent.is_dir():
         raise D2SlamError("output folder does not exist", path=path.parent)
-    from d2slam.outputs import write_bytes
 
     return write_bytes(path, "\n".join(lines) + "\n")  # whole or not at all; a failed write is one line
 

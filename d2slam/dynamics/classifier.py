@@ -14,7 +14,7 @@ Per frame (``D2SlamFilter.__call__``), reading as the paper's pipeline:
                    and passing the pose test; our deviation, DynamicsConfig.oim_skip_observed_static)
                                                                                              (eq 9-10, interaction.py)
 
-Variants (the study's ablations; ``d2slam.methods`` registers each under its method name, ``none`` being the hook
+Variants (the study's ablations; ``d2slam.run.methods`` registers each under its method name, ``none`` being the hook
 off): :class:`D2SlamFilter` with its :class:`~d2slam.dynamics.switches.Switches`, or one module alone.
 
 - ``Switches()``  (``d2slam``) the full method.
@@ -66,7 +66,7 @@ class FrameDiagnostics:
     """Per-module outputs of one frame (N keypoints). Fields of modules a mode does not run are None."""
 
     frame_index: int
-    mode: str  # the method (``d2slam.methods``) the filter was built for
+    mode: str  # the method (``d2slam.run.methods``) the filter was built for
     z: np.ndarray  # (N,) keypoint depth used (m, 0 invalid)
     belief: np.ndarray  # (N,) the hook's output
     p_s: np.ndarray | None = None  # eq 2

@@ -28,7 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from d2slam.config import CLI, CliConfig
+from d2slam.data.tum import interpolate_poses, read_file_list, read_tum_trajectory
 from d2slam.errors import D2SlamError
+from d2slam.eval.trajectory import aligned_estimate
 
 _RUN_HEADER = re.compile(r"^#\s*d2slam (?:run --method \S+|orbslam3 \([^)]*\)) (?P<root>.+?)\s*$")
 _SYNTH_HEADER = re.compile(r"^#\s*file: 'd2slam-synth (?P<scenario>\S+) seed (?P<seed>-?\d+)(?P<twin> static twin)?'")
@@ -81,7 +83,6 @@ def synthetic_identity(folder: Path | None, gt_file: Path | None = None) -> tupl
 def frame_share(timestamps: np.ndarray, folder: Path, tol: float) -> float | None:
     """Share of ``timestamps`` within ``tol`` s of a frame time of ``folder`` (``rgb.txt`` or ``depth.txt``); None
     when the folder lists no frames."""
-    from d2slam.data.tum import read_file_list
 
     frames = []
     for name in ("rgb.txt", "depth.txt"):
@@ -104,7 +105,6 @@ def frame_share(timestamps: np.ndarray, folder: Path, tol: float) -> float | Non
 def same_poses(a, b, tol_m: float) -> bool:
     """Whether trajectories ``a`` and ``b`` hold the same positions (within ``tol_m``) wherever both have poses
     (``b`` interpolated at ``a``'s times; at least 3 common poses)."""
-    from d2slam.data.tum import interpolate_poses
 
     at = interpolate_poses(b.timestamps, b.poses, a.timestamps)
     ok = np.isfinite(at).all(axis=(1, 2))
@@ -149,8 +149,6 @@ def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Pat
         if folder is not None and source == folder.resolve():
             return "same sequence folder"
         if folder is None and (source / "groundtruth.txt").is_file():
-            from d2slam.data.tum import read_tum_trajectory
-
             if not same_poses(gt, read_tum_trajectory(source / "groundtruth.txt"), cli.eval_same_gt_m):
                 raise D2SlamError(f"the trajectory was run on {source}, whose groundtruth.txt is not this ground "
                                   f"truth{force}", path=traj_path)
@@ -163,7 +161,6 @@ def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Pat
                                   f"frame times of {folder} (rgb.txt, depth.txt; {100 * cli.eval_min_frame_share:.0f} "
                                   f"% needed): it was not run on this sequence{force}", path=traj_path)
             return f"{100 * share:.0f} % of its timestamps are frame times of the sequence"
-    from d2slam.eval.trajectory import aligned_estimate
 
     gt_xyz, est_xyz, _ = aligned_estimate(gt, est)
     refused, ate, extent, spread = residual_check(gt_xyz, est_xyz, cli)

@@ -1,10 +1,8 @@
 """Real against synthetic sensor, side by side: the statistics ``d2slam bench realism --real SEQ --twin SEQ`` prints
 and ``docs/real_data.md`` quotes, as library functions (a notebook calls the same).
 
-Everything here is measured on the *engine's own* inputs: the sequence is run through the engine with a keypoint
-filter that marks nothing dynamic (:class:`Observer`; the engine then tracks exactly as ``--method none`` does) and
-records, per frame, what the filter would see (``FilterInput``: the frame-to-frame matches of all keypoints, in
-undistorted pixels, with their depths) and which map points the tracked frame matched. From that log:
+Everything here is measured on the *engine's own* inputs, the log of :func:`d2slam.run.observe.engine_log` (per frame
+what a keypoint filter would see, and which map points the tracked frame matched). From that log:
 
 - static epipolar error (eq 5) of every match against F found by RANSAC on the frame's matches (as the geometric
   module finds it), percentiles overall, by keypoint depth and by image radius (``SynthEvalConfig.realism_depth_bins``,
@@ -28,36 +26,17 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, Config
+from d2slam.config import DEFAULT, Config, SynthConfig
+from d2slam.data.tum import interpolate_poses
+from d2slam.dynamics.geometric import back_project, epipolar_error, fundamental_matrix, pose_residuals, relative_pose
 from d2slam.errors import D2SlamError
+from d2slam.slam.frame import undistort
+from d2slam.synth.realism import texture_stats
+from d2slam.synth.scene import Scene
+from d2slam.synth.sensor import depth_sigma
+from d2slam.synth.twin import RecordedPath, placement
+from d2slam.synth.world import WorldRenderer
 
-
-# --------------------------------------------------------------------------------------------------
-# the engine's inputs, recorded
-# --------------------------------------------------------------------------------------------------
-class Observer:
-    """A keypoint filter that marks nothing dynamic (every belief 0: the engine tracks as without a filter) and keeps
-    what it was given: per frame the matched keypoints (current ``p``, previous ``q``; undistorted pixels), their
-    depths and octaves."""
-
-    def __init__(self):
-        self.frames: list[dict] = []
-
-    def reset(self) -> None:
-        self.frames = []
-
-    def __call__(self, inp) -> np.ndarray:
-        m = np.asarray(inp.matches, np.int64).reshape(-1, 2)
-        self.frames.append({
-            "index": int(inp.frame_index), "timestamp": float(inp.timestamp), "n_kp": len(inp.kps),
-            "kp_holes": int(np.count_nonzero(np.asarray(inp.kp_depth) <= 0)),
-            "p": np.asarray(inp.kps, np.float64)[m[:, 0]], "q": np.asarray(inp.prev_kps, np.float64)[m[:, 1]],
-            "zp": np.asarray(inp.kp_depth, np.float64)[m[:, 0]],
-            "zq": np.asarray(inp.prev_kp_depth, np.float64)[m[:, 1]],
-            "octave": (np.asarray(inp.octave)[m[:, 0]] if inp.octave is not None else np.zeros(len(m), np.int64)),
-            "hole_share": float(np.count_nonzero(np.asarray(inp.depth) <= 0)) / max(np.asarray(inp.depth).size, 1),
-        })
-        return np.zeros(len(inp.kps))
 
 
 @dataclass
@@ -70,27 +49,6 @@ class EngineLog:
     timestamps: np.ndarray  # (n,) RGB timestamps of the frames run
     observed: list[dict]  # Observer.frames: one per frame
     tracks: list[np.ndarray] = field(default_factory=list)  # per frame: map point ids matched (inliers); empty if lost
-
-
-def engine_log(seq, frames: int | None = None, config: Config | None = None, progress: bool = False) -> EngineLog:
-    """Run ``seq`` (its first ``frames``) through the engine with an :class:`Observer` and log its inputs."""
-    from d2slam.pipeline import run_sequence
-    from d2slam.slam.engine import Engine
-
-    config = config or DEFAULT
-    obs = Observer()
-    eng = Engine(seq.camera, config, obs)
-    tracks: list[np.ndarray] = []
-
-    def rec(i, kps, belief, diag):
-        f = eng.last
-        ok = eng.tracker.last_tracked is f and f is not None and f.Tcw is not None
-        tracks.append(np.unique(f.mp[(f.mp >= 0) & ~f.outlier]) if ok else np.zeros(0, np.int64))
-
-    run = run_sequence(seq, config, keypoint_filter=obs, recorder=rec, progress=progress, engine=eng, frames=frames)
-    n = run.frames
-    return EngineLog(getattr(seq, "name", ""), n, run.tracked, np.asarray(seq.timestamps[:n], float), obs.frames,
-                     tracks)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -144,7 +102,6 @@ def image_velocity(camera, poses_at, t: float, px: np.ndarray, z: np.ndarray, h:
     """(K, 2) image velocity (px/s, in the camera's distorted image) at pixels ``px`` (K, 2, distorted) of scene
     points at depths ``z`` (K,) seen at time ``t``, from the camera poses ``poses_at(times) -> (n, 4, 4)``
     (``T_world_camera``): each point is fixed in the world and projected (with the lens distortion) at t -+ h."""
-    from d2slam.slam.frame import undistort
 
     K = camera.K
     und = undistort(np.asarray(px, np.float64).reshape(-1, 2), camera)
@@ -212,8 +169,6 @@ class MatchStats:
 def match_stats(log: EngineLog, K: np.ndarray, config: Config | None = None) -> MatchStats:
     """Eq 5 and the pose test on every logged frame's matches, as the geometric module computes them
     (``d2slam.dynamics.geometric``: F by RANSAC, PnP RANSAC on the matches with depth in the previous frame)."""
-    from d2slam.dynamics.geometric import (back_project, epipolar_error, fundamental_matrix, pose_residuals,
-                                           relative_pose)
 
     dyn = (config or DEFAULT).dynamics
     cols: dict[str, list] = {k: [] for k in ("epi", "depth", "radius", "reproj", "dres", "frame")}
@@ -263,7 +218,6 @@ def angular_speed(seq, n: int) -> np.ndarray:
     for the first, and where the ground truth has no pose)."""
     from scipy.spatial.transform import Rotation
 
-    from d2slam.data.tum import interpolate_poses
 
     gt = seq.groundtruth
     ts = np.asarray(seq.timestamps[:n], float)
@@ -315,19 +269,16 @@ class Realism:
     speed_per_match: np.ndarray = field(default=None)  # the angular speed of each match's frame
 
 
-def measure(seq, frames: int | None = None, stride: int | None = None, config: Config | None = None,
-            time_offset: float | None = None, progress: bool = False) -> Realism:
-    """The realism statistics of the first ``frames`` frames of ``seq`` (per-frame image statistics on every
-    ``stride``-th: ``SynthEvalConfig.realism_stride``). The ground truth's image motion (for the blur) is taken
+def measure(seq, log: EngineLog, stride: int | None = None, config: Config | None = None,
+            time_offset: float | None = None) -> Realism:
+    """The realism statistics of the frames of ``seq`` that ``log`` ran (:func:`d2slam.run.observe.engine_log`; the
+    per-frame image statistics on every ``stride``-th: ``SynthEvalConfig.realism_stride``). The ground truth's image motion (for the blur) is taken
     ``time_offset`` s after the timestamps: what the images show (default ``TwinConfig.rgb_time_shift``, measured on
     fr1/rpy, which its twin renders)."""
-    from d2slam.data.tum import interpolate_poses
-    from d2slam.synth.realism import texture_stats
 
     config = config or DEFAULT
     ev = config.synth_eval
-    n = len(seq) if frames is None else min(len(seq), int(frames))
-    log = engine_log(seq, n, config, progress)
+    n = log.frames
     ms = match_stats(log, seq.camera.K, config)
     stride = int(stride or ev.realism_stride)
     idx = np.arange(0, n, max(stride, 1))
@@ -444,7 +395,6 @@ def gt_epipolar_errors(log: EngineLog, seq, offset: float, readout: float) -> np
     ``offset`` s after their timestamps and each row ``readout`` s after the one above it (rolling shutter; the middle
     row at the timestamp): each keypoint's instant is its frame's timestamp + offset + (its distorted row - middle)
     x readout, and F is that of the ground truth's relative pose between the two instants."""
-    from d2slam.data.tum import interpolate_poses
 
     cam = seq.camera
     K = cam.K
@@ -517,9 +467,6 @@ def depth_consistency(seq, indices, offset: float, step: int = 4, edge_m: float 
     relative motion wherever the camera's motion changes between the frames, so the residual over many frames is
     least at the true one; a wrong ``readout`` gives each row the wrong motion, the more so the faster the camera
     turns."""
-    from d2slam.data.tum import interpolate_poses
-    from d2slam.slam.frame import undistort
-    from d2slam.synth.sensor import depth_sigma
 
     cam = seq.camera
     K = cam.K
@@ -623,10 +570,6 @@ def anchor_scan(rec, real_depths: list[np.ndarray], indices: np.ndarray, xs, ys,
     """For every anchor (x, y, heading) of the grid: the depth percentiles of the twin's clean depth (distorted,
     inside ``depth_border``) at the frames ``indices`` against the real ones (``real_depths``, the same frames), and
     the mismatch: the mean |log(twin / real)| over the percentiles. Sorted best first. Renders depth only."""
-    from d2slam.config import SynthConfig
-    from d2slam.synth.scene import Scene
-    from d2slam.synth.twin import RecordedPath, placement
-    from d2slam.synth.world import WorldRenderer
 
     cfg = cfg or SynthConfig()
     indices = np.asarray(indices, int)

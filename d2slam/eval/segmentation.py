@@ -13,8 +13,14 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from d2slam.config import DEFAULT, Config, SynthEvalConfig
+from d2slam.dynamics.depth import beta, uncertainty_width
+from d2slam.synth.generate import render_frame
+from d2slam.synth.realism import sample_indices
+from d2slam.synth.scene import Scene
+from d2slam.synth.world import WorldRenderer
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 _PERCENTILE = SynthEvalConfig.seg_eval_boundary_percentile
@@ -110,12 +116,7 @@ def synthetic_rows(runs, segmenter, config: Config | None = None) -> tuple[list[
     Returns ``(people, frames)``: one ``frame_rows`` row per visible person plus ``scenario``, ``seed``, ``frame``;
     one row per frame with ``scenario``, ``seed``, ``frame``, ``masks`` (predicted) and ``false_pos`` (predicted
     masks whose IoU with every person of the scene is below ``config.synth_eval.seg_eval_iou``)."""
-    from tqdm import tqdm
 
-    from d2slam.synth.generate import render_frame
-    from d2slam.synth.realism import sample_indices
-    from d2slam.synth.scene import Scene
-    from d2slam.synth.world import WorldRenderer
 
     config = config or DEFAULT
     cfg, ev = config.synth, config.synth_eval
@@ -157,7 +158,6 @@ def boundary_table(people: list[dict],
     ``seg_eval_iou``) beside eq 2's uncertainty half-width ``w(z) = ln(p / (1 - p)) / beta(z)`` at each person's
     median depth, per depth bin (``seg_eval_depth_bins``) and over all (label "all"): (label, people, median of the
     mean error, median of the percentile error, median w, share of people whose percentile error is <= w)."""
-    from d2slam.dynamics.depth import beta, uncertainty_width
 
     config = config or DEFAULT
     cfg = config.synth_eval

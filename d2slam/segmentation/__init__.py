@@ -15,10 +15,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from d2slam.config import DEFAULT, Config, SegmentationConfig
 from d2slam.errors import D2SlamError
 from d2slam.segmentation.base import PersonInstance, Segmenter, stack_masks
 from d2slam.segmentation.cache import CachedSegmenter
+from d2slam.segmentation.onnx import OnnxSegmenter, default_model_path
+from d2slam.segmentation.sim import LabelSegmenter
 
 KINDS = ("onnx", "sim", "gt", "truth")
 
@@ -41,12 +45,8 @@ def get_segmenter(kind: str, sequence=None, config: Config | SegmentationConfig 
     """A segmenter of ``kind`` ("onnx", "sim", "gt" or "truth"). ``sequence`` is needed by sim/gt/truth (its ``mask_*``
     folders); ``model`` overrides ``$D2SLAM_SEG_MODEL`` for onnx."""
     if kind == "onnx":
-        from d2slam.segmentation.onnx import OnnxSegmenter
-
         return OnnxSegmenter(model, segmentation_config(config), allow_unknown_model)
     if kind in ("sim", "gt", "truth"):
-        from d2slam.segmentation.sim import LabelSegmenter
-
         return LabelSegmenter(sequence, kind)
     raise D2SlamError(f"unknown segmenter kind {kind!r}; choose one of {', '.join(KINDS)}")
 
@@ -63,7 +63,6 @@ def cached_segmenter(sequence, kind: str = "onnx", config: Config | Segmentation
     cfg = segmentation_config(config)
     model_key = None
     if kind == "onnx":  # keyed by the file it reads, so a changed $D2SLAM_SEG_MODEL gets a session of its own
-        from d2slam.segmentation.onnx import default_model_path
 
         model_key = str(Path(model).expanduser() if model is not None else default_model_path())
     key = (id(sequence), kind, cfg, model_key)
@@ -117,7 +116,6 @@ def mask_source(sequence, masks_from):
     --masks-from``; the study's ``oracle`` on a static twin reads its dynamic sibling's truth, the *occluded twin*),
     which must have the same frames: as many, at the same timestamps (a clear error otherwise, not masks of other
     frames)."""
-    import numpy as np
 
     if masks_from is None or masks_from is sequence:
         return sequence

@@ -42,17 +42,24 @@ import hashlib
 import json
 import os
 import tempfile
+import time
 import weakref
 import zipfile
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
+from d2slam.config import CLI, DEFAULT
+from d2slam.data.base import RGBDFrame
+from d2slam.data.tum import read_file_list
 from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps, temp_tag, write_bytes
 from d2slam.paths import cache_dir
+from d2slam.progress import announce, progress as follow
 from d2slam.segmentation.base import PersonInstance
+from d2slam.segmentation.onnx import read_rgb
 
 FORMAT = "d2slam-masks/2"
 STORE_NAME = "masks.npz"
@@ -77,8 +84,6 @@ def sequence_key(sequence) -> str:
 
 
 def _listed_images(root: Path) -> list[Path]:
-    from d2slam.data.tum import read_file_list
-
     _, names, _ = read_file_list(root / "rgb.txt")  # D2SlamError naming the line on a bad row
     return [p if p.is_absolute() else root / p for p in map(Path, names)]
 
@@ -89,7 +94,6 @@ def images_digest(root: str | Path, window_s: float | None = None) -> str:
     those it recorded and it was written at least ``window_s`` (``CliConfig.cache_mtime_window_s``) after the newest
     of them was modified; otherwise every image is hashed and the memo rewritten. The memo is sealed
     (:func:`d2slam.cachefiles.sealed`): a damaged one is said and made again. A missing image counts by its name."""
-    from d2slam.config import CLI
 
     root = Path(root).resolve()
     window = CLI.cache_mtime_window_s if window_s is None else window_s
@@ -118,7 +122,6 @@ def images_digest(root: str | Path, window_s: float | None = None) -> str:
         h.update(f"{p.relative_to(root) if p.is_relative_to(root) else p}|".encode())
         h.update((sha256_file(p) if size >= 0 else "missing").encode())
     content = h.hexdigest()
-    import time
 
     try:
         write_bytes(memo_path, json.dumps(sealed({"root": str(root), "stat": stat, "content": content,
@@ -357,7 +360,6 @@ def load_frame_file(path: Path, timestamp: float | None = None) -> list[PersonIn
 def convert_frame_files(folder: Path, store: MaskStore, timestamps, progress: bool = True) -> int:
     """Add the ``<timestamp>.npz`` files of ``folder`` (earlier layout) for ``timestamps`` to ``store`` (unreadable
     files are skipped: recomputed later); returns how many were added."""
-    from tqdm import tqdm
 
     files = [(t, folder / f"{timestamp_stem(t)}.npz") for t in np.asarray(timestamps, dtype=np.float64).tolist()]
     files = [(t, p) for t, p in files if t not in store and p.is_file()]
@@ -384,8 +386,6 @@ class CachedSegmenter:
     the cache file (default ``SegmentationConfig.cache_flush_frames``)."""
 
     def __init__(self, segmenter, sequence, root: str | Path | None = None, flush_frames: int | None = None):
-        from d2slam.config import DEFAULT
-
         self.segmenter = segmenter
         self.sequence = sequence
         self.name = segmenter.name
@@ -488,10 +488,6 @@ class CachedSegmenter:
             return self._fill(n, self.missing(n), progress, recheck)
 
     def _fill(self, n: int, todo: list[int], progress: bool, recheck: bool) -> tuple[int, int]:
-        from d2slam.config import CLI
-        from d2slam.progress import announce
-        from d2slam.progress import progress as follow
-
         if todo and progress:
             model = getattr(self.segmenter, "model_path", None)
             announce(f"segmenting {len(todo)} frames of {self.sequence.name} with "
@@ -517,7 +513,6 @@ class RgbListSequence:
         path = self.root / "rgb.txt"
         if not path.is_file():
             raise D2SlamError("not a TUM sequence folder: rgb.txt not found", path=path)
-        from d2slam.data.tum import read_file_list
 
         stamps, names, _ = read_file_list(path)  # D2SlamError naming the line on bad rows / order
         if not len(stamps):
@@ -530,9 +525,6 @@ class RgbListSequence:
         return len(self.timestamps)
 
     def __getitem__(self, index: int):
-        from d2slam.data.base import RGBDFrame
-        from d2slam.segmentation.onnx import read_rgb
-
         if not -len(self) <= index < len(self):
             raise IndexError(index)
         index %= len(self)

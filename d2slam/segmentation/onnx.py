@@ -30,8 +30,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import onnxruntime as ort
 
 from d2slam.assets import DERIVED, DOWNLOADS, assets_cache, find
+from d2slam.cachefiles import sha256_file
 from d2slam.config import SegmentationConfig
 from d2slam.errors import D2SlamError
 from d2slam.segmentation.base import PersonInstance
@@ -77,8 +79,6 @@ def file_sha256(path: str | Path) -> str:
     st = path.stat()
     key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
     if key not in _SHA_CACHE:
-        from d2slam.cachefiles import sha256_file
-
         _SHA_CACHE[key] = sha256_file(path)
     return _SHA_CACHE[key]
 
@@ -159,8 +159,6 @@ class OnnxSegmenter:
 
     def __init__(self, model_path: str | Path | None = None, config: SegmentationConfig | None = None,
                  allow_unknown_model: bool | None = None):
-        import onnxruntime as ort
-
         self.config = config or SegmentationConfig()
         self.model_path, self.sha256 = check_model(model_path, allow_unknown_model)
         opts = ort.SessionOptions()

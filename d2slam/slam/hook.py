@@ -63,9 +63,7 @@ class FilterInput:
 
 class KeypointFilter(Protocol):
     """Anything callable on a FilterInput returning (N,) float beliefs in [0, 1] (dynamic probability)."""
-
     def __call__(self, inp: FilterInput) -> np.ndarray: ...
-
     def reset(self) -> None: ...
 
 

@@ -115,7 +115,7 @@ def _popcount64(x):
 
 
 @njit(cache=True, nogil=True)
-def _hamming(a, i, b, j):
+def hamming_at(a, i, b, j):
     """Hamming distance between the 256-bit descriptors a[i] and b[j] (four uint64 words each)."""
     d = 0
     for w in range(4):
@@ -166,7 +166,7 @@ def _search_grid(cell, col0, row0, cols, rows, order, start, kps, octave, ur, de
                                 continue
                         elif e2 > chi2_mono:
                             continue
-                    d = _hamming(desc, k, qdesc, i)
+                    d = hamming_at(desc, k, qdesc, i)
                     if d < d1:
                         d2, l2 = d1, l1
                         b1, d1, l1 = k, d, lv
@@ -297,7 +297,7 @@ def _bow_nearest(na, da, nb, db, ratio, max_dist):
         b1, d1, d2 = -1, 1 << 20, 1 << 20
         j = j0
         while j < nb.shape[0] and nb[j] == na[i]:
-            d = _hamming(da, i, db, j)
+            d = hamming_at(da, i, db, j)
             if d < d1:
                 d2 = d1
                 b1, d1 = j, d

@@ -27,17 +27,25 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from d2slam.errors import D2SlamError
+from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
-from d2slam.outputs import file_lock, staged_file, write_bytes
+from d2slam.config import CLI, DEFAULT
+from d2slam.data import Trajectory, write_tum_trajectory
+from d2slam.errors import D2SlamError
+from d2slam.outputs import file_lock, remove_stale_temps as remove, staged_file, write_bytes
+from d2slam.paths import cache_dir
 from d2slam.progress import announce
-from d2slam.study import grid as G
-from d2slam.study import tables as T
+from d2slam.run.warmup import warm_up
+from d2slam.study import grid as G, plots as P, sequences, tables as T
 from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
-from d2slam.study.keys import run_key
+from d2slam.study.keys import code_info, run_key
+from d2slam.study.manifest import build_manifest, git_info
 from d2slam.study.runner import (execute_run, failed_row, features_dir, onnx_sequence_keys, prepare_sequence,
                                  run_options, segment_sequence)
+from d2slam.study.sequences import is_complete, sequence_dir
+from d2slam.synth.generate import estimated_seconds
+from d2slam.synth.version import generator_version
 
 RETRY = ("failed", "crashed", "timeout")  # statuses never reused by --resume
 
@@ -82,10 +90,6 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
     ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.keys.run_key`: the run, config,
     masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
     and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
-    from d2slam.config import DEFAULT
-    from d2slam.digests import generator_version
-    from d2slam.study.keys import code_info
-    from d2slam.study.manifest import build_manifest, git_info
 
     checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
@@ -191,9 +195,6 @@ def phase_plans(options: dict, workers: int | None) -> dict:
     number of workers is not known: a Dask cluster). Estimates: ``CliConfig.synth_setup_s`` + frames x
     ``synth_frame_s`` per sequence to generate, frames x ``segment_frame_s`` to segment (an upper bound: masks
     already in the cache are read), :func:`run_cost` per run."""
-    from d2slam.config import CLI
-    from d2slam.synth.generate import estimated_seconds
-    from d2slam.study.sequences import is_complete, sequence_dir
 
     on = "" if workers is None else f" on {workers} worker{'s' if workers > 1 else ''}"
 
@@ -231,9 +232,6 @@ def remove_stale_temps(options: dict, out: Path | None = None) -> list[Path]:
     """Remove what killed processes left half-written in the caches a study writes (sequence folders, feature files,
     mask files: ``*.tmp-<pid>...``, :func:`d2slam.outputs.remove_stale_temps`) and in ``out/runs``; the temporaries
     of running processes (another study sharing the cache) stay."""
-    from d2slam.outputs import remove_stale_temps as remove
-    from d2slam.paths import cache_dir
-    from d2slam.study import sequences
 
     outs = [] if out is None else [p for d in ("", "runs", "trajectories", "plots") for p in remove(Path(out) / d)]
     return (sequences.remove_stale_temps(options.get("cache_root")) + remove(features_dir(options))
@@ -276,7 +274,6 @@ def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
 def _prepare_vocabulary(progress) -> None:
     """Build the ORB vocabulary once, here, before ORB-SLAM3 runs and the engine's loop closing start in parallel
     workers (each would otherwise build it on first use). A failure is left to the runs, which record it."""
-    from d2slam.baselines.vocab import resolve_vocabulary
 
     try:
         resolve_vocabulary(None, build=True, progress=bool(progress))
@@ -286,8 +283,7 @@ def _prepare_vocabulary(progress) -> None:
 
 def _prepare_kernels() -> None:
     """Compile the engine's kernels here (or load them from numba's cache) before the workers start, so that they
-    load them instead of each compiling the same ones at once (``d2slam.warmup``)."""
-    from d2slam.warmup import warm_up
+    load them instead of each compiling the same ones at once (``d2slam.run.warmup``)."""
 
     warm_up()
 
@@ -341,7 +337,6 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
 
 def write_trajectory(out: Path, s: RunSpec, r: dict) -> None:
     """``trajectories/<run>.txt`` (TUM format) of a run that has one."""
-    from d2slam.data import Trajectory, write_tum_trajectory
 
     if r.get("trajectory") is not None and len(r["trajectory"][0]):
         (out / "trajectories").mkdir(parents=True, exist_ok=True)
@@ -366,8 +361,6 @@ def module_f1(specs: list[RunSpec], results: list[dict]) -> pd.DataFrame:
 
 
 def make_plots(out: Path, specs, results, df, summary, method_order) -> dict:
-    from d2slam.study import plots as P
-
     pdir = out / "plots"
     pdir.mkdir(exist_ok=True)
     files = {}

@@ -20,11 +20,14 @@ the last to start are the shortest, so both cores stay busy to the end instead o
 
 from __future__ import annotations
 
+import signal
+from concurrent.futures import as_completed
 from typing import Callable, Sequence
 
 import numpy as np
 
 from d2slam.errors import D2SlamError
+from d2slam.progress import progress as follow
 
 
 def executor_name(jobs: int = 1, scheduler=None) -> str:
@@ -46,7 +49,6 @@ def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, 
     is called in this process as each result arrives (completion order), e.g. to save it at once. ``cost(item)``:
     the items start longest first (``dispatch_order``); the results stay in the order of ``items``. ``progress``:
     False shows nothing; otherwise ``desc: k/N units`` on stderr (:func:`d2slam.progress.progress`)."""
-    from d2slam.progress import progress as follow
 
     items = list(items)
     if not items:
@@ -79,7 +81,6 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 def _joblib(fn, items, order, args, jobs):
     """(index, result) in completion order from ``jobs`` loky processes; the pool is shut down when the generator
     ends or is closed (its workers killed unless every result came)."""
-    from concurrent.futures import as_completed
 
     from joblib.externals.loky import ProcessPoolExecutor
 
@@ -98,7 +99,6 @@ def _joblib(fn, items, order, args, jobs):
 
 def _ignore_sigint() -> None:
     """Worker initializer: Ctrl-C is the parent's to handle (a replaced worker does not inherit it at start)."""
-    import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
@@ -109,14 +109,10 @@ class _sigint_deferred:
     and is delivered (``KeyboardInterrupt``) when the block ends, instead of being lost."""
 
     def __enter__(self):
-        import signal
-
         self._prev = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         return self
 
     def __exit__(self, *exc):
-        import signal
-
         signal.pthread_sigmask(signal.SIG_SETMASK, self._prev)
         return False
 

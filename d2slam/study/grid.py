@@ -21,7 +21,10 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from d2slam.assets import real_full
 from d2slam.errors import D2SlamError
+from d2slam.run.methods import get_method, methods
+from d2slam.synth.scene import default_frames, tum_frames
 
 # The five fr3 sequences of the paper's Tables 1-3, in their order, with the paper's row labels; then the
 # interaction scenarios of our own (a person carries a box / pushes a chair across the view).
@@ -152,7 +155,6 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
 def default_scenarios() -> list[str]:
     """The study's default scenarios: every synthetic one, and the real recordings whose sequence is in the cache
     (``d2slam assets fetch --full-real``)."""
-    from d2slam.assets import real_full
 
     return [s for s in SCENARIOS if s not in REAL_SCENARIOS or real_full() is not None]
 
@@ -161,12 +163,9 @@ def frames_of(scenario: str, frames: int | str, source: str = "synth") -> int:
     """The frames of a scenario's runs: ``frames``, or with ``tum`` its TUM duration (all frames of a real copy); the
     scenario with a return always its own length."""
     if scenario in LOOP_SCENARIOS:
-        from d2slam.synth.scene import default_frames
-
         return default_frames(scenario)
     if frames != "tum":
         return int(frames)
-    from d2slam.synth.scene import tum_frames
 
     return 0 if source == "tum" else tum_frames(scenario)
 
@@ -174,7 +173,6 @@ def frames_of(scenario: str, frames: int | str, source: str = "synth") -> int:
 def default_methods(source: str = "synth") -> list[str]:
     """Every method of the run registry (``none`` first) and ``orbslam3``; on a real TUM copy, not those that need
     a synthetic sequence's own masks (``oracle``: truth, ``d2slam-sim``: the simulated segmenter)."""
-    from d2slam.methods import methods
 
     names = list(methods())
     if source == "tum":
@@ -184,8 +182,6 @@ def default_methods(source: str = "synth") -> list[str]:
 
 
 def _truth_methods() -> set[str]:
-    from d2slam.methods import get_method, methods
-
     return {m for m in methods() if get_method(m).masks in ("truth", "sim")}
 
 

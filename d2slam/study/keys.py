@@ -7,8 +7,11 @@ from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
 
-from d2slam.digests import digest, generator_version, source_digest
+from d2slam.baselines.vocab import resolve_vocabulary
+from d2slam.cachefiles import sha256_file
+from d2slam.digests import digest, source_digest
 from d2slam.study.grid import ORBSLAM3, ORBSLAM3_MASKED, REPEATED, RunSpec
+from d2slam.synth.version import generator_version
 
 # Source that decides an engine run's numbers, and an ORB-SLAM3 run's (which never touches the engine or dynamics).
 ENGINE_CODE = ("slam", "dynamics", "segmentation", "data", "eval", "methods.py", "pipeline.py", "record.py",
@@ -46,10 +49,8 @@ def run_key(spec: RunSpec, options: dict) -> str:
 
 
 def _file_sha(path: str):
-    from d2slam.baselines.vocab import _sha256_file
-
     try:
-        return _sha256_file(Path(path).expanduser())
+        return sha256_file(Path(path).expanduser())
     except OSError:
         return None
 
@@ -73,8 +74,6 @@ def _packages() -> dict:
 @lru_cache(maxsize=1)
 def _vocabulary_sha():
     try:
-        from d2slam.baselines.vocab import resolve_vocabulary
-
         return resolve_vocabulary(None, build=False, progress=False)["sha256"]
     except Exception:  # noqa: BLE001 - no vocabulary yet: the key says so
         return None

@@ -15,20 +15,31 @@ import time
 import traceback
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from d2slam.cachefiles import Damaged, report_damaged
+from d2slam.config import DEFAULT, Config
+from d2slam.data import open_sequence
 from d2slam.digests import digest, source_digest
 from d2slam.errors import D2SlamError
-from d2slam.pipeline import STAGES as ENGINE_STAGES
-from d2slam.record import RunRecord
+from d2slam.paths import cache_dir
+from d2slam.run.methods import get_method, mask_kind, methods
+from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.record import RunRecord
+from d2slam.run.runner import run_method
+from d2slam.run.sequence import STAGES as ENGINE_STAGES
+from d2slam.segmentation import masks_for
+from d2slam.slam.engine import refills
+from d2slam.slam.features import CachedFeatures, FeatureRecorder
 from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3_MASKED, REPEATED, STUDY_MASKS, RunSpec
+from d2slam.study.sequences import ensure_sequence, real_sequence_dir, tum_sequence_dir
 
 
 def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
                 orbslam3_repeats: int | None = None, orbslam3_timeout: float | None = None) -> dict:
     """The options every run of a study shares, as a picklable dict (``config`` as a nested dict; ``masks``: the
     study's masks, the real segmenter's unless given)."""
-    from d2slam.config import DEFAULT
 
     config = config or DEFAULT
     return {"config": config.to_dict(), "cache_root": None if cache_root is None else str(cache_root),
@@ -50,7 +61,6 @@ def prepare_sequence(key: tuple, options: dict) -> dict:
 
 def onnx_sequence_keys(specs, options: dict) -> list[tuple]:
     """The sequences (``RunSpec.sequence_key``) on which some run of ``specs`` reads the real segmenter's masks."""
-    from d2slam.methods import get_method, mask_kind, methods
 
     keys = []
     for s in specs:
@@ -68,9 +78,6 @@ def segment_sequence(key: tuple, options: dict) -> dict:
     sequence before the runs (which then only read it, whichever worker runs them; two runs on one sequence at the
     same time would otherwise both segment it). Returns ``{"key", "error"}``; a failure is left to the runs,
     which meet it again and record it."""
-    from d2slam.config import Config
-    from d2slam.data import open_sequence
-    from d2slam.segmentation import masks_for
 
     source, scenario, seed, frames, twin = key
     try:
@@ -87,16 +94,11 @@ def segment_sequence(key: tuple, options: dict) -> dict:
 
 def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
     if source == "real":
-        from d2slam.study.sequences import real_sequence_dir
-
         return real_sequence_dir(scenario)
     if source == "tum":
-        from d2slam.study.sequences import tum_sequence_dir
-
         if not options.get("tum_root"):
             raise D2SlamError("a TUM run needs tum_root (D2SLAM_TUM_ROOT)")
         return tum_sequence_dir(options["tum_root"], scenario)
-    from d2slam.study.sequences import ensure_sequence
 
     return ensure_sequence(scenario, seed, frames, twin, root=options.get("cache_root"), progress=False)
 
@@ -193,8 +195,6 @@ def _metric_columns(record: RunRecord) -> dict:
 
 
 def _config(spec: RunSpec, options: dict):
-    from d2slam.config import Config
-
     config = Config.from_dict(options["config"])
     return dataclasses.replace(config, engine=dataclasses.replace(
         config.engine, ransac_seed=int(spec.seed), loop_closing=bool(config.engine.loop_closing and spec.loop_closing)))
@@ -202,9 +202,6 @@ def _config(spec: RunSpec, options: dict):
 
 def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bool]:
     """The run of an engine method and whether it read the sequence's stored features."""
-    from d2slam.data import open_sequence
-    from d2slam.methods import get_method, run_method
-    from d2slam.slam.engine import refills
 
     config = _config(spec, options)
     method = get_method(spec.method)
@@ -246,7 +243,6 @@ def features_path(seq, path: Path, config, options: dict, frames: int | None = N
     ``d2slam.slam.features``): named after the sequence folder, its frame count and a digest of what an extraction
     depends on (ORB and engine settings, camera, OpenCV version, the frame and data code), under
     ``<cache>/study/features`` (or ``<cache_root>/features``)."""
-    import cv2
 
     cam = seq.camera
     ident = {"orb": dataclasses.asdict(config.orb), "engine": dataclasses.asdict(config.engine),
@@ -259,7 +255,6 @@ def features_path(seq, path: Path, config, options: dict, frames: int | None = N
 
 def features_dir(options: dict) -> Path:
     """The folder of the study's feature files: ``<cache>/study/features`` (or ``<cache_root>/features``)."""
-    from d2slam.paths import cache_dir
 
     return Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
 
@@ -268,8 +263,6 @@ def _features(seq, path: Path, config, options: dict, frames: int | None = None)
     """(features for ``run_sequence``, where to save them afterwards or None): the cached features of the sequence's
     first ``frames`` frames when a run already saved them, else a recorder. A damaged cache file is said (one line)
     and replaced."""
-    from d2slam.cachefiles import Damaged, report_damaged
-    from d2slam.slam.features import CachedFeatures, FeatureRecorder
 
     n = len(seq) if frames is None else frames
     target = features_path(seq, path, config, options, n)
@@ -285,9 +278,6 @@ def _features(seq, path: Path, config, options: dict, frames: int | None = None)
 
 
 def _run_orbslam3(spec: RunSpec, path: Path, options: dict) -> RunRecord:
-    from d2slam.baselines.orbslam3 import run_orbslam3
-    from d2slam.methods import get_method, mask_kind
-
     config = _config(spec, options)
     repeats = int(options.get("orbslam3_repeats") or config.baseline.orbslam3_repeats)
     masks = None
@@ -314,14 +304,10 @@ class _single_threaded:
     oversubscribe the cores."""
 
     def __enter__(self):
-        import cv2
-
         self._prev = cv2.getNumThreads()
         cv2.setNumThreads(1)
         return self
 
     def __exit__(self, *exc):
-        import cv2
-
         cv2.setNumThreads(self._prev)
         return False

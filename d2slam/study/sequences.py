@@ -1,5 +1,5 @@
 """The study's sequence cache: synthetic sequences generated once and reused, keyed by scenario, seed, frames,
-static twin and *generator version* (:func:`d2slam.digests.generator_version`).
+static twin and *generator version* (:func:`d2slam.synth.version.generator_version`).
 
 ``cache_dir("study", "sequences", "<scenario>_s<seed>_n<frames>[_twin]-<generator version>")``. The generator version
 is a digest of the synthetic format, the package version, every ``SynthConfig`` value and the code of
@@ -20,10 +20,16 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from d2slam.assets import real_full
 from d2slam.cachefiles import Damaged, folder_manifest, folder_problems, read_json, report_damaged
-from d2slam.digests import generator_version
 from d2slam.errors import D2SlamError
-from d2slam.outputs import file_lock, write_bytes
+from d2slam.outputs import file_lock, remove_stale_temps as remove, staged_dir, write_bytes
+from d2slam.paths import cache_dir
+from d2slam.progress import announce
+from d2slam.study.grid import TUM_FOLDERS
+from d2slam.synth import generate
+from d2slam.synth.generate import estimated_seconds
+from d2slam.synth.version import generator_version
 
 MARKER = ".complete"
 
@@ -34,7 +40,6 @@ def sequence_name(scenario: str, seed: int, frames: int, twin: bool) -> str:
 
 def sequence_dir(scenario: str, seed: int, frames: int, twin: bool, root: str | Path | None = None) -> Path:
     """Where the cached sequence lives (it may not exist yet)."""
-    from d2slam.paths import cache_dir
 
     base = Path(root) if root is not None else cache_dir("study", "sequences")
     return base / f"{sequence_name(scenario, seed, frames, twin)}-{generator_version()}"
@@ -80,15 +85,10 @@ def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, r
         problems = sequence_problems(path)
         if not problems:
             return path
-        from d2slam.outputs import staged_dir
-        from d2slam.synth import generate
 
         if is_complete(path):
             report_damaged(path, "cached sequence", "; ".join(problems), "generating it again")
         if progress:
-            from d2slam.progress import announce
-            from d2slam.synth.generate import estimated_seconds
-
             announce(f"generating {name} (once; cached in {path.parent})", estimated_seconds(int(frames), 1))
         with staged_dir(path) as tmp:  # replaces an incomplete or damaged one; removed if interrupted
             generate(scenario, tmp, frames=int(frames), seed=int(seed), static_twin=bool(twin), workers=1,
@@ -101,7 +101,6 @@ def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, r
 
 def tum_sequence_dir(tum_root: str | Path, scenario: str) -> Path:
     """The fr3 folder of ``scenario`` under a real TUM copy (``rgbd_dataset_freiburg3_<scenario>``)."""
-    from d2slam.study.grid import TUM_FOLDERS
 
     root = Path(tum_root).expanduser()
     path = root / TUM_FOLDERS[scenario]
@@ -113,7 +112,6 @@ def tum_sequence_dir(tum_root: str | Path, scenario: str) -> Path:
 def real_sequence_dir(scenario: str) -> Path:
     """The folder of the real recording ``scenario`` (``grid.REAL_SCENARIOS``): the whole TUM fr1/rpy in the shared
     folder or the cache (``d2slam.assets.real_full``); a D2SlamError naming the command that fetches it."""
-    from d2slam.assets import real_full
 
     path = real_full()
     if scenario != "fr1_rpy" or path is None:
@@ -125,7 +123,5 @@ def real_sequence_dir(scenario: str) -> Path:
 def remove_stale_temps(root: str | Path | None = None) -> list[Path]:
     """Remove the temporary sequence folders (``<name>.tmp-<pid>...``) of processes that are gone, under ``root``
     (default: the study's sequence cache); the work of running processes is left alone."""
-    from d2slam.outputs import remove_stale_temps as remove
-    from d2slam.paths import cache_dir
 
     return remove(Path(root) if root is not None else cache_dir("study", "sequences"))

@@ -18,7 +18,7 @@ import pandas as pd
 
 from d2slam.config import DEFAULT, EvalConfig
 from d2slam.outputs import staged_file
-from d2slam.record import is_fragment
+from d2slam.eval.fragment import is_fragment
 from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, LOOP_SCENARIOS, ORACLE,
                                REAL_SCENARIOS,
                                ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS)
@@ -26,6 +26,12 @@ from d2slam.study.improvement import improvement, improvement_table, metric_matr
 from d2slam.study.improvement import methods_of as _methods
 from d2slam.study.improvement import nanmedian as _nanmedian
 from d2slam.study.improvement import scenarios_of as _scenarios
+import json
+from d2slam.errors import D2SlamError
+from d2slam.study.calibration import calibration_checks, calibration_markdown, calibration_table
+from d2slam.study.grid import RunSpec
+from d2slam.study.paper import published_real
+from pathlib import Path
 
 # runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
 KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source", "loop_closing"]
@@ -36,7 +42,7 @@ RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp
                                    "frames_lost", "tracked_share", "fragment", "keyframes", "map_points", "loops",
                                    "loops_true", "loops_false", "loop_closest_ratio"]
 # tracked_share: frames_tracked over the frames the run went through (``frames`` is the grid's, 0 = all); fragment:
-# 1 when that share is below EvalConfig.min_tracked_share (d2slam.record.is_fragment: its errors are over the tracked
+# 1 when that share is below EvalConfig.min_tracked_share (d2slam.run.record.is_fragment: its errors are over the tracked
 # part only). loops: detected by the engine's loop closing, true / false against the ground truth; loop_closest_ratio:
 # the score of the wrong place-recognition candidate that went furthest over its keyframe's minimum score
 # (d2slam.eval.loops).
@@ -97,8 +103,6 @@ def read_runs_csv(path) -> pd.DataFrame:
             df[c] = np.nan
     missing = [c for c in RUN_COLUMNS if c not in df.columns]
     if missing:
-        from d2slam.errors import D2SlamError
-
         raise D2SlamError(f"not a study runs.csv: missing columns {', '.join(missing)}", path=path)
     return runs_frame(df.to_dict("records"))
 
@@ -134,7 +138,7 @@ def write_summary_csv(summary: pd.DataFrame, path) -> None:
 # ------------------------------------------------------------------------------------------------------------
 # Paper-format tables
 # ------------------------------------------------------------------------------------------------------------
-# Cells whose runs tracked less than this share of their frames (median over seeds; d2slam.record.is_fragment) get a
+# Cells whose runs tracked less than this share of their frames (median over seeds; d2slam.run.record.is_fragment) get a
 # dagger: EvalConfig.min_tracked_share, the rule `d2slam run` applies to one run.
 TRACKED_FLAG = DEFAULT.evaluation.min_tracked_share
 DAGGER = " †"
@@ -571,8 +575,6 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
         out += ["", f"### Table {n}c: {title} ({unit}), absolute: median [min, max] over seeds", "",
                 absolute_markdown(df, metric, 0, methods)]
     if have_orb and df["scenario"].isin(FR3_SCENARIOS).any():
-        from d2slam.study.calibration import calibration_checks, calibration_markdown, calibration_table
-
         cal = calibration_table(df)
         if not cal.empty:
             out += ["", "## The benchmark against the published record on the real fr3 sequences", "",
@@ -638,7 +640,6 @@ REAL_NOTE = ("The real TUM fr1/rpy (723 frames of a Kinect turning fast about it
 def real_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
     """The real recordings: per method, frames tracked, ATE (m; ORB-SLAM3: median [min, max] of its repeats), ATE
     over `none`'s, RPE and ms per frame; then the published ATE of other systems on the same recordings."""
-    from d2slam.study.paper import published_real
 
     rows = []
     for scenario in [s for s in REAL_SCENARIOS if s in set(df["scenario"])]:
@@ -775,11 +776,7 @@ def read_run_records(out) -> list[dict]:
     """The per-run JSON records of a finished study (``out/runs/<run_id>.json``: run, row, keypoints, stage_ms), in
     the order of ``out/runs.csv``. A run whose record is missing is skipped; an unreadable one is a D2SlamError
     naming the file."""
-    import json
-    from pathlib import Path
 
-    from d2slam.errors import D2SlamError
-    from d2slam.study.grid import RunSpec
 
     out = Path(out)
     df = read_runs_csv(out / "runs.csv")

@@ -34,14 +34,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 from zlib_ng import zlib_ng
+
 from d2slam import __version__
-from d2slam.config import SynthConfig
+from d2slam.config import CLI, SynthConfig
 from d2slam.errors import D2SlamError
 from d2slam.progress import progress as _progress
+from d2slam.synth.rigid import pose_rows
 from d2slam.synth.scene import Scene
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor
-from d2slam.synth.rigid import pose_rows
 from d2slam.synth.twin import render_twin_frame, twin_groundtruth
 from d2slam.synth.world import WorldRenderer
 
@@ -139,7 +140,7 @@ def png_bytes(img: np.ndarray, compression: int) -> bytes:
     return PNG_SIGNATURE + chunk(b"IHDR", head) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
 
 
-def _write(path: Path, img: np.ndarray, compression: int, labels: bool = False) -> None:
+def write_image(path: Path, img: np.ndarray, compression: int, labels: bool = False) -> None:
     """Write ``img`` (RGB order) as a PNG: the noisy images (RGB, depth) by :func:`png_bytes`, label images (masks)
     by OpenCV with zlib's default strategy and no filter (long runs of equal values: smaller, and faster to write
     and read than filtered)."""
@@ -160,10 +161,10 @@ def _frame_job(i: int) -> dict:
     comp = scene.cfg.png_compression
     name = stamp(scene.t0 + scene.t_rel[i]) + ".png"
     dname = stamp(scene.t0 + scene.t_rel[i] + scene.depth_offset[i]) + ".png"
-    _write(out / "rgb" / name, f["rgb"], comp)
-    _write(out / "depth" / dname, f["depth"], comp)
-    _write(out / "mask_gt" / name, f["mask_gt"], comp, labels=True)
-    _write(out / "mask_sim" / name, f["mask_sim"], comp, labels=True)
+    write_image(out / "rgb" / name, f["rgb"], comp)
+    write_image(out / "depth" / dname, f["depth"], comp)
+    write_image(out / "mask_gt" / name, f["mask_gt"], comp, labels=True)
+    write_image(out / "mask_sim" / name, f["mask_sim"], comp, labels=True)
     clock.lap("write")
     cpu_ms = 1e3 * (time.process_time() - cpu0)
     counts = np.bincount(f["mask_gt"].ravel(), minlength=256)
@@ -277,7 +278,6 @@ def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig 
                       twin: bool = False) -> float:
     """What generating ``frames`` frames should take (``CliConfig.synth_setup_s``, ``synth_frame_s``; a twin's:
     ``synth_twin_frame_s``), announced before it starts."""
-    from d2slam.config import CLI
 
     per_frame = CLI.synth_twin_frame_s if twin else CLI.synth_frame_s
     return CLI.synth_setup_s + frames * per_frame / worker_count(frames, workers, cfg)

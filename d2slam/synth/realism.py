@@ -24,7 +24,13 @@ import cv2
 import numpy as np
 
 from d2slam.config import DEFAULT, Config, SynthConfig, SynthEvalConfig
+from d2slam.data.base import Camera, RGBDFrame
 from d2slam.errors import D2SlamError
+from d2slam.segmentation import get_segmenter
+from d2slam.slam.frame import OrbExtractor
+from d2slam.synth.generate import render_frame
+from d2slam.synth.scene import Scene
+from d2slam.synth.world import WorldRenderer
 
 MIN_AREA = 0.05  # frames with less mask than this (a sliver at the border) have no meaningful ratio
 
@@ -61,8 +67,6 @@ def ratio(kp: np.ndarray, area: np.ndarray) -> np.ndarray:
 
 def extractor(camera=None, config: Config | None = None):
     """The engine's ORB extractor (ORB-SLAM settings) for a 640x480 fr3-like camera."""
-    from d2slam.data.base import Camera
-    from d2slam.slam.frame import OrbExtractor
 
     cfg = config or DEFAULT
     if camera is None:
@@ -110,9 +114,6 @@ def sample_indices(frames: int, stride: int) -> np.ndarray:
 def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: int = 10,
                     cfg: SynthConfig | None = None, config: Config | None = None, ext=None) -> FrameStats:
     """Person / dynamic statistics of every ``stride``-th frame of a synthetic sequence (rendered in memory)."""
-    from d2slam.synth.generate import render_frame
-    from d2slam.synth.scene import Scene
-    from d2slam.synth.world import WorldRenderer
 
     config = config or DEFAULT
     cfg = cfg or config.synth
@@ -140,13 +141,10 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
 
 def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, ext=None) -> FrameStats:
     """Person statistics of real RGB frames (no depth needed), persons from ``segmenter`` (default: ONNX)."""
-    from d2slam.data.base import RGBDFrame
 
     if not paths:
         raise D2SlamError("no real frames to measure")
     if segmenter is None:
-        from d2slam.segmentation import get_segmenter
-
         segmenter = get_segmenter("onnx", config=config)
     ext = ext or extractor(config=config)
     rows = []

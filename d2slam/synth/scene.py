@@ -20,6 +20,8 @@ from d2slam.synth.actors import BOX_HALF, Chair, FloorPlan, HeldObject, Leg, Per
 from d2slam.synth.render import Quad, QuadSet, box_quads, boxes
 from d2slam.synth.rigid import look_at, rot_x, rot_y, rot_z, rots, tf, yaw_pose  # noqa: F401 (re-exported)
 from d2slam.synth.textures import make_texture
+import argparse
+from d2slam.synth.twin import LensMap, RecordedPath, placement, twin_config
 
 # The fr3-named scenarios imitate the TUM fr3 sequences of the same name (camera motion and what the people do);
 # the interaction scenarios are ours: a person carries a box / pushes a chair across the view (camera as w/xyz).
@@ -73,7 +75,6 @@ def tum_frames(scenario: str, fps: float = 30.0) -> int:
 
 def frames_arg(value: str) -> int | str:
     """``--frames``: a number of frames, or ``tum`` (each scenario at its TUM duration)."""
-    import argparse
 
     if str(value).lower() == "tum":
         return "tum"
@@ -251,7 +252,6 @@ class Scene:
     def _twin_clock(self, rec, frames: int) -> None:
         """A twin's camera, clock and path: the recording's camera and first ``frames`` frames (RGB and depth
         times), its ground truth placed in the room (d2slam.synth.twin); static (no people)."""
-        from d2slam.synth.twin import LensMap, RecordedPath, placement, twin_config
 
         tw = self.cfg.twin
         self.cfg = twin_config(self.cfg, rec.camera)

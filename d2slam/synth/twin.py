@@ -28,6 +28,8 @@ other scenarios.
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +38,11 @@ import numpy as np
 
 from d2slam.config import SynthConfig
 from d2slam.data.base import Camera
+from d2slam.data.tum import TumSequence, interpolate_poses
 from d2slam.errors import D2SlamError
+from d2slam.synth.rigid import pose_rows
+from d2slam.synth.segsim import simulate_segmenter
+from d2slam.synth.sensor import depth_to_png, rgb_sensor
 
 
 # --------------------------------------------------------------------------------------------------
@@ -60,7 +66,6 @@ class Recording:
 def read_recording(path: str | Path) -> Recording:
     """A TUM folder (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``; the camera from its name) as a
     :class:`Recording`; frames outside the ground truth's span are left out (the twin needs a pose for each)."""
-    from d2slam.data.tum import TumSequence
 
     seq = TumSequence(path)
     gt = seq.groundtruth
@@ -102,8 +107,6 @@ class RecordedPath:
         self.A = A
 
     def poses(self, t) -> np.ndarray:
-        from d2slam.data.tum import interpolate_poses
-
         tt = np.clip(self.t0 + np.atleast_1d(np.asarray(t, float)), self.gt_times[0], self.gt_times[-1])
         return interpolate_poses(self.gt_times, self.gt_poses, tt, max_gap=None)
 
@@ -182,7 +185,6 @@ class LensMap:
 def twin_config(cfg: SynthConfig, camera: Camera) -> SynthConfig:
     """The twin's ``SynthConfig``: ``cfg`` with the recording camera's intrinsics, size and depth factor, and the
     twin's RGB noise and hole blobs (``TwinConfig.rgb_noise_sigma``, ``hole_blob_fraction``)."""
-    import dataclasses
 
     tw = cfg.twin
     return dataclasses.replace(cfg, fx=float(camera.fx), fy=float(camera.fy), cx=float(camera.cx),
@@ -266,10 +268,7 @@ def subframe_times(start: float, end: float, n: int) -> np.ndarray:
 def render_twin_frame(scene, renderer, i: int) -> dict:
     """Frame ``i`` of a twin scene, as ``d2slam.synth.generate.render_frame`` returns a frame (see the module
     docstring for what the sensor does)."""
-    import time
 
-    from d2slam.synth.segsim import simulate_segmenter
-    from d2slam.synth.sensor import depth_to_png, rgb_sensor
 
     cfg, tw = scene.cfg, scene.cfg.twin
     H, W = cfg.height, cfg.width
@@ -333,7 +332,6 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
 def twin_groundtruth(scene) -> tuple[np.ndarray, np.ndarray]:
     """(timestamps, (N, 7) tx ty tz qx qy qz qw): the recording's ground truth samples over the frames plus
     ``gt_margin``, placed in the room (``d2slam.synth.rigid.pose_rows``)."""
-    from d2slam.synth.rigid import pose_rows
 
     path = scene.camera
     a = scene.t0 + scene.t_rel[0] - scene.cfg.gt_margin

@@ -1,54 +1,29 @@
 """What a run gives: :class:`RunRecord` for every method (our engine's, the real ORB-SLAM3's, ORB-SLAM3's on masked
 frames), the one shape that ``d2slam run`` prints and writes and the study turns into its rows and tables; and
-:class:`EngineRun`, the engine's own account of a run (``d2slam.pipeline.run_sequence``), which a record of an
+:class:`EngineRun`, the engine's own account of a run (``d2slam.run.sequence.run_sequence``), which a record of an
 engine method carries.
 
-A run that tracked less than ``EvalConfig.min_tracked_share`` of its frames is a fragment (:func:`is_fragment`, the
-one copy of the rule): its ATE and RPE are over the tracked part only. ``d2slam run`` and the study both ask
-:attr:`RunRecord.fragment`; the study's tables ask :func:`is_fragment` of a median share over seeds.
+A run that tracked less than ``EvalConfig.min_tracked_share`` of its frames is a fragment
+(:mod:`d2slam.eval.fragment`): :attr:`RunRecord.fragment` says so.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 from d2slam.config import DEFAULT
 from d2slam.data.base import Trajectory
+from d2slam.eval.fragment import is_fragment, tracked_share
 from d2slam.eval.trajectory import Evaluation
 
-
-def tracked_share(tracked, frames) -> float:
-    """The share of its frames a run tracked: ``tracked / frames`` (NaN when either is unknown or no frame ran)."""
-    try:
-        tracked, frames = float(tracked), float(frames)
-    except (TypeError, ValueError):
-        return math.nan
-    return tracked / frames if frames > 0 and math.isfinite(tracked) and math.isfinite(frames) else math.nan
-
-
-def is_fragment(share: float, min_share: float = DEFAULT.evaluation.min_tracked_share) -> bool:
-    """Whether a run (or a median over runs) that tracked ``share`` of its frames is a fragment: below ``min_share``
-    (``EvalConfig.min_tracked_share``). An unknown share (NaN) is not."""
-    return math.isfinite(share) and share < min_share
-
-
-def fragment_fields(tracked, frames, min_share: float) -> dict:
-    """What a run JSON says of the share tracked: ``tracked_share`` (rounded, None when unknown), ``fragment``,
-    ``min_tracked_share`` and, for a fragment, ``fragment_note`` (its ATE and RPE are over the tracked part only)."""
-    share = tracked_share(tracked, frames)
-    out = {"tracked_share": round(share, 4) if math.isfinite(share) else None,
-           "fragment": is_fragment(share, min_share), "min_tracked_share": min_share}
-    if out["fragment"]:
-        out["fragment_note"] = (f"tracked {float(tracked):g} of {float(frames):g} frames ({100 * share:.1f} %, below "
-                                f"evaluation.min_tracked_share {min_share:g}): a fragment; its ATE and RPE are over "
-                                "the tracked frames only, not a result for the sequence")
-    return out
+# The exit status of `d2slam run` for a fragment (a run that tracked less than EvalConfig.min_tracked_share of its
+# frames); 2 is bad input (d2slam.cli), 1 ORB-SLAM3 losing track.
+EXIT_FRAGMENT = 3
 
 
 @dataclass
 class EngineRun:
-    """A sequence run through the engine (``d2slam.pipeline.run_sequence``)."""
+    """A sequence run through the engine (``d2slam.run.sequence.run_sequence``)."""
 
     trajectory: Trajectory  # tracked frames only
     frames: int
@@ -103,7 +78,7 @@ class RunRecord:
     status: str
     error: str  # why the status is not ``ok`` ("" when it is)
     evaluation: Evaluation | None  # None: the sequence has no ground truth, or the run gave no trajectory
-    stage_ms: dict[str, float] = field(default_factory=dict)  # the engine's stages (``d2slam.pipeline.STAGES``)
+    stage_ms: dict[str, float] = field(default_factory=dict)  # the engine's stages (``d2slam.run.sequence.STAGES``)
     masks: str | None = None  # the mask kind read (None: none)
     masks_origin: str | None = None  # where they came from (``d2slam.segmentation.masks_origin``)
     repeats: int = 1

@@ -4,7 +4,6 @@
 ``no-depth``, ``no-oim``, ``no-bayes``, ``semantic``, ``geometric``), the real ``orbslam3`` baseline and
 ``orbslam3-masked`` (the real ORB-SLAM3 on frames with the people's pixels removed) plug in here
 with :func:`register` (one line each; the dynamics methods are the classifier with its switches, :data:`DYNAMICS`)::
-
     register("no-oim", _Dynamics("no-oim", switches=Switches(oim=False)), needs_masks=True)
 
 A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and ``reset()``, or None (hook off).
@@ -15,15 +14,18 @@ A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and `
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from d2slam.config import Config
+from d2slam.data import SyntheticSequence, open_sequence
+from d2slam.dynamics import classifier
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
+from d2slam.eval.keypoints import OracleFilter
+from d2slam.run.orbslam3 import run_orbslam3
 
 if TYPE_CHECKING:  # the records' module loads numpy and the data readers: not for listing the methods
-    from d2slam.record import RunRecord
+    from d2slam.run.record import RunRecord
 
 
 @dataclass(frozen=True)
@@ -66,65 +68,6 @@ def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | N
     return requested
 
 
-def run_method(seq, name: str, config: Config, masks: str | None = None, mask_seq=None, synthetic: bool = False,
-               features: Callable[[object], object] | None = None, progress: bool | None = None,
-               desc: str | None = None, frames: int | None = None) -> RunRecord:
-    """Run method ``name`` of our engine on ``seq`` (its first ``frames`` frames when given): its keypoint filter,
-    the masks :func:`mask_kind` picks from ``masks`` (read from ``mask_seq`` when given: the same frames of another
-    sequence), the keypoint truth recorded on synthetic sequences, the trajectory and loops evaluated against the
-    ground truth. ``features(keypoint_filter)`` may return stored features for ``run_sequence``. The one place
-    where ``d2slam run`` and the study run a method; the real ORB-SLAM3 (``runner``) is not run here."""
-    from d2slam.eval.keypoints import keypoint_recorder
-    from d2slam.eval.loops import loop_summary
-    from d2slam.eval.trajectory import evaluate_run
-    from d2slam.pipeline import run_sequence
-    from d2slam.record import RunRecord
-
-    method = get_method(name)
-    if method.runner is not None:
-        raise D2SlamError(f"--method {name} is not a keypoint filter of the engine: it has its own runner")
-    kfilter = method.factory(config)
-    kind = mask_kind(method, masks, synthetic=synthetic)
-    if mask_seq is not None and kind is None:
-        raise D2SlamError(f"--masks-from: --method {name} reads no masks")
-    n = len(seq) if frames is None else min(len(seq), int(frames))
-    provider, origin = _mask_provider(seq, kind, mask_seq, config, n, progress) if kind is not None else (None, None)
-    recorder = keypoint_recorder(seq)
-    run = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=recorder,
-                       progress=progress, desc=desc, features=features(kfilter) if features else None, frames=n)
-    gt = seq.groundtruth
-    evaluation = evaluate_run(gt, run.trajectory) if gt is not None else None
-    status, error = ("unevaluated", "the sequence has no ground truth") if evaluation is None else \
-        (evaluation.status, {"ok": "", "partial": f"ATE only: {evaluation.error}"}.get(
-            evaluation.status, f"evaluation: {evaluation.error}"))
-    return RunRecord(method=name, sequence=getattr(seq, "name", ""), trajectory=run.trajectory, frames=run.frames,
-                     tracked=run.tracked, lost=run.lost, fps=run.fps, ms_per_frame=run.ms_per_frame,
-                     config_hash=config.hash(), loop_closing=run.loop_closing, status=status, error=error,
-                     evaluation=evaluation, stage_ms=run.stage_ms, masks=kind, masks_origin=origin,
-                     keypoints=recorder.result() if recorder is not None else None,
-                     loops=loop_summary(run, seq.timestamps, gt, config.evaluation), keyframes=run.keyframes,
-                     map_points=run.map_points, engine=run,
-                     min_tracked_share=config.evaluation.min_tracked_share)
-
-
-def _mask_provider(seq, kind: str, mask_seq, config: Config, frames: int, progress: bool | None):
-    """``provider(i)`` of the ``kind`` person masks of frame ``i`` (of ``mask_seq`` when given) as an (n, H, W)
-    stack, and where they come from; the real segmenter's masks missing from the cache are computed now,
-    announced, before the run."""
-    from d2slam.segmentation import mask_source, masks_for, masks_origin, stack_masks
-
-    shape = (seq.camera.height, seq.camera.width)
-    src = seq if mask_seq is None else mask_source(seq, mask_seq)
-    origin = masks_origin(src, kind, config, frames=frames, progress=progress is not False)
-    if mask_seq is not None and kind == "onnx":  # the label kinds name their folder already
-        origin = f"{origin}, of {Path(mask_seq.root).resolve()}"
-
-    def provider(i):
-        return stack_masks(masks_for(src, i, kind, config), shape)
-
-    return provider, origin
-
-
 def methods() -> list[str]:
     return list(_REGISTRY)
 
@@ -149,7 +92,6 @@ register("none", lambda config: None, needs_masks=False, help="engine with the k
 def _orbslam3_runner(args) -> RunRecord:
     """``d2slam run --method orbslam3[-masked]``: the real ORB-SLAM3 on ``args.sequence`` (on frames with the people
     removed when ``args.masks`` is set), writing ``args.out`` and ``args.metrics_json``."""
-    from d2slam.baselines.orbslam3 import run_orbslam3  # imported on use: pyorbslam3 loads only for this method
 
     return run_orbslam3(args.sequence, args.out, getattr(args, "metrics_json", None),
                         repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
@@ -162,7 +104,6 @@ register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_ru
 
 
 def _orbslam3_masked_runner(args) -> RunRecord:
-    from d2slam.data import SyntheticSequence, open_sequence
 
     seq = open_sequence(args.sequence, **({"camera": args.camera} if getattr(args, "camera", None) else {}))
     args.masks = mask_kind(get_method("orbslam3-masked"), args.masks, synthetic=isinstance(seq, SyntheticSequence))
@@ -175,7 +116,6 @@ register("orbslam3-masked", lambda config: None, needs_masks=True, runner=_orbsl
 
 
 def _oracle(config: Config):
-    from d2slam.eval.keypoints import OracleFilter
 
     return OracleFilter()
 
@@ -192,7 +132,6 @@ class _Dynamics:
         self.name, self.kind, self.switches = name, kind, switches
 
     def __call__(self, config=None):
-        from d2slam.dynamics import classifier
 
         cls = getattr(classifier, self.kind)
         if self.switches is None:

@@ -1,7 +1,7 @@
 """Run a sequence through the SLAM engine: one function, a progress bar, per-stage timings, a result object.
 
     run = run_sequence(open_sequence(path), keypoint_filter=None, mask_provider=None)
-    run.trajectory  # tracked frames only (T_world_camera), run.tracked / run.lost, run.fps (d2slam.record.EngineRun)
+    run.trajectory  # tracked frames only (T_world_camera), run.tracked / run.lost, run.fps (d2slam.run.record.EngineRun)
 
 Stages timed per frame: ``load`` (waiting for the images and masks; the next two frames and their masks are read by
 one prefetch thread while the current one is processed), ``segment`` (the mask provider's own time, when there is
@@ -28,16 +28,27 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
+from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.config import DEFAULT, Config
 from d2slam.data.base import Trajectory
 from d2slam.errors import D2SlamError
-from d2slam.record import EngineRun
-from d2slam.slam.engine import STAGES as ENGINE_STAGES
-from d2slam.slam.engine import Engine
+from d2slam.run.record import EngineRun
+from d2slam.slam.engine import STAGES as ENGINE_STAGES, Engine
+from d2slam.slam.features import CachedFeatures, FeatureRecorder
+from d2slam.slam.orb_vocabulary import vocabulary_ready
 
 STAGES = ("load", "segment") + ENGINE_STAGES
 
 Recorder = Callable[[int, np.ndarray, "np.ndarray | None", object], None]
+
+
+def ensure_vocabulary(config: Config = DEFAULT) -> None:
+    """Make the vocabulary an engine of ``config`` loads ready before it starts: the engine loads a vocabulary file
+    and nothing else, so the project's is built here on first use (announced; ``d2slam vocab build``) and any other
+    file checked (:func:`d2slam.baselines.vocab.resolve_vocabulary`) unless its bag of words is derived already."""
+    path = config.engine.vocabulary or None
+    if config.engine.loop_closing and not vocabulary_ready(path):
+        resolve_vocabulary(path, build=True, progress=False)
 
 
 def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
@@ -51,8 +62,9 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     n = len(sequence) if frames is None else min(len(sequence), int(frames))
     if n == 0:
         raise D2SlamError("sequence has no frames", path=getattr(sequence, "root", None))
-    engine = engine or Engine(sequence.camera, config, keypoint_filter)
-    from d2slam.slam.features import CachedFeatures, FeatureRecorder
+    if engine is None:
+        ensure_vocabulary(config)
+        engine = Engine(sequence.camera, config, keypoint_filter)
 
     cached = features if isinstance(features, CachedFeatures) else None
     recorder_f = features if isinstance(features, FeatureRecorder) else None
