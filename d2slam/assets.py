@@ -140,7 +140,6 @@ def upstream_url(asset: Download) -> str:
 
 def _install(tmp: Path, dest: Path, sha256: str, source: str) -> None:
     """Check ``tmp``'s sha256 and move it to ``dest``; a mismatch deletes it and raises."""
-
     digest = sha256_file(tmp)
     if digest != sha256:
         tmp.unlink()
@@ -153,7 +152,6 @@ def fetch_assets(timeout: float | None = None, echo=_log.info) -> list[Path]:
     """Download every missing file of :data:`DOWNLOADS` into the cache, verify it, derive the missing float
     models of :data:`DERIVED`, and fetch the real head when it is missing (:func:`fetch_real_head`). Returns the
     files and folders written (empty when everything was found)."""
-
     written: list[Path] = []
     root = assets_cache()
     for asset in DOWNLOADS:
@@ -261,7 +259,6 @@ def real_full_dir() -> Path:
 
 def _listed(folder: Path) -> list[str]:
     """The images ``folder``'s rgb.txt and depth.txt name (relative paths), in list order."""
-
     return [name for lst in LISTS[:2] for name in read_file_list(folder / lst)[1]]
 
 
@@ -315,7 +312,6 @@ def _resumable_dir(dest: Path) -> Iterator[Path]:
     """A folder to fetch ``dest`` into: this process's temporary folder beside it (:func:`d2slam.outputs.temp_name`),
     taking over the one an interrupted fetch left (its process gone) with the files it had checked. Renamed to
     ``dest`` when the block ends; kept when it raises, for the next fetch to resume."""
-
     dest.parent.mkdir(parents=True, exist_ok=True)
     work = temp_name(dest)
     pattern = glob.escape(dest.name) + ".tmp-*"
@@ -334,7 +330,6 @@ def _fetch_checked(rel: str, dest: Path, check: Callable[[Path], None], timeout:
     """Download ``rel`` of the pinned copy into ``dest`` through ``dest.part`` (resumed when a part is there), run
     ``check(part)`` (raises ``D2SlamError``; the part is then deleted) and rename it to ``dest``. Nothing is done
     when ``dest`` is there (it was checked before it got its name)."""
-
     if dest.is_file():
         return
     dest.parent.mkdir(parents=True, exist_ok=True)
@@ -372,7 +367,6 @@ def fetch_real_head(timeout: float | None = None, echo=_log.info) -> Path | None
     """Fetch the first 120 frames of TUM fr1/rpy into the assets cache unless :func:`find_real_head` finds them: the
     whole sequence's lists (sha256 checked), cut by :func:`cut_head` (the cut lists' sha256 checked), and the
     images they name (each one's sha256 checked). Returns the folder written, or None when nothing was fetched."""
-
     if find_real_head() is not None:
         return None
     pins = real_pins()
@@ -423,7 +417,6 @@ def fetch_real_full(timeout: float | None = None, echo=_log.info) -> Path | None
     """Fetch the whole TUM fr1/rpy sequence into :func:`real_full_dir` unless :func:`real_full` finds it: its lists
     (sha256 checked) and every image they name (no per-image checksum is known: each must decode as the camera's
     640x480 colour or 16-bit depth PNG). Returns the folder written, or None when nothing was fetched."""
-
     if real_full() is not None:
         return None
     dest = real_full_dir()

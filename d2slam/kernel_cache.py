@@ -38,8 +38,6 @@ def _seal(blob: bytes) -> bytes:
 def _unseal(blob: bytes) -> bytes | None:
     """The pickle of a sealed data file; None when the file is a whole pickle without a seal (written by numba
     alone). :class:`~d2slam.cachefiles.Damaged` otherwise (a seal that does not match, a truncated file)."""
-
-
     n = len(TRAILER) + 32
     if len(blob) < n or blob[-n:-32] != TRAILER:
         try:
@@ -60,7 +58,6 @@ def install() -> None:
         return
 
     from numba.core import caching
-
 
     cls = caching.IndexDataCacheFile
     load_index = cls._load_index
@@ -118,7 +115,6 @@ def install() -> None:
 def cache_files() -> list:
     """The cache files of d2slam's kernels: beside the package's sources (``__pycache__``) and under
     ``$NUMBA_CACHE_DIR`` when set."""
-
     package = Path(__file__).resolve().parent
     roots = [package] + ([Path(os.environ["NUMBA_CACHE_DIR"])] if os.environ.get("NUMBA_CACHE_DIR") else [])
     return sorted(p for root in roots if root.is_dir() for ext in ("nbi", "nbc") for p in root.rglob(f"*.{ext}"))
@@ -127,8 +123,6 @@ def cache_files() -> list:
 def check_file(path) -> str | None:
     """What is wrong with one of numba's cache files (None: nothing): an index that does not unpickle, a data file
     whose seal does not match or that is cut short."""
-
-
     try:
         with open(path, "rb") as f:
             blob = f.read()

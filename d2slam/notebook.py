@@ -73,7 +73,6 @@ def development_sequence(scenario: str, seed: int, frames: int, twin: bool = Fal
     """The synthetic sequence (``SyntheticSequence``) of ``scenario``, ``seed`` and ``frames``, generated once into the
     study's sequence cache (``d2slam.study.sequences.ensure_sequence``, or ``root``) and read from there.
     Notebooks use development seeds (0-99): the study's seeds are never looked at while developing."""
-
     return open_sequence(ensure_sequence(scenario, seed, frames, twin=twin, root=root, progress=False))
 
 
@@ -86,7 +85,6 @@ def seed_showing(scenario: str, frames: int, what: str = "people", seeds=range(1
     ``SynthEvalConfig.showing_height_m`` above the floor under the pelvis) projects into the image; ``moving
     objects``, the frames x objects moving while their centre projects into it. A notebook picks its sequence by what
     it should show, whatever the scenes' timing. The lowest seed on a tie; a D2SlamError when no seed shows any."""
-
     if what not in SHOWS:
         raise D2SlamError(f"seed_showing: what must be one of {', '.join(SHOWS)}, not {what!r}")
     scores = {}
@@ -120,7 +118,6 @@ def _in_image(cam, world_camera: np.ndarray, xyz: np.ndarray) -> np.ndarray:
 def mask_provider(seq, kind: str = "sim", config: Config = DEFAULT) -> Callable[[int], np.ndarray]:
     """Frame index -> (n, H, W) bool person masks of ``seq`` (``d2slam.segmentation.masks_for``: ``sim``, ``gt``,
     ``truth`` or ``onnx``), as the engine hands them to its keypoint filter."""
-
     shape = (seq.camera.height, seq.camera.width)
     return lambda i: stack_masks(masks_for(seq, i, kind, config), shape)
 

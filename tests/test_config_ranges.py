@@ -11,8 +11,9 @@ import typing
 import pytest
 
 from d2slam import config as C
-from d2slam.config import CLI, DEFAULT, CliConfig, Config, ConfigError, Range
+from d2slam.config import CLI, DEFAULT, CliConfig, Config, ConfigError, DepthCheckConfig, Range
 from d2slam.errors import D2SlamError
+from d2slam.ranges import build_section
 
 
 def _sections(cls=Config, prefix=""):
@@ -25,7 +26,7 @@ def _sections(cls=Config, prefix=""):
     return out
 
 
-SECTIONS = _sections() + [(CliConfig, "cli")]
+SECTIONS = _sections() + _sections(CliConfig, "cli.")
 FIELDS = [(cls, name, f) for cls, name in SECTIONS for f in dataclasses.fields(cls)
           if not f.metadata.get("section")]
 
@@ -97,9 +98,9 @@ def test_a_value_out_of_range_is_one_line_naming_field_value_and_range(section_c
     if tp is not bool and rng.text is None:
         assert values, f"{section}.{field.name}: no value outside {rng}"
     for bad in values:
-        if section_cls is CliConfig:
+        if section.startswith("cli."):
             with pytest.raises(ConfigError) as exc:
-                CliConfig(**{field.name: bad})
+                build_section(CliConfig, _path(section[4:], field.name, bad), "cli")
         else:
             with pytest.raises(ConfigError) as exc:
                 Config.from_dict(_path(section, field.name, bad))
@@ -186,5 +187,6 @@ def test_numpy_numbers_are_taken_as_pythons():
 
 def test_the_cli_section_is_checked_too():
     assert CLI == CliConfig()
-    with pytest.raises(ConfigError, match="cli.depth_min_baseline_m = 0.6 must be below cli.depth_max_baseline_m"):
-        CliConfig(depth_min_baseline_m=0.6)
+    with pytest.raises(ConfigError, match="cli.depth_check.depth_min_baseline_m = 0.6 must be below "
+                                          "cli.depth_check.depth_max_baseline_m"):
+        DepthCheckConfig(depth_min_baseline_m=0.6)

@@ -8,13 +8,13 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from d2slam.config import DynamicsConfig
-from d2slam.run.methods import get_filter
 from d2slam.dynamics.depth import keypoint_depth
 from d2slam.dynamics.flow import flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import geometric_module
 from d2slam.dynamics.semantic import signed_distances
 from d2slam.dynamics.toy import K_FR3
 from d2slam.errors import D2SlamError
+from d2slam.run.methods import get_filter
 from d2slam.slam.hook import FilterInput
 
 H, W = 240, 320

@@ -12,11 +12,11 @@ from test_eval_keypoints import _textured_synthetic
 
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
-from d2slam.eval.keypoints import KeypointRecorder, keypoint_truth
 from d2slam.errors import D2SlamError
-from d2slam.run.runner import run_method
+from d2slam.eval.keypoints import KeypointRecorder, keypoint_truth
 from d2slam.notebook import (config_values, development_sequence, mask_provider, recorded_run,
                              seed_showing)
+from d2slam.run.runner import run_method
 from d2slam.study.sequences import MARKER, sequence_dir
 
 
@@ -90,7 +90,7 @@ class _Plan:
 
 
 def test_seed_showing(monkeypatch):
-    monkeypatch.setattr("d2slam.synth.Scene", _Plan)
+    monkeypatch.setattr("d2slam.notebook.Scene", _Plan)
     assert seed_showing("walking_xyz", 9, "people", seeds=[0, 1, 2, 3]) == 2  # 2 + 8 frames x people in view
     assert seed_showing("walking_xyz", 9, "people", seeds=[4, 1]) == 1  # a tie: the lowest seed
     assert seed_showing("walking_carry", 9, "moving objects", seeds=[1, 2, 3, 4]) == 2  # moving while in view

@@ -10,15 +10,15 @@ import cv2
 import numpy as np
 import pytest
 
+from d2slam.assets import tum_frames
 from d2slam.baselines import orbslam3 as O
 from d2slam.baselines import vocab as V
-from d2slam.run.orbslam3 import run_orbslam3
 from d2slam.cachefiles import sha256_file
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence, read_tum_trajectory
 from d2slam.data.intrinsics import FREIBURG3
 from d2slam.errors import D2SlamError
-from d2slam.assets import tum_frames
+from d2slam.run.orbslam3 import run_orbslam3
 
 pytest.importorskip("pyorbslam3")
 

@@ -157,7 +157,7 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     started = []
     real_load = core.load_run
     monkeypatch.setattr(core, "load_run", lambda *a: started.append(1) or real_load(*a))
-    monkeypatch.setattr(manifest, "git_info",
+    monkeypatch.setattr(core, "git_info",
                         lambda: {"commit": ("b" if started else "a") * 40, "dirty": bool(started)})
     res = run_study(out, progress=False, plots=False, resume=True, **GRID)
     assert started
@@ -212,7 +212,7 @@ def test_study_phases_say_what_they_do_on_stderr_without_a_terminal(serial, tmp_
 
     import d2slam.progress
 
-    monkeypatch.setattr(d2slam.progress, "CLI", dataclasses.replace(d2slam.progress.CLI, progress_log_s=0.0))
+    monkeypatch.setattr(d2slam.progress, "PROGRESS", dataclasses.replace(d2slam.progress.PROGRESS, progress_log_s=0.0))
     capsys.readouterr()
     run_study(tmp_path / "out", jobs=1, plots=False, **GRID)
     cap = capsys.readouterr()
@@ -236,7 +236,7 @@ def test_study_phases_say_what_they_do_on_stderr_without_a_terminal(serial, tmp_
 
 
 def test_phase_plans_count_what_is_to_do_and_estimate_it(tmp_path):
-    from d2slam.config import CLI
+    from d2slam.progress import PROGRESS
     from d2slam.study.core import phase_plans, run_cost
     from d2slam.study.runner import run_options
     from d2slam.synth.generate import estimated_seconds
@@ -248,7 +248,7 @@ def test_phase_plans_count_what_is_to_do_and_estimate_it(tmp_path):
     assert what == "sequences: 2 to generate on 2 workers (600 frames), 0 cached, 1 real (TUM)"
     assert seconds == pytest.approx(estimated_seconds(300, 1))  # one each on the two workers
     what, seconds = phase_plans(options, 2)["segmentation"](keys[:2])
-    assert "2 sequences" in what and "600 frames" in what and seconds == pytest.approx(300 * CLI.segment_frame_s)
+    assert "2 sequences" in what and "600 frames" in what and seconds == pytest.approx(300 * PROGRESS.segment_frame_s)
     assert phase_plans(options, 2)["segmentation"](keys)[1] is None  # all frames of a real sequence: unknown
     specs = [RunSpec("walking_xyz", m, 101, 300) for m in ("none", "d2slam", "none")]
     what, seconds = phase_plans(options, 2)["runs"](specs)

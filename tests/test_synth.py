@@ -14,8 +14,8 @@ import pytest
 from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
 from d2slam.synth import SCENARIOS, Scene, generate
-from d2slam.synth.world import WorldRenderer
 from d2slam.synth.scene import DESK_CHAIR_IDS
+from d2slam.synth.world import WorldRenderer
 
 FRAMES = 16
 
@@ -305,7 +305,7 @@ def test_png_writer_round_trips_through_opencv(tmp_path):
               rng.integers(0, 256, (4, 3), dtype=np.uint8), rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)]
     for k, img in enumerate(images):
         path = tmp_path / f"{k}.png"
-        G._write(path, img, SynthConfig().png_compression)
+        G.write_image(path, img, SynthConfig().png_compression)
         back = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         assert back.dtype == img.dtype and np.array_equal(back, img if img.ndim == 2 else img[:, :, ::-1])
         assert path.read_bytes() == G.png_bytes(img, SynthConfig().png_compression)  # deterministic

@@ -38,10 +38,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from d2slam.baselines.config import MaskedFramesConfig
 from d2slam.baselines.masking import mask_frame
-from d2slam.config import Config
 from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
+from d2slam.ranges import build_section
 from d2slam.segmentation import masks_for, stack_masks
 
 T_START = time.perf_counter()  # the interpreter's own start-up precedes this; the parent measures the whole
@@ -51,7 +52,6 @@ def remove_people(seq, i: int, rgb, depth, kind: str, config):
     """Frame ``i``'s ``(rgb, depth)`` without its ``kind`` person masks (:func:`d2slam.segmentation.masks_for`,
     :func:`d2slam.baselines.masking.mask_frame` with ``config.masking``), seconds reading the masks, seconds removing
     them."""
-
     t = time.perf_counter()
     masks = stack_masks(masks_for(seq, i, kind, config), rgb.shape[:2])
     t_mask = time.perf_counter()
@@ -63,7 +63,6 @@ def sequence_frame(seq, i: int, masks: str | None = None, config=None):
     """What ORB-SLAM3 is given for frame ``i``: ``(timestamp, rgb, depth, io_s, segment_s, mask_s)`` with the RGB
     image in RGB order (the settings say ``Camera.RGB: 1``) and the depth back in sensor units (ORB-SLAM3 divides by
     ``RGBD.DepthMapFactor``), the people removed when ``masks`` is given. Raises the reader's D2SlamError."""
-
     t = time.perf_counter()
     frame = seq[i]
     depth = frame.depth * np.float32(seq.camera.depth_factor)
@@ -86,8 +85,6 @@ def write_frame_store(seq, n: int, root: Path, masks: str | None = None, config=
     :func:`sequence_frame` gives ORB-SLAM3. A frame that cannot be read ends the store there: ``frames`` counts the
     frames before it and ``error`` holds the reader's message (the worker tracks those, then fails with it, as it
     does when it decodes). Returns the meta dict (``io_s``, ``segment_s``, ``mask_s``, ``cpu_s``)."""
-
-
     cpu0 = time.process_time()
     root.mkdir(parents=True, exist_ok=True)
     h, w = int(seq.camera.height), int(seq.camera.width)
@@ -119,8 +116,6 @@ def write_frame_store(seq, n: int, root: Path, masks: str | None = None, config=
 def store_frames(root: Path):
     """The frames of a store (opened now), as :func:`sequence_frame` tuples (``io_s`` = mapping the arrays), then,
     if the store ended on an unreadable frame, its error as a D2SlamError."""
-
-
     meta = json.loads((root / STORE_META).read_text())
     rgb = np.load(root / "rgb.npy", mmap_mode="r")
     depth = np.load(root / "depth.npy", mmap_mode="r")
@@ -139,11 +134,10 @@ def store_frames(root: Path):
 
 def _sequence_frames(args):
     """The frames of ``--sequence`` (opened now: a bad folder fails before ORB-SLAM3 starts), decoded one by one."""
-
     seq = open_sequence(args.sequence, camera=args.camera) if args.camera else open_sequence(args.sequence)
     config = None
     if args.masks:
-        config = Config.from_dict(json.loads(Path(args.config).read_text()))
+        config = build_section(MaskedFramesConfig, json.loads(Path(args.config).read_text()), "config")
     n = len(seq) if args.max_frames <= 0 else min(len(seq), args.max_frames)
     return (sequence_frame(seq, i, args.masks, config) for i in range(n))
 
@@ -158,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--work", required=True)
     p.add_argument("--max-frames", type=int, default=0)
     p.add_argument("--masks", default=None, help="person masks to remove (d2slam.segmentation.masks_for kind)")
-    p.add_argument("--config", default=None, help="d2slam Config as JSON (with --masks)")
+    p.add_argument("--config", default=None, help="the masks' and the fill's settings (MaskedFramesConfig) as JSON (with --masks)")
     args = p.parse_args(argv)
     work = Path(args.work)
     done = work / "done.json"
@@ -167,9 +161,6 @@ def main(argv: list[str] | None = None) -> int:
         done.write_text(json.dumps({"error": message}))
         print(f"d2slam worker: {message}", file=sys.stderr, flush=True)
         return code
-
-
-
 
     try:
         frames = store_frames(Path(args.frames)) if args.frames else _sequence_frames(args)

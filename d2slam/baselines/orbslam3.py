@@ -48,15 +48,17 @@ from tqdm import tqdm
 
 from d2slam.baselines import child_env
 from d2slam.baselines._orbslam3_worker import STORE_META, write_frame_store
+from d2slam.baselines.config import BaselineConfig
 from d2slam.baselines.vocab import resolve_vocabulary
-from d2slam.config import DEFAULT, Config
 from d2slam.data import SyntheticSequence, Trajectory, open_sequence, read_tum_trajectory, write_tum_trajectory
 from d2slam.data.intrinsics import is_camera_file, read_camera_file
 from d2slam.errors import D2SlamError
 from d2slam.eval.fragment import fragment_fields
 from d2slam.eval.trajectory import evaluate
 from d2slam.outputs import check_output_file, write_bytes
+from d2slam.ranges import AnyConfig, part_of
 from d2slam.segmentation import KINDS, masks_for, masks_origin
+from d2slam.slam.config import OrbConfig
 
 METHOD = "orbslam3"
 MASKED_METHOD = "orbslam3-masked"
@@ -76,13 +78,13 @@ SETTINGS_REQUIRED = (
 # --------------------------------------------------------------------------------------------------
 # Settings
 # --------------------------------------------------------------------------------------------------
-def settings_yaml(camera, config: Config = DEFAULT) -> str:
+def settings_yaml(camera, config: AnyConfig | None = None) -> str:
     """ORB-SLAM3 1.0 settings (``File.version: "1.0"``) for an RGB-D camera: intrinsics and distortion, the
     virtual baseline ``Stereo.b = bf / fx`` (fr3: 40 / 535.4 = 0.0747 m), ``Stereo.ThDepth`` (ORB-SLAM3's TUM
     value 40: close points within ThDepth * b), ``RGBD.DepthMapFactor``, the ORB extractor (1000 features, 1.2, 8
     levels, FAST 20/7). Images are given in RGB order (``Camera.RGB: 1``). The Viewer keys are required by ORB-SLAM3
-    even without a viewer."""
-    orb = config.orb
+    even without a viewer. ``config``: a whole config (its ``orb`` and ``baseline`` sections), defaults when None."""
+    orb, baseline = part_of(config, "orb", OrbConfig), part_of(config, "baseline", BaselineConfig)
     k1, k2, p1, p2, k3 = (float(c) for c in camera.dist)
     lines = [
         "%YAML:1.0",
@@ -100,9 +102,9 @@ def settings_yaml(camera, config: Config = DEFAULT) -> str:
         *([f"Camera1.k3: {k3:.9f}"] if k3 != 0.0 else []),
         f"Camera.width: {int(camera.width)}",
         f"Camera.height: {int(camera.height)}",
-        f"Camera.fps: {int(round(config.baseline.orbslam3_fps))}",
+        f"Camera.fps: {int(round(baseline.orbslam3_fps))}",
         "Camera.RGB: 1",
-        f"Stereo.ThDepth: {config.baseline.orbslam3_th_depth:.6f}",
+        f"Stereo.ThDepth: {baseline.orbslam3_th_depth:.6f}",
         f"Stereo.b: {camera.bf / camera.fx:.6f}",
         f"RGBD.DepthMapFactor: {camera.depth_factor:.6f}",
         f"ORBextractor.nFeatures: {orb.n_features}",
@@ -127,7 +129,6 @@ def settings_yaml(camera, config: Config = DEFAULT) -> str:
 def check_settings(path: str | Path) -> None:
     """Fail with a clear message where ORB-SLAM3 would ``exit(-1)`` (or silently misread): not an OpenCV YAML,
     not the 1.0 format, a required key missing or not a number."""
-
     path = Path(path)
     if not path.is_file():
         raise D2SlamError("ORB-SLAM3 settings file not found", path=path)
@@ -194,7 +195,7 @@ def _log_tail(log: Path, n: int = 6) -> str:
 
 
 def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: Path, camera: str | None,
-               max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
+               max_frames: int, n_frames: int, timeout: float | None, config: AnyConfig, progress: bool,
                masks: str | None = None, store: Path | None = None) -> dict:
     """Start the worker, follow its progress, enforce the time limits. Returns raw outcome fields."""
 
@@ -209,7 +210,8 @@ def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: P
                                                                                      else [])
     if masks and store is None:
         config_path = work / "config.json"
-        config_path.write_text(json.dumps(config.to_dict(), default=list))
+        config_path.write_text(json.dumps({"segmentation": dataclasses.asdict(config.segmentation),
+                                           "masking": dataclasses.asdict(config.masking)}, default=list))
         cmd += ["--masks", masks, "--config", str(config_path)]
 
     env = child_env()
@@ -266,7 +268,6 @@ def _seconds(wall_s: float, done: dict, ms: np.ndarray) -> dict:
 
 def _kill(proc: subprocess.Popen) -> None:
     """End the worker we started (its own process group, by id) and reap it."""
-
     try:
         os.killpg(proc.pid, signal.SIGKILL)
     except (ProcessLookupError, PermissionError):
@@ -316,7 +317,7 @@ class Attempt:
 
 
 def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Path, camera: str | None,
-              max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
+              max_frames: int, n_frames: int, timeout: float | None, config: AnyConfig, progress: bool,
               work: Path, masks: str | None = None, store: Path | None = None, repeat: int = 0) -> Attempt:
     work.mkdir(parents=True, exist_ok=True)
     for name in ("progress.txt", "final.txt", "done.json", "loaded", "orbslam3.log"):
@@ -403,7 +404,6 @@ def _outcome(raw: dict, done: dict, work: Path, log: Path, frames: int, n_frames
 def _trajectory(rec: dict, ok: np.ndarray, final_path: Path, out_traj: Path, sequence_dir: Path):
     """Write the tracked frames' poses to ``out_traj`` (ORB-SLAM3's final poses where it saved them, else the
     online ones) and the online poses beside it (``.online.txt``); returns (the trajectory or None, its source)."""
-
     source, traj = None, None
     tracked_ts = rec["timestamp"][ok]
     if tracked_ts.size and final_path.is_file() and final_path.stat().st_size > 0:
@@ -438,7 +438,7 @@ def _trajectory(rec: dict, ok: np.ndarray, final_path: Path, out_traj: Path, seq
 def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json: str | Path | None = None,
                  repeats: int = 1, vocab: str | Path | None = None, settings: str | Path | None = None,
                  camera: str | None = None, max_frames: int = 0, timeout: float | None = None,
-                 config: Config = DEFAULT, progress: bool = True, evaluate: bool = True,
+                 config: AnyConfig = None, progress: bool = True, evaluate: bool = True,
                  keep_work: bool = False, masks: str | None = None) -> tuple[dict, object]:
     """Run the real ORB-SLAM3 RGB-D on ``sequence_dir`` ``repeats`` times; write ``out_traj`` (TUM) and the run
     JSON (``metrics_json``); return the run JSON and the sequence read (``d2slam.run.orbslam3.run_orbslam3`` makes
@@ -451,7 +451,11 @@ def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json
     the sequence's camera (``fr1``/``fr2``/``fr3``); ``max_frames``: first N frames only (0 = all); ``timeout``:
     seconds per repeat (default load + per-frame budget of :class:`~d2slam.config.BaselineConfig`); ``masks``: the
     person masks to remove from the frames (``orbslam3-masked``, module docstring; they must exist: a synthetic
-    sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`)."""
+    sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`); ``config``:
+    the run's whole config (``d2slam.config.Config``, required: its ``orb``, ``baseline``, ``masking``,
+    ``segmentation`` and ``evaluation`` sections, and its hash)."""
+    if config is None:
+        raise TypeError("orbslam3_report needs the run's config")
     out_traj = Path(out_traj).expanduser()
     report, seq = _report(sequence_dir, out_traj, metrics_json, repeats, vocab, settings, camera, max_frames, timeout,
                           config, progress, evaluate, keep_work, masks)
@@ -459,7 +463,7 @@ def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json
 
 
 def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, settings, camera, max_frames: int,
-            timeout, config: Config, progress: bool, evaluate: bool, keep_work: bool, masks) -> tuple[dict, object]:
+            timeout, config: AnyConfig, progress: bool, evaluate: bool, keep_work: bool, masks) -> tuple[dict, object]:
     """:func:`orbslam3_report`'s runs: (the run JSON, the sequence)."""
 
     sequence_dir = Path(sequence_dir).expanduser().resolve()
@@ -539,7 +543,7 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
             shutil.rmtree(store.parent, ignore_errors=True)
 
 
-def _frame_store_root(seq, n_frames: int, repeats: int, config: Config, work_root: Path) -> Path | None:
+def _frame_store_root(seq, n_frames: int, repeats: int, config: AnyConfig, work_root: Path) -> Path | None:
     """Where the frames of a repeated run are decoded once (:func:`~d2slam.baselines._orbslam3_worker.
     write_frame_store`): a new folder in ``BaselineConfig.orbslam3_frame_store_dir`` (memory-backed ``/dev/shm``)
     when it has room, else in the run's work folder; None (every worker decodes its frames) for a single run or when
@@ -556,13 +560,12 @@ def _frame_store_root(seq, n_frames: int, repeats: int, config: Config, work_roo
     return Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_frames_", dir=parent)) / "frames"
 
 
-def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool) -> str:
+def _prepare_masks(seq, kind: str, n_frames: int, config: AnyConfig, progress: bool) -> str:
     """Check that the ``kind`` masks of the first ``n_frames`` frames can be had before ORB-SLAM3 starts (a clear
     :class:`D2SlamError` otherwise: no ``mask_sim/`` on a real sequence, no ONNX model; the fill and dilation are
     checked by ``MaskingConfig``'s ranges); the
     ``onnx`` ones are segmented into the mask cache here (announced, :func:`d2slam.segmentation.masks_origin`), so
     the worker only reads them. Returns where the masks come from."""
-
     if kind not in KINDS:
         raise D2SlamError(f"unknown masks {kind!r}; choose one of {', '.join(KINDS)}")
     if kind != "onnx" and n_frames:
@@ -573,7 +576,6 @@ def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool
 def evaluate_trajectory(seq, traj_path: str) -> dict:
     """``{"metrics": {ate_rmse_m, rpe_trans_m, rpe_rot_deg, ...}}`` with :mod:`d2slam.eval.trajectory` (evo), as in
     the engine's run JSON; ``{"metrics_error": ...}`` when the trajectory cannot be evaluated."""
-
     try:
         return {"metrics": evaluate(seq.groundtruth, read_tum_trajectory(traj_path)).to_dict()}
     except D2SlamError as exc:
@@ -633,7 +635,7 @@ def _summarise(base: dict, runs: list[dict], out_traj: Path) -> dict:
     return out
 
 
-def _finish(result: dict, metrics_json, config: Config) -> dict:
+def _finish(result: dict, metrics_json, config: AnyConfig) -> dict:
     """The run JSON as written: its status, the share of frames tracked (``d2slam.run.record.fragment_fields``: whether
     the run is a fragment by ``EvalConfig.min_tracked_share``; a run that failed before its frames has none) and
     when it was made."""

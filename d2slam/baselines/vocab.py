@@ -40,16 +40,18 @@ import numpy as np
 from d2slam import __version__
 from d2slam.assets import tum_frames
 from d2slam.baselines import child_env
+from d2slam.baselines.config import BaselineConfig
 from d2slam.cachefiles import Damaged, folder_manifest, folder_problems, read_json, report_damaged, sha256_file
-from d2slam.config import DEFAULT, BaselineConfig, OrbConfig, SynthConfig
 from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps, staged_dir, write_bytes
 from d2slam.paths import cache_dir
 from d2slam.progress import Progress
+from d2slam.slam.config import OrbConfig
 from d2slam.slam.dbow2 import DESCRIPTOR_BYTES, Vocabulary
 from d2slam.slam.matching import hamming
 from d2slam.slam.orb_vocabulary import default_vocabulary_path as default_vocab_path
+from d2slam.synth.config import SynthConfig
 from d2slam.synth.generate import write_image, render_frame, stamp
 from d2slam.synth.scene import Scene
 from d2slam.synth.version import generator_version
@@ -196,9 +198,8 @@ def build_tree(desc: np.ndarray, image_ids: np.ndarray, k: int = 10, L: int = 6,
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm")
 
 
-def orb_extractor(orb: OrbConfig = DEFAULT.orb):
+def orb_extractor(orb: OrbConfig = OrbConfig()):
     """OpenCV ORB with ORB-SLAM3's settings (features, scale factor, levels, FAST threshold, patch)."""
-
     return cv2.ORB_create(nfeatures=orb.n_features, scaleFactor=orb.scale_factor, nlevels=orb.n_levels,
                           edgeThreshold=orb.edge_threshold, patchSize=orb.patch_size,
                           fastThreshold=orb.fast_threshold)
@@ -223,15 +224,14 @@ def images_of_dir(directory: str | Path) -> list[Path]:
 
 def images_of_sequence(root: str | Path, stride: int = 1) -> list[Path]:
     """RGB files of a TUM-layout sequence (every ``stride``-th associated frame)."""
-
     seq = open_sequence(root)
     idx = np.arange(0, len(seq), max(1, stride))
     paths = [seq.rgb_files[i] if hasattr(seq, "rgb_files") else seq[i].rgb_path for i in idx]
     return [Path(p) for p in paths]
 
 
-def extract_descriptors(images: list[Path], orb: OrbConfig = DEFAULT.orb, progress: bool = True,
-                        interval: float = DEFAULT.baseline.vocab_log_interval_s):
+def extract_descriptors(images: list[Path], orb: OrbConfig = OrbConfig(), progress: bool = True,
+                        interval: float = BaselineConfig().vocab_log_interval_s):
     """ORB descriptors of every image: ((n, 32) uint8, (n,) image index)."""
     extractor = orb_extractor(orb)
     descs, ids = [], []
@@ -248,14 +248,13 @@ def extract_descriptors(images: list[Path], orb: OrbConfig = DEFAULT.orb, progre
     return np.concatenate(descs), np.concatenate(ids)
 
 
-def training_jobs(cfg: BaselineConfig = DEFAULT.baseline) -> list[dict]:
+def training_jobs(cfg: BaselineConfig = BaselineConfig()) -> list[dict]:
     """The synthetic training images, one job per (scenario, seed) of ``vocab_train_scenarios`` x
     ``vocab_train_seeds`` (seeds 900-999, never used by the benchmarks): every ``vocab_train_stride``-th frame of the
     ``vocab_train_frames``-frame sequence, i.e. the generator's own frames (:func:`d2slam.synth.generate.
     render_frame`, written as ``d2slam synth`` writes them, so the files are those of the full sequence) without the
     frames in between. Each job's ``out`` folder is in the cache under the generator version; ``done`` says whether
     it is already rendered (:func:`render_training_frames`)."""
-
     seeds = tuple(cfg.vocab_train_seeds)
     bad = [s for s in seeds if not 900 <= s <= 999]
     if bad:
@@ -304,7 +303,7 @@ def _n_rendered(jobs: list[dict]) -> int:
 MARKER = ".complete"
 
 
-def render_training_frames(jobs: list[dict], cfg: BaselineConfig = DEFAULT.baseline, progress: bool = True) -> None:
+def render_training_frames(jobs: list[dict], cfg: BaselineConfig = BaselineConfig(), progress: bool = True) -> None:
     """Render the training frames of ``jobs`` (``scenario, seed, frames, stride, out``) in one child process (its
     OpenGL context and the generator's state stay out of this one), following its progress."""
     total = _n_rendered(jobs)
@@ -328,9 +327,6 @@ def render_training_frames(jobs: list[dict], cfg: BaselineConfig = DEFAULT.basel
 
 def _render_main(jobs: list[dict]) -> None:
     """The child of :func:`render_training_frames`: one ``frame`` line on stdout per frame written."""
-
-
-
     cv2.setNumThreads(1)
     synth = SynthConfig()
     parent = os.getppid()
@@ -364,7 +360,7 @@ def manifest_path(vocab_path: str | Path) -> Path:
 
 def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path] = (),
                      sequences: list[str | Path] = (), synthetic: bool = True, real: bool = True,
-                     cfg: BaselineConfig = DEFAULT.baseline, orb: OrbConfig = DEFAULT.orb, force: bool = False,
+                     cfg: BaselineConfig = BaselineConfig(), orb: OrbConfig = OrbConfig(), force: bool = False,
                      progress: bool = True) -> dict:
     """Build (or reuse from the cache) a DBoW2 text vocabulary; returns its manifest.
 

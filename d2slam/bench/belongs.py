@@ -24,7 +24,6 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from evo.core.geometry import umeyama_alignment
 
-
     files = sorted(Path(args.results).glob("runs/*.npz"))
     if not files:
         raise D2SlamError("no runs/*.npz: not a study folder", path=args.results)

@@ -23,8 +23,9 @@ import time
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, DynamicsConfig
+from d2slam.config import DEFAULT
 from d2slam.data import SyntheticSequence, open_sequence
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.toy import two_view_scene
 from d2slam.errors import D2SlamError
 from d2slam.run.methods import DYNAMICS, get_filter, get_method, mask_kind
@@ -100,7 +101,6 @@ def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dic
     mask cache). ``stage`` (a dict) receives the engine's filter stage of those frames, milliseconds per frame:
     ``wall``, ``cpu`` (thread CPU time) of the whole hook (frame-to-frame matches, the inputs, the classifier) and
     ``filter_cpu`` of the classifier alone."""
-
     seq = open_sequence(path)
     kind = mask_kind(get_method("d2slam"), masks, synthetic=isinstance(seq, SyntheticSequence))
     shape = (seq.camera.height, seq.camera.width)
@@ -125,7 +125,6 @@ def run(args) -> int:
     if args.sequence:
         scenes = recorded_inputs(args.sequence, args.sequence_frames, args.masks_kind, stage)
         if not scenes:
-
             raise D2SlamError("--sequence needs at least 2 frames", path=args.sequence)
         n_masks = [0 if inp.masks is None else len(inp.masks) for inp in scenes]
         n_kps, n_matches = np.mean([len(inp.kps) for inp in scenes]), np.mean([len(inp.matches) for inp in scenes])
@@ -150,7 +149,6 @@ def run(args) -> int:
         kd.append((time.perf_counter() - t0) * 1e3)
     modes = list(DYNAMICS) if args.method == "all" else [args.method]
     if args.method not in DYNAMICS and args.method != "all":
-
         raise D2SlamError(f"unknown method {args.method!r}; choose one of all, {', '.join(DYNAMICS)}")
     for mode in modes:
         if getattr(get_filter(mode), "use_flow", False) and not args.sequence:

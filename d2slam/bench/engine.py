@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from d2slam.config import DEFAULT, EngineConfig
+from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
 from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candidates
@@ -28,6 +28,7 @@ from d2slam.run.record import EXIT_FRAGMENT
 from d2slam.run.runner import run_method
 from d2slam.run.sequence import run_sequence
 from d2slam.slam import optimizer as opt_mod
+from d2slam.slam.config import EngineConfig
 from d2slam.slam.fixture import FR3
 from d2slam.study.sequences import ensure_sequence
 from d2slam.synth.scene import default_frames
@@ -151,7 +152,6 @@ def loops(args) -> int:
     tracking on average (their total over the frames) against one frame's budget; with loop closing on, the wrong
     place-recognition candidates (ground-truth views apart) by the stage they reached and the closest call
     (``d2slam.eval.loops``)."""
-
     if args.json:
         check_output_file(args.json, "--json")
     frames = args.frames or default_frames(LOOP_SCENARIO)
@@ -225,7 +225,6 @@ def local_ba_problem(seed: int = 0, n_cams: int = 10, n_points: int = 800, noise
     cameras fixed (as ORB-SLAM's fixed keyframes)."""
     from scipy.spatial.transform import Rotation
 
-
     rng = np.random.default_rng(seed)
     K, bf = FR3.K, FR3.bf
     Twc = np.tile(np.eye(4), (n_cams, 1, 1))
@@ -260,7 +259,6 @@ def local_ba_problem(seed: int = 0, n_cams: int = 10, n_points: int = 800, noise
 def solve_g2o(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, float, float]:
     import g2opy as g2o
 
-
     # ORB-SLAM's isotropic stereo information, as the gtsam side (the problem's u_R noise is a stereo match's)
     cfg = dataclasses.replace(EngineConfig(), disparity_sigma_px=0.0)
     t0 = time.perf_counter()
@@ -281,7 +279,6 @@ def solve_g2o(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, fl
 def solve_gtsam(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, float, float]:
     import gtsam
     from gtsam.symbol_shorthand import L, P
-
 
     cfg = EngineConfig()
     K = p["K"]
@@ -347,7 +344,6 @@ def compare_optimisers(args) -> int:
 # ---------------------------------------------------------------------------------------------- against ORB-SLAM3
 def _engine_run(seq, method: str, out) -> dict:
     """``d2slam run SEQ --method METHOD`` in a child process (as a user runs it); its run JSON."""
-
     traj, js = out / f"{method}.txt", out / f"{method}.json"
     js.unlink(missing_ok=True)
     proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
@@ -368,8 +364,6 @@ def engine_ms_per_frame(run: dict) -> float:
 
 def against_orbslam3(args) -> int:
     """The real ORB-SLAM3 and our engine one after the other on the same sequence (and ``none`` on its twin)."""
-
-
     if args.sequence:
         seq = Path(args.sequence)
         if not seq.is_dir():

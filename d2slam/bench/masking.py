@@ -67,8 +67,6 @@ def measure_frame(rgb, depth, masks, options, extractor, repeats: int, persons=N
     """Per option: ``ms`` (median of ``repeats`` calls), ``ms_min``, ``band`` / ``inside`` keypoint counts, ``left``:
     keypoints on the ``persons`` (H, W) truth outside the region (what the masks and dilation missed), the region's
     band (for the twin's count)."""
-
-
     rows = []
     for cfg in options:
         times = []
@@ -143,8 +141,6 @@ def run(args) -> int:
 
 def _slam(args, options) -> None:
     """ORB-SLAM3 on each masked sequence per option: ATE median [min, max] over ``--repeats``, tracked frames."""
-
-
     seqs = [(sc, sd) for sc in args.scenarios for sd in args.seeds]
     print(f"\nORB-SLAM3 on the masked sequences ({args.masks} masks, {args.repeats} repeats): ATE mm median "
           "[min, max], tracked frames (median)")

@@ -54,8 +54,6 @@ def add_arguments(parser) -> None:
 def _sequence(scenario: str, seed: int, frames: int, twin: bool, regenerate: bool = False) -> Path:
     """The benchmark sequence: the study's cached copy, keyed by the generator version (a generator change makes a
     new one), shared with `d2slam study` and `d2slam bench engine`."""
-
-
     if regenerate and sequence_dir(scenario, seed, frames, twin).exists():
         shutil.rmtree(sequence_dir(scenario, seed, frames, twin))
     return ensure_sequence(scenario, seed, frames, twin)
@@ -111,7 +109,6 @@ def _fmt(run: dict, key: str, fmt: str, metric: bool = False) -> str:
 def run(args) -> int:
     if args.frames < 30:
         raise D2SlamError("--frames must be at least 30 (RPE needs 1 s pairs)")
-
 
     config = load_config_file(args.config)[0] if args.config else DEFAULT
     out_root = check_output_dir(args.out, "--out") if args.out else cache_dir("bench", "orbslam3")

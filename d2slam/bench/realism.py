@@ -113,7 +113,6 @@ def run_compare(args) -> int:
 
 def run_calibrate(args) -> int:
     """The real recording's sensor, as ``SynthConfig.twin`` holds it (docs/real_data.md)."""
-
     t0 = time.perf_counter()
     seq = open_sequence(args.calibrate)
     gt = seq.groundtruth
@@ -196,7 +195,6 @@ def run_calibrate(args) -> int:
 
 def run_anchor(args) -> int:
     """The twin's placement: its depth percentiles against the recording's over a grid of anchors."""
-
     t0 = time.perf_counter()
     rec, seq = read_recording(args.anchor), open_sequence(args.anchor)
     idx = np.arange(0, min(len(rec), 120), 10)

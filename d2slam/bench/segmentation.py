@@ -42,7 +42,6 @@ def run(args) -> int:
     if args.cache:
         return cache_read(args)
 
-
     images = tum_frames()
     frames = [read_rgb(p) for p in images]
     models = [Path(m) for m in args.model] if args.model else [
@@ -84,7 +83,6 @@ TARGET_READ_MS = 1.0
 
 def cache_read(args) -> int:
     """Milliseconds per frame of the pipeline's mask provider on a segmented sequence (module docstring)."""
-
     model = args.model[0] if args.model else None
     seq = open_sequence(args.cache)
     seg = get_segmenter("onnx", config=DEFAULT.segmentation, model=model)

@@ -58,7 +58,6 @@ def run(args) -> int:
         if not seq.is_dir():
             raise D2SlamError("no sequence folder", path=seq)
     else:
-
         seq = ensure_sequence("walking_xyz", 0, args.frames, False)
     _segment_first(seq, args.method, args.masks)
 
@@ -98,7 +97,6 @@ def run(args) -> int:
 def _segment_first(path: Path, method: str, masks: str | None) -> None:
     """Fill the mask cache of the run's ``onnx`` masks beforehand, so that the cases time the start, not the
     segmentation."""
-
     seq = open_sequence(path)
     if mask_kind(get_method(method), masks, synthetic=isinstance(seq, SyntheticSequence)) == "onnx":
         cached_segmenter(seq, "onnx").fill(progress=True, recheck=False)

@@ -57,7 +57,6 @@ def run(args) -> int:
               + f"   -> {1000 * per_frame[m]:.0f} ms/frame (status {status})")
     gen_s_per_frame = None
     if args.gen_frames > 0:
-
         with tempfile.TemporaryDirectory(prefix="d2slam-bench-study-") as tmp:
             t = time.perf_counter()
             generate(args.scenario, tmp, frames=args.gen_frames, seed=args.seed, workers=1, progress=False)

@@ -38,7 +38,6 @@ def register(sub) -> None:
 def run(args) -> int:
     import pandas as pd
 
-
     root = cache_dir("demo")
     print(f"d2slam demo: sequences into {cache_dir('study', 'sequences')}, results into {root / 'study'}")
     print("\n== 1. synthetic sequences (TUM layout + masks + scene.json)")

@@ -40,10 +40,8 @@ def run(args) -> int:
     gt.meta["path"], est.meta["path"] = str(gt_path), str(args.trajectory)
     m = evaluate(gt, est).to_dict()
     if not args.force:
-
         check_belongs(gt, est, gt_path, gt_folder, Path(args.trajectory))
     if args.plot:
-
         plot_trajectory(gt, est, args.plot, title=Path(args.trajectory).name, metrics=m)
     if args.json:
         print(json.dumps(m))
@@ -57,7 +55,6 @@ def run(args) -> int:
 def ground_truth_file(gt, traj) -> tuple:
     """(ground-truth file, its sequence folder or None) from the two arguments, with a one-line error saying what is
     wrong when they are missing, of the wrong kind, or given in the wrong order."""
-
     order = "the order is `d2slam eval GROUNDTRUTH TRAJ.txt`"
     if not gt.exists():
         raise D2SlamError("ground truth not found (a TUM trajectory file or a sequence folder)", path=gt)

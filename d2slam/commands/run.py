@@ -130,7 +130,6 @@ def run(args) -> int:
         record["keypoints"] = run.keypoints
     record.update(run.loops)
     if run.loop_closing:
-
         voc = load_vocabulary(config.engine.vocabulary or None)
         record["vocabulary"] = {"path": voc.path, "sha256": voc.sha256}
     ate_only = None
@@ -182,7 +181,6 @@ def run(args) -> int:
 def run_outputs(args, method) -> list[tuple[str, object]]:
     """What ``d2slam run`` writes: ``--out``, ``--metrics-json``, and for the real ORB-SLAM3 the files it keeps
     beside the trajectory (its settings and online poses)."""
-
     out = Path(args.out).expanduser()
     extra = [] if method.runner is None else [
         ("--out's ORB-SLAM3 settings", out.with_name(out.stem + ".orbslam3.yaml")),
@@ -193,8 +191,6 @@ def run_outputs(args, method) -> list[tuple[str, object]]:
 def run_inputs(args) -> list[tuple[str, object]]:
     """What ``d2slam run`` reads: the sequence folder, ``--masks-from``, ``--camera FILE``, ``--config``, the
     vocabulary (``$PYORBSLAM3_VOCAB``)."""
-
-
     return [("sequence", args.sequence), ("--masks-from sequence", args.masks_from),
             ("--camera file", args.camera if is_camera_file(args.camera) else None), ("--config file", args.config),
             ("vocabulary ($PYORBSLAM3_VOCAB)", os.environ.get("PYORBSLAM3_VOCAB") or None)]
@@ -204,7 +200,6 @@ def print_orbslam3(run, args) -> int:
     """What ``d2slam run --method orbslam3[-masked]`` prints of ORB-SLAM3's run (``RunRecord``) and its exit status:
     0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed, :data:`EXIT_FRAGMENT` when it ran
     but tracked less than ``EvalConfig.min_tracked_share`` of the frames (``RunRecord.fragment``)."""
-
     report = run.orbslam3
     stream = sys.stdout if report["status"] in ("ok", "lost") else sys.stderr
     v = report.get("vocabulary") or {}
@@ -234,8 +229,6 @@ def print_orbslam3(run, args) -> int:
 
 def _warn_depth_scale(seq, config) -> None:
     """The depth-scale check (:mod:`d2slam.data.depth_scale`): a warning on stderr naming the factor to set."""
-
-
     warning = depth_scale_warning(seq, config)
     if warning:
         print(f"d2slam: warning: {warning}", file=sys.stderr)
@@ -244,7 +237,6 @@ def _warn_depth_scale(seq, config) -> None:
 def camera_text(name: str, source: str, camera_arg: str | None) -> str:
     """The camera of a run and where it came from (the run JSON's ``camera.source``: a settings file, the synthetic
     sequence's ``scene.json``, the TUM folder name, or ``--camera NAME``), for the summary line."""
-
     named = camera_arg and source == camera_arg and not is_camera_file(camera_arg)
     return f"{name} ({'--camera ' + source if named else source})"
 
@@ -269,5 +261,4 @@ def summary_line(method: str, masks: str, camera: str, tracked: float, frames: f
 def process_start() -> float:
     """When this process started (epoch seconds): ``startup_s`` of the run JSON is the time from there to the end
     of the first frame (imports, opening the sequence, loading or compiling kernels, the first frame)."""
-
     return psutil.Process().create_time()

@@ -57,7 +57,6 @@ def run(args) -> int:
                               allow_unknown_model=True if args.allow_unknown_model else None)
 
     if dirs:
-
         seq = RgbListSequence(dirs[0])
         cached = CachedSegmenter(segmenter, seq)
         hits, misses = cached.fill()
@@ -69,7 +68,6 @@ def run(args) -> int:
               + f"\ncache: {cached.dir}")
         return 0
 
-
     out_dir = Path(args.overlay) if args.overlay else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -78,8 +76,6 @@ def run(args) -> int:
         persons = segmenter.segment(rgb, path=path)
         H, W = rgb.shape[:2]
         if out_dir is not None:
-
-
             target = overlay_path(out_dir, path)
             ok, png = cv2.imencode(".png", cv2.cvtColor(overlay(rgb, persons), cv2.COLOR_RGB2BGR))
             if not ok:

@@ -72,7 +72,6 @@ def register(sub) -> None:
 def run(args) -> int:
     out = Path(args.out)
     if args.tables_only:
-
         if not (out / "runs.csv").is_file():
             raise D2SlamError("no runs.csv to build tables from", path=out / "runs.csv")
         print(f"wrote {rebuild_tables(out)}")
@@ -133,8 +132,6 @@ def run(args) -> int:
 def _downloaded(tum_root, scenarios: list[str]) -> list[str]:
     """The scenarios whose fr3 folder is under ``tum_root``; the others are listed as skipped (not downloaded).
     A missing root, or one holding none of them, is an error."""
-
-
     root = Path(tum_root).expanduser()
     if not root.is_dir():
         raise D2SlamError("--tum-root: folder not found", path=root)

@@ -83,7 +83,6 @@ LAYOUT_DIRS = ("rgb", "depth", "mask_gt", "mask_sim")
 
 def _entries(folder: Path) -> tuple[list[str], list[str]]:
     """(files, folders) under ``folder``, relative, links not followed (a link counts as a file)."""
-
     files, dirs = [], []
     for top, subdirs, names in os.walk(folder, followlinks=False):
         rel = Path(top).relative_to(folder)
@@ -101,7 +100,6 @@ def foreign_entries(folder: Path) -> list[str]:
     """What replacing ``folder`` would delete that ``d2slam synth`` did not write: everything not listed in its
     marker (:data:`OWNER`); without a readable marker, everything outside the synthetic layout when it holds
     ``scene.json`` (a sequence of an earlier version), else everything."""
-
     files, dirs = _entries(folder)
     try:
         listed = read_json(folder / OWNER).get("files")
@@ -123,7 +121,6 @@ def check_sequence_out(path) -> Path:
     """``--out`` before any work: a folder that is missing, empty, or holds nothing but a sequence ``d2slam synth``
     wrote (then replaced: :func:`foreign_entries` is empty); anything else is refused, naming what would be deleted.
     Not inside another sequence, the cache's own folders or the shared folder (:func:`d2slam.outputs.check_outputs`)."""
-
     path = check_output_dir(path, "--out")
     if path.is_symlink():  # write where the link points, not over the link
         path = path.resolve()
@@ -139,7 +136,6 @@ def check_sequence_out(path) -> Path:
 
 def write_owner(folder: Path, result: dict) -> None:
     """The marker of a sequence just generated into ``folder``: every file there, and what was generated."""
-
     files, _ = _entries(folder)
     what = {k: result[k] for k in ("scenario", "seed", "frames", "static_twin") if k in result}
     (folder / OWNER).write_text(json.dumps({"format": OWNER_FORMAT, **what, "files": files}, indent=1) + "\n")

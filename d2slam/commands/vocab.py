@@ -60,7 +60,6 @@ def _check(args) -> int:
     info = resolve_vocabulary(args.path, build=False)
     v = Vocabulary.load(info["path"])
 
-
     if Path(info["path"]) == default_vocab_path().resolve():  # the cache's: it must be the file its build wrote
         try:
             recorded = read_json(manifest_path(info["path"])).get("sha256")

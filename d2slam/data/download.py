@@ -44,7 +44,7 @@ from tqdm import tqdm
 
 from d2slam import __version__
 from d2slam.cachefiles import sha256_file
-from d2slam.config import DEFAULT
+from d2slam.data.config import DataConfig
 from d2slam.data.tum import TumSequence
 from d2slam.errors import D2SlamError
 from d2slam.outputs import write_bytes
@@ -52,7 +52,7 @@ from d2slam.paths import cache_dir
 
 #: Seconds to wait for a connection (and for each read) before calling the server unreachable / stalled
 #: (``DataConfig.download_timeout``).
-CONNECT_TIMEOUT = DEFAULT.data.download_timeout
+CONNECT_TIMEOUT = DataConfig().download_timeout
 #: Automatic resumed retries of a transfer that breaks off after data started to flow.
 TRANSFER_RETRIES = 3
 CHUNK = 1 << 20

@@ -47,15 +47,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from d2slam.config import Config, DynamicsConfig
 from d2slam.dynamics import depth as dz
-from d2slam.dynamics.fusion import bayes_update, check_edge_band, edge_band, fuse, prior_belief
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_keypoints, flow_matches
+from d2slam.dynamics.fusion import bayes_update, check_edge_band, edge_band, fuse, prior_belief
 from d2slam.dynamics.geometric import check_matches, geometric_module
 from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_g, oim_candidates, oim_frame
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
+from d2slam.ranges import AnyConfig, part_of
 from d2slam.slam.frame import undistort as undistort_points
 from d2slam.slam.hook import FilterInput
 from d2slam.slam.timing import StageTimer
@@ -141,12 +142,6 @@ def _check_input(inp: FilterInput) -> tuple[np.ndarray, np.ndarray, np.ndarray |
     return kps, z, masks
 
 
-def _dynamics_config(config: Config | DynamicsConfig | None) -> DynamicsConfig:
-    if config is None:
-        return DynamicsConfig()
-    return config.dynamics if isinstance(config, Config) else config
-
-
 def _ms(timer: StageTimer) -> dict[str, float]:
     """The stage timings of one frame in milliseconds, with their ``total``."""
     t = {k: v * 1e3 for k, v in timer.seconds.items()}
@@ -158,9 +153,9 @@ class D2SlamFilter:
     """D2SLAM's dynamic-keypoint classifier (eq 1-10) with its ablation ``switches``; implements the
     ``KeypointFilter`` protocol. ``name``: the method it runs for (the diagnostics' ``mode``)."""
 
-    def __init__(self, config: Config | DynamicsConfig | None = None, switches: Switches = Switches(),
+    def __init__(self, config: AnyConfig | DynamicsConfig | None = None, switches: Switches = Switches(),
                  name: str = "d2slam"):
-        self.cfg = _dynamics_config(config)
+        self.cfg = part_of(config, "dynamics", DynamicsConfig)
         self.switches, self.mode = switches, name
         self.use_flow = switches.flow or self.cfg.flow
         if self.use_flow:
@@ -281,8 +276,8 @@ class _OneModule:
 
     stage = ""
 
-    def __init__(self, config: Config | DynamicsConfig | None = None, name: str = ""):
-        self.cfg, self.mode = _dynamics_config(config), name or self.stage
+    def __init__(self, config: AnyConfig | DynamicsConfig | None = None, name: str = ""):
+        self.cfg, self.mode = part_of(config, "dynamics", DynamicsConfig), name or self.stage
         self.last: FrameDiagnostics | None = None
 
     def reset(self) -> None:

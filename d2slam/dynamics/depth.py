@@ -25,7 +25,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from d2slam.config import DynamicsConfig
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.errors import D2SlamError
 from d2slam.slam.depth import keypoint_depth, keypoint_depth_range, valid_depth  # noqa: F401 - the engine's, shared
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import DynamicsConfig
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.errors import D2SlamError
 
 _DEFAULT = DynamicsConfig()

@@ -57,7 +57,7 @@ import numpy as np
 
 from scipy.special import gammaincinv
 
-from d2slam.config import DynamicsConfig
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.depth import depth_sigma, valid_depth
 from d2slam.errors import D2SlamError
 

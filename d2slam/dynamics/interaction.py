@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from d2slam.config import DynamicsConfig
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps, delta, gamma, valid_depth
 from d2slam.dynamics.semantic import FrameMasks, MaskEdges, mask_edges
 

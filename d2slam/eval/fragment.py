@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from d2slam.config import DEFAULT
+from d2slam.eval.config import EvalConfig
 
 
 def tracked_share(tracked, frames) -> float:
@@ -20,7 +20,7 @@ def tracked_share(tracked, frames) -> float:
     return tracked / frames if frames > 0 and math.isfinite(tracked) and math.isfinite(frames) else math.nan
 
 
-def is_fragment(share: float, min_share: float = DEFAULT.evaluation.min_tracked_share) -> bool:
+def is_fragment(share: float, min_share: float = EvalConfig().min_tracked_share) -> bool:
     """Whether a run (or a median over runs) that tracked ``share`` of its frames is a fragment: below ``min_share``
     (``EvalConfig.min_tracked_share``). An unknown share (NaN) is not."""
     return math.isfinite(share) and share < min_share

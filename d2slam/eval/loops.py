@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import EvalConfig
 from d2slam.data.base import Trajectory
+from d2slam.eval.config import EvalConfig
 from d2slam.eval.trajectory import MAX_DIFF
 
 STAGES = ("score", "group", "geometry", "loop")  # how far a candidate got, in order

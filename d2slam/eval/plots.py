@@ -77,7 +77,6 @@ def plot_trajectory(groundtruth: Trajectory, estimate: Trajectory, out: str | Pa
     as PNG."""
     from matplotlib.figure import Figure  # outside pyplot: PNG by Agg, the caller's backend untouched
 
-
     out = Path(out)
     if not out.parent.is_dir():
         raise D2SlamError("output folder does not exist", path=out.parent)

@@ -26,11 +26,13 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, Config, SynthConfig
 from d2slam.data.tum import interpolate_poses
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.geometric import back_project, epipolar_error, fundamental_matrix, pose_residuals, relative_pose
 from d2slam.errors import D2SlamError
+from d2slam.ranges import AnyConfig, part_of
 from d2slam.slam.frame import undistort
+from d2slam.synth.config import SynthConfig, SynthEvalConfig
 from d2slam.synth.realism import texture_stats
 from d2slam.synth.scene import Scene
 from d2slam.synth.sensor import depth_sigma
@@ -102,7 +104,6 @@ def image_velocity(camera, poses_at, t: float, px: np.ndarray, z: np.ndarray, h:
     """(K, 2) image velocity (px/s, in the camera's distorted image) at pixels ``px`` (K, 2, distorted) of scene
     points at depths ``z`` (K,) seen at time ``t``, from the camera poses ``poses_at(times) -> (n, 4, 4)``
     (``T_world_camera``): each point is fixed in the world and projected (with the lens distortion) at t -+ h."""
-
     K = camera.K
     und = undistort(np.asarray(px, np.float64).reshape(-1, 2), camera)
     Xc = np.stack([(und[:, 0] - K[0, 2]) / K[0, 0] * z, (und[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
@@ -121,7 +122,7 @@ def frame_blur(gray: np.ndarray, depth: np.ndarray, camera, poses_at, t: float,
     """Per patch of the realism grid (``SynthEvalConfig.realism_blur_*``): the image speed (px/s) the ground truth
     gives (``poses_at(times)``: ``T_world_camera``) and the blur extent measured along it (:func:`blur_extent`; NaN
     where none is measured)."""
-    ev = ev or DEFAULT.synth_eval
+    ev = ev or SynthEvalConfig()
     h, w = gray.shape[:2]
     c = patch_grid(w, h, ev.realism_blur_grid[0], ev.realism_blur_grid[1], ev.realism_blur_patch)
     r = ev.realism_blur_patch // 2
@@ -166,11 +167,10 @@ class MatchStats:
     frame: np.ndarray  # the match's frame index
 
 
-def match_stats(log: EngineLog, K: np.ndarray, config: Config | None = None) -> MatchStats:
+def match_stats(log: EngineLog, K: np.ndarray, config: AnyConfig | None = None) -> MatchStats:
     """Eq 5 and the pose test on every logged frame's matches, as the geometric module computes them
     (``d2slam.dynamics.geometric``: F by RANSAC, PnP RANSAC on the matches with depth in the previous frame)."""
-
-    dyn = (config or DEFAULT).dynamics
+    dyn = part_of(config, "dynamics", DynamicsConfig)
     cols: dict[str, list] = {k: [] for k in ("epi", "depth", "radius", "reproj", "dres", "frame")}
     for f in log.observed:
         p, q = f["p"], f["q"]
@@ -217,7 +217,6 @@ def angular_speed(seq, n: int) -> np.ndarray:
     """(n,) the ground truth's angular speed (deg/s) between each of the first ``n`` frames and the one before (NaN
     for the first, and where the ground truth has no pose)."""
     from scipy.spatial.transform import Rotation
-
 
     gt = seq.groundtruth
     ts = np.asarray(seq.timestamps[:n], float)
@@ -269,21 +268,20 @@ class Realism:
     speed_per_match: np.ndarray = field(default=None)  # the angular speed of each match's frame
 
 
-def measure(seq, log: EngineLog, stride: int | None = None, config: Config | None = None,
+def measure(seq, log: EngineLog, stride: int | None = None, config: AnyConfig | None = None,
             time_offset: float | None = None) -> Realism:
     """The realism statistics of the frames of ``seq`` that ``log`` ran (:func:`d2slam.run.observe.engine_log`; the
     per-frame image statistics on every ``stride``-th: ``SynthEvalConfig.realism_stride``). The ground truth's image motion (for the blur) is taken
     ``time_offset`` s after the timestamps: what the images show (default ``TwinConfig.rgb_time_shift``, measured on
     fr1/rpy, which its twin renders)."""
 
-    config = config or DEFAULT
-    ev = config.synth_eval
+    ev = part_of(config, "synth_eval", SynthEvalConfig)
     n = log.frames
     ms = match_stats(log, seq.camera.K, config)
     stride = int(stride or ev.realism_stride)
     idx = np.arange(0, n, max(stride, 1))
     gt = seq.groundtruth
-    offset = config.synth.twin.rgb_time_shift if time_offset is None else float(time_offset)
+    offset = part_of(config, "synth", SynthConfig).twin.rgb_time_shift if time_offset is None else float(time_offset)
 
     def poses_at(t):
         tt = np.clip(np.asarray(t, float) + offset, gt.timestamps[0], gt.timestamps[-1])
@@ -335,9 +333,9 @@ def _fmt(v, digits=2) -> str:
     return "/".join("-" if not np.isfinite(x) else f"{x:.{digits}f}" for x in v)
 
 
-def comparison(real: Realism, twin: Realism, config: Config | None = None) -> list[tuple[str, str, str]]:
+def comparison(real: Realism, twin: Realism, config: AnyConfig | None = None) -> list[tuple[str, str, str]]:
     """The side-by-side table: (what, real, twin) rows."""
-    ev = (config or DEFAULT).synth_eval
+    ev = part_of(config, "synth_eval", SynthEvalConfig)
     rows = [("frames tracked (engine, no filter)", f"{real.tracked}/{real.frames}", f"{twin.tracked}/{twin.frames}")]
 
     def row(label, f, digits=2):
@@ -395,7 +393,6 @@ def gt_epipolar_errors(log: EngineLog, seq, offset: float, readout: float) -> np
     ``offset`` s after their timestamps and each row ``readout`` s after the one above it (rolling shutter; the middle
     row at the timestamp): each keypoint's instant is its frame's timestamp + offset + (its distorted row - middle)
     x readout, and F is that of the ground truth's relative pose between the two instants."""
-
     cam = seq.camera
     K = cam.K
     Kinv = np.linalg.inv(K)

@@ -92,7 +92,6 @@ register("none", lambda config: None, needs_masks=False, help="engine with the k
 def _orbslam3_runner(args) -> RunRecord:
     """``d2slam run --method orbslam3[-masked]``: the real ORB-SLAM3 on ``args.sequence`` (on frames with the people
     removed when ``args.masks`` is set), writing ``args.out`` and ``args.metrics_json``."""
-
     return run_orbslam3(args.sequence, args.out, getattr(args, "metrics_json", None),
                         repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
                         camera=getattr(args, "camera", None),
@@ -132,7 +131,6 @@ class _Dynamics:
         self.name, self.kind, self.switches = name, kind, switches
 
     def __call__(self, config=None):
-
         cls = getattr(classifier, self.kind)
         if self.switches is None:
             return cls(config, name=self.name)

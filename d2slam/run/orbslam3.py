@@ -7,16 +7,17 @@ from __future__ import annotations
 from pathlib import Path
 
 from d2slam.baselines.orbslam3 import orbslam3_report
-from d2slam.config import DEFAULT
+from d2slam.config import DEFAULT, Config
 from d2slam.data import read_tum_trajectory
 from d2slam.eval.trajectory import Evaluation, TrajectoryMetrics, aligned_estimate
 from d2slam.run.record import RunRecord
 
 
-def run_orbslam3(sequence_dir, out_traj, metrics_json=None, evaluate: bool = True, **kwargs) -> RunRecord:
+def run_orbslam3(sequence_dir, out_traj, metrics_json=None, evaluate: bool = True, config: Config = DEFAULT,
+                 **kwargs) -> RunRecord:
     """The real ORB-SLAM3 on ``sequence_dir`` (the arguments of :func:`~d2slam.baselines.orbslam3.orbslam3_report`),
     as a :class:`RunRecord` (the run JSON as its ``orbslam3``)."""
-    report, seq = orbslam3_report(sequence_dir, out_traj, metrics_json, evaluate=evaluate, **kwargs)
+    report, seq = orbslam3_report(sequence_dir, out_traj, metrics_json, evaluate=evaluate, config=config, **kwargs)
     return orbslam3_record(report, seq, evaluate)
 
 

@@ -32,7 +32,6 @@ WARM_UP_FRAMES = 24
 
 def warm_up(frames: int = WARM_UP_FRAMES) -> float:
     """Compile (or load from the cache) every compiled kernel; returns the seconds it took."""
-
     t0 = time.perf_counter()
     images, _, ts = room_sequence(int(frames), seed=0)
     mask = np.zeros((1, FR3.height, FR3.width), dtype=bool)

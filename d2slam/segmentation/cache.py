@@ -8,7 +8,7 @@ Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/masks.npz``, one f
   new key. The images' content (:func:`images_digest`) is the sha256 of every image listed in ``rgb.txt``, found
   again cheaply from their names, sizes and modification times (a memo per folder, ``stamps/``); the images are
   hashed in full when those changed or were never seen, and when the memo was written within
-  ``CliConfig.cache_mtime_window_s`` of an image's last modification (a change in that window could keep the same
+  ``CacheConfig.cache_mtime_window_s`` of an image's last modification (a change in that window could keep the same
   time on a file system with coarse timestamps). So replaced images are never read with the old masks, and
   touched or copied ones (same bytes, new times) keep them;
 * segmenter key = ``<kind>-<sha256(identity)[:16]>`` where ``identity()`` holds the model's sha256 (the model file,
@@ -50,15 +50,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
-from d2slam.config import CLI, DEFAULT
+from d2slam.cachefiles import CACHE, Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
 from d2slam.data.base import RGBDFrame
 from d2slam.data.tum import read_file_list
 from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps, temp_tag, write_bytes
 from d2slam.paths import cache_dir
-from d2slam.progress import announce, progress as follow
+from d2slam.progress import PROGRESS, announce, progress as follow
 from d2slam.segmentation.base import PersonInstance
+from d2slam.segmentation.config import SegmentationConfig
 from d2slam.segmentation.onnx import read_rgb
 
 FORMAT = "d2slam-masks/2"
@@ -91,12 +91,11 @@ def _listed_images(root: Path) -> list[Path]:
 def images_digest(root: str | Path, window_s: float | None = None) -> str:
     """sha256 of the content of every image ``root/rgb.txt`` lists (with its name): from the memo
     ``cache_dir("masks", "stamps", <root digest>.json)`` when the images' names, sizes and modification times are
-    those it recorded and it was written at least ``window_s`` (``CliConfig.cache_mtime_window_s``) after the newest
+    those it recorded and it was written at least ``window_s`` (``CacheConfig.cache_mtime_window_s``) after the newest
     of them was modified; otherwise every image is hashed and the memo rewritten. The memo is sealed
     (:func:`d2slam.cachefiles.sealed`): a damaged one is said and made again. A missing image counts by its name."""
-
     root = Path(root).resolve()
-    window = CLI.cache_mtime_window_s if window_s is None else window_s
+    window = CACHE.cache_mtime_window_s if window_s is None else window_s
     images = _listed_images(root)
     stats = []
     for p in images:
@@ -360,7 +359,6 @@ def load_frame_file(path: Path, timestamp: float | None = None) -> list[PersonIn
 def convert_frame_files(folder: Path, store: MaskStore, timestamps, progress: bool = True) -> int:
     """Add the ``<timestamp>.npz`` files of ``folder`` (earlier layout) for ``timestamps`` to ``store`` (unreadable
     files are skipped: recomputed later); returns how many were added."""
-
     files = [(t, folder / f"{timestamp_stem(t)}.npz") for t in np.asarray(timestamps, dtype=np.float64).tolist()]
     files = [(t, p) for t, p in files if t not in store and p.is_file()]
     added = 0
@@ -391,7 +389,7 @@ class CachedSegmenter:
         self.name = segmenter.name
         self.cacheable = getattr(segmenter, "cacheable", True)
         self.hits = self.misses = self.recovered = 0
-        self.flush_frames = int(flush_frames or DEFAULT.segmentation.cache_flush_frames)
+        self.flush_frames = int(flush_frames or SegmentationConfig().cache_flush_frames)
         self.dir = self.store = None
         if self.cacheable:
             seq_key, seg_key = sequence_key(sequence), segmenter_key(segmenter)
@@ -473,7 +471,7 @@ class CachedSegmenter:
     def fill(self, progress: bool = True, frames: int | None = None, recheck: bool = True) -> tuple[int, int]:
         """Segment the first ``frames`` frames (all by default) not yet cached, then write the cache file; ``recheck``
         also decodes the cached ones. With ``progress`` the segmentation is announced with an estimate
-        (``CliConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Segmenting holds the sequence's
+        (``ProgressConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Segmenting holds the sequence's
         ``segment.lock``: a second process waits for the first and reads its masks. Returns (hits, misses) of this
         call."""
         if not self.cacheable:
@@ -493,7 +491,7 @@ class CachedSegmenter:
             model = getattr(self.segmenter, "model_path", None)
             announce(f"segmenting {len(todo)} frames of {self.sequence.name} with "
                      f"{Path(model).name if model else self.name} into the mask cache {self.dir} (once per "
-                     "sequence)", len(todo) * CLI.segment_frame_s)
+                     "sequence)", len(todo) * PROGRESS.segment_frame_s)
         h0, m0 = self.hits, self.misses
         for i in follow(range(n) if recheck else todo, desc=f"segment {self.sequence.name}",
                         enabled=progress and bool(todo)):

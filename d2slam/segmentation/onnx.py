@@ -34,9 +34,9 @@ import onnxruntime as ort
 
 from d2slam.assets import DERIVED, DOWNLOADS, assets_cache, find
 from d2slam.cachefiles import sha256_file
-from d2slam.config import SegmentationConfig
 from d2slam.errors import D2SlamError
 from d2slam.segmentation.base import PersonInstance
+from d2slam.segmentation.config import SegmentationConfig
 
 MODEL_ENV = "D2SLAM_SEG_MODEL"
 ALLOW_UNKNOWN_ENV = "D2SLAM_SEG_ALLOW_UNKNOWN"

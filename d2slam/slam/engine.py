@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, Config
 from d2slam.data.base import Camera
 from d2slam.errors import D2SlamError
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.frame import Frame, OrbExtractor
 from d2slam.slam.hook import FilterHook, FilterInput, KeypointFilter, update_point_beliefs
 from d2slam.slam.local_mapping import LocalMapper
@@ -44,14 +44,14 @@ class TrackResult:
         return self.state == OK
 
 
-def refills(config: Config, keypoint_filter: KeypointFilter | None) -> bool:
+def refills(config: SlamConfig, keypoint_filter: KeypointFilter | None) -> bool:
     """Whether a run's extraction budget depends on its filter's output (``EngineConfig.refill_filtered`` and a
     filter): such a run extracts every frame itself and cannot use stored features (see ``Engine.feature_budget``)."""
     return bool(config.engine.refill_filtered and keypoint_filter is not None)
 
 
 class Engine:
-    def __init__(self, camera: Camera, config: Config = DEFAULT, keypoint_filter: KeypointFilter | None = None):
+    def __init__(self, camera: Camera, config: SlamConfig = SlamConfig(), keypoint_filter: KeypointFilter | None = None):
         cv2.setNumThreads(int(config.engine.cv_threads))
         self.camera = camera
         self.config = config

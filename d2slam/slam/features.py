@@ -66,7 +66,6 @@ class CachedFeatures:
 
     def __init__(self, path: str | Path):
         """:class:`~d2slam.cachefiles.Damaged` when the file cannot be read in full or its arrays disagree."""
-
         self.path = Path(path)
         z = load_npz(self.path, ("format", "offsets", "timestamps", "extract_ms") + FIELDS)
         if str(z["format"]) != FORMAT:
@@ -83,7 +82,6 @@ class CachedFeatures:
 
     def check(self, timestamps) -> None:
         """Raise unless the file holds exactly the frames with these timestamps."""
-
         ts = np.asarray(timestamps, dtype=np.float64)
         if len(ts) != len(self) or not np.array_equal(ts, self.timestamps):
             raise Damaged(f"it does not match the sequence ({len(self)} frames stored, {len(ts)} in the sequence)")

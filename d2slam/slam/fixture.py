@@ -97,8 +97,6 @@ def room_sequence(n: int = 30, seed: int = 0, fps: float = 30.0):
 
 def write_room_sequence(root, n: int = 30, seed: int = 0, fps: float = 30.0) -> "Path":
     """Write a :func:`room_sequence` as a TUM folder (rgb/, depth/ x5000, rgb.txt, depth.txt, groundtruth.txt)."""
-
-
     root = Path(root)
     (root / "rgb").mkdir(parents=True, exist_ok=True)
     (root / "depth").mkdir(parents=True, exist_ok=True)

@@ -13,9 +13,9 @@ from typing import Protocol
 
 import numpy as np
 
-from d2slam.config import EngineConfig
 from d2slam.data.base import Camera
 from d2slam.errors import D2SlamError
+from d2slam.slam.config import EngineConfig
 from d2slam.slam.frame import Frame
 from d2slam.slam.map import Map
 from d2slam.slam.matching import rotation_consistent, search_by_projection, unique_by_target, window_cross_match

@@ -20,7 +20,7 @@ import numpy as np
 
 from numba import njit
 
-from d2slam.config import EngineConfig
+from d2slam.slam.config import EngineConfig
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.orb_vocabulary import BowVocabulary
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import Config
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import CHECK_CHI2, search_by_projection, unique_by_target
 from d2slam.slam.optimizer import image_chi2, local_bundle_adjustment
@@ -13,7 +13,7 @@ from d2slam.slam.projection import Projector
 
 
 class LocalMapper:
-    def __init__(self, map_: Map, proj: Projector, config: Config):
+    def __init__(self, map_: Map, proj: Projector, config: SlamConfig):
         self.map = map_
         self.proj = proj
         self.cfg = config.engine

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from d2slam.config import Config
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.keyframe_database import KeyFrameDatabase
 from d2slam.slam.local_mapping import LocalMapper
 from d2slam.slam.map import KeyFrame, Map
@@ -92,7 +92,7 @@ class Candidate:
 
 
 class LoopCloser:
-    def __init__(self, map_: Map, proj: Projector, config: Config, vocabulary: BowVocabulary, mapper: LocalMapper):
+    def __init__(self, map_: Map, proj: Projector, config: SlamConfig, vocabulary: BowVocabulary, mapper: LocalMapper):
         self.map = map_
         self.proj = proj
         self.cfg = config.engine

@@ -13,8 +13,8 @@ from __future__ import annotations
 import g2opy as g2o
 import numpy as np
 
-from d2slam.config import EngineConfig
 from d2slam.slam import lm
+from d2slam.slam.config import EngineConfig
 
 
 def _se3(Tcw: np.ndarray) -> "g2o.SE3Quat":

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import Config
 from d2slam.data.base import Camera
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.frame import close_depth, undistort
 
 EPS_Z = 1e-9  # depths below this count as behind the camera (no division by ~0)
@@ -35,7 +35,7 @@ class Projector:
     """What every stage needs of the camera: intrinsics, ``bf`` and its baseline, the close-point depth, the
     pyramid scales."""
 
-    def __init__(self, camera: Camera, config: Config):
+    def __init__(self, camera: Camera, config: SlamConfig):
         self.camera = camera
         self.cfg = config.engine
         self.K = camera.K

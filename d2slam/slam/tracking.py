@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import Config
 from d2slam.slam import relocalisation
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.frame import Frame
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import knn_ratio_match, rotation_consistent, search_by_projection, unique_by_target
@@ -49,7 +49,7 @@ def points_from_depth(map_: Map, proj: Projector, kf: KeyFrame, idx: np.ndarray,
 class Tracker:
     """Per-frame pose estimation against the map, and the state it carries from frame to frame."""
 
-    def __init__(self, map_: Map, proj: Projector, config: Config):
+    def __init__(self, map_: Map, proj: Projector, config: SlamConfig):
         self.map = map_
         self.proj = proj
         self.cfg = config.engine

@@ -29,12 +29,12 @@ import pandas as pd
 
 from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
-from d2slam.config import CLI, DEFAULT
+from d2slam.config import DEFAULT
 from d2slam.data import Trajectory, write_tum_trajectory
 from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps as remove, staged_file, write_bytes
 from d2slam.paths import cache_dir
-from d2slam.progress import announce
+from d2slam.progress import PROGRESS, announce
 from d2slam.run.warmup import warm_up
 from d2slam.study import grid as G, plots as P, sequences, tables as T
 from d2slam.study.executors import executor_name, map_ordered
@@ -192,10 +192,9 @@ def run_cost(spec: RunSpec, options: dict) -> float:
 def phase_plans(options: dict, workers: int | None) -> dict:
     """For each phase of the study (``sequences``, ``segmentation``, ``runs``), a function of its items giving what
     to announce before it starts: (what it will do, estimated seconds on ``workers`` processes, or None when the
-    number of workers is not known: a Dask cluster). Estimates: ``CliConfig.synth_setup_s`` + frames x
+    number of workers is not known: a Dask cluster). Estimates: ``ProgressConfig.synth_setup_s`` + frames x
     ``synth_frame_s`` per sequence to generate, frames x ``segment_frame_s`` to segment (an upper bound: masks
     already in the cache are read), :func:`run_cost` per run."""
-
     on = "" if workers is None else f" on {workers} worker{'s' if workers > 1 else ''}"
 
     def spread(seconds: list[float]) -> float | None:  # the longest item bounds it from below
@@ -214,7 +213,7 @@ def phase_plans(options: dict, workers: int | None) -> dict:
         known = all(f > 0 for f in frames)  # a real sequence's frames may be "all" (0)
         return (f"segmentation: {len(keys)} sequence{'s' if len(keys) > 1 else ''} with the real segmenter{on}"
                 + (f" ({sum(frames)} frames; masks already in the cache are read)" if known else ""),
-                spread([f * CLI.segment_frame_s for f in frames]) if known else None)
+                spread([f * PROGRESS.segment_frame_s for f in frames]) if known else None)
 
     def runs(specs):
         known = all(int(s.frames) > 0 for s in specs)
@@ -232,7 +231,6 @@ def remove_stale_temps(options: dict, out: Path | None = None) -> list[Path]:
     """Remove what killed processes left half-written in the caches a study writes (sequence folders, feature files,
     mask files: ``*.tmp-<pid>...``, :func:`d2slam.outputs.remove_stale_temps`) and in ``out/runs``; the temporaries
     of running processes (another study sharing the cache) stay."""
-
     outs = [] if out is None else [p for d in ("", "runs", "trajectories", "plots") for p in remove(Path(out) / d)]
     return (sequences.remove_stale_temps(options.get("cache_root")) + remove(features_dir(options))
             + remove(cache_dir("masks"), "*/*/*.tmp-*") + outs)
@@ -274,7 +272,6 @@ def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
 def _prepare_vocabulary(progress) -> None:
     """Build the ORB vocabulary once, here, before ORB-SLAM3 runs and the engine's loop closing start in parallel
     workers (each would otherwise build it on first use). A failure is left to the runs, which record it."""
-
     try:
         resolve_vocabulary(None, build=True, progress=bool(progress))
     except D2SlamError:
@@ -284,7 +281,6 @@ def _prepare_vocabulary(progress) -> None:
 def _prepare_kernels() -> None:
     """Compile the engine's kernels here (or load them from numba's cache) before the workers start, so that they
     load them instead of each compiling the same ones at once (``d2slam.run.warmup``)."""
-
     warm_up()
 
 
@@ -337,7 +333,6 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
 
 def write_trajectory(out: Path, s: RunSpec, r: dict) -> None:
     """``trajectories/<run>.txt`` (TUM format) of a run that has one."""
-
     if r.get("trajectory") is not None and len(r["trajectory"][0]):
         (out / "trajectories").mkdir(parents=True, exist_ok=True)
         ts, poses = r["trajectory"]

@@ -81,7 +81,6 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 def _joblib(fn, items, order, args, jobs):
     """(index, result) in completion order from ``jobs`` loky processes; the pool is shut down when the generator
     ends or is closed (its workers killed unless every result came)."""
-
     from joblib.externals.loky import ProcessPoolExecutor
 
     pool = ProcessPoolExecutor(max_workers=int(jobs), env=WORKER_ENV, initializer=_ignore_sigint)
@@ -99,7 +98,6 @@ def _joblib(fn, items, order, args, jobs):
 
 def _ignore_sigint() -> None:
     """Worker initializer: Ctrl-C is the parent's to handle (a replaced worker does not inherit it at start)."""
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 

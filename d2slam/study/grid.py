@@ -155,7 +155,6 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
 def default_scenarios() -> list[str]:
     """The study's default scenarios: every synthetic one, and the real recordings whose sequence is in the cache
     (``d2slam assets fetch --full-real``)."""
-
     return [s for s in SCENARIOS if s not in REAL_SCENARIOS or real_full() is not None]
 
 
@@ -173,7 +172,6 @@ def frames_of(scenario: str, frames: int | str, source: str = "synth") -> int:
 def default_methods(source: str = "synth") -> list[str]:
     """Every method of the run registry (``none`` first) and ``orbslam3``; on a real TUM copy, not those that need
     a synthetic sequence's own masks (``oracle``: truth, ``d2slam-sim``: the simulated segmenter)."""
-
     names = list(methods())
     if source == "tum":
         truth = _truth_methods()

@@ -103,7 +103,6 @@ def implied_baseline() -> pd.DataFrame:
 
 def side_by_side(runs: pd.DataFrame, table: int, ours: str = "d2slam", baseline: str = "none") -> pd.DataFrame:
     """The paper's D2SLAM improvement next to ours (median over seeds, over ``baseline``) for Table ``table``."""
-
     metric = STUDY_METRIC[METRICS[table]]
     scen, _, cells = improvement_table(runs, metric, baseline, [ours])
     paper = paper_table(table)["D2SLAM"]

@@ -61,7 +61,6 @@ def prepare_sequence(key: tuple, options: dict) -> dict:
 
 def onnx_sequence_keys(specs, options: dict) -> list[tuple]:
     """The sequences (``RunSpec.sequence_key``) on which some run of ``specs`` reads the real segmenter's masks."""
-
     keys = []
     for s in specs:
         if s.method not in methods():
@@ -78,7 +77,6 @@ def segment_sequence(key: tuple, options: dict) -> dict:
     sequence before the runs (which then only read it, whichever worker runs them; two runs on one sequence at the
     same time would otherwise both segment it). Returns ``{"key", "error"}``; a failure is left to the runs,
     which meet it again and record it."""
-
     source, scenario, seed, frames, twin = key
     try:
         with _single_threaded():
@@ -202,7 +200,6 @@ def _config(spec: RunSpec, options: dict):
 
 def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bool]:
     """The run of an engine method and whether it read the sequence's stored features."""
-
     config = _config(spec, options)
     method = get_method(spec.method)
     seq = open_sequence(path)
@@ -243,7 +240,6 @@ def features_path(seq, path: Path, config, options: dict, frames: int | None = N
     ``d2slam.slam.features``): named after the sequence folder, its frame count and a digest of what an extraction
     depends on (ORB and engine settings, camera, OpenCV version, the frame and data code), under
     ``<cache>/study/features`` (or ``<cache_root>/features``)."""
-
     cam = seq.camera
     ident = {"orb": dataclasses.asdict(config.orb), "engine": dataclasses.asdict(config.engine),
              "camera": [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.bf, cam.depth_factor,
@@ -255,7 +251,6 @@ def features_path(seq, path: Path, config, options: dict, frames: int | None = N
 
 def features_dir(options: dict) -> Path:
     """The folder of the study's feature files: ``<cache>/study/features`` (or ``<cache_root>/features``)."""
-
     return Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
 
 
@@ -263,7 +258,6 @@ def _features(seq, path: Path, config, options: dict, frames: int | None = None)
     """(features for ``run_sequence``, where to save them afterwards or None): the cached features of the sequence's
     first ``frames`` frames when a run already saved them, else a recorder. A damaged cache file is said (one line)
     and replaced."""
-
     n = len(seq) if frames is None else frames
     target = features_path(seq, path, config, options, n)
     if target.is_file():

@@ -40,7 +40,6 @@ def sequence_name(scenario: str, seed: int, frames: int, twin: bool) -> str:
 
 def sequence_dir(scenario: str, seed: int, frames: int, twin: bool, root: str | Path | None = None) -> Path:
     """Where the cached sequence lives (it may not exist yet)."""
-
     base = Path(root) if root is not None else cache_dir("study", "sequences")
     return base / f"{sequence_name(scenario, seed, frames, twin)}-{generator_version()}"
 
@@ -101,7 +100,6 @@ def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, r
 
 def tum_sequence_dir(tum_root: str | Path, scenario: str) -> Path:
     """The fr3 folder of ``scenario`` under a real TUM copy (``rgbd_dataset_freiburg3_<scenario>``)."""
-
     root = Path(tum_root).expanduser()
     path = root / TUM_FOLDERS[scenario]
     if not path.is_dir():
@@ -112,7 +110,6 @@ def tum_sequence_dir(tum_root: str | Path, scenario: str) -> Path:
 def real_sequence_dir(scenario: str) -> Path:
     """The folder of the real recording ``scenario`` (``grid.REAL_SCENARIOS``): the whole TUM fr1/rpy in the shared
     folder or the cache (``d2slam.assets.real_full``); a D2SlamError naming the command that fetches it."""
-
     path = real_full()
     if scenario != "fr1_rpy" or path is None:
         raise D2SlamError(f"the real recording {scenario} is not in the cache: `d2slam assets fetch --full-real` "
@@ -123,5 +120,4 @@ def real_sequence_dir(scenario: str) -> Path:
 def remove_stale_temps(root: str | Path | None = None) -> list[Path]:
     """Remove the temporary sequence folders (``<name>.tmp-<pid>...``) of processes that are gone, under ``root``
     (default: the study's sequence cache); the work of running processes is left alone."""
-
     return remove(Path(root) if root is not None else cache_dir("study", "sequences"))

@@ -16,9 +16,10 @@ import math
 import numpy as np
 import pandas as pd
 
-from d2slam.config import DEFAULT, EvalConfig
-from d2slam.outputs import staged_file
+from d2slam.config import DEFAULT
+from d2slam.eval.config import EvalConfig
 from d2slam.eval.fragment import is_fragment
+from d2slam.outputs import staged_file
 from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, LOOP_SCENARIOS, ORACLE,
                                REAL_SCENARIOS,
                                ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS)
@@ -643,7 +644,6 @@ REAL_NOTE = ("The real TUM fr1/rpy (723 frames of a Kinect turning fast about it
 def real_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
     """The real recordings: per method, frames tracked, ATE (m; ORB-SLAM3: median [min, max] of its repeats), ATE
     over `none`'s, RPE and ms per frame; then the published ATE of other systems on the same recordings."""
-
     rows = []
     for scenario in [s for s in REAL_SCENARIOS if s in set(df["scenario"])]:
         d = df[df["scenario"] == scenario]
@@ -779,8 +779,6 @@ def read_run_records(out) -> list[dict]:
     """The per-run JSON records of a finished study (``out/runs/<run_id>.json``: run, row, keypoints, stage_ms), in
     the order of ``out/runs.csv``. A run whose record is missing is skipped; an unreadable one is a D2SlamError
     naming the file."""
-
-
     out = Path(out)
     df = read_runs_csv(out / "runs.csv")
     records = []

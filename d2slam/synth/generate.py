@@ -36,9 +36,9 @@ import numpy as np
 from zlib_ng import zlib_ng
 
 from d2slam import __version__
-from d2slam.config import CLI, SynthConfig
 from d2slam.errors import D2SlamError
-from d2slam.progress import progress as _progress
+from d2slam.progress import PROGRESS, progress as _progress
+from d2slam.synth.config import SynthConfig
 from d2slam.synth.rigid import pose_rows
 from d2slam.synth.scene import Scene
 from d2slam.synth.segsim import simulate_segmenter
@@ -276,11 +276,11 @@ def worker_count(frames: int, workers: int | None = None, cfg: SynthConfig | Non
 
 def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig | None = None,
                       twin: bool = False) -> float:
-    """What generating ``frames`` frames should take (``CliConfig.synth_setup_s``, ``synth_frame_s``; a twin's:
+    """What generating ``frames`` frames should take (``ProgressConfig.synth_setup_s``, ``synth_frame_s``; a twin's:
     ``synth_twin_frame_s``), announced before it starts."""
 
-    per_frame = CLI.synth_twin_frame_s if twin else CLI.synth_frame_s
-    return CLI.synth_setup_s + frames * per_frame / worker_count(frames, workers, cfg)
+    per_frame = PROGRESS.synth_twin_frame_s if twin else PROGRESS.synth_frame_s
+    return PROGRESS.synth_setup_s + frames * per_frame / worker_count(frames, workers, cfg)
 
 
 def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, static_twin: bool = False,

@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
 from d2slam.synth import bodies
 from d2slam.synth.actors import BOX_HALF, Chair, FloorPlan, HeldObject, Leg, Person, Planner, Timeline
+from d2slam.synth.config import SynthConfig
 from d2slam.synth.render import Quad, QuadSet, box_quads, boxes
 from d2slam.synth.rigid import look_at, rot_x, rot_y, rot_z, rots, tf, yaw_pose  # noqa: F401 (re-exported)
 from d2slam.synth.textures import make_texture
@@ -75,7 +75,6 @@ def tum_frames(scenario: str, fps: float = 30.0) -> int:
 
 def frames_arg(value: str) -> int | str:
     """``--frames``: a number of frames, or ``tum`` (each scenario at its TUM duration)."""
-
     if str(value).lower() == "tum":
         return "tum"
     try:
@@ -252,7 +251,6 @@ class Scene:
     def _twin_clock(self, rec, frames: int) -> None:
         """A twin's camera, clock and path: the recording's camera and first ``frames`` frames (RGB and depth
         times), its ground truth placed in the room (d2slam.synth.twin); static (no people)."""
-
         tw = self.cfg.twin
         self.cfg = twin_config(self.cfg, rec.camera)
         self.frames = min(frames, len(rec))

@@ -17,7 +17,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from d2slam.config import SynthConfig
+from d2slam.synth.config import SynthConfig
 
 
 def simulate_segmenter(ids: np.ndarray, depth: np.ndarray, person_ids: list[int], K: np.ndarray,

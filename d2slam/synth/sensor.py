@@ -14,7 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from d2slam.config import SynthConfig
+from d2slam.synth.config import SynthConfig
 
 
 def depth_sigma(z: np.ndarray, cfg: SynthConfig | None = None) -> np.ndarray:

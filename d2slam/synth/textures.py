@@ -17,7 +17,7 @@ import string
 import cv2
 import numpy as np
 
-from d2slam.config import SynthConfig
+from d2slam.synth.config import SynthConfig
 
 _FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX, cv2.FONT_HERSHEY_PLAIN,
           cv2.FONT_HERSHEY_TRIPLEX)

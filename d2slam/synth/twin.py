@@ -36,10 +36,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from d2slam.config import SynthConfig
 from d2slam.data.base import Camera
 from d2slam.data.tum import TumSequence, interpolate_poses
 from d2slam.errors import D2SlamError
+from d2slam.synth.config import SynthConfig
 from d2slam.synth.rigid import pose_rows
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor
@@ -66,7 +66,6 @@ class Recording:
 def read_recording(path: str | Path) -> Recording:
     """A TUM folder (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``; the camera from its name) as a
     :class:`Recording`; frames outside the ground truth's span are left out (the twin needs a pose for each)."""
-
     seq = TumSequence(path)
     gt = seq.groundtruth
     if gt is None or len(gt) < 2:
@@ -185,7 +184,6 @@ class LensMap:
 def twin_config(cfg: SynthConfig, camera: Camera) -> SynthConfig:
     """The twin's ``SynthConfig``: ``cfg`` with the recording camera's intrinsics, size and depth factor, and the
     twin's RGB noise and hole blobs (``TwinConfig.rgb_noise_sigma``, ``hole_blob_fraction``)."""
-
     tw = cfg.twin
     return dataclasses.replace(cfg, fx=float(camera.fx), fy=float(camera.fy), cx=float(camera.cx),
                                cy=float(camera.cy), width=int(camera.width), height=int(camera.height),
@@ -268,8 +266,6 @@ def subframe_times(start: float, end: float, n: int) -> np.ndarray:
 def render_twin_frame(scene, renderer, i: int) -> dict:
     """Frame ``i`` of a twin scene, as ``d2slam.synth.generate.render_frame`` returns a frame (see the module
     docstring for what the sensor does)."""
-
-
     cfg, tw = scene.cfg, scene.cfg.twin
     H, W = cfg.height, cfg.width
     t = float(scene.t_rel[i])
@@ -332,7 +328,6 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
 def twin_groundtruth(scene) -> tuple[np.ndarray, np.ndarray]:
     """(timestamps, (N, 7) tx ty tz qx qy qz qw): the recording's ground truth samples over the frames plus
     ``gt_margin``, placed in the room (``d2slam.synth.rigid.pose_rows``)."""
-
     path = scene.camera
     a = scene.t0 + scene.t_rel[0] - scene.cfg.gt_margin
     b = scene.t0 + scene.t_rel[-1] + scene.cfg.gt_margin

