@@ -36,6 +36,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy import sparse
 
 from d2slam import __version__
 from d2slam.assets import tum_frames
@@ -71,7 +72,6 @@ def _majority(desc: np.ndarray, keys: np.ndarray, n_keys: int, bits: np.ndarray 
     The per-key bit counts are one sparse product (key membership x unpacked bits): exact (integers below 2^24 in
     float32), and 15-25x faster than a segment reduction over sorted keys. ``bits``: ``desc`` unpacked to (n, 256)
     float32 by the caller, when it asks several times."""
-    from scipy import sparse
 
     keys = np.asarray(keys, np.int64)
     counts = np.bincount(keys, minlength=n_keys)

@@ -10,6 +10,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+from evo.core.geometry import umeyama_alignment
 
 from d2slam.errors import D2SlamError
 from d2slam.eval.belongs import residual_check
@@ -22,7 +23,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from evo.core.geometry import umeyama_alignment
 
     files = sorted(Path(args.results).glob("runs/*.npz"))
     if not files:

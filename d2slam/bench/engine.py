@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
@@ -223,8 +224,6 @@ def local_ba_problem(seed: int = 0, n_cams: int = 10, n_points: int = 800, noise
     """A local-BA problem with known truth: cameras on an arc looking at a textured room's points (1-5 m), every
     point seen by the cameras that see it in the image, pixel noise, perturbed starting values; the first two
     cameras fixed (as ORB-SLAM's fixed keyframes)."""
-    from scipy.spatial.transform import Rotation
-
     rng = np.random.default_rng(seed)
     K, bf = FR3.K, FR3.bf
     Twc = np.tile(np.eye(4), (n_cams, 1, 1))

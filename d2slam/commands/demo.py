@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+import pandas as pd
+
 from d2slam.data import open_sequence
 from d2slam.paths import cache_dir
 from d2slam.study import run_study
@@ -36,7 +38,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import pandas as pd
 
     root = cache_dir("demo")
     print(f"d2slam demo: sequences into {cache_dir('study', 'sequences')}, results into {root / 'study'}")

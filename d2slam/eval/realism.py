@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from d2slam.data.tum import interpolate_poses
 from d2slam.dynamics.config import DynamicsConfig
@@ -216,8 +217,6 @@ def track_lengths(tracks: list[np.ndarray]) -> np.ndarray:
 def angular_speed(seq, n: int) -> np.ndarray:
     """(n,) the ground truth's angular speed (deg/s) between each of the first ``n`` frames and the one before (NaN
     for the first, and where the ground truth has no pose)."""
-    from scipy.spatial.transform import Rotation
-
     gt = seq.groundtruth
     ts = np.asarray(seq.timestamps[:n], float)
     out = np.full(n, np.nan)

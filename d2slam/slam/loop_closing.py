@@ -30,6 +30,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from d2slam.slam.config import SlamConfig
 from d2slam.slam.keyframe_database import KeyFrameDatabase
@@ -394,8 +395,6 @@ class LoopCloser:
 def covisibility_matrix(map_: Map) -> np.ndarray:
     """(n_keyframes, n_keyframes) shared points of every pair of good keyframes (alive points), by one sparse
     product of the keyframe-point incidence."""
-    from scipy.sparse import csr_matrix
-
     M = map_
     rows = np.flatnonzero(M.obs.view("valid"))
     pt, kf = M.obs.pt[rows], M.obs.kf[rows]

@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import g2opy as g2o
 import numpy as np
+from scipy.sparse import coo_matrix, identity
+from scipy.sparse.linalg import spsolve
+from scipy.spatial.transform import Rotation
 
 from d2slam.slam import lm
 from d2slam.slam.config import EngineConfig
@@ -330,8 +333,6 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
 
 def se3_log(T: np.ndarray) -> np.ndarray:
     """(N, 6) twists ``(omega, upsilon)`` of (N, 4, 4) rigid transforms (the inverse of ``lm.se3_exp``)."""
-    from scipy.spatial.transform import Rotation
-
     w = Rotation.from_matrix(T[:, :3, :3]).as_rotvec()
     th = np.linalg.norm(w, axis=1)
     W = _hat(w)
@@ -377,8 +378,6 @@ def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray
     updates ``T <- exp(xi) T`` (``lm.update_pose``), first-order Jacobians ``Ad(meas^-1)`` and ``-Ad(meas^-1 T_i
     T_j^-1)`` (g2o's ``EdgeSE3Expmap``), g2o's Levenberg-Marquardt damping (``lm``) over a sparse system (SuperLU).
     Returns the optimised poses."""
-    from scipy.sparse import coo_matrix, identity
-    from scipy.sparse.linalg import spsolve
 
     T = np.ascontiguousarray(poses, dtype=np.float64).copy()
     n, E = len(T), len(ei)

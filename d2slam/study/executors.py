@@ -25,6 +25,7 @@ from concurrent.futures import as_completed
 from typing import Callable, Sequence
 
 import numpy as np
+from joblib.externals.loky import ProcessPoolExecutor
 
 from d2slam.errors import D2SlamError
 from d2slam.progress import progress as follow
@@ -81,8 +82,6 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 def _joblib(fn, items, order, args, jobs):
     """(index, result) in completion order from ``jobs`` loky processes; the pool is shut down when the generator
     ends or is closed (its workers killed unless every result came)."""
-    from joblib.externals.loky import ProcessPoolExecutor
-
     pool = ProcessPoolExecutor(max_workers=int(jobs), env=WORKER_ENV, initializer=_ignore_sigint)
     try:
         with _sigint_deferred():  # the workers start now (first submit) and inherit the block

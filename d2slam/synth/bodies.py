@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from d2slam.errors import D2SlamError
 from d2slam.synth.config import BodyConfig
@@ -137,7 +138,6 @@ class BodyModel:
         self.triangles = F.astype(np.uint32)
         self.incidence = incidence(self.triangles, m.num_vertices)
         self.identity = m.prepare_identity(np.asarray(shape, float))
-        from scipy.sparse import csr_matrix
 
         self._weights = csr_matrix(np.asarray(m.skin_weights, np.float64))
         self._rest_unposed = np.asarray(self.identity["rest_vertices"], np.float64)
@@ -200,8 +200,6 @@ class BodyModel:
 
 def incidence(triangles: np.ndarray, n_vertices: int):
     """Sparse (V, F) matrix summing each triangle's vector into its three vertices (for ``vertex_normals``)."""
-    from scipy.sparse import csr_matrix
-
     tri = np.asarray(triangles, np.int64)
     rows = tri.T.ravel()
     cols = np.tile(np.arange(len(tri)), 3)
