@@ -25,22 +25,27 @@ from typing import Any
 
 import yaml
 
-from d2slam.baselines.config import MASK_FILLS, BaselineConfig, MaskingConfig
+from d2slam.baselines.config import MASK_FILLS, BaselineConfig, MaskedFramesConfig, MaskingConfig
 from d2slam.cachefiles import CacheConfig
-from d2slam.data.config import DataConfig, DepthCheckConfig
-from d2slam.dynamics.config import DynamicsConfig
+from d2slam.data.config import DataConfig, DepthCheckConfig, DepthNoise
+from d2slam.dynamics.config import DynamicsConfig, FlowConfig, OursConfig, PoseTestConfig
 from d2slam.errors import D2SlamError
 from d2slam.eval.config import BelongsConfig, EvalConfig
 from d2slam.progress import ProgressConfig
-from d2slam.ranges import Checked, ConfigError, Range, build_section, name_sections, section, within
+from d2slam.ranges import Checked, ConfigError, Range, build_section, name_sections, overridden, section, within
 from d2slam.segmentation.config import SegmentationConfig
-from d2slam.slam.config import EngineConfig, OrbConfig, SlamConfig
-from d2slam.synth.config import ActorsConfig, BodyConfig, SynthConfig, SynthEvalConfig, TwinConfig
+from d2slam.slam.config import (EngineConfig, KeyframeConfig, LoopConfig, MappingConfig, OrbConfig, RelocalisationConfig,
+                                SlamConfig, TrackingConfig)
+from d2slam.synth.config import (SYNTH_CAMERA, ActorsConfig, BodyConfig, BodyMotionConfig, ClothConfig, HoldingConfig,
+                                 SegSimConfig, SittingConfig, SynthConfig, SynthEvalConfig, TwinConfig)
 
-__all__ = ["ActorsConfig", "BaselineConfig", "BelongsConfig", "BodyConfig", "CacheConfig", "CLI", "CliConfig",
-           "Config", "ConfigError", "DataConfig", "DEFAULT", "DepthCheckConfig", "DynamicsConfig", "EngineConfig",
-           "EvalConfig", "MASK_FILLS", "MaskingConfig", "OrbConfig", "ProgressConfig", "Range", "SegmentationConfig",
-           "StudyConfig", "SynthConfig", "SynthEvalConfig", "TwinConfig", "load_config_file", "with_overrides"]
+__all__ = ["ActorsConfig", "BaselineConfig", "BelongsConfig", "BodyConfig", "BodyMotionConfig", "CacheConfig", "CLI",
+           "CliConfig", "ClothConfig", "Config", "ConfigError", "DataConfig", "DEFAULT", "DepthCheckConfig",
+           "DepthNoise", "DynamicsConfig", "EngineConfig", "EvalConfig", "FlowConfig", "HoldingConfig",
+           "KeyframeConfig", "LoopConfig", "MASK_FILLS", "MappingConfig", "MaskedFramesConfig", "MaskingConfig",
+           "OrbConfig", "OursConfig", "PoseTestConfig", "ProgressConfig", "Range", "RelocalisationConfig",
+           "SegSimConfig", "SegmentationConfig", "SittingConfig", "SlamConfig", "StudyConfig", "SYNTH_CAMERA",
+           "SynthConfig", "SynthEvalConfig", "TrackingConfig", "TwinConfig", "load_config_file", "with_overrides"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -114,20 +119,73 @@ DEFAULT = Config()
 CLI = CliConfig()
 
 
+# Fields that went away when each part got its own sections (one source per quantity), and where what they set
+# lives now: a config file that names one is refused in one line saying so. Fields that only moved into a section of
+# their part kept their names and are found by name (_moved).
+_CAMERA_NOISE = "the camera's depth noise (Camera.depth_noise: a + b (z - c)^2)"
+_SYNTH_CAMERA = "the synthetic camera (d2slam.synth.config.SYNTH_CAMERA: TUM freiburg3's intrinsics and depth factor)"
+REPLACED = {
+    "engine.bf": "the camera's bf (Camera.bf: the TUM camera's, scene.json's or --camera FILE's)",
+    "engine.depth_factor": "the camera's depth factor (Camera.depth_factor)",
+    "engine.ransac_seed": "engine.seed",
+    "engine.pnp_iterations": "engine.relocalisation.relocalisation_pnp_iterations",
+    "engine.pnp_reprojection_px": "engine.relocalisation.relocalisation_pnp_px",
+    "engine.pnp_confidence": "engine.relocalisation.relocalisation_pnp_confidence",
+    "dynamics.flow": "dynamics.flow.enabled",
+    "dynamics.pose_test": "dynamics.pose_test.enabled",
+    "dynamics.alpha_octave_scale": "orb.scale_factor (dynamics.ours.alpha_at_scale: false for the paper's alpha)",
+    "dynamics.depth_patch_radius": "orb.depth_patch_radius (the engine's keypoint depth, which the filter reads)",
+    "dynamics.f_ransac_seed": "engine.seed",
+    **{f"dynamics.depth_sigma_{k}": _CAMERA_NOISE for k in "abc"},
+    **{f"synth.depth_noise_{k}": _CAMERA_NOISE for k in "abc"},
+    **{f"synth.{k}": _SYNTH_CAMERA for k in ("fx", "fy", "cx", "cy", "width", "height", "depth_factor")},
+    "baseline.orbslam3_th_depth": "engine.th_depth (ORB-SLAM3's ThDepth is the engine's)",
+    "cli.depth_ransac_seed": "engine.seed",
+}
+
+
+def _field_paths(cls, prefix: str = "") -> list[str]:
+    """Every field of ``cls`` as a config file names it (``engine.keyframes.kf_max_frames``), sections recursed."""
+    hints, out = typing.get_type_hints(cls), []
+    for f in dataclasses.fields(cls):
+        if f.metadata.get("section"):
+            out += _field_paths(hints[f.name], f"{prefix}{f.name}.")
+        else:
+            out.append(prefix + f.name)
+    return out
+
+
+def _check_names(cls, data: dict, prefix: str = "") -> None:
+    """A ``ValueError`` for the first key of ``data`` (a config file's ``section: {field: value}``) that ``cls`` has
+    not: where a field that moved or went away lives now (``REPLACED``, or the one field of that name), else that it
+    is unknown."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    for key, value in data.items():
+        name, f = prefix + key, fields.get(key)
+        is_section = f is not None and bool(f.metadata.get("section"))
+        if f is None or (is_section and not isinstance(value, dict)):
+            if name in REPLACED:
+                raise ValueError(f"{name} is now {REPLACED[name]}")
+            moved = [p for p in _field_paths(Config) if p.rsplit(".", 1)[-1] == key and p.startswith(prefix)]
+            if f is None and len(moved) == 1:
+                raise ValueError(f"{name} is now {moved[0]}: write it there")
+            if f is None and not prefix:
+                raise ValueError(f"unknown config section {key!r}; sections: {', '.join(fields)}")
+            if f is None:
+                raise ValueError(f"unknown {prefix.rstrip('.')} config field {key!r}")
+        if is_section and isinstance(value, dict):
+            _check_names(hints[key], value, name + ".")
+
+
 def with_overrides(base: Config, overrides: dict[str, Any]) -> Config:
-    """``base`` with the fields of ``overrides`` (``{section: {field: value}}``, any subset) replaced; lists become
-    tuples where the field is a tuple. Unknown sections or fields raise ``ValueError``."""
+    """``base`` with the fields of ``overrides`` (``{section: {field: value}}``, nested sections as dicts of their
+    own, any subset) replaced; lists become tuples where the field is a tuple. Unknown sections or fields raise
+    ``ValueError`` (one that moved or went away: saying where it is now)."""
     if not isinstance(overrides, dict) or not all(isinstance(v, dict) for v in overrides.values()):
         raise ValueError("expected sections of fields, e.g. {dynamics: {z_far: 5.0}}")
-    data = base.to_dict()
-    for name, fields in overrides.items():
-        if name not in data:
-            raise ValueError(f"unknown config section {name!r}; sections: {', '.join(data)}")
-        for key, value in fields.items():
-            if key not in data[name]:
-                raise ValueError(f"unknown {name} config field {key!r}")
-            data[name][key] = value
-    return Config.from_dict(data)
+    _check_names(Config, overrides)
+    return overridden(base, overrides)
 
 
 def load_config_file(path, base: Config = DEFAULT) -> tuple[Config, dict[str, Any]]:

@@ -6,7 +6,6 @@ builder keys its training frames with the generator version."""
 from __future__ import annotations
 
 import ast
-import dataclasses
 import hashlib
 import json
 from functools import lru_cache

@@ -97,7 +97,7 @@ def seed_showing(scenario: str, frames: int, what: str = "people", seeds=range(1
         else:
             tracks = [(np.array([o.pose(t)[:3, 3] for t in scene.t_rel]), np.array([o.moving(t) for t in scene.t_rel]))
                       for o in scene.objects]
-        scores[seed] = sum(int((_in_image(scene.cfg, world_camera, xyz) & shown).sum()) for xyz, shown in tracks)
+        scores[seed] = sum(int((_in_image(scene.intrinsics, world_camera, xyz) & shown).sum()) for xyz, shown in tracks)
     best = max(scores, key=lambda s: (scores[s], -s))
     if scores[best] == 0:
         raise D2SlamError(f"no seed of {sorted(scores)} shows {what} within {frames} frames of {scenario}: take more "

@@ -323,3 +323,20 @@ def part_of(config, name: str, cls):
     if isinstance(sec, cls):
         return sec
     raise TypeError(f"expected a config with a {name} section or a {cls.__name__}, got {type(config).__name__}")
+
+
+def overridden(obj, changes: dict):
+    """``obj`` (a section) with the fields of ``changes`` replaced (``{field: value}``; a nested section's fields as
+    a dict of their own, ``{"tracking": {"init_min_keypoints": 200}}``: the others keep their values). Checked as any
+    section is. An unknown field is a ``ValueError`` naming it."""
+    if not isinstance(changes, dict):
+        raise ValueError(f"expected fields of {type(obj).__name__} as a mapping, got {changes!r}")
+    known = {f.name: f for f in dataclasses.fields(obj)}
+    new = {}
+    for key, value in changes.items():
+        if key not in known:
+            raise ValueError(f"unknown field {_where(obj, key)}")
+        if known[key].metadata.get("section") and isinstance(value, dict):
+            value = overridden(getattr(obj, key), value)
+        new[key] = value
+    return dataclasses.replace(obj, **new)

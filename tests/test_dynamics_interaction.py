@@ -9,6 +9,7 @@ from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps
 from d2slam.dynamics.interaction import (MatchedPoints, interaction_zone, mask_depths, neighbour_p_g,
                                          object_interaction, oim_candidates)
+from d2slam.ranges import overridden
 
 CFG = DynamicsConfig()
 
@@ -83,7 +84,7 @@ def test_mask_depths_strided_median_close_to_full():
     masks = np.zeros((3, 120, 160), bool)
     masks[0, 10:100, 20:60] = True
     masks[1, 50, 70] = True  # single pixel: the stride-4 grid misses it -> every pixel
-    full = DynamicsConfig(zone_median_stride=1)
+    full = overridden(DynamicsConfig(), {"ours": {"zone_median_stride": 1}})
     z4, z1 = mask_depths(depth, masks), mask_depths(depth, masks, full)
     valid = depth[masks[0]][depth[masks[0]] > 0]
     assert z1[0] == pytest.approx(np.median(valid))
@@ -108,7 +109,7 @@ def test_neighbour_p_g_by_hand():
     assert np.isnan(got[[1, 2, 3, 4, 7]]).all()  # matched
     assert np.isnan(got[6])  # invalid depth
     assert got[5] == pytest.approx(0.8)  # the same two neighbours (4 is 44 px away)
-    few = neighbour_p_g(kps, DepthMaps(z, CFG), observed, p_g, dataclasses.replace(CFG, neighbour_min=3))
+    few = neighbour_p_g(kps, DepthMaps(z, CFG), observed, p_g, overridden(CFG, {"ours": {"neighbour_min": 3}}))
     assert np.isnan(few).all()
 
 
@@ -128,9 +129,9 @@ def test_neighbour_p_g_equals_a_plain_loop():
             continue
         d = np.hypot(*(kps - kps[i]).T)
         cand = np.flatnonzero(observed & (z > 0))
-        near = cand[np.argsort(d[cand], kind="stable")[:CFG.neighbour_k]]  # the k nearest matched keypoints
-        nb = near[(d[near] < maps.delta[i]) & (np.abs(z[near] - z[i]) < CFG.neighbour_depth)]
-        if len(nb) >= CFG.neighbour_min:
+        near = cand[np.argsort(d[cand], kind="stable")[:CFG.ours.neighbour_k]]  # the k nearest matched keypoints
+        nb = near[(d[near] < maps.delta[i]) & (np.abs(z[near] - z[i]) < CFG.ours.neighbour_depth)]
+        if len(nb) >= CFG.ours.neighbour_min:
             want[i] = p_g[nb].mean()
     np.testing.assert_allclose(got, want)
     assert 20 < np.isfinite(got).sum() < (~observed).sum()  # both outcomes are exercised
@@ -195,7 +196,7 @@ def test_oim_candidates_skip_neighbour_static_only_when_asked():
     p_nb = np.array([0.3, 0.7, np.nan, np.nan, 0.1])  # static neighbours, dynamic ones, too few
     base = oim_candidates(belief, observed, geo_dynamic, CFG, p_nb)
     np.testing.assert_array_equal(base, [True, True, True, False, False])  # the default ignores p_nb
-    strict = oim_candidates(belief, observed, geo_dynamic, dataclasses.replace(CFG, oim_skip_neighbour_static=True),
+    strict = oim_candidates(belief, observed, geo_dynamic, overridden(CFG, {"ours": {"oim_skip_neighbour_static": True}}),
                             p_nb)
     np.testing.assert_array_equal(strict, [False, True, True, False, False])
 

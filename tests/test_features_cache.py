@@ -148,9 +148,9 @@ def test_sequence_without_depth_only_reader(seq, saved):
 
 def test_study_replaces_a_corrupt_cache_file(seq, tmp_path):
     from d2slam.slam.features import CachedFeatures as CF
-    from d2slam.study.runner import _features, features_path
+    from d2slam.study.runner import _features, features_path, run_options
 
-    options = {"cache_root": str(tmp_path)}
+    options = run_options(cache_root=tmp_path)
     target = features_path(seq, seq.root, DEFAULT, options)
     features, save_to = _features(seq, seq.root, DEFAULT, options)
     assert isinstance(features, FeatureRecorder) and save_to == target

@@ -66,7 +66,7 @@ class _Plan:
     """A scene plan (a stand-in for ``d2slam.synth.Scene``): a camera at the origin looking along +z, one frame per
     second; per seed, where a person stands and when and where an object moves."""
 
-    cfg = SimpleNamespace(fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
+    intrinsics = SimpleNamespace(fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
     IN, OUT = np.array([0.0, 0.0, 2.0]), np.array([0.0, 0.0, -2.0])  # in front of the camera, behind it
     PEOPLE = {0: [], 1: [(0, 9)], 2: [(0, 2), (1, 9)], 3: [(5, 9)], 4: [(0, 9)]}  # frames [a, b) in view
     OBJECTS = {0: [], 1: [(0, 9, 0, 1)], 2: [(0, 9, 0, 9)], 3: [(0, 2, 0, 9)], 4: [(0, 9, 3, 9)]}  # view, moving

@@ -300,7 +300,7 @@ def test_a_camera_file_gives_orbslam3_its_th_depth(tmp_path, seq_dir, built_voca
     from d2slam.data.intrinsics import read_camera_file
 
     cam = tmp_path / "cam.yaml"
-    cam.write_text(O.settings_yaml(FREIBURG3).replace(f"Stereo.ThDepth: {DEFAULT.baseline.orbslam3_th_depth:.6f}",
+    cam.write_text(O.settings_yaml(FREIBURG3).replace(f"Stereo.ThDepth: {DEFAULT.engine.th_depth:.6f}",
                                                       "Stereo.ThDepth: 35.000000"))
     assert read_camera_file(cam).th_depth == 35.0
     out = tmp_path / "traj.txt"

@@ -83,7 +83,7 @@ def test_new_style_settings_file_round_trips(tmp_path):
     path = tmp_path / "fr1.yaml"
     path.write_text(settings_yaml(FREIBURG1))
     s = read_camera_file(path)
-    assert same_camera(s.camera, FREIBURG1, tol=1e-4) and s.th_depth == DEFAULT.baseline.orbslam3_th_depth
+    assert same_camera(s.camera, FREIBURG1, tol=1e-4) and s.th_depth == DEFAULT.engine.th_depth
 
 
 @pytest.mark.parametrize("text, match", [
@@ -161,7 +161,7 @@ def test_config_values_are_type_checked(room, tmp_path, capsys):
                         ("dynamics: {z_far: true}\n", "dynamics.z_far must be float, got True (bool)"),
                         ("orb: {n_features: 1.5}\n", "orb.n_features must be int, got 1.5 (float)"),
                         ("orb: {n_features: yes}\n", "orb.n_features must be int, got True (bool)"),
-                        ("dynamics: {flow: 1}\n", "dynamics.flow must be bool, got 1 (int)"),
+                        ("dynamics: {flow: {enabled: 1}}\n", "dynamics.flow.enabled must be bool, got 1 (int)"),
                         ("dynamics: {f_ransac_method: 3}\n", "dynamics.f_ransac_method must be str, got 3 (int)"),
                         ("engine: {optimizer: gtsam}\n", "engine.optimizer must be one of 'lm', 'g2o', got 'gtsam'"),
                         ("synth: {depth_time_offset: [0.1, 0.2, 0.3]}\n",

@@ -154,16 +154,15 @@ def test_orbslam3_runs_go_through_the_same_rule(capsys):
     from argparse import Namespace
 
     from d2slam.commands.run import print_orbslam3
-    from d2slam.run.record import RunRecord
+    from d2slam.run.record import Orbslam3Run, RunRecord
 
     def record(status, tracked, frames=120):
         report = {"method": "orbslam3", "name": "seq", "status": status, "message": "m", "camera": "freiburg1",
                   "camera_source": "folder name", "frames_expected": frames, "trajectory": "t.txt",
                   **({"frames": frames, "tracked": tracked} if tracked is not None else {})}
-        return RunRecord(method="orbslam3", sequence="seq", trajectory=None,
-                         frames=frames if tracked is not None else None, tracked=tracked, lost=0, fps=None,
-                         ms_per_frame=None, config_hash="x", loop_closing=True, status=status, error="",
-                         evaluation=None, orbslam3=report)
+        run = Orbslam3Run(None, frames if tracked is not None else None, tracked, 0, None, None, report)
+        return RunRecord(method="orbslam3", sequence="seq", run=run, config_hash="x", status=status, error="",
+                         evaluation=None)
 
     args = Namespace(sequence="seq", camera=None, metrics_json=None, quiet=False)
     for status, tracked, code in (("ok", 120, 0), ("lost", 110, 1), ("lost", 3, 3), ("reset", 60, 3),

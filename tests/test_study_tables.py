@@ -359,15 +359,16 @@ def test_a_fragment_of_a_whole_sequence_is_flagged():
 
 
 def test_run_rows_carry_the_share_tracked_and_the_fragment_mark():
-    from d2slam.run.record import RunRecord
+    from d2slam.run.record import Orbslam3Run, RunRecord
     from d2slam.study.grid import RunSpec
     from d2slam.study.runner import run_row
 
     spec = RunSpec(scenario="fr1_rpy", seed=0, frames=0, method="orbslam3", source="tum", twin=False)
-    rec = RunRecord(method="orbslam3", sequence="fr1_rpy", trajectory=None, frames=120, tracked=3, lost=117,
-                    fps=30.0, ms_per_frame=33.0, config_hash="x", loop_closing=True, status="lost", error="lost",
-                    evaluation=None)
-    row = run_row(spec, rec, 1.0)
+    def record(tracked):
+        run = Orbslam3Run(None, 120, tracked, 120 - tracked, 30.0, 33.0, {})
+        return RunRecord(method="orbslam3", sequence="fr1_rpy", run=run, config_hash="x", status="lost", error="lost",
+                         evaluation=None)
+
+    row = run_row(spec, record(3), 1.0)
     assert row["tracked_share"] == pytest.approx(0.025) and row["fragment"] == 1
-    rec.tracked = 120
-    assert run_row(spec, rec, 1.0)["fragment"] == 0
+    assert run_row(spec, record(120), 1.0)["fragment"] == 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from d2slam.ranges import Checked, below, flag, one_of, rule, section, seed, text, within
+from d2slam.ranges import Checked, below, one_of, section, seed, text, within
 from d2slam.segmentation.config import SegmentationConfig
 
 
@@ -40,9 +40,6 @@ class BaselineConfig(Checked):
     # study reports the median and spread of the repeats per sequence; docs/deviations.md), subprocess time limits
     # (vocabulary load + per frame).
     orbslam3_fps: float = within(30.0, 0.0, 1000.0, lo_open=True)
-    # ORB-SLAM3's own TUM setting (Stereo.ThDepth: close points within 40 b = 3 m; it triangulates the far ones),
-    # not our engine's EngineConfig.th_depth.
-    orbslam3_th_depth: float = within(40.0, 0.0, 1000.0, lo_open=True)
     orbslam3_repeats: int = within(3, 1, 100)
     orbslam3_load_timeout_s: float = within(180.0, 0.0, 100_000.0, lo_open=True)
     orbslam3_frame_timeout_s: float = within(2.0, 0.0, 10_000.0, lo_open=True)

@@ -56,9 +56,9 @@ from d2slam.errors import D2SlamError
 from d2slam.eval.fragment import fragment_fields
 from d2slam.eval.trajectory import evaluate
 from d2slam.outputs import check_output_file, write_bytes
-from d2slam.ranges import AnyConfig, part_of
+from d2slam.ranges import AnyConfig, overridden, part_of
 from d2slam.segmentation import KINDS, masks_for, masks_origin
-from d2slam.slam.config import OrbConfig
+from d2slam.slam.config import EngineConfig, OrbConfig
 
 METHOD = "orbslam3"
 MASKED_METHOD = "orbslam3-masked"
@@ -83,8 +83,10 @@ def settings_yaml(camera, config: AnyConfig | None = None) -> str:
     virtual baseline ``Stereo.b = bf / fx`` (fr3: 40 / 535.4 = 0.0747 m), ``Stereo.ThDepth`` (ORB-SLAM3's TUM
     value 40: close points within ThDepth * b), ``RGBD.DepthMapFactor``, the ORB extractor (1000 features, 1.2, 8
     levels, FAST 20/7). Images are given in RGB order (``Camera.RGB: 1``). The Viewer keys are required by ORB-SLAM3
-    even without a viewer. ``config``: a whole config (its ``orb`` and ``baseline`` sections), defaults when None."""
+    even without a viewer. ``config``: a whole config (its ``orb`` and ``baseline`` sections and ``engine.th_depth``: ORB-SLAM3's
+    ThDepth is the engine's), defaults when None."""
     orb, baseline = part_of(config, "orb", OrbConfig), part_of(config, "baseline", BaselineConfig)
+    th_depth = part_of(config, "engine", EngineConfig).th_depth
     k1, k2, p1, p2, k3 = (float(c) for c in camera.dist)
     lines = [
         "%YAML:1.0",
@@ -104,7 +106,7 @@ def settings_yaml(camera, config: AnyConfig | None = None) -> str:
         f"Camera.height: {int(camera.height)}",
         f"Camera.fps: {int(round(baseline.orbslam3_fps))}",
         "Camera.RGB: 1",
-        f"Stereo.ThDepth: {baseline.orbslam3_th_depth:.6f}",
+        f"Stereo.ThDepth: {th_depth:.6f}",
         f"Stereo.b: {camera.bf / camera.fx:.6f}",
         f"RGBD.DepthMapFactor: {camera.depth_factor:.6f}",
         f"ORBextractor.nFeatures: {orb.n_features}",
@@ -476,9 +478,8 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
         stale.unlink(missing_ok=True)  # a failed run must not leave an older trajectory behind
     camera_file = read_camera_file(camera) if is_camera_file(camera) else None  # read once (the worker reads its own)
     if camera_file is not None and camera_file.th_depth is not None:
-        # a settings YAML's own close-point threshold replaces the TUM value
-        config = dataclasses.replace(config, baseline=dataclasses.replace(config.baseline,
-                                                                          orbslam3_th_depth=camera_file.th_depth))
+        # a settings YAML's own close-point threshold replaces the TUM value (the engine's ThDepth is ORB-SLAM3's)
+        config = overridden(config, {"engine": {"th_depth": camera_file.th_depth}})
     seq_camera = camera_file.camera if camera_file is not None else camera
     seq = open_sequence(sequence_dir, camera=seq_camera) if seq_camera else open_sequence(sequence_dir)
     n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)

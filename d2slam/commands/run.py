@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import glob
 import json
 import os
@@ -16,12 +15,12 @@ from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
 from d2slam.data.depth_scale import depth_scale_warning
 from d2slam.data.intrinsics import is_camera_file, read_camera_file
 from d2slam.errors import D2SlamError
-from d2slam.eval.fragment import fragment_fields, is_fragment, tracked_share
+from d2slam.eval.fragment import is_fragment, tracked_share
 from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
 from d2slam.run.methods import get_method, methods
+from d2slam.run.metrics import RunSource, run_json
 from d2slam.run.record import EXIT_FRAGMENT
-from d2slam.run.runner import run_method
-from d2slam.run.sequence import STAGES
+from d2slam.run.runner import run_config, run_method
 from d2slam.slam.orb_vocabulary import load_vocabulary
 
 
@@ -76,106 +75,92 @@ def register(sub) -> None:
 
 def run(args) -> int:
     method = get_method(args.method)
-    out = check_output_file(args.out, "--out")
-    if args.metrics_json:
-        check_output_file(args.metrics_json, "--metrics-json")
-    check_outputs(run_outputs(args, method), run_inputs(args))
-    for path in filter(None, [out, args.metrics_json]):  # what a killed run was writing
-        path = Path(path).expanduser()
-        remove_stale_temps(path.parent, f"{glob.escape(path.name)}.tmp-*")
-    camera, camera_source, th_depth = args.camera, None, None
-    if is_camera_file(args.camera):
-        settings = read_camera_file(args.camera)
-        camera, camera_source, th_depth = settings.camera, str(Path(args.camera).expanduser().resolve()), \
-            settings.th_depth
+    out = _check_outputs(args, method)
+    camera, camera_source, th_depth = _camera(args)
     if method.runner is not None:  # not a keypoint filter of our engine (orbslam3[-masked]): its own command
-        if args.masks_from is not None:
-            raise D2SlamError(f"--masks-from does not apply to --method {args.method}")
-        if args.masks is not None and not method.needs_masks:
-            raise D2SlamError(f"--masks does not apply to --method {args.method}")
-        if args.config is not None:
-            raise D2SlamError(f"--config does not apply to --method {args.method}")
-        if args.no_loop_closing:
-            raise D2SlamError(f"--no-loop-closing does not apply to --method {args.method} (the real ORB-SLAM3)")
-        _warn_depth_scale(open_sequence(args.sequence, **({"camera": camera} if camera else {})), DEFAULT)
-        return print_orbslam3(method.runner(args), args)
-
+        return _run_orbslam3(args, method, camera)
     config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
-    if th_depth is not None:
-        config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=th_depth))
-    config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=args.seed))
-    if args.no_loop_closing:
-        config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, loop_closing=False))
+    config = run_config(config, args.seed, not args.no_loop_closing, th_depth)
     seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
     synthetic = isinstance(seq, SyntheticSequence)
     _warn_depth_scale(seq, config)
     mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
-    run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
-                     progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
-    engine, masks_kind, ev = run.engine, run.masks, run.evaluation
-    if run.tracked == 0:
-        write_tum_trajectory(out, run.trajectory, header=f"d2slam run {args.method}: no frame tracked")
-    else:
-        write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
-    record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
-              **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
-              **({"masks_origin": run.masks_origin} if run.masks_origin else {}),
-              "seed": args.seed, "config_hash": run.config_hash,
-              "camera": {**dataclasses.asdict(seq.camera),
-                         "source": camera_source or ("scene.json" if synthetic else args.camera or "folder name")},
-              **({"config_file": str(Path(args.config).resolve()), "config_overrides": overrides,
-                  "config": config.to_dict()} if args.config else {}),
-              **engine.summary(), "trajectory": str(out)}
-    if run.keypoints is not None:
-        record["keypoints"] = run.keypoints
-    record.update(run.loops)
-    if run.loop_closing:
+    record = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
+                        progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
+    write_tum_trajectory(out, record.trajectory, header=(f"d2slam run {args.method}: no frame tracked" if
+                                                         record.tracked == 0 else
+                                                         f"d2slam run --method {args.method} {seq.root}"))
+    vocabulary = None
+    if record.loop_closing:
         voc = load_vocabulary(config.engine.vocabulary or None)
-        record["vocabulary"] = {"path": voc.path, "sha256": voc.sha256}
-    ate_only = None
-    if ev is None:
-        record["metrics_error"] = "no ATE/RPE: the sequence has no groundtruth.txt"
-    elif run.tracked < 3:
-        record["metrics_error"] = f"no ATE/RPE: only {run.tracked} frames tracked (at least 3 are needed)"
-    elif ev.metrics is not None:
-        record["metrics"] = ev.metrics.to_dict()
-    elif ev.ate_rmse_m is not None:  # too short for 1-second pairs: the ATE alone
-        ate_only = ev.ate_rmse_m
-        record["metrics"] = {"ate_rmse_m": ate_only}
-        record["metrics_error"] = f"no RPE: {ev.error}"
-    else:
-        record["metrics_error"] = f"no ATE/RPE: {ev.error}"
-    listed = getattr(seq, "n_rgb", run.frames)
-    if run.frames < listed:
-        record["frames_note"] = (f"{run.frames} of the {listed} frames of rgb.txt were run: the others have no "
-                                 f"depth image within {seq.max_dt:g} s (depth.txt lists {seq.n_depth})")
-    record.update(fragment_fields(run.tracked, run.frames, run.min_tracked_share))
-    for k in STAGES:
-        if k in run.stage_ms:
-            record[f"{k}_ms"] = round(run.stage_ms[k], 3)
-    record["startup_s"] = round(engine.first_frame_at - process_start(), 3)
+        vocabulary = {"path": voc.path, "sha256": voc.sha256}
+    source = RunSource(seq, args.seed, camera_source or ("scene.json" if synthetic else args.camera or "folder name"),
+                       out, mask_seq, args.config, overrides, config if args.config else None, vocabulary)
+    js = run_json(record, source, record.engine.first_frame_at - process_start())
     if args.metrics_json:
-        write_bytes(Path(args.metrics_json).expanduser(), json.dumps(record, indent=2) + "\n")
+        write_bytes(Path(args.metrics_json).expanduser(), json.dumps(js, indent=2) + "\n")
     if not args.quiet:
-        print(f"{seq.name}: {run.lost} lost, {run.keyframes} keyframes, {run.fps:.1f} fps; ms/frame: "
-              + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms.items()))
-        if "frames_note" in record:
-            print(record["frames_note"])
-        if run.loop_closing:
-            print(f"loops: {len(record['loops'])}" + (f" ({len(record['loops_true'])} true, "
-                                                     f"{len(record['loops_false'])} false)" if ev is not None else "")
-                  + "".join(f"; frames {a} -> {b}" for a, b in record["loops"]))
-        if "metrics_error" in record:
-            print(record["metrics_error"])
-        else:
-            m = record["metrics"]
-            print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
-        masks = f"{masks_kind} ({run.masks_origin})" if masks_kind else "none"
-        ate = record["metrics"]["ate_rmse_m"] if "metrics" in record else None
-        print(summary_line(args.method, masks, camera_text(seq.camera.name, record["camera"]["source"], args.camera),
-                           run.tracked, run.frames, ate, [out, args.metrics_json],
-                           ate_note=" (no RPE)" if ate_only is not None else "", min_share=run.min_tracked_share))
-    return EXIT_FRAGMENT if run.fragment else 0
+        _print_run(record, js, args, seq, out)
+    return EXIT_FRAGMENT if record.fragment else 0
+
+
+def _check_outputs(args, method) -> Path:
+    """``--out``, checked with ``--metrics-json`` against each other and the run's inputs, before any work; what a
+    killed run was writing there is removed."""
+    out = check_output_file(args.out, "--out")
+    if args.metrics_json:
+        check_output_file(args.metrics_json, "--metrics-json")
+    check_outputs(run_outputs(args, method), run_inputs(args))
+    for path in filter(None, [out, args.metrics_json]):
+        path = Path(path).expanduser()
+        remove_stale_temps(path.parent, f"{glob.escape(path.name)}.tmp-*")
+    return out
+
+
+def _camera(args) -> tuple[object, str | None, float | None]:
+    """(``--camera``: a name, or the camera of a settings file; where it came from when a file; the file's ThDepth)."""
+    if not is_camera_file(args.camera):
+        return args.camera, None, None
+    settings = read_camera_file(args.camera)
+    return settings.camera, str(Path(args.camera).expanduser().resolve()), settings.th_depth
+
+
+def _run_orbslam3(args, method, camera) -> int:
+    """``d2slam run --method orbslam3[-masked]``: the arguments that apply to our engine only are refused; the
+    depth-scale check, then ORB-SLAM3's own run."""
+    for given, what in ((args.masks_from is not None, "--masks-from"),
+                        (args.masks is not None and not method.needs_masks, "--masks"),
+                        (args.config is not None, "--config")):
+        if given:
+            raise D2SlamError(f"{what} does not apply to --method {args.method}")
+    if args.no_loop_closing:
+        raise D2SlamError(f"--no-loop-closing does not apply to --method {args.method} (the real ORB-SLAM3)")
+    _warn_depth_scale(open_sequence(args.sequence, **({"camera": camera} if camera else {})), DEFAULT)
+    return print_orbslam3(method.runner(args), args)
+
+
+def _print_run(record, js: dict, args, seq, out: Path) -> None:
+    """What ``d2slam run`` prints of an engine run: its figures, the frames not run, the loops, RPE (or why there is
+    none), and the summary line."""
+    print(f"{seq.name}: {record.lost} lost, {record.keyframes} keyframes, {record.fps:.1f} fps; ms/frame: "
+          + ", ".join(f"{k} {v:.1f}" for k, v in record.stage_ms.items()))
+    if "frames_note" in js:
+        print(js["frames_note"])
+    if record.loop_closing:
+        judged = record.evaluation is not None
+        print(f"loops: {len(js['loops'])}" + (f" ({len(js['loops_true'])} true, {len(js['loops_false'])} false)"
+                                              if judged else "") + "".join(f"; frames {a} -> {b}" for a, b in js["loops"]))
+    if "metrics_error" in js:
+        print(js["metrics_error"])
+    else:
+        m = js["metrics"]
+        print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
+    masks = f"{record.masks} ({record.masks_origin})" if record.masks else "none"
+    ate = js["metrics"]["ate_rmse_m"] if "metrics" in js else None
+    print(summary_line(args.method, masks, camera_text(seq.camera.name, js["camera"]["source"], args.camera),
+                       record.tracked, record.frames, ate, [out, args.metrics_json],
+                       ate_note=" (no RPE)" if "metrics" in js and "metrics_error" in js else "",
+                       min_share=record.min_tracked_share))
 
 
 def run_outputs(args, method) -> list[tuple[str, object]]:
@@ -228,8 +213,9 @@ def print_orbslam3(run, args) -> int:
 
 
 def _warn_depth_scale(seq, config) -> None:
-    """The depth-scale check (:mod:`d2slam.data.depth_scale`): a warning on stderr naming the factor to set."""
-    warning = depth_scale_warning(seq, config)
+    """The depth-scale check (:mod:`d2slam.data.depth_scale`, seeded with the run's seed): a warning on stderr naming
+    the factor to set."""
+    warning = depth_scale_warning(seq, config, seed=config.engine.seed)
     if warning:
         print(f"d2slam: warning: {warning}", file=sys.stderr)
 

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from d2slam.ranges import Checked, below, flag, one_of, rule, section, seed, text, within
+import numpy as np
+
+from d2slam.ranges import Checked, below, within
 
 
 # The feature budget's bound (docs/inputs.md): OpenCV 5.0's ORB allocates for nfeatures up front and fails with
@@ -46,7 +48,7 @@ class DepthCheckConfig(Checked):
     # the sequence) whose ground-truth poses are depth_min_baseline_m to depth_max_baseline_m apart and turn by at most
     # depth_max_rotation_deg (the views overlap); per frame depth_orb_features ORB keypoints with depth, cross-checked
     # Hamming matches within depth_max_hamming; the relative pose by a 3-D/3-D RANSAC (depth_ransac_iterations
-    # hypotheses of 3 matches, seeded with depth_ransac_seed; inlier when the residual is within depth_inlier_rel of
+    # hypotheses of 3 matches, seeded with the run's seed, EngineConfig.seed; inlier when the residual is within depth_inlier_rel of
     # the point's depth, which does not depend on the scale) with at least depth_min_inliers inliers. The depth is off
     # when the median ratio of the estimated to the true camera translation is beyond depth_ratio_tolerance either way
     # (a factor 5, e.g. millimetres read with TUM's 5000, gives 0.2 or 5). Without ground truth or camera motion,
@@ -60,9 +62,27 @@ class DepthCheckConfig(Checked):
     depth_orb_features: int = within(600, 1, 100_000, why=ORB_FEATURES_WHY)
     depth_max_hamming: int = within(50, 0, 256)
     depth_ransac_iterations: int = within(200, 1, 1_000_000)
-    depth_ransac_seed: int = seed(0)
     depth_inlier_rel: float = within(0.02, 0.0, 1.0, lo_open=True)
     depth_min_inliers: int = within(30, 3, 100_000)
     depth_ratio_tolerance: float = within(2.0, 1.0, 1000.0, lo_open=True)
     depth_far_percentile: float = within(95.0, 0.0, 100.0)
     depth_far_min_m: float = within(1.0, 0.0, 100.0)
+
+
+@dataclass(frozen=True)
+class DepthNoise(Checked):
+    """An RGB-D camera's axial depth noise, sigma(z) = a + b (z - c)^2 metres (Nguyen et al. 2012; a Kinect's: ~1.2 mm
+    at 0.4 m, ~2 mm at 1 m, ~13 mm at 3 m; docs/design.md#depth-noise): what the synthetic sensor draws
+    (``d2slam.synth.sensor``) and the scale of the pose test's depth residual (``d2slam.dynamics``). A camera's own
+    (``Camera.depth_noise``); the TUM cameras and the synthetic one are Kinects."""
+
+    a: float = within(0.0012, 0.0, 1.0)
+    b: float = within(0.0019, 0.0, 1.0)
+    c: float = within(0.4, 0.0, 20.0)
+
+    def sigma(self, z):
+        """sigma(z) (float64, like ``z``'s shape); NaN where ``z`` is not a valid depth (finite and > 0)."""
+        z = np.asarray(z, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(z) & (z > 0)
+        return np.where(valid, self.a + self.b * (z - self.c) ** 2, np.nan)

@@ -77,14 +77,15 @@ def _kabsch(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, cb - np.einsum("...ij,...j->...i", R, ca)
 
 
-def rigid_ransac(P: np.ndarray, Q: np.ndarray, check: DepthCheckConfig = DepthCheckConfig()) -> tuple[np.ndarray | None, int]:
+def rigid_ransac(P: np.ndarray, Q: np.ndarray, check: DepthCheckConfig = DepthCheckConfig(),
+                 seed: int = 0) -> tuple[np.ndarray | None, int]:
     """Translation of the rigid motion Q ~ R P + t of matched points (M, 3), by RANSAC over triples (seeded, all
     hypotheses at once) with residuals relative to the depth of Q, refitted on the inliers; (None, inliers) when
     fewer than ``depth_min_inliers`` agree."""
     m = len(P)
     if m < max(3, int(check.depth_min_inliers)):
         return None, 0
-    rng = np.random.default_rng(int(check.depth_ransac_seed))
+    rng = np.random.default_rng(int(seed))
     triples = np.argpartition(rng.random((int(check.depth_ransac_iterations), m)), 3, axis=1)[:, :3]
     R, t = _kabsch(P[triples], Q[triples])
     tol = check.depth_inlier_rel * Q[:, 2]
@@ -102,7 +103,7 @@ def rigid_ransac(P: np.ndarray, Q: np.ndarray, check: DepthCheckConfig = DepthCh
     return _kabsch(P[best], Q[best])[1], count
 
 
-def translation_ratios(seq, check: DepthCheckConfig = DepthCheckConfig()) -> list[float]:
+def translation_ratios(seq, check: DepthCheckConfig = DepthCheckConfig(), seed: int = 0) -> list[float]:
     """Per frame pair of :func:`candidate_pairs`: the camera translation measured through the depth divided by the
     ground truth's (1 when the depth is in metres); empty when there is no ground truth, no pair with enough camera
     motion, or too few matches."""
@@ -133,7 +134,7 @@ def translation_ratios(seq, check: DepthCheckConfig = DepthCheckConfig()) -> lis
             continue
         qj = np.array([mt.queryIdx for mt in matches])
         ti = np.array([mt.trainIdx for mt in matches])
-        t, _ = rigid_ransac(Pj[qj], Pi[ti], check)  # frame j's points into frame i: t = c_j - c_i in frame i
+        t, _ = rigid_ransac(Pj[qj], Pi[ti], check, seed)  # frame j's points into frame i: t = c_j - c_i in frame i
         if t is None:
             continue
         truth = float(np.linalg.norm(poses[j, :3, 3] - poses[i, :3, 3]))
@@ -170,11 +171,12 @@ def _window_warning(seq, cfg: DataConfig, check: DepthCheckConfig) -> str | None
             f"{hint}(set DepthMapFactor in a --camera settings file)")
 
 
-def depth_scale_warning(seq, config: AnyConfig | DataConfig | None = None, check: DepthCheckConfig = DepthCheckConfig()) -> str | None:
+def depth_scale_warning(seq, config: AnyConfig | DataConfig | None = None, check: DepthCheckConfig = DepthCheckConfig(),
+                        seed: int = 0) -> str | None:
     """A one-line message when the depth of ``seq`` is not in metres with its camera's depth factor, naming the factor
     that would make it so; None when it looks right. Against the ground truth's camera motion when the sequence has
     it (module docstring), else the median-depth window."""
-    ratios = translation_ratios(seq, check)
+    ratios = translation_ratios(seq, check, seed)
     if not ratios:
         return _window_warning(seq, part_of(config, "data", DataConfig), check)
     ratio = float(np.median(ratios))

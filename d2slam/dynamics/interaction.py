@@ -70,10 +70,10 @@ def mask_depths(depth: np.ndarray, masks: np.ndarray | list[MaskEdges] | None,
     ``masks`` (n, H, W) bool, the frame's ``mask_edges`` or ``FrameMasks`` (their bounding boxes are reused).
     Deviation, for speed: the median is taken over the mask pixels of a grid of stride ``zone_median_stride`` (4:
     1/16 of the pixels) inside the mask's bounding box; it differs from the full median by far less than the zone's
-    1 m tolerance (the tests bound the difference; measured: docs/deviations.md, ``DynamicsConfig.zone_median_stride``).
+    1 m tolerance (the tests bound the difference; measured: docs/deviations.md, ``OursConfig.zone_median_stride``).
     Stride 1 = every pixel. A mask the grid misses entirely falls back to every pixel."""
     edges = masks.edges if isinstance(masks, FrameMasks) else masks if isinstance(masks, list) else mask_edges(masks)
-    s = max(int(cfg.zone_median_stride), 1)
+    s = max(int(cfg.ours.zone_median_stride), 1)
     depth = np.asarray(depth)
     out = np.full(len(edges), np.nan)
     for k, e in enumerate(edges):  # loop over masks only
@@ -133,17 +133,17 @@ def oim_candidates(belief: np.ndarray, observed: np.ndarray, geo_dynamic: np.nda
     Deviation: with the paper's candidates the OIM flips many more static keypoints than dynamic ones, and each flip
     takes a static keypoint out of tracking and mapping. A keypoint whose own epipolar test passed has direct
     evidence of being static, which its neighbours' should not override; keeping it out of the OIM costs some recall
-    and lowers the ATE (measured: docs/deviations.md, ``DynamicsConfig.oim_skip_observed_static``). Unmatched
+    and lowers the ATE (measured: docs/deviations.md, ``OursConfig.oim_skip_observed_static``). Unmatched
     keypoints (most of an object's keypoints while it is carried) stay candidates.
     ``oim_skip_observed_static=False`` gives the paper's reading.
 
     ``oim_skip_neighbour_static`` (ours, off by default) also drops the unmatched keypoints whose matched neighbours
     say static, ``p_nb`` (``neighbour_p_g``) <= 0.5: it trades recall for precision (measured: docs/deviations.md,
-    ``DynamicsConfig.oim_skip_neighbour_static``)."""
+    ``OursConfig.oim_skip_neighbour_static``)."""
     cand = np.asarray(belief, dtype=np.float64) <= cfg.dynamic_threshold
-    if cfg.oim_skip_observed_static:
+    if cfg.ours.oim_skip_observed_static:
         cand &= ~(np.asarray(observed, dtype=bool) & ~np.asarray(geo_dynamic, dtype=bool))
-    if cfg.oim_skip_neighbour_static and p_nb is not None:
+    if cfg.ours.oim_skip_neighbour_static and p_nb is not None:
         with np.errstate(invalid="ignore"):
             cand &= ~(np.asarray(p_nb, dtype=np.float64) <= cfg.dynamic_threshold)  # NaN compares False
     return cand
@@ -282,7 +282,7 @@ def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: n
     Why: eq 7 gives an unmatched keypoint outside every mask area P = 0.5, so its belief only keeps its prior. Many
     of the dynamic keypoints the classifier misses are such keypoints (on people the masks missed and on carried
     objects), and their matched neighbours on the same surface usually carry the motion. It raises the recall at an
-    unchanged ATE (measured: docs/deviations.md, ``DynamicsConfig.neighbour_p_g``).
+    unchanged ATE (measured: docs/deviations.md, ``OursConfig.neighbour_p_g``).
 
     One ``cKDTree.query`` (k nearest, bounded by the largest radius) over the matched keypoints: no Python loop.
     ``matched`` (optional): the frame's ``MatchedPoints`` of ``observed`` with a valid depth, whose tree the OIM
@@ -296,7 +296,7 @@ def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: n
     oi = matched.idx
     ok = ~observed & maps.valid & matched.finite
     qi = np.flatnonzero(ok if skip is None else ok & ~np.asarray(skip, dtype=bool))
-    k = min(int(cfg.neighbour_k), len(oi))
+    k = min(int(cfg.ours.neighbour_k), len(oi))
     if len(qi) == 0 or k == 0:
         return out
     radius = maps.delta[qi]
@@ -304,9 +304,9 @@ def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: n
     dist, j = dist.reshape(len(qi), k), j.reshape(len(qi), k)
     found = j < len(oi)  # missing neighbours come back as index len(oi), distance inf
     nb = oi[np.where(found, j, 0)]
-    keep = found & (dist < radius[:, None]) & (np.abs(maps.z[qi, None] - maps.z[nb]) < cfg.neighbour_depth)
+    keep = found & (dist < radius[:, None]) & (np.abs(maps.z[qi, None] - maps.z[nb]) < cfg.ours.neighbour_depth)
     count = keep.sum(axis=1)
     total = np.where(keep, np.asarray(p_g, dtype=np.float64)[nb], 0.0).sum(axis=1)  # finite: nb are observed
-    has = count >= max(int(cfg.neighbour_min), 1)
+    has = count >= max(int(cfg.ours.neighbour_min), 1)
     out[qi[has]] = total[has] / count[has]
     return out

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from d2slam.ranges import Checked, below, flag, one_of, rule, section, seed, text, within
+from d2slam.ranges import Checked, within
 
 
 @dataclass(frozen=True)

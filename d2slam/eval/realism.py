@@ -7,7 +7,7 @@ what a keypoint filter would see, and which map points the tracked frame matched
 - static epipolar error (eq 5) of every match against F found by RANSAC on the frame's matches (as the geometric
   module finds it), percentiles overall, by keypoint depth and by image radius (``SynthEvalConfig.realism_depth_bins``,
   ``realism_radius_bins``);
-- the pose test's residuals (our deviation, ``DynamicsConfig.pose_test``): reprojection error (px) and normalised
+- the pose test's residuals (our deviation, ``PoseTestConfig.enabled``): reprojection error (px) and normalised
   depth residual |dz| / sigma of the relative pose found by PnP RANSAC on the matches with depth;
 - track lengths: how many consecutive frames a map point stays matched (an inlier) in the tracked frames;
 - depth holes: share of the image and of the keypoints without depth;
@@ -27,8 +27,10 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from d2slam.data.config import DepthNoise
 from d2slam.data.tum import interpolate_poses
 from d2slam.dynamics.config import DynamicsConfig
+from d2slam.dynamics.depth import depth_sigma
 from d2slam.dynamics.geometric import back_project, epipolar_error, fundamental_matrix, pose_residuals, relative_pose
 from d2slam.errors import D2SlamError
 from d2slam.ranges import AnyConfig, part_of
@@ -36,7 +38,6 @@ from d2slam.slam.frame import undistort
 from d2slam.synth.config import SynthConfig, SynthEvalConfig
 from d2slam.synth.realism import texture_stats
 from d2slam.synth.scene import Scene
-from d2slam.synth.sensor import depth_sigma
 from d2slam.synth.twin import RecordedPath, placement
 from d2slam.synth.world import WorldRenderer
 
@@ -168,9 +169,11 @@ class MatchStats:
     frame: np.ndarray  # the match's frame index
 
 
-def match_stats(log: EngineLog, K: np.ndarray, config: AnyConfig | None = None) -> MatchStats:
+def match_stats(log: EngineLog, K: np.ndarray, config: AnyConfig | None = None,
+                noise: DepthNoise = DepthNoise()) -> MatchStats:
     """Eq 5 and the pose test on every logged frame's matches, as the geometric module computes them
-    (``d2slam.dynamics.geometric``: F by RANSAC, PnP RANSAC on the matches with depth in the previous frame)."""
+    (``d2slam.dynamics.geometric``: F by RANSAC, PnP RANSAC on the matches with depth in the previous frame; the
+    camera's depth ``noise``)."""
     dyn = part_of(config, "dynamics", DynamicsConfig)
     cols: dict[str, list] = {k: [] for k in ("epi", "depth", "radius", "reproj", "dres", "frame")}
     for f in log.observed:
@@ -186,7 +189,7 @@ def match_stats(log: EngineLog, K: np.ndarray, config: AnyConfig | None = None) 
         X = back_project(q, np.where(has, f["zq"], np.nan), K)
         pose = relative_pose(X[has], p[has], K, dyn) if has.sum() >= 6 else None
         if pose is not None:
-            reproj, d = pose_residuals(X, p, f["zp"], pose[0], pose[1], K, dyn)
+            reproj, d = pose_residuals(X, p, f["zp"], pose[0], pose[1], K, noise)
             dres = np.abs(d)
         for name, v in (("epi", epi), ("depth", f["zp"]), ("radius", np.hypot(p[:, 0] - K[0, 2], p[:, 1] - K[1, 2])),
                         ("reproj", reproj), ("dres", dres), ("frame", np.full(k, f["index"]))):
@@ -276,7 +279,7 @@ def measure(seq, log: EngineLog, stride: int | None = None, config: AnyConfig | 
 
     ev = part_of(config, "synth_eval", SynthEvalConfig)
     n = log.frames
-    ms = match_stats(log, seq.camera.K, config)
+    ms = match_stats(log, seq.camera.K, config, seq.camera.depth_noise)
     stride = int(stride or ev.realism_stride)
     idx = np.arange(0, n, max(stride, 1))
     gt = seq.groundtruth
@@ -511,7 +514,7 @@ def depth_consistency(seq, indices, offset: float, step: int = 4, edge_m: float 
         zb = cur[uv[inside, 1], uv[inside, 0]].astype(np.float64)
         zp = Xb[inside, 2]
         valid = zb > 0
-        r = np.abs(zb[valid] - zp[valid]) / np.hypot(depth_sigma(zb[valid]), depth_sigma(zp[valid]))
+        r = np.abs(zb[valid] - zp[valid]) / np.hypot(depth_sigma(zb[valid], cam.depth_noise), depth_sigma(zp[valid], cam.depth_noise))
         out.append(float(np.median(r)) if r.size else np.nan)
         prev = (i, cur)
     return np.array(out)

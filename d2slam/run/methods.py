@@ -147,7 +147,7 @@ DYNAMICS = {
                "full D2SLAM: semantic + geometric + Bayesian fusion + object interaction (eq 1-10)"),
     "d2slam-flow": (_Dynamics("d2slam-flow", switches=Switches(flow=True)), True,
                     "ours: d2slam with sub-pixel LK flow correspondences for eq 5 and the edge band "
-                    "(DynamicsConfig.flow, flow_edge_band)"),
+                    "(FlowConfig.enabled, flow_edge_band)"),
     "no-depth": (_Dynamics("no-depth", switches=Switches(depth=False)), True,
                  "D2SLAM with every depth-adaptive quantity at its midpoint and no OIM depth test"),
     "no-oim": (_Dynamics("no-oim", switches=Switches(oim=False)), True,

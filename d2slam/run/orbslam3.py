@@ -10,7 +10,7 @@ from d2slam.baselines.orbslam3 import orbslam3_report
 from d2slam.config import DEFAULT, Config
 from d2slam.data import read_tum_trajectory
 from d2slam.eval.trajectory import Evaluation, TrajectoryMetrics, aligned_estimate
-from d2slam.run.record import RunRecord
+from d2slam.run.record import Orbslam3Run, RunRecord
 
 
 def run_orbslam3(sequence_dir, out_traj, metrics_json=None, evaluate: bool = True, config: Config = DEFAULT,
@@ -43,11 +43,11 @@ def orbslam3_record(report: dict, seq, evaluate: bool = True) -> RunRecord:
     evaluation = Evaluation(TrajectoryMetrics(**metrics) if metrics else None, metrics.get("ate_rmse_m"),
                             str(report.get("metrics_error") or ""), aligned)
     ate = metrics.get("ate_rmse_m")
+    run = Orbslam3Run(traj, report.get("frames"), report.get("tracked"), report.get("lost"), report.get("fps"),
+                      report.get("ms_per_frame"), report)
     return RunRecord(
-        method=report["method"], sequence=report.get("name", ""), trajectory=traj, frames=report.get("frames"),
-        tracked=report.get("tracked"), lost=report.get("lost"), fps=report.get("fps"),
-        ms_per_frame=report.get("ms_per_frame"), config_hash=report["config_hash"], loop_closing=True, status=status,
-        error=error, evaluation=evaluation if metrics or aligned is not None else None, masks=report.get("masks"),
-        masks_origin=report.get("masks_origin"), repeats=int(report.get("repeats", 1)),
-        ate_range=(spread["min"], spread["max"]) if spread else (ate, ate) if metrics else None, orbslam3=report,
+        method=report["method"], sequence=report.get("name", ""), run=run, config_hash=report["config_hash"],
+        status=status, error=error, evaluation=evaluation if metrics or aligned is not None else None,
+        masks=report.get("masks"), masks_origin=report.get("masks_origin"), repeats=int(report.get("repeats", 1)),
+        ate_range=(spread["min"], spread["max"]) if spread else (ate, ate) if metrics else None,
         min_tracked_share=report.get("min_tracked_share", DEFAULT.evaluation.min_tracked_share))

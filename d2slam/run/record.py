@@ -1,7 +1,7 @@
 """What a run gives: :class:`RunRecord` for every method (our engine's, the real ORB-SLAM3's, ORB-SLAM3's on masked
-frames), the one shape that ``d2slam run`` prints and writes and the study turns into its rows and tables; and
-:class:`EngineRun`, the engine's own account of a run (``d2slam.run.sequence.run_sequence``), which a record of an
-engine method carries.
+frames), the one shape that ``d2slam run`` prints and writes and the study turns into its rows and tables; and each
+method's own account of a run, which a record carries: :class:`EngineRun`, the engine's
+(``d2slam.run.sequence.run_sequence``), and :class:`Orbslam3Run`, the real ORB-SLAM3's.
 
 A run that tracked less than ``EvalConfig.min_tracked_share`` of its frames is a fragment
 (:mod:`d2slam.eval.fragment`): :attr:`RunRecord.fragment` says so.
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from d2slam.config import DEFAULT
 from d2slam.data.base import Trajectory
+from d2slam.eval.config import EvalConfig
 from d2slam.eval.fragment import is_fragment, tracked_share
 from d2slam.eval.trajectory import Evaluation
 
@@ -56,40 +56,70 @@ class EngineRun:
 
 
 @dataclass
+class Orbslam3Run:
+    """The real ORB-SLAM3's account of a run (its run JSON, ``report``: ``d2slam.baselines.orbslam3``), as a
+    :class:`RunRecord` reads it: the median figures over its repeats; no keyframe or map-point counts, no stages."""
+
+    trajectory: Trajectory | None  # the last repeat's tracked frames, read back (None: it wrote none)
+    frames: int | None
+    tracked: int | None
+    lost: int | None
+    fps: float | None
+    ms_per_frame: float | None
+    report: dict
+    keyframes: int | None = None
+    map_points: int | None = None
+    stage_ms: dict[str, float] = field(default_factory=dict)
+    loop_closing: bool = True  # ORB-SLAM3 always closes loops
+
+
+@dataclass
 class RunRecord:
     """One run of a method on a sequence, evaluated against its ground truth when it has one.
 
-    ``status`` and ``error`` say how the run ended, as the study's ``runs.csv`` records it: for the engine's methods
-    ``ok`` (ATE and RPE), ``partial`` (the ATE alone: too short for a 1-second RPE pair) or ``unevaluated``; for
-    ORB-SLAM3 its own outcome (``ok``, ``lost``, ``reset``, ``failed``, ``crashed``, ``timeout``; ``unevaluated``
-    when it tracked but gave no metrics). ORB-SLAM3 runs ``repeats`` times: its figures are the medians, ``ate_range``
-    the ATE's (min, max) over the repeats."""
+    ``run`` is the method's own account of it: the engine's (:class:`EngineRun`) or the real ORB-SLAM3's
+    (:class:`Orbslam3Run`); the record reads its figures (frames, tracked, fps, ...) there. ``status`` and ``error``
+    say how the run ended, as the study's ``runs.csv`` records it: for the engine's methods ``ok`` (ATE and RPE),
+    ``partial`` (the ATE alone: too short for a 1-second RPE pair) or ``unevaluated``; for ORB-SLAM3 its own outcome
+    (``ok``, ``lost``, ``reset``, ``failed``, ``crashed``, ``timeout``; ``unevaluated`` when it tracked but gave no
+    metrics). ORB-SLAM3 runs ``repeats`` times: its figures are the medians, ``ate_range`` the ATE's (min, max) over
+    the repeats."""
 
     method: str
     sequence: str  # the sequence's name
-    trajectory: Trajectory  # T_world_camera of the tracked frames (empty when none was tracked)
-    frames: int  # frames run
-    tracked: int
-    lost: int
-    fps: float | None
-    ms_per_frame: float | None
+    run: EngineRun | Orbslam3Run
     config_hash: str
-    loop_closing: bool
     status: str
     error: str  # why the status is not ``ok`` ("" when it is)
     evaluation: Evaluation | None  # None: the sequence has no ground truth, or the run gave no trajectory
-    stage_ms: dict[str, float] = field(default_factory=dict)  # the engine's stages (``d2slam.run.sequence.STAGES``)
     masks: str | None = None  # the mask kind read (None: none)
     masks_origin: str | None = None  # where they came from (``d2slam.segmentation.masks_origin``)
     repeats: int = 1
     ate_range: tuple[float, float] | None = None
     keypoints: dict | None = None  # classification against the synthetic truth (``d2slam.eval.keypoints``)
     loops: dict | None = None  # ``d2slam.eval.loops.loop_summary`` (the engine's methods)
-    keyframes: int | None = None
-    map_points: int | None = None
-    engine: EngineRun | None = None  # the engine's own account (the engine's methods)
-    orbslam3: dict | None = None  # ORB-SLAM3's run JSON (``d2slam.baselines.orbslam3``)
-    min_tracked_share: float = DEFAULT.evaluation.min_tracked_share  # the run's config's (``EvalConfig``)
+    min_tracked_share: float = EvalConfig().min_tracked_share  # the run's config's (``EvalConfig``)
+
+    trajectory = property(lambda self: self.run.trajectory, doc="T_world_camera of the tracked frames")
+    frames = property(lambda self: self.run.frames, doc="frames run")
+    tracked = property(lambda self: self.run.tracked)
+    lost = property(lambda self: self.run.lost)
+    fps = property(lambda self: self.run.fps)
+    ms_per_frame = property(lambda self: self.run.ms_per_frame)
+    keyframes = property(lambda self: self.run.keyframes)
+    map_points = property(lambda self: self.run.map_points)
+    stage_ms = property(lambda self: self.run.stage_ms, doc="the engine's stages (``d2slam.run.sequence.STAGES``)")
+    loop_closing = property(lambda self: self.run.loop_closing)
+
+    @property
+    def engine(self) -> EngineRun | None:
+        """The engine's own account (the engine's methods), else None."""
+        return self.run if isinstance(self.run, EngineRun) else None
+
+    @property
+    def orbslam3(self) -> dict | None:
+        """ORB-SLAM3's run JSON (``d2slam.baselines.orbslam3``), else None."""
+        return self.run.report if isinstance(self.run, Orbslam3Run) else None
 
     @property
     def tracked_share(self) -> float:

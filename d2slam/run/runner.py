@@ -13,10 +13,21 @@ from d2slam.errors import D2SlamError
 from d2slam.eval.keypoints import keypoint_recorder
 from d2slam.eval.loops import loop_summary
 from d2slam.eval.trajectory import evaluate_run
+from d2slam.ranges import overridden
 from d2slam.run.methods import get_method, mask_kind
 from d2slam.run.record import RunRecord
 from d2slam.run.sequence import run_sequence
 from d2slam.segmentation import mask_source, masks_for, masks_origin, stack_masks
+
+
+def run_config(config: Config, seed: int = 0, loop_closing: bool = True, th_depth: float | None = None) -> Config:
+    """``config`` as one run uses it: the run's seed (``EngineConfig.seed``: ``d2slam run --seed``, the study's
+    seed), loop closing off when the run asks (``--no-loop-closing``; it stays off when the config turns it off), and a
+    camera settings file's ThDepth when it has one (``--camera FILE``)."""
+    engine = {"seed": int(seed), "loop_closing": bool(config.engine.loop_closing and loop_closing)}
+    if th_depth is not None:
+        engine["th_depth"] = th_depth
+    return overridden(config, {"engine": engine})
 
 
 def run_method(seq, name: str, config: Config, masks: str | None = None, mask_seq=None, synthetic: bool = False,
@@ -44,13 +55,10 @@ def run_method(seq, name: str, config: Config, masks: str | None = None, mask_se
     status, error = ("unevaluated", "the sequence has no ground truth") if evaluation is None else \
         (evaluation.status, {"ok": "", "partial": f"ATE only: {evaluation.error}"}.get(
             evaluation.status, f"evaluation: {evaluation.error}"))
-    return RunRecord(method=name, sequence=getattr(seq, "name", ""), trajectory=run.trajectory, frames=run.frames,
-                     tracked=run.tracked, lost=run.lost, fps=run.fps, ms_per_frame=run.ms_per_frame,
-                     config_hash=config.hash(), loop_closing=run.loop_closing, status=status, error=error,
-                     evaluation=evaluation, stage_ms=run.stage_ms, masks=kind, masks_origin=origin,
+    return RunRecord(method=name, sequence=getattr(seq, "name", ""), run=run, config_hash=config.hash(),
+                     status=status, error=error, evaluation=evaluation, masks=kind, masks_origin=origin,
                      keypoints=recorder.result() if recorder is not None else None,
-                     loops=loop_summary(run, seq.timestamps, gt, config.evaluation), keyframes=run.keyframes,
-                     map_points=run.map_points, engine=run,
+                     loops=loop_summary(run, seq.timestamps, gt, config.evaluation),
                      min_tracked_share=config.evaluation.min_tracked_share)
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from d2slam.data.config import ORB_FEATURES_WHY
-from d2slam.ranges import Checked, below, flag, one_of, rule, section, seed, text, within
+from d2slam.ranges import INT_MAX, Checked, below, flag, one_of, rule, section, text, within
 
 
 @dataclass(frozen=True)
@@ -34,43 +34,16 @@ class OrbConfig(Checked):
 
 
 @dataclass(frozen=True)
-class EngineConfig(Checked):
-    _RULES = (below("min_depth", "max_depth"), below("desc_th_low", "desc_th_high", strict=False),
-              below("kf_min_frames", "kf_max_frames", strict=False),
-              below("relocalisation_pnp_candidates", "relocalisation_candidates", strict=False))
-    # Virtual stereo: u_R = u - bf / z; points closer than th_depth * b (b = bf / fx) are "close".
-    bf: float = within(40.0, 0.0, 10_000.0, lo_open=True)
-    th_depth: float = within(40.0, 0.0, 1000.0, lo_open=True)
-    # True: every keypoint with valid depth gets u_R and a stereo edge (ORB-SLAM2/3 ComputeStereoFromRGBD); th_depth
-    # then only decides which points are "close" (new map points, keyframe decision, keyframe culling). False: far
-    # points (beyond th_depth * b) get monocular edges.
-    stereo_far_points: bool = flag(True)
-    # Ours: with a keypoint filter, each frame extracts OrbConfig.n_features plus as many keypoints as the filter
-    # flagged in the previous frame (at most refill_max x n_features), so tracking and mapping keep about n_features
-    # usable keypoints, as DynaSLAM's extraction outside the masks does. Without a filter (none, the static twins)
-    # nothing changes. Such runs extract every frame themselves (stored features have the fixed budget). Measured:
-    # docs/deviations.md.
-    refill_filtered: bool = flag(True)
-    refill_max: float = within(1.5, 1.0, 10.0)
-    depth_factor: float = within(5000.0, 0.0, 1e6, lo_open=True)
-    min_depth: float = within(0.1, 0.0, 100.0)
-    max_depth: float = within(8.0, 0.0, 100.0, lo_open=True)
-    # Stereo observations (u, v, u_R): 0 = ORB-SLAM's information I / sigma_level^2 (u_R as noisy as a stereo match).
-    # > 0 (ours, RGB-D): u_R = u - bf / z carries u's error plus the depth's disparity error of this many pixels
-    # (optimizer.stereo_information). A Kinect's depth noise grows as sigma_z = k z^2 (k = 1.425e-3 / m, Khoshelham
-    # & Elberink 2012), i.e. a constant disparity error bf * k = 0.057 px at bf = 40 (the synthetic sensor's: 0.06-0.08
-    # px over 1-3 m); ORB-SLAM's 1 px x scale lets points slide in depth and local BA drag keyframes with them.
-    # Measured: docs/deviations.md.
-    disparity_sigma_px: float = within(0.057, 0.0, 100.0)
+class TrackingConfig(Checked):
+    """Tracking (ORB-SLAM3 Tracking): motion-only BA, the searches by projection (last frame, reference keyframe,
+    local map) and their thresholds, initialisation."""
+
     # Motion-only BA weighs u_R as ORB-SLAM3 does (1 px x scale) in its first pose_opt_coarse_rounds rounds and with
     # disparity_sigma_px after them; 4 = all rounds (ORB-SLAM3 PoseOptimization): the disparity model serves local BA
     # only. With 1, real Kinect frames whose depth image was taken ~15 ms before or after the colour image while the
     # camera turned lost their correct matches as outliers (fr1/rpy), and `none` held on the synthetic walking
     # sequences because people's depths disagree with the map. Measured: docs/real_data.md.
     pose_opt_coarse_rounds: int = within(4, 0, 100)
-    # Chi-square thresholds at 95 % (ORB-SLAM): 2 dof mono, 3 dof stereo.
-    chi2_mono: float = within(5.991, 0.0, 1000.0, lo_open=True)
-    chi2_stereo: float = within(7.815, 0.0, 1000.0, lo_open=True)
     # Motion-only BA: rounds of optimisation with outlier classification, iterations per round.
     pose_opt_rounds: int = within(4, 1, 100)
     pose_opt_iterations: int = within(10, 1, 1000)
@@ -82,20 +55,11 @@ class EngineConfig(Checked):
     tracking_min_inliers: int = within(10, 0, 100_000)  # after motion-only BA (motion model / reference keyframe)
     reference_min_matches: int = within(15, 0, 100_000)
     local_map_min_inliers: int = within(30, 0, 100_000)
-    relocalisation_min_inliers: int = within(50, 0, 100_000)
-    desc_th_high: int = within(100, 0, 256, why='Hamming distance of 256-bit descriptors')
-    desc_th_low: int = within(50, 0, 256, why='Hamming distance of 256-bit descriptors')
     nn_ratio_local_map: float = within(0.8, 0.0, 1.0, lo_open=True)
     nn_ratio_reference: float = within(0.7, 0.0, 1.0, lo_open=True)
-    nn_ratio_relocalisation: float = within(0.75, 0.0, 1.0, lo_open=True)
     # ORB-SLAM3 RGB-D (non-stereo sensor): th = 15
     search_radius_last_frame: float = within(15.0, 0.0, 1000.0, lo_open=True)
     search_radius_local_map: float = within(3.0, 0.0, 1000.0, lo_open=True)  # ORB-SLAM3 RGB-D: th = 3
-    search_radius_relocalisation: float = within(10.0, 0.0, 1000.0, lo_open=True)
-    # Local-map search radius on the relocalised frame (ORB-SLAM3 SearchLocalPoints: 15 while the state is still
-    # RECENTLY_LOST) and on the frame after it (5).
-    search_radius_relocalised: float = within(15.0, 0.0, 1000.0, lo_open=True)
-    search_radius_after_relocalisation: float = within(5.0, 0.0, 1000.0, lo_open=True)
     # Local-map search radius factor by viewing angle (ORB-SLAM RadiusByViewingCos): frontal (cos above this) or not.
     local_map_frontal_cos: float = within(0.998, -1.0, 1.0)
     local_map_radius_frontal: float = within(2.5, 0.0, 1000.0, lo_open=True)
@@ -104,12 +68,43 @@ class EngineConfig(Checked):
     frustum_dmin_factor: float = within(0.8, 0.0, 1.0, lo_open=True)
     frustum_dmax_factor: float = within(1.2, 1.0, 100.0)
     frustum_view_cos: float = within(0.5, -1.0, 1.0)
-    rotation_histogram_bins: int = within(30, 1, 360)  # ORB-SLAM HISTO_LENGTH: orientation-consistency histogram
-    # keypoint grid cell (px) of searches by projection (ORB-SLAM: 64 x 48 cells)
-    search_grid_cell: float = within(10.0, 0.0, 1000.0, lo_open=True)
-    check_orientation: bool = flag(True)
     # Initialisation (ORB-SLAM StereoInitialization): keypoints with valid depth needed for the first keyframe.
     init_min_keypoints: int = within(500, 1, 100_000)
+    # Tracking the local map: keyframes sharing points with the frame (at most this many) + their covisibles.
+    local_map_max_keyframes: int = within(80, 1, 100_000)
+    local_map_neighbours: int = within(10, 0, 1000)
+    local_map_neighbour_sources: int = within(3, 0, 1000)  # ... covisibles of the best this many keyframes
+
+
+@dataclass(frozen=True)
+class RelocalisationConfig(Checked):
+    """Relocalisation (ORB-SLAM3 Relocalization): candidate keyframes, descriptor matching, PnP RANSAC, the local-map
+    search after it."""
+
+    _RULES = (below("relocalisation_pnp_candidates", "relocalisation_candidates", strict=False),)
+    relocalisation_min_inliers: int = within(50, 0, 100_000)
+    nn_ratio_relocalisation: float = within(0.75, 0.0, 1.0, lo_open=True)
+    search_radius_relocalisation: float = within(10.0, 0.0, 1000.0, lo_open=True)
+    # Local-map search radius on the relocalised frame (ORB-SLAM3 SearchLocalPoints: 15 while the state is still
+    # RECENTLY_LOST) and on the frame after it (5).
+    search_radius_relocalised: float = within(15.0, 0.0, 1000.0, lo_open=True)
+    search_radius_after_relocalisation: float = within(5.0, 0.0, 1000.0, lo_open=True)
+    # Relocalisation (no DBoW2): descriptor matching against the most recent keyframes, then PnP RANSAC.
+    relocalisation_candidates: int = within(10, 1, 1000)
+    # ... of which the best by descriptor votes get the PnP attempt (Engine._relocalisation_shortlist).
+    relocalisation_pnp_candidates: int = within(3, 1, 1000)
+    # PnP RANSAC of a candidate's matches (ORB-SLAM3's PnPsolver: 300 iterations; the pose test's own PnP is
+    # dynamics.pose_test's).
+    relocalisation_pnp_iterations: int = within(300, 1, 1_000_000)
+    relocalisation_pnp_px: float = within(4.0, 0.0, 1000.0, lo_open=True)
+    relocalisation_pnp_confidence: float = within(0.99, 0.0, 1.0, lo_open=True, hi_open=True)
+
+
+@dataclass(frozen=True)
+class KeyframeConfig(Checked):
+    """The keyframe decision and creation (ORB-SLAM3 NeedNewKeyFrame, CreateNewKeyFrame)."""
+
+    _RULES = (below("kf_min_frames", "kf_max_frames", strict=False),)
     # Keyframe decision (ORB-SLAM3 RGB-D NeedNewKeyFrame): tracked-point ratio, close points, max/min frames.
     kf_tracked_ratio: float = within(0.75, 0.0, 1.0)  # thRefRatio for RGB-D (0.4 while the map has a single keyframe)
     kf_tracked_ratio_first: float = within(0.4, 0.0, 1.0)
@@ -135,6 +130,12 @@ class EngineConfig(Checked):
     # near field, ORB-SLAM3's rule leaves keyframes few static points. The keyframe decision keeps th_depth. Measured:
     # docs/deviations.md.
     kf_new_points_depth: float = within(4.5, 0.0, 100.0)
+
+
+@dataclass(frozen=True)
+class MappingConfig(Checked):
+    """Local mapping (ORB-SLAM3 LocalMapping): map-point culling, the neighbours' search, local BA, keyframe culling."""
+
     # Local mapping.
     local_ba_iterations: int = within(10, 0, 1000)
     # True (ours): after local BA, an observation above the chi-square thresholds whose image residual alone passes
@@ -148,9 +149,6 @@ class EngineConfig(Checked):
     # when that frame makes one (ORB-SLAM3's local mapping runs beside tracking and skips them while another keyframe
     # waits in its queue, aborting a running BA when one arrives). False: right after the keyframe, every time.
     ba_when_idle: bool = flag(True)
-    # Both optimisations: "lm" (compiled Levenberg-Marquardt, d2slam.slam.lm) or "g2o" (the g2opy wheel, same
-    # model; its graph is built edge by edge from Python, several times slower).
-    optimizer: Literal["lm", "g2o"] = one_of("lm", "lm", "g2o")
     # SearchInNeighbors (observation part, no point merging): the new keyframe and its best covisibles (+ their
     # neighbours) exchange points by projection (radius th x scale, chi-square test, Hamming <= desc_th_low).
     fuse_neighbours: int = within(0, 0, 1000)  # 0 = off; 10 = ORB-SLAM (measured: docs/deviations.md)
@@ -159,7 +157,6 @@ class EngineConfig(Checked):
     local_ba_window: int = within(10, 1, 1000)  # covisible keyframes optimised with the new one (best by shared points)
     # keyframes held fixed (best by observations of the local points; ours, for speed)
     local_ba_max_fixed: int = within(5, 0, 1000)
-    covisibility_min_shared: int = within(15, 1, 100_000)
     mappoint_found_ratio: float = within(0.25, 0.0, 1.0)
     mappoint_min_obs: int = within(3, 0, 1000)  # ORB-SLAM cnThObs (RGB-D): weighted observations (stereo counts 2)
     mappoint_cull_age: int = within(2, 0, 1000)  # ... checked once a point is this many keyframes old
@@ -170,38 +167,12 @@ class EngineConfig(Checked):
     # ORB-SLAM2, >= 3) at the same or a finer scale.
     keyframe_redundancy: float = within(0.9, 0.0, 1.0)
     keyframe_redundant_obs: int = within(3, 1, 1000)
-    # Tracking the local map: keyframes sharing points with the frame (at most this many) + their covisibles.
-    local_map_max_keyframes: int = within(80, 1, 100_000)
-    local_map_neighbours: int = within(10, 0, 1000)
-    local_map_neighbour_sources: int = within(3, 0, 1000)  # ... covisibles of the best this many keyframes
-    # Relocalisation (no DBoW2): descriptor matching against the most recent keyframes, then PnP RANSAC.
-    relocalisation_candidates: int = within(10, 1, 1000)
-    # ... of which the best by descriptor votes get the PnP attempt (Engine._relocalisation_shortlist).
-    relocalisation_pnp_candidates: int = within(3, 1, 1000)
-    pnp_iterations: int = within(300, 1, 1_000_000)
-    pnp_reprojection_px: float = within(4.0, 0.0, 1000.0, lo_open=True)
-    pnp_confidence: float = within(0.99, 0.0, 1.0, lo_open=True, hi_open=True)
-    # Keypoint filter (hook): frame-to-frame mutual-nearest matches within this pixel displacement.
-    filter_match_window: float = within(80.0, 0.0, 10_000.0, lo_open=True)
-    # ... guided instead when the frame's pose is predicted (Engine.filter_matches): previous keypoints moved by the
-    # constant-velocity model and searched within this radius (px x scale) on their level +-1, ratio test; fewer
-    # than filter_guided_min_matches guided matches -> the window matching above.
-    filter_match_guided: bool = flag(True)
-    filter_match_radius: float = within(15.0, 0.0, 1000.0, lo_open=True)
-    filter_match_nn_ratio: float = within(0.9, 0.0, 1.0, lo_open=True)
-    filter_guided_min_matches: int = within(50, 0, 100_000)
-    # Map points with a dynamic belief above this are culled (hook output, eq 8).
-    mappoint_belief_threshold: float = within(0.5, 0.0, 1.0)
-    ransac_seed: int = seed(0)
-    # OpenCV thread count, set explicitly (cv2.setNumThreads) for deterministic, reproducible timings.
-    cv_threads: int = within(1, 0, 1024)
-    # Loop closing (ORB-SLAM3 LoopClosing for RGB-D, run synchronously after local mapping) and place recognition
-    # (a DBoW2 keyframe database, which relocalisation also uses). False: the engine without either (relocalisation
-    # by descriptor votes over the recent keyframes, relocalisation_candidates).
-    loop_closing: bool = flag(True)
-    # DBoW2 text vocabulary ("" = the real ORB-SLAM3's: $PYORBSLAM3_VOCAB, else the project's `d2slam vocab build`,
-    # built on first use); a keypoint the hook flags dynamic enters no bag of words (loop_dynamic_keypoints).
-    vocabulary: str = text("", "a DBoW2 text vocabulary file, or \"\" for the project's")
+
+
+@dataclass(frozen=True)
+class LoopConfig(Checked):
+    """Loop closing and place recognition (ORB-SLAM3 LoopClosing, KeyFrameDatabase): detection, geometry, correction."""
+
     bow_levelsup: int = within(4, 0, 10)  # ORB-SLAM3: feature-vector nodes 4 levels above the words
     # True (an ablation: dynamics-unaware place recognition): the keypoints the hook flags dynamic enter the bags of
     # words and the loop's 3D-3D matches all the same (tracking and mapping still leave them out).
@@ -243,12 +214,85 @@ class EngineConfig(Checked):
 
 
 @dataclass(frozen=True)
+class EngineConfig(Checked):
+    """The engine (ORB-SLAM3 RGB-D): the settings every stage shares, its parts' own sections, and which parts it
+    has (loop closing)."""
+
+    _RULES = (below("min_depth", "max_depth"), below("desc_th_low", "desc_th_high", strict=False))
+    # Virtual stereo: u_R = u - bf / z; points closer than th_depth * b (b = bf / fx) are "close".
+    th_depth: float = within(40.0, 0.0, 1000.0, lo_open=True)
+    # True: every keypoint with valid depth gets u_R and a stereo edge (ORB-SLAM2/3 ComputeStereoFromRGBD); th_depth
+    # then only decides which points are "close" (new map points, keyframe decision, keyframe culling). False: far
+    # points (beyond th_depth * b) get monocular edges.
+    stereo_far_points: bool = flag(True)
+    # Ours: with a keypoint filter, each frame extracts OrbConfig.n_features plus as many keypoints as the filter
+    # flagged in the previous frame (at most refill_max x n_features), so tracking and mapping keep about n_features
+    # usable keypoints, as DynaSLAM's extraction outside the masks does. Without a filter (none, the static twins)
+    # nothing changes. Such runs extract every frame themselves (stored features have the fixed budget). Measured:
+    # docs/deviations.md.
+    refill_filtered: bool = flag(True)
+    refill_max: float = within(1.5, 1.0, 10.0)
+    min_depth: float = within(0.1, 0.0, 100.0)
+    max_depth: float = within(8.0, 0.0, 100.0, lo_open=True)
+    # Stereo observations (u, v, u_R): 0 = ORB-SLAM's information I / sigma_level^2 (u_R as noisy as a stereo match).
+    # > 0 (ours, RGB-D): u_R = u - bf / z carries u's error plus the depth's disparity error of this many pixels
+    # (optimizer.stereo_information). A Kinect's depth noise grows as sigma_z = k z^2 (k = 1.425e-3 / m, Khoshelham
+    # & Elberink 2012), i.e. a constant disparity error bf * k = 0.057 px at bf = 40 (the synthetic sensor's: 0.06-0.08
+    # px over 1-3 m); ORB-SLAM's 1 px x scale lets points slide in depth and local BA drag keyframes with them.
+    # Measured: docs/deviations.md.
+    disparity_sigma_px: float = within(0.057, 0.0, 100.0)
+    # Chi-square thresholds at 95 % (ORB-SLAM): 2 dof mono, 3 dof stereo.
+    chi2_mono: float = within(5.991, 0.0, 1000.0, lo_open=True)
+    chi2_stereo: float = within(7.815, 0.0, 1000.0, lo_open=True)
+    desc_th_high: int = within(100, 0, 256, why='Hamming distance of 256-bit descriptors')
+    desc_th_low: int = within(50, 0, 256, why='Hamming distance of 256-bit descriptors')
+    rotation_histogram_bins: int = within(30, 1, 360)  # ORB-SLAM HISTO_LENGTH: orientation-consistency histogram
+    # keypoint grid cell (px) of searches by projection (ORB-SLAM: 64 x 48 cells)
+    search_grid_cell: float = within(10.0, 0.0, 1000.0, lo_open=True)
+    check_orientation: bool = flag(True)
+    # Both optimisations: "lm" (compiled Levenberg-Marquardt, d2slam.slam.lm) or "g2o" (the g2opy wheel, same
+    # model; its graph is built edge by edge from Python, several times slower).
+    optimizer: Literal["lm", "g2o"] = one_of("lm", "lm", "g2o")
+    covisibility_min_shared: int = within(15, 1, 100_000)
+    # Keypoint filter (hook): frame-to-frame mutual-nearest matches within this pixel displacement.
+    filter_match_window: float = within(80.0, 0.0, 10_000.0, lo_open=True)
+    # ... guided instead when the frame's pose is predicted (Engine.filter_matches): previous keypoints moved by the
+    # constant-velocity model and searched within this radius (px x scale) on their level +-1, ratio test; fewer
+    # than filter_guided_min_matches guided matches -> the window matching above.
+    filter_match_guided: bool = flag(True)
+    filter_match_radius: float = within(15.0, 0.0, 1000.0, lo_open=True)
+    filter_match_nn_ratio: float = within(0.9, 0.0, 1.0, lo_open=True)
+    filter_guided_min_matches: int = within(50, 0, 100_000)
+    # Map points with a dynamic belief above this are culled (hook output, eq 8).
+    mappoint_belief_threshold: float = within(0.5, 0.0, 1.0)
+    # The run's seed (`d2slam run --seed`, the study's seed): every random draw of a run comes from a stream derived
+    # from it: relocalisation's PnP RANSAC (seed + the frame's index), loop closing's RANSAC ([seed, the keyframe's
+    # frame index]), the keypoint filter's RANSAC (F and the pose test's PnP: seed, FilterInput.seed) and the
+    # depth-scale check of `d2slam run` (seed).
+    seed: int = within(0, 0, INT_MAX, why="a seed")
+    # OpenCV thread count, set explicitly (cv2.setNumThreads) for deterministic, reproducible timings.
+    cv_threads: int = within(1, 0, 1024)
+    # Loop closing (ORB-SLAM3 LoopClosing for RGB-D, run synchronously after local mapping) and place recognition
+    # (a DBoW2 keyframe database, which relocalisation also uses). False: the engine without either (relocalisation
+    # by descriptor votes over the recent keyframes, relocalisation_candidates).
+    loop_closing: bool = flag(True)
+    # DBoW2 text vocabulary ("" = the real ORB-SLAM3's: $PYORBSLAM3_VOCAB, else the project's `d2slam vocab build`,
+    # built on first use); a keypoint the hook flags dynamic enters no bag of words (loop_dynamic_keypoints).
+    vocabulary: str = text("", "a DBoW2 text vocabulary file, or \"\" for the project's")
+    tracking: TrackingConfig = section(TrackingConfig)
+    relocalisation: RelocalisationConfig = section(RelocalisationConfig)
+    keyframes: KeyframeConfig = section(KeyframeConfig)
+    mapping: MappingConfig = section(MappingConfig)
+    loops: LoopConfig = section(LoopConfig)
+
+
+@dataclass(frozen=True)
 class SlamConfig(Checked):
     """What the engine reads of a whole config (``d2slam.config.Config`` has these sections too, under the same
     names, and passes for one)."""
 
     # The engine initialises on a frame with init_min_keypoints keypoints with depth: fewer features never track.
-    _RULES = (rule(("orb.n_features", "engine.init_min_keypoints"), lambda n, k: n >= k,
+    _RULES = (rule(("orb.n_features", "engine.tracking.init_min_keypoints"), lambda n, k: n >= k,
                    "{0} must be at least {1}: the engine could never initialise"),)
 
     orb: OrbConfig = section(OrbConfig)

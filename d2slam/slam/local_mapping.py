@@ -20,14 +20,14 @@ class LocalMapper:
         self.pending: KeyFrame | None = None  # keyframe whose local BA and culling wait for an idle frame
 
     def insert(self, kf: KeyFrame) -> list[int]:
-        """Map the new keyframe ``kf``: recent points culled, neighbours searched, then (``EngineConfig.ba_when_idle``)
+        """Map the new keyframe ``kf``: recent points culled, neighbours searched, then (``MappingConfig.ba_when_idle``)
         its local BA and keyframe culling wait for ``idle`` (a waiting keyframe's are dropped, as ORB-SLAM3's local
         mapping skips them when the next keyframe is already queued), or run now. Returns the keyframes culled."""
         self.pending = None
         self.map_point_culling(kf)
-        if self.cfg.fuse_neighbours:
+        if self.cfg.mapping.fuse_neighbours:
             self.search_in_neighbors(kf)
-        if self.cfg.ba_when_idle:
+        if self.cfg.mapping.ba_when_idle:
             self.pending = kf
             return []
         return self.optimise(kf)
@@ -55,23 +55,23 @@ class LocalMapper:
         r = r[P.alive[r]]
         ratio = P.found[r] / np.maximum(P.visible[r], 1)
         age = kf.id - P.first_kf[r]
-        bad = (ratio < cfg.mappoint_found_ratio) | ((age >= cfg.mappoint_cull_age) & (P.nobs[r] <= cfg.mappoint_min_obs))
+        bad = (ratio < cfg.mapping.mappoint_found_ratio) | ((age >= cfg.mapping.mappoint_cull_age) & (P.nobs[r] <= cfg.mapping.mappoint_min_obs))
         self.map.cull_points(r[bad])
-        self.map.recent_points = r[~bad & (age < cfg.mappoint_recent_age)]
+        self.map.recent_points = r[~bad & (age < cfg.mapping.mappoint_recent_age)]
 
     def search_in_neighbors(self, kf: KeyFrame) -> None:
         """ORB-SLAM SearchInNeighbors (observation part): the new keyframe's points are searched in its covisible
         keyframes and their neighbours, and those keyframes' points in the new keyframe, so that points seen but not
         tracked gain observations (and survive MapPointCulling); a keypoint that already has another point merges the
         two (``fuse_into``). Off by default (``fuse_neighbours = 0``, see ``EngineConfig``)."""
-        first = self.covisible(kf.id, self.cfg.fuse_neighbours)
+        first = self.covisible(kf.id, self.cfg.mapping.fuse_neighbours)
         targets = list(first)
         for k in first:
-            targets += [c for c in self.covisible(k, self.cfg.fuse_second_neighbours) if c != kf.id]
+            targets += [c for c in self.covisible(k, self.cfg.mapping.fuse_second_neighbours) if c != kf.id]
         targets = list(dict.fromkeys(targets))
         if not targets:
             return
-        th = self.cfg.fuse_radius
+        th = self.cfg.mapping.fuse_radius
         own = kf.mp[kf.mp >= 0]
         for k in targets:
             self.fuse_into(self.map.keyframes[k], own, th)
@@ -120,7 +120,7 @@ class LocalMapper:
         (those with most observations of the local points; the others' observations are left out). Outlier
         observations are erased."""
         cfg, M = self.cfg, self.map
-        local = [kf.id] + self.covisible(kf.id, cfg.local_ba_window)
+        local = [kf.id] + self.covisible(kf.id, cfg.mapping.local_ba_window)
         P = M.points
         pmask = np.zeros(P.n, dtype=bool)
         for k in local:
@@ -137,15 +137,15 @@ class LocalMapper:
         pos = np.minimum(np.searchsorted(cams, obs_kf), len(cams) - 1)
         n_obs = np.bincount(pos[cams[pos] == obs_kf], minlength=len(cams))
         outside = np.flatnonzero(~is_local)
-        if len(outside) > cfg.local_ba_max_fixed:
-            drop = outside[np.argsort(-n_obs[outside], kind="stable")[cfg.local_ba_max_fixed:]]
+        if len(outside) > cfg.mapping.local_ba_max_fixed:
+            drop = outside[np.argsort(-n_obs[outside], kind="stable")[cfg.mapping.local_ba_max_fixed:]]
             cams = np.delete(cams, drop)
             is_local = np.isin(cams, local)
         fixed = ~is_local | (cams == 0)
         if fixed.all():
             return
         keep = np.isin(obs_kf, cams)
-        self.adjust(rows[keep], obs_kf[keep], cams, fixed, cfg.local_ba_iterations, erase_outliers=True)
+        self.adjust(rows[keep], obs_kf[keep], cams, fixed, cfg.mapping.local_ba_iterations, erase_outliers=True)
 
     def global_bundle_adjustment(self, iterations: int) -> None:
         """ORB-SLAM ``GlobalBundleAdjustemnt``: every good keyframe (the first one fixed) and every live point not
@@ -191,7 +191,7 @@ class LocalMapper:
         P.pos[pts] = new_X
         if erase_outliers:
             out = np.flatnonzero(outlier)
-            if cfg.lba_depth_outliers_mono:  # only the depth disagrees: the image observation stays
+            if cfg.mapping.lba_depth_outliers_mono:  # only the depth disagrees: the image observation stays
                 chi2, front = image_chi2(new_poses[cam_of[obs_kf[out]]], new_X[pinv[out]], uv[out], inv_s2[out],
                                          self.proj.K)
                 depth_only = (ur[out] >= 0) & (chi2 <= cfg.chi2_mono) & front
@@ -215,15 +215,15 @@ class LocalMapper:
             if len(sel) == 0:
                 continue
             pts = K_.mp[sel]
-            cand = P.nobs[pts] > cfg.keyframe_redundant_obs
+            cand = P.nobs[pts] > cfg.mapping.keyframe_redundant_obs
             oct_here = np.full(P.n, -1)
             oct_here[pts[cand]] = K_.octave[sel[cand]]
             rows = M.observation_rows(oct_here >= 0)
             rows = rows[M.obs.kf[rows] != k]
             ok = M.obs.octave[rows] <= oct_here[M.obs.pt[rows]] + 1
             cnt = np.bincount(M.obs.pt[rows][ok], minlength=P.n)
-            redundant = int((cnt[pts] > cfg.keyframe_redundant_obs).sum())
-            if redundant > cfg.keyframe_redundancy * len(sel):
+            redundant = int((cnt[pts] > cfg.mapping.keyframe_redundant_obs).sum())
+            if redundant > cfg.mapping.keyframe_redundancy * len(sel):
                 M.set_keyframe_bad(k)
                 culled.append(k)
         return culled

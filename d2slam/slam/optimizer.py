@@ -131,7 +131,7 @@ class _G2oPoseRounds:
     def __init__(self, Tcw, X, uv, ur, inv_sigma2, K, bf, cfg: EngineConfig, coarse: bool):
         m = len(X)
         self.cfg = cfg
-        self.opt = _optimizer(dense=True, gain_threshold=cfg.pose_opt_gain_threshold)
+        self.opt = _optimizer(dense=True, gain_threshold=cfg.tracking.pose_opt_gain_threshold)
         self.vpose = g2o.VertexSE3Expmap()
         self.vpose.set_estimate(_se3(Tcw))
         self.vpose.set_id(0)
@@ -176,7 +176,7 @@ class _G2oPoseRounds:
             self.kernels[1].set_delta(1e12)
             self.robust = False
         self.opt.initialize_optimization(0)
-        self.opt.optimize(self.cfg.pose_opt_iterations)
+        self.opt.optimize(self.cfg.tracking.pose_opt_iterations)
         return _mat(self.vpose.estimate())
 
     def close(self) -> None:
@@ -198,8 +198,8 @@ class _LmPoseRounds:
     def round(self, rough: bool, inlier: np.ndarray, robust: bool) -> np.ndarray:
         cfg = self.cfg
         self.T = lm.pose_lm(self.T, self.X, self.meas, self.stereo, self.info_coarse if rough else self.info_fine,
-                            inlier, self.delta, *self.K, self.bf, robust, cfg.pose_opt_iterations,
-                            cfg.pose_opt_gain_threshold)
+                            inlier, self.delta, *self.K, self.bf, robust, cfg.tracking.pose_opt_iterations,
+                            cfg.tracking.pose_opt_gain_threshold)
         return self.T
 
     def close(self) -> None:
@@ -292,14 +292,14 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     if m < 3:
         return Tcw.copy(), np.zeros(m, dtype=bool)
     X = np.ascontiguousarray(X, dtype=np.float64)
-    coarse = cfg.disparity_sigma_px > 0 and cfg.pose_opt_coarse_rounds > 0
+    coarse = cfg.disparity_sigma_px > 0 and cfg.tracking.pose_opt_coarse_rounds > 0
     rounds = (_G2oPoseRounds if cfg.optimizer == "g2o" else _LmPoseRounds)(Tcw, X, uv, ur, inv_sigma2, K, bf, cfg,
                                                                           coarse)
     th = np.where(rounds.stereo, cfg.chi2_stereo, cfg.chi2_mono)
     inlier, T = np.ones(m, dtype=bool), Tcw.copy()
     try:
-        for it in range(cfg.pose_opt_rounds):
-            rough = coarse and it < cfg.pose_opt_coarse_rounds
+        for it in range(cfg.tracking.pose_opt_rounds):
+            rough = coarse and it < cfg.tracking.pose_opt_coarse_rounds
             T = rounds.round(rough, inlier, robust=it <= 2)  # ORB-SLAM drops the robust kernel after the third round
             chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf, 0.0 if rough else cfg.disparity_sigma_px)
             inlier = (chi2 <= th) & front
@@ -318,7 +318,7 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
     inv_sigma2), Huber kernels, Schur complement on the points. Returns (poses, X, outlier (O,) bool): outliers
     are observations above the chi2 thresholds or behind the camera after optimisation (ORB-SLAM erases them).
     ``EngineConfig.optimizer``: the compiled kernels of ``d2slam.slam.lm`` or g2o."""
-    n_it = cfg.local_ba_iterations if iterations is None else iterations
+    n_it = cfg.mapping.local_ba_iterations if iterations is None else iterations
     if cfg.optimizer == "g2o":
         new_poses, new_X = _local_bundle_adjustment_g2o(poses, fixed, X, obs_cam, obs_pt, uv, ur, inv_sigma2, K, bf,
                                                         cfg, n_it)

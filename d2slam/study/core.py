@@ -41,8 +41,8 @@ from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
 from d2slam.study.keys import code_info, run_key
 from d2slam.study.manifest import build_manifest, git_info
-from d2slam.study.runner import (execute_run, failed_row, features_dir, onnx_sequence_keys, prepare_sequence,
-                                 run_options, segment_sequence)
+from d2slam.study.runner import (RunOptions, execute_run, failed_row, features_dir, onnx_sequence_keys,
+                                 prepare_sequence, run_options, segment_sequence)
 from d2slam.study.sequences import is_complete, sequence_dir
 from d2slam.synth.generate import estimated_seconds
 from d2slam.synth.version import generator_version
@@ -167,7 +167,7 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
     grid = {"scenarios": list(dict.fromkeys(s.scenario for s in specs)), "methods": method_order,
             "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
             "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
-            "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options["orbslam3_repeats"],
+            "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options.orbslam3_repeats,
             "masks": masks, "reused_runs": sorted(reused)}
     manifest = build_manifest(config, grid, ex, generator_version(),
                               {"sequences_s": round(t_seq, 2), "segmentation_s": round(t_seg, 2),
@@ -179,17 +179,16 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
     return res
 
 
-def run_cost(spec: RunSpec, options: dict) -> float:
+def run_cost(spec: RunSpec, options: RunOptions) -> float:
     """Estimated cost of a run (ms): its frames x the method's ``StudyConfig.run_cost_ms`` (the real ORB-SLAM3's
     runs: x its repeats). Only the order of the runs depends on it (longest first)."""
-    study = options["config"].get("study") or {}
-    costs = dict(study.get("run_cost_ms") or ())
-    ms = float(costs.get(spec.method, study.get("run_cost_default_ms", 1.0)))
-    repeats = int(options.get("orbslam3_repeats") or 1) if spec.method in G.REPEATED else 1
+    study = options.config.study
+    ms = float(dict(study.run_cost_ms).get(spec.method, study.run_cost_default_ms))
+    repeats = int(options.orbslam3_repeats or 1) if spec.method in G.REPEATED else 1
     return max(int(spec.frames), 1) * ms * repeats
 
 
-def phase_plans(options: dict, workers: int | None) -> dict:
+def phase_plans(options: RunOptions, workers: int | None) -> dict:
     """For each phase of the study (``sequences``, ``segmentation``, ``runs``), a function of its items giving what
     to announce before it starts: (what it will do, estimated seconds on ``workers`` processes, or None when the
     number of workers is not known: a Dask cluster). Estimates: ``ProgressConfig.synth_setup_s`` + frames x
@@ -202,7 +201,7 @@ def phase_plans(options: dict, workers: int | None) -> dict:
 
     def sequences(keys):
         synth = [k for k in keys if k[0] == "synth"]
-        todo = [k for k in synth if not is_complete(sequence_dir(*k[1:], root=options.get("cache_root")))]
+        todo = [k for k in synth if not is_complete(sequence_dir(*k[1:], root=options.cache_root))]
         what = (f"sequences: {len(todo)} to generate{on} ({sum(int(k[3]) for k in todo)} frames), "
                 f"{len(synth) - len(todo)} cached" + (f", {len(keys) - len(synth)} real (TUM)" if len(synth) < len(keys)
                                                       else ""))
@@ -227,12 +226,12 @@ def sequence_cost(key: tuple) -> float:
     return float(max(int(key[3]), 1))
 
 
-def remove_stale_temps(options: dict, out: Path | None = None) -> list[Path]:
+def remove_stale_temps(options: RunOptions, out: Path | None = None) -> list[Path]:
     """Remove what killed processes left half-written in the caches a study writes (sequence folders, feature files,
     mask files: ``*.tmp-<pid>...``, :func:`d2slam.outputs.remove_stale_temps`) and in ``out/runs``; the temporaries
     of running processes (another study sharing the cache) stay."""
     outs = [] if out is None else [p for d in ("", "runs", "trajectories", "plots") for p in remove(Path(out) / d)]
-    return (sequences.remove_stale_temps(options.get("cache_root")) + remove(features_dir(options))
+    return (sequences.remove_stale_temps(options.cache_root) + remove(features_dir(options))
             + remove(cache_dir("masks"), "*/*/*.tmp-*") + outs)
 
 

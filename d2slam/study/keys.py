@@ -11,6 +11,7 @@ from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.cachefiles import sha256_file
 from d2slam.digests import digest, source_digest
 from d2slam.study.grid import ORBSLAM3, ORBSLAM3_MASKED, REPEATED, RunSpec
+from d2slam.study.runner import RunOptions
 from d2slam.synth.version import generator_version
 
 # Source that decides an engine run's numbers, and an ORB-SLAM3 run's (which never touches the engine or dynamics).
@@ -29,21 +30,21 @@ def code_info() -> dict:
             "orbslam3-masked": source_digest(ORBSLAM3_MASKED_CODE)}
 
 
-def run_key(spec: RunSpec, options: dict) -> str:
+def run_key(spec: RunSpec, options: RunOptions) -> str:
     """What a run's numbers depend on: the run, the config (seeded), the masks, the generator version, the source
     of the code that computes them and the versions of the numeric packages (and, for ORB-SLAM3, its repeats and
     vocabulary file). Equal keys => a finished run can be reused (``--resume``)."""
     orb = spec.method in REPEATED
     code = {ORBSLAM3: ORBSLAM3_CODE, ORBSLAM3_MASKED: ORBSLAM3_MASKED_CODE}.get(spec.method, ENGINE_CODE)
-    ident = {"spec": spec.to_dict(), "config": options["config"], "masks": options["masks"],
-             "tum_root": options.get("tum_root"), "code": source_digest(code), "packages": _packages()}
+    ident = {"spec": spec.to_dict(), "config": options.config.to_dict(), "masks": options.masks,
+             "tum_root": options.tum_root, "code": source_digest(code), "packages": _packages()}
     if spec.source == "synth":
         ident["generator"] = generator_version()
     if orb:
-        ident["repeats"] = options.get("orbslam3_repeats")
+        ident["repeats"] = options.orbslam3_repeats
         ident["vocabulary"] = _vocabulary_sha()
-    elif spec.loop_closing and options["config"].get("engine", {}).get("loop_closing", True):
-        vocab = options["config"].get("engine", {}).get("vocabulary")
+    elif spec.loop_closing and options.config.engine.loop_closing:
+        vocab = options.config.engine.vocabulary
         ident["vocabulary"] = _file_sha(vocab) if vocab else _vocabulary_sha()
     return digest(ident)
 

@@ -10,6 +10,7 @@ Dask worker needs no access to the study's output folder.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 import tempfile
 import time
 import traceback
@@ -27,7 +28,7 @@ from d2slam.paths import cache_dir
 from d2slam.run.methods import get_method, mask_kind, methods
 from d2slam.run.orbslam3 import run_orbslam3
 from d2slam.run.record import RunRecord
-from d2slam.run.runner import run_method
+from d2slam.run.runner import run_config, run_method
 from d2slam.run.sequence import STAGES as ENGINE_STAGES
 from d2slam.segmentation import masks_for
 from d2slam.slam.engine import refills
@@ -36,19 +37,31 @@ from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3_MASKED, REPEATED, STUDY_M
 from d2slam.study.sequences import ensure_sequence, real_sequence_dir, tum_sequence_dir
 
 
-def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
-                orbslam3_repeats: int | None = None, orbslam3_timeout: float | None = None) -> dict:
-    """The options every run of a study shares, as a picklable dict (``config`` as a nested dict; ``masks``: the
-    study's masks, the real segmenter's unless given)."""
+@dataclass(frozen=True)
+class RunOptions:
+    """What every run of a study shares (picklable: a worker process or a Dask worker gets it with each run): the
+    config, the sequence cache's folder (None: the user's cache), the TUM folder of a TUM study, the study's masks
+    (the real segmenter's unless given), ORB-SLAM3's repeats and time limit per repeat (None: its budget)."""
 
+    config: Config = DEFAULT
+    cache_root: str | None = None
+    tum_root: str | None = None
+    masks: str = STUDY_MASKS
+    orbslam3_repeats: int = DEFAULT.baseline.orbslam3_repeats
+    orbslam3_timeout: float | None = None
+
+
+def run_options(config: Config | None = None, cache_root: str | None = None, tum_root: str | None = None,
+                masks: str | None = None, orbslam3_repeats: int | None = None,
+                orbslam3_timeout: float | None = None) -> RunOptions:
+    """The :class:`RunOptions` of a study (defaults: the config's repeats, the real segmenter's masks)."""
     config = config or DEFAULT
-    return {"config": config.to_dict(), "cache_root": None if cache_root is None else str(cache_root),
-            "tum_root": None if tum_root is None else str(tum_root), "masks": masks or STUDY_MASKS,
-            "orbslam3_repeats": int(orbslam3_repeats or config.baseline.orbslam3_repeats),
-            "orbslam3_timeout": orbslam3_timeout}
+    return RunOptions(config, None if cache_root is None else str(cache_root), None if tum_root is None else
+                      str(tum_root), masks or STUDY_MASKS, int(orbslam3_repeats or config.baseline.orbslam3_repeats),
+                      orbslam3_timeout)
 
 
-def prepare_sequence(key: tuple, options: dict) -> dict:
+def prepare_sequence(key: tuple, options: RunOptions) -> dict:
     """Generate (or find) the sequence of ``RunSpec.sequence_key``; returns ``{"key", "path", "error"}``."""
     source, scenario, seed, frames, twin = key
     try:
@@ -59,20 +72,20 @@ def prepare_sequence(key: tuple, options: dict) -> dict:
         return {"key": key, "path": None, "error": _message(exc)}
 
 
-def onnx_sequence_keys(specs, options: dict) -> list[tuple]:
+def onnx_sequence_keys(specs, options: RunOptions) -> list[tuple]:
     """The sequences (``RunSpec.sequence_key``) on which some run of ``specs`` reads the real segmenter's masks."""
     keys = []
     for s in specs:
         if s.method not in methods():
             continue  # an unknown method's run records its own error
         method = get_method(s.method)
-        if method.needs_masks and mask_kind(method, None if method.masks else options["masks"],
+        if method.needs_masks and mask_kind(method, None if method.masks else options.masks,
                                             synthetic=s.source == "synth") == "onnx":
             keys.append(s.sequence_key)
     return list(dict.fromkeys(keys))
 
 
-def segment_sequence(key: tuple, options: dict) -> dict:
+def segment_sequence(key: tuple, options: RunOptions) -> dict:
     """Segment every frame the runs read of the sequence ``key`` with the real segmenter into the mask cache, once per
     sequence before the runs (which then only read it, whichever worker runs them; two runs on one sequence at the
     same time would otherwise both segment it). Returns ``{"key", "error"}``; a failure is left to the runs,
@@ -81,7 +94,7 @@ def segment_sequence(key: tuple, options: dict) -> dict:
     try:
         with _single_threaded():
             seq = open_sequence(_sequence_path(source, scenario, seed, frames, twin, options))
-            config = Config.from_dict(options["config"])
+            config = options.config
             n = len(seq) if frames <= 0 else min(len(seq), frames)
             for i in range(n):
                 masks_for(seq, i, "onnx", config)
@@ -94,14 +107,14 @@ def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
     if source == "real":
         return real_sequence_dir(scenario)
     if source == "tum":
-        if not options.get("tum_root"):
+        if not options.tum_root:
             raise D2SlamError("a TUM run needs tum_root (D2SLAM_TUM_ROOT)")
-        return tum_sequence_dir(options["tum_root"], scenario)
+        return tum_sequence_dir(options.tum_root, scenario)
 
-    return ensure_sequence(scenario, seed, frames, twin, root=options.get("cache_root"), progress=False)
+    return ensure_sequence(scenario, seed, frames, twin, root=options.cache_root, progress=False)
 
 
-def execute_run(spec: RunSpec | dict, options: dict) -> dict:
+def execute_run(spec: RunSpec | dict, options: RunOptions) -> dict:
     """Run one grid cell. Returns ``{"row": {...}, "trajectory": (timestamps, poses) | None,
     "aligned": (gt_xyz, est_xyz) | None, "keypoints": per-module dict | None, "stage_ms": {...}, "loops": {...} |
     None}``; never raises."""
@@ -133,7 +146,7 @@ def base_row(spec: RunSpec) -> dict:
             "deterministic": int(spec.method not in REPEATED), "repeats": 1}
 
 
-def failed_row(spec: RunSpec, error: str, wall_s: float | None = None, options: dict | None = None) -> dict:
+def failed_row(spec: RunSpec, error: str, wall_s: float | None = None, options: RunOptions | None = None) -> dict:
     """The row of a run that failed (``error``: why), with its config's hash when the options give one and its
     time when it ran."""
     extra = {}
@@ -192,13 +205,11 @@ def _metric_columns(record: RunRecord) -> dict:
     return out
 
 
-def _config(spec: RunSpec, options: dict):
-    config = Config.from_dict(options["config"])
-    return dataclasses.replace(config, engine=dataclasses.replace(
-        config.engine, ransac_seed=int(spec.seed), loop_closing=bool(config.engine.loop_closing and spec.loop_closing)))
+def _config(spec: RunSpec, options: RunOptions) -> Config:
+    return run_config(options.config, spec.seed, spec.loop_closing)
 
 
-def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bool]:
+def _run_engine(spec: RunSpec, path: Path, options: RunOptions) -> tuple[RunRecord, bool]:
     """The run of an engine method and whether it read the sequence's stored features."""
     config = _config(spec, options)
     method = get_method(spec.method)
@@ -207,7 +218,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bo
         raise D2SlamError(f"sequence has {len(seq)} frames, the study expects {spec.frames}", path=path)
     frames = len(seq) if spec.source == "synth" or spec.frames <= 0 else min(len(seq), spec.frames)
     # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
-    requested = None if method.masks else options["masks"]
+    requested = None if method.masks else options.masks
     mask_seq = None
     if method.needs_masks and spec.twin and spec.method == ORACLE:
         # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
@@ -235,7 +246,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bo
 FEATURES_CODE = ("slam/frame.py", "slam/depth.py", "slam/features.py", "data")
 
 
-def features_path(seq, path: Path, config, options: dict, frames: int | None = None) -> Path:
+def features_path(seq, path: Path, config, options: RunOptions, frames: int | None = None) -> Path:
     """Where the study keeps the extracted features of a sequence's first ``frames`` frames (default: all;
     ``d2slam.slam.features``): named after the sequence folder, its frame count and a digest of what an extraction
     depends on (ORB and engine settings, camera, OpenCV version, the frame and data code), under
@@ -249,12 +260,12 @@ def features_path(seq, path: Path, config, options: dict, frames: int | None = N
     return features_dir(options) / f"{Path(path).resolve().name}_n{n}-{digest(ident)}.npz"
 
 
-def features_dir(options: dict) -> Path:
+def features_dir(options: RunOptions) -> Path:
     """The folder of the study's feature files: ``<cache>/study/features`` (or ``<cache_root>/features``)."""
-    return Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
+    return Path(options.cache_root) / "features" if options.cache_root else cache_dir("study", "features")
 
 
-def _features(seq, path: Path, config, options: dict, frames: int | None = None):
+def _features(seq, path: Path, config, options: RunOptions, frames: int | None = None):
     """(features for ``run_sequence``, where to save them afterwards or None): the cached features of the sequence's
     first ``frames`` frames when a run already saved them, else a recorder. A damaged cache file is said (one line)
     and replaced."""
@@ -271,16 +282,16 @@ def _features(seq, path: Path, config, options: dict, frames: int | None = None)
     return FeatureRecorder(), target
 
 
-def _run_orbslam3(spec: RunSpec, path: Path, options: dict) -> RunRecord:
+def _run_orbslam3(spec: RunSpec, path: Path, options: RunOptions) -> RunRecord:
     config = _config(spec, options)
-    repeats = int(options.get("orbslam3_repeats") or config.baseline.orbslam3_repeats)
+    repeats = int(options.orbslam3_repeats or config.baseline.orbslam3_repeats)
     masks = None
     if spec.method == ORBSLAM3_MASKED:  # the study's --masks, else the real segmenter's
-        masks = mask_kind(get_method(spec.method), options["masks"], synthetic=spec.source == "synth")
+        masks = mask_kind(get_method(spec.method), options.masks, synthetic=spec.source == "synth")
     with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
         return run_orbslam3(path, Path(tmp) / "orbslam3.txt", repeats=repeats, config=config, progress=False,
                             max_frames=spec.frames if spec.source != "synth" else 0,
-                            timeout=options.get("orbslam3_timeout"), masks=masks)
+                            timeout=options.orbslam3_timeout, masks=masks)
 
 
 def _message(exc: BaseException) -> str:

@@ -277,7 +277,7 @@ def amplitudes(cfg: BodyConfig, scale: float = 1.0) -> dict[str, float]:
     """The gait / carry / sitting angles of ``cfg`` as the dict ``gait`` and ``sitting`` read; the swings
     (hips, knees, feet, arms, elbows, spine twist) multiplied by ``scale`` (a person's own style)."""
     amp = {}
-    for k, v in vars(cfg).items():
+    for k, v in vars(cfg.motion).items():
         if k.startswith("gait_") and k != "gait_jitter":
             amp[k[5:]] = float(v) * (scale if k[5:] in _SCALED else 1.0)
         elif k.startswith(("carry_", "push_", "sit_")) or k == "gesture":

@@ -6,59 +6,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from d2slam.ranges import Checked, below, flag, one_of, rule, section, seed, text, within
+from d2slam.data.intrinsics import FREIBURG3
+from d2slam.ranges import Checked, below, flag, rule, section, text, within
+
+# The camera the synthetic sequences are rendered through (a twin's is its recording's): TUM freiburg3's pinhole
+# intrinsics (ORB-SLAM3 TUM3.yaml; its images are undistorted), depth factor 5000 and Kinect depth noise.
+SYNTH_CAMERA = FREIBURG3
 
 
 @dataclass(frozen=True)
-class BodyConfig(Checked):
-    """Articulated people of the synthetic benchmark (d2slam.synth.bodies): ANNY / MakeHuman bodies."""
+class BodyMotionConfig(Checked):
+    """How the synthetic people's bodies move (d2slam.synth.bodies): the walking gait, carrying and pushing, sitting
+    (radians; per person scaled by a factor in ``gait_jitter``)."""
 
-    _RULES = (below("shape_low", "shape_high", strict=False), below("waist_height", "neck_height"))
-    # ANNY rig (163 bones) and the ranges of its six shape controls in [0, 1]: gender, age, muscle, weight, height,
-    # proportions (drawn uniformly per person).
-    rig: str = text("default", "the name of an ANNY rig")
-    # Mesh decimation factor of the ANNY package (its own quadric simplification, pyfqmr; 1 = the full 13,718-vertex
-    # MakeHuman mesh, 2 = 6,863 vertices): posing and llvmpipe's rasterisation grow with the mesh, the silhouettes
-    # barely change.
-    simplify: float = within(2.0, 1.0, 100.0)
-    shape_low: tuple[float, ...] = within((0.0, 0.35, 0.3, 0.3, 0.35, 0.4), 0.0, 1.0, length=6)
-    shape_high: tuple[float, ...] = within((1.0, 0.65, 0.7, 0.7, 0.75, 0.6), 0.0, 1.0, length=6)
-    # Part boundaries as fractions of the body height (waist: shirt above, trousers below; neck: head above) and
-    # the hair cap: head vertices within hair_top_m of the top, or within hair_back_m of it behind the head centre
-    # by more than hair_back_y (m).
-    waist_height: float = within(0.58, 0.0, 1.0, lo_open=True, hi_open=True)
-    neck_height: float = within(0.8, 0.0, 1.0, lo_open=True, hi_open=True)
-    hair_top_m: float = within(0.07, 0.0, 1.0)
-    hair_back_m: float = within(0.16, 0.0, 1.0)
-    hair_back_y: float = within(0.01, -1.0, 1.0)
-    # Clothes: RGB palettes (0-255), colour jitter (0-1 units), probability of long sleeves (the garments' patterns
-    # are SynthConfig.cloth_*).
-    shirt_colours: tuple[tuple[int, int, int], ...] = within((
-        (200, 40, 40), (40, 70, 160), (230, 230, 225), (30, 30, 35), (60, 130, 70), (230, 190, 60), (120, 120, 130),
-        (150, 60, 140), (240, 140, 60), (90, 160, 200), (180, 170, 150), (110, 40, 40)), 0, 255, why='RGB')
-    trousers_colours: tuple[tuple[int, int, int], ...] = within((
-        (30, 40, 80), (25, 25, 28), (90, 90, 95), (150, 130, 100), (60, 50, 40), (70, 90, 120), (180, 170, 150)),
-        0, 255, why='RGB')
-    shoe_colours: tuple[tuple[int, int, int], ...] = within(
-        ((20, 20, 20), (230, 230, 230), (90, 60, 40), (60, 60, 70)), 0, 255, why='RGB')
-    skin_colours: tuple[tuple[int, int, int], ...] = within((
-        (235, 200, 175), (210, 165, 130), (170, 120, 90), (120, 80, 55), (90, 60, 45)), 0, 255, why='RGB')
-    hair_colours: tuple[tuple[int, int, int], ...] = within(
-        ((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120), (20, 20, 20)), 0, 255, why='RGB')
-    colour_jitter: float = within(0.06, 0.0, 1.0)
-    # Garment textures (d2slam.synth.bodies.uv_layout): one turn round the body (m of texture at the torso's
-    # radius) by the body's height (m); texel density of shirt, trousers, shoes, skin, hair relative to
-    # SynthConfig.body_texels_per_m; the face on the skin texture: eyes this far below the top of the head, drawn
-    # for a head of this radius (the cylindrical map stretches it sideways by turn_m / (2 pi head_radius_m)).
-    turn_m: float = within(1.13, 0.0, 10.0, lo_open=True)
-    height_m: float = within(1.8, 0.0, 5.0, lo_open=True)
-    garment_texels: tuple[float, ...] = within((1.0, 1.0, 0.25, 1.0, 0.5), 0.0, 100.0, lo_open=True, length=5)
-    eyes_m: float = within(0.115, 0.0, 1.0)
-    head_radius_m: float = within(0.09, 0.0, 1.0, lo_open=True)
-    long_sleeve_prob: float = within(0.5, 0.0, 1.0)
-    # Baked Lambert shading: ambient share and the light direction (world, towards the light).
-    ambient: float = within(0.45, 0.0, 1.0)
-    light: tuple[float, float, float] = within((0.35, -0.55, 0.76), -1.0, 1.0)
     # Walking gait (rad): hip swing, knee bend (swing + always), ankle, arm swing, elbow bend (always + swing),
     # arms lowered from the rest A-pose, spine twist, forward lean, head pitch / yaw; per person scaled by a factor
     # in gait_jitter. Stride length (m) per person in stride_m.
@@ -92,6 +52,109 @@ class BodyConfig(Checked):
     sit_twist: float = within(0.15, -3.1416, 3.1416, why='radians')
     # Seated body placed this far (m) along its forward axis from the chair's centre (negative: towards the back).
     seat_back: float = within(-0.05, -1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class BodyConfig(Checked):
+    """Articulated people of the synthetic benchmark (d2slam.synth.bodies): ANNY / MakeHuman bodies."""
+
+    _RULES = (below("shape_low", "shape_high", strict=False), below("waist_height", "neck_height"))
+    # ANNY rig (163 bones) and the ranges of its six shape controls in [0, 1]: gender, age, muscle, weight, height,
+    # proportions (drawn uniformly per person).
+    rig: str = text("default", "the name of an ANNY rig")
+    # Mesh decimation factor of the ANNY package (its own quadric simplification, pyfqmr; 1 = the full 13,718-vertex
+    # MakeHuman mesh, 2 = 6,863 vertices): posing and llvmpipe's rasterisation grow with the mesh, the silhouettes
+    # barely change.
+    simplify: float = within(2.0, 1.0, 100.0)
+    shape_low: tuple[float, ...] = within((0.0, 0.35, 0.3, 0.3, 0.35, 0.4), 0.0, 1.0, length=6)
+    shape_high: tuple[float, ...] = within((1.0, 0.65, 0.7, 0.7, 0.75, 0.6), 0.0, 1.0, length=6)
+    # Part boundaries as fractions of the body height (waist: shirt above, trousers below; neck: head above) and
+    # the hair cap: head vertices within hair_top_m of the top, or within hair_back_m of it behind the head centre
+    # by more than hair_back_y (m).
+    waist_height: float = within(0.58, 0.0, 1.0, lo_open=True, hi_open=True)
+    neck_height: float = within(0.8, 0.0, 1.0, lo_open=True, hi_open=True)
+    hair_top_m: float = within(0.07, 0.0, 1.0)
+    hair_back_m: float = within(0.16, 0.0, 1.0)
+    hair_back_y: float = within(0.01, -1.0, 1.0)
+    # Clothes: RGB palettes (0-255), colour jitter (0-1 units), probability of long sleeves (the garments' patterns
+    # are ClothConfig.cloth_*).
+    shirt_colours: tuple[tuple[int, int, int], ...] = within((
+        (200, 40, 40), (40, 70, 160), (230, 230, 225), (30, 30, 35), (60, 130, 70), (230, 190, 60), (120, 120, 130),
+        (150, 60, 140), (240, 140, 60), (90, 160, 200), (180, 170, 150), (110, 40, 40)), 0, 255, why='RGB')
+    trousers_colours: tuple[tuple[int, int, int], ...] = within((
+        (30, 40, 80), (25, 25, 28), (90, 90, 95), (150, 130, 100), (60, 50, 40), (70, 90, 120), (180, 170, 150)),
+        0, 255, why='RGB')
+    shoe_colours: tuple[tuple[int, int, int], ...] = within(
+        ((20, 20, 20), (230, 230, 230), (90, 60, 40), (60, 60, 70)), 0, 255, why='RGB')
+    skin_colours: tuple[tuple[int, int, int], ...] = within((
+        (235, 200, 175), (210, 165, 130), (170, 120, 90), (120, 80, 55), (90, 60, 45)), 0, 255, why='RGB')
+    hair_colours: tuple[tuple[int, int, int], ...] = within(
+        ((30, 25, 20), (90, 60, 35), (160, 120, 70), (120, 120, 120), (20, 20, 20)), 0, 255, why='RGB')
+    colour_jitter: float = within(0.06, 0.0, 1.0)
+    # Garment textures (d2slam.synth.bodies.uv_layout): one turn round the body (m of texture at the torso's
+    # radius) by the body's height (m); texel density of shirt, trousers, shoes, skin, hair relative to
+    # SynthConfig.body_texels_per_m; the face on the skin texture: eyes this far below the top of the head, drawn
+    # for a head of this radius (the cylindrical map stretches it sideways by turn_m / (2 pi head_radius_m)).
+    turn_m: float = within(1.13, 0.0, 10.0, lo_open=True)
+    height_m: float = within(1.8, 0.0, 5.0, lo_open=True)
+    garment_texels: tuple[float, ...] = within((1.0, 1.0, 0.25, 1.0, 0.5), 0.0, 100.0, lo_open=True, length=5)
+    eyes_m: float = within(0.115, 0.0, 1.0)
+    head_radius_m: float = within(0.09, 0.0, 1.0, lo_open=True)
+    long_sleeve_prob: float = within(0.5, 0.0, 1.0)
+    # Baked Lambert shading: ambient share and the light direction (world, towards the light).
+    ambient: float = within(0.45, 0.0, 1.0)
+    light: tuple[float, float, float] = within((0.35, -0.55, 0.76), -1.0, 1.0)
+    motion: BodyMotionConfig = section(BodyMotionConfig)
+
+
+@dataclass(frozen=True)
+class SittingConfig(Checked):
+    """Where the desk chairs stand and how people sit down on them and get up (d2slam.synth.actors)."""
+
+    # Desk chairs (two, at the desks): centres x = +-desk_chair_x + jitter, y = desk_chair_y + jitter, facing the
+    # desk (+y) turned by up to desk_chair_turn rad.
+    desk_chair_x: float = within(1.0, 0.0, 100.0)
+    desk_chair_y: float = within(2.3, 0.0, 100.0)
+    desk_chair_jitter: tuple[float, float] = within((0.25, 0.08), 0.0, 10.0)
+    desk_chair_turn: float = within(1.0, -3.1416, 3.1416, why='radians')
+    # Sitting down: the person steps in front of the seat (sit_approach_m ahead of it) from beside it (sit_side_m),
+    # turns to the chair's heading, sits down and gets up over sit_down_s each, stays seated sit_s. The chair is
+    # pushed back by sit_shift_m as they sit down and by stand_shift_m as they get up, plus up to shift_jitter_m
+    # sideways and shift_yaw rad of turn. A seated person's root is seat_offset_m behind the chair's centre.
+    sit_approach_m: float = within(0.40, 0.0, 10.0)
+    sit_side_m: float = within(0.45, 0.0, 10.0)
+    sit_down_s: tuple[float, float] = within((1.0, 1.4), 0.0, 100.0, lo_open=True, ascending=True)
+    sit_s: tuple[float, float] = within((1.5, 4.0), 0.0, 1000.0, ascending=True)
+    sit_shift_m: tuple[float, float] = within((0.02, 0.06), 0.0, 10.0, ascending=True)
+    stand_shift_m: tuple[float, float] = within((0.04, 0.10), 0.0, 10.0, ascending=True)
+    shift_jitter_m: float = within(0.02, 0.0, 10.0)
+    shift_yaw: float = within(0.12, -3.1416, 3.1416, why='radians')
+    seat_offset_m: float = within(0.02, -10.0, 10.0)
+
+
+@dataclass(frozen=True)
+class HoldingConfig(Checked):
+    """Carrying a box and pushing a chair (d2slam.synth.actors; the interaction scenarios)."""
+
+    # Carrying and pushing: the object's pose in the holder's root frame (box in the arms; chair in front, its
+    # back to the pusher), the last straight approach behind it, the time to take it or leave it, the least
+    # distance it is moved (to the other side of the view, at least move_side of the way to its edge, y in move_y:
+    # where the holder goes), the largest
+    # turn between the chair's heading and the push, the step away after.
+    box_offset: tuple[float, float, float] = within((0.0, 0.42, 1.17), -10.0, 10.0)
+    push_offset: tuple[float, float, float] = within((0.0, 0.72, 0.0), -10.0, 10.0)
+    take_approach_m: float = within(0.5, 0.0, 10.0)
+    take_s: float = within(0.9, 0.0, 100.0)
+    move_min_m: float = within(1.0, 0.0, 100.0)
+    move_side: float = within(0.3, 0.0, 1.0)
+    move_y: tuple[float, float] = within((0.9, 2.3), 0.0, 100.0, ascending=True)
+    push_max_turn: float = within(2.0, -3.1416, 3.1416, why='radians')
+    leave_m: float = within(0.6, 0.0, 10.0)
+    # Interaction scenarios: where the box / chair starts (x within object_x of the camera's axis, either side;
+    # y in object_y), facing away from the camera within object_turn rad (taken from the camera's side).
+    object_x: tuple[float, float] = within((0.3, 0.9), 0.0, 100.0, ascending=True)
+    object_y: tuple[float, float] = within((1.6, 2.2), 0.0, 100.0, ascending=True)
+    object_turn: float = within(0.5, -3.1416, 3.1416, why='radians')
 
 
 @dataclass(frozen=True)
@@ -129,25 +192,6 @@ class ActorsConfig(Checked):
     stand_s: tuple[float, float] = within((0.5, 2.0), 0.0, 1000.0, ascending=True)
     p_start_seated: float = within(0.2, 0.0, 1.0)
     p_start_exit: float = within(0.1, 0.0, 1.0)
-    # Desk chairs (two, at the desks): centres x = +-desk_chair_x + jitter, y = desk_chair_y + jitter, facing the
-    # desk (+y) turned by up to desk_chair_turn rad.
-    desk_chair_x: float = within(1.0, 0.0, 100.0)
-    desk_chair_y: float = within(2.3, 0.0, 100.0)
-    desk_chair_jitter: tuple[float, float] = within((0.25, 0.08), 0.0, 10.0)
-    desk_chair_turn: float = within(1.0, -3.1416, 3.1416, why='radians')
-    # Sitting down: the person steps in front of the seat (sit_approach_m ahead of it) from beside it (sit_side_m),
-    # turns to the chair's heading, sits down and gets up over sit_down_s each, stays seated sit_s. The chair is
-    # pushed back by sit_shift_m as they sit down and by stand_shift_m as they get up, plus up to shift_jitter_m
-    # sideways and shift_yaw rad of turn. A seated person's root is seat_offset_m behind the chair's centre.
-    sit_approach_m: float = within(0.40, 0.0, 10.0)
-    sit_side_m: float = within(0.45, 0.0, 10.0)
-    sit_down_s: tuple[float, float] = within((1.0, 1.4), 0.0, 100.0, lo_open=True, ascending=True)
-    sit_s: tuple[float, float] = within((1.5, 4.0), 0.0, 1000.0, ascending=True)
-    sit_shift_m: tuple[float, float] = within((0.02, 0.06), 0.0, 10.0, ascending=True)
-    stand_shift_m: tuple[float, float] = within((0.04, 0.10), 0.0, 10.0, ascending=True)
-    shift_jitter_m: float = within(0.02, 0.0, 10.0)
-    shift_yaw: float = within(0.12, -3.1416, 3.1416, why='radians')
-    seat_offset_m: float = within(0.02, -10.0, 10.0)
     # Clearances: furniture (rectangles grown by floor_clearance), chairs (discs), other people, held objects.
     floor_clearance: float = within(0.18, 0.0, 10.0)
     chair_radius: float = within(0.5, 0.0, 10.0)
@@ -165,25 +209,8 @@ class ActorsConfig(Checked):
     tries: int = within(20, 1, 100_000)
     retry_wait_s: float = within(0.5, 0.0, 1000.0, lo_open=True)
     check_dt: float = within(0.1, 0.0, 10.0, lo_open=True)
-    # Carrying and pushing: the object's pose in the holder's root frame (box in the arms; chair in front, its
-    # back to the pusher), the last straight approach behind it, the time to take it or leave it, the least
-    # distance it is moved (to the other side of the view, at least move_side of the way to its edge, y in move_y:
-    # where the holder goes), the largest
-    # turn between the chair's heading and the push, the step away after.
-    box_offset: tuple[float, float, float] = within((0.0, 0.42, 1.17), -10.0, 10.0)
-    push_offset: tuple[float, float, float] = within((0.0, 0.72, 0.0), -10.0, 10.0)
-    take_approach_m: float = within(0.5, 0.0, 10.0)
-    take_s: float = within(0.9, 0.0, 100.0)
-    move_min_m: float = within(1.0, 0.0, 100.0)
-    move_side: float = within(0.3, 0.0, 1.0)
-    move_y: tuple[float, float] = within((0.9, 2.3), 0.0, 100.0, ascending=True)
-    push_max_turn: float = within(2.0, -3.1416, 3.1416, why='radians')
-    leave_m: float = within(0.6, 0.0, 10.0)
-    # Interaction scenarios: where the box / chair starts (x within object_x of the camera's axis, either side;
-    # y in object_y), facing away from the camera within object_turn rad (taken from the camera's side).
-    object_x: tuple[float, float] = within((0.3, 0.9), 0.0, 100.0, ascending=True)
-    object_y: tuple[float, float] = within((1.6, 2.2), 0.0, 100.0, ascending=True)
-    object_turn: float = within(0.5, -3.1416, 3.1416, why='radians')
+    sitting: SittingConfig = section(SittingConfig)
+    holding: HoldingConfig = section(HoldingConfig)
 
 
 @dataclass(frozen=True)
@@ -254,20 +281,58 @@ class TwinConfig(Checked):
 
 
 @dataclass(frozen=True)
+class ClothConfig(Checked):
+    """The garments' texture kinds (d2slam.synth.textures: cloth, trousers)."""
+
+    # The cloth texture kinds of d2slam.synth.textures (cloth, trousers; the bodies are coloured per vertex by
+    # ``body`` instead): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
+    # check period (m), grey-level contrast of a garment's colours, folds and seams, probability of one printed logo,
+    # small printed marks per square metre and their size (m), contrast of logos and marks, fabric blur sigma (m).
+    # The carried box and pushed chair keep their busy room textures.
+    cloth_plain_prob: float = within(0.15, 0.0, 1.0)
+    cloth_check_prob: float = within(0.5, 0.0, 1.0)
+    cloth_pattern_m: tuple[float, float] = within((0.05, 0.12), 0.0, 10.0, lo_open=True, ascending=True)
+    cloth_contrast: int = within(60, 0, 255)
+    cloth_print_prob: float = within(0.4, 0.0, 1.0)
+    cloth_marks_per_m2: float = within(200.0, 0.0, 100_000.0)
+    cloth_mark_m: tuple[float, float] = within((0.035, 0.065), 0.0, 10.0, lo_open=True, ascending=True)
+    cloth_print_contrast: int = within(130, 0, 255)
+    cloth_blur_m: float = within(0.0015, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class SegSimConfig(Checked):
+    """The simulated segmenter (``mask_sim``; d2slam.synth.segsim)."""
+
+    _RULES = (below("seg_z_near", "seg_z_far"),)
+    # Simulated segmenter (mask_sim): relative boundary error (fraction of the person's apparent size
+    # sqrt(bbox area)) grows linearly with normalised depth s(z) = clip((z - seg_z_near) / (seg_z_far - seg_z_near));
+    seg_z_near: float = within(0.5, 0.0, 20.0)
+    seg_z_far: float = within(4.5, 0.0, 20.0, lo_open=True)
+    seg_rel_err_near: float = within(0.012, 0.0, 1.0)
+    seg_rel_err_far: float = within(0.09, 0.0, 1.0)
+    # ... per-frame miss probability: flicker everywhere, plus far people (z beyond seg_far_start), plus people cut
+    # by the image border whose visible fraction of an expected full body is small, plus tiny ones (< min area).
+    seg_flicker: float = within(0.03, 0.0, 1.0)
+    seg_far_start: float = within(3.0, 0.0, 100.0)
+    seg_far_miss: float = within(0.35, 0.0, 1.0)
+    seg_cut_miss: float = within(0.5, 0.0, 1.0)
+    seg_cut_visible: float = within(0.25, 0.0, 1.0)
+    seg_min_area: int = within(250, 0, 100_000_000)
+
+
+@dataclass(frozen=True)
 class SynthConfig(Checked):
-    _RULES = (below("seg_z_near", "seg_z_far"), below("near_plane", "far_plane"),
-              below("cx", "width", strict=False), below("cy", "height", strict=False),
-              rule(("depth_max", "depth_factor"), lambda z, f: z * f <= 65535.0,
-                   "{0} times {1} must not exceed 65535: depth PNGs are 16-bit"),
+    """The generator's settings (what ``d2slam synth`` writes; the generator version hashes them, with
+    ``SYNTH_CAMERA``): the clock, the sensor, the textures, and in their own sections the people's bodies
+    (``body``) and actions (``actors``), the garments (``cloth``), the simulated segmenter (``segsim``) and the twin's
+    sensor (``twin``)."""
+
+    _RULES = (below("near_plane", "far_plane"),
+              rule(("depth_max",), lambda z: z * SYNTH_CAMERA.depth_factor <= 65535.0,
+                   "{0} times the synthetic camera's depth factor (5000) must not exceed 65535: depth PNGs are 16-bit"),
               rule(("frame_jitter", "fps"), lambda j, fps: j < 0.5 / fps,
                    "{0} must be below half the frame period of {1}: frames would change order"))
-    width: int = within(640, 16, 8192)
-    height: int = within(480, 16, 8192)
-    # Pinhole intrinsics of the synthetic camera: the TUM freiburg3 values (ORB-SLAM3 TUM3.yaml).
-    fx: float = within(535.4, 0.0, 100_000.0, lo_open=True)
-    fy: float = within(539.2, 0.0, 100_000.0, lo_open=True)
-    cx: float = within(320.1, 0.0, 8192.0)
-    cy: float = within(247.6, 0.0, 8192.0)
     fps: float = within(30.0, 0.0, 1000.0, lo_open=True)
     gt_rate: float = within(100.0, 0.0, 10_000.0, lo_open=True)
     # TUM-like clock: first RGB timestamp (s) and uniform jitter of each frame time around i / fps (s).
@@ -275,15 +340,11 @@ class SynthConfig(Checked):
     frame_jitter: float = within(0.0015, 0.0, 1.0)
     # Ground truth covers the frames with this margin (s) on both ends, like the mocap logs of TUM.
     gt_margin: float = within(0.5, 0.0, 100.0)
-    # Kinect-like depth noise sigma(z) = a + b (z - c)^2 metres, quantised to 1 / depth_factor.
-    depth_noise_a: float = within(0.0012, 0.0, 1.0)
-    depth_noise_b: float = within(0.0019, 0.0, 1.0)
-    depth_noise_c: float = within(0.4, 0.0, 20.0)
+    # Depth noise: the camera's (Camera.depth_noise: sigma(z) = a + b (z - c)^2 metres), quantised to 1 / depth_factor.
     # The noise is spatially correlated, as a structured-light sensor's is (it matches a correlation window, so
     # neighbouring pixels share their disparity error): white noise smoothed by a Gaussian of depth_noise_corr_px
     # and rescaled to unit variance, so sigma(z) stays each pixel's standard deviation (0 = independent pixels).
     depth_noise_corr_px: float = within(2.0, 0.0, 100.0)
-    depth_factor: float = within(5000.0, 0.0, 65535.0, lo_open=True)
     depth_max: float = within(4.5, 0.0, 100.0, lo_open=True)
     # RGB timestamps vs depth timestamps: depth lags by a uniform offset in this range (seconds).
     # Both images are rendered at the RGB instant (the offset only exercises association).
@@ -309,35 +370,6 @@ class SynthConfig(Checked):
     # Texture resolution (texels per metre) of the room and of people / objects.
     room_texels_per_m: float = within(220.0, 0.0, 10_000.0, lo_open=True)
     body_texels_per_m: float = within(420.0, 0.0, 10_000.0, lo_open=True)
-    # People: what they do is in ``actors`` (ActorsConfig); their bodies, gait and clothes in ``body`` (BodyConfig).
-    # The cloth texture kinds of d2slam.synth.textures (cloth, trousers; the bodies are coloured per vertex by
-    # ``body`` instead): probability of a plain shirt, of checks rather than stripes on a patterned one, stripe /
-    # check period (m), grey-level contrast of a garment's colours, folds and seams, probability of one printed logo,
-    # small printed marks per square metre and their size (m), contrast of logos and marks, fabric blur sigma (m).
-    # The carried box and pushed chair keep their busy room textures.
-    cloth_plain_prob: float = within(0.15, 0.0, 1.0)
-    cloth_check_prob: float = within(0.5, 0.0, 1.0)
-    cloth_pattern_m: tuple[float, float] = within((0.05, 0.12), 0.0, 10.0, lo_open=True, ascending=True)
-    cloth_contrast: int = within(60, 0, 255)
-    cloth_print_prob: float = within(0.4, 0.0, 1.0)
-    cloth_marks_per_m2: float = within(200.0, 0.0, 100_000.0)
-    cloth_mark_m: tuple[float, float] = within((0.035, 0.065), 0.0, 10.0, lo_open=True, ascending=True)
-    cloth_print_contrast: int = within(130, 0, 255)
-    cloth_blur_m: float = within(0.0015, 0.0, 1.0)
-    # Simulated segmenter (mask_sim): relative boundary error (fraction of the person's apparent size
-    # sqrt(bbox area)) grows linearly with normalised depth s(z) = clip((z - seg_z_near) / (seg_z_far - seg_z_near));
-    seg_z_near: float = within(0.5, 0.0, 20.0)
-    seg_z_far: float = within(4.5, 0.0, 20.0, lo_open=True)
-    seg_rel_err_near: float = within(0.012, 0.0, 1.0)
-    seg_rel_err_far: float = within(0.09, 0.0, 1.0)
-    # ... per-frame miss probability: flicker everywhere, plus far people (z beyond seg_far_start), plus people cut
-    # by the image border whose visible fraction of an expected full body is small, plus tiny ones (< min area).
-    seg_flicker: float = within(0.03, 0.0, 1.0)
-    seg_far_start: float = within(3.0, 0.0, 100.0)
-    seg_far_miss: float = within(0.35, 0.0, 1.0)
-    seg_cut_miss: float = within(0.5, 0.0, 1.0)
-    seg_cut_visible: float = within(0.25, 0.0, 1.0)
-    seg_min_area: int = within(250, 0, 100_000_000)
     # Process pool over frames (0 = min(2, cpu count)); per-frame RNGs are seeded from (seed, frame index).
     workers: int = within(0, 0, 1024)
     png_compression: int = within(1, 0, 9)
@@ -346,6 +378,8 @@ class SynthConfig(Checked):
     actors: ActorsConfig = section(ActorsConfig)
     # The synthetic twin of a real recording and its calibrated sensor (only the twin scenarios read it).
     twin: TwinConfig = section(TwinConfig)
+    cloth: ClothConfig = section(ClothConfig)
+    segsim: SegSimConfig = section(SegSimConfig)
 
 
 @dataclass(frozen=True)

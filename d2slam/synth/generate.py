@@ -90,8 +90,9 @@ def render_frame(scene: Scene, renderer: WorldRenderer, i: int) -> dict:
     clock.lap("bodies")
     rgb, z, ids = renderer.draw(T)
     clock.lap("gl")
-    depth = depth_to_png(z, rngs[0], cfg)
-    zc = float(z[cfg.height // 2, cfg.width // 2])
+    cam = scene.intrinsics
+    depth = depth_to_png(z, rngs[0], cfg, camera=cam)
+    zc = float(z[int(cam.height) // 2, int(cam.width) // 2])
     rgb_out = rgb_sensor(rgb, blur_vector(scene, t, T, zc), rngs[1], cfg, bank_seed=scene.seed)
     clock.lap("sensor")
     sim = simulate_segmenter(ids, z, scene.person_ids, scene.K, rngs[2], cfg)
@@ -199,6 +200,12 @@ def groundtruth(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return ts, pose_rows(scene.camera.poses(ts - scene.t0))
 
 
+def camera_json(cam) -> dict:
+    """``scene.json``'s ``camera``: the intrinsics, the image size and the depth factor."""
+    return {"fx": float(cam.fx), "fy": float(cam.fy), "cx": float(cam.cx), "cy": float(cam.cy),
+            "width": int(cam.width), "height": int(cam.height), "depth_factor": float(cam.depth_factor)}
+
+
 def scene_json(scene: Scene) -> dict:
     c = scene.cfg
     if scene.recording is not None:
@@ -209,8 +216,7 @@ def scene_json(scene: Scene) -> dict:
         "seed": scene.seed,
         "frames": scene.frames,
         "static_twin": scene.static_twin,
-        "camera": {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height,
-                   "depth_factor": c.depth_factor},
+        "camera": camera_json(scene.intrinsics),
         "objects": scene.objects_info(),
         "person_ids": scene.person_ids,
         "moved_object_ids": scene.moved_object_ids,
@@ -224,6 +230,7 @@ def scene_json(scene: Scene) -> dict:
             "start_time": scene.t0,
             "duration": scene.duration,
             "config": dataclasses.asdict(c),
+            "depth_noise": dataclasses.asdict(scene.intrinsics.depth_noise),
         },
     }
 
@@ -233,8 +240,7 @@ def twin_scene_json(scene: Scene) -> dict:
     recording it follows (name, frames, the placement in the room)."""
     c, rec = scene.cfg, scene.recording
     cam = rec.camera
-    camera = {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height,
-              "depth_factor": c.depth_factor, "bf": float(cam.bf), "name": f"{cam.name}-twin"}
+    camera = {**camera_json(cam), "bf": float(cam.bf), "name": f"{cam.name}-twin"}
     if c.twin.distortion and cam.has_distortion:
         camera["dist"] = [float(v) for v in cam.dist]
     return {
@@ -249,6 +255,7 @@ def twin_scene_json(scene: Scene) -> dict:
                      "timestamps, through its camera with the lens distortion, the sensor of generator.config.twin. "
                      "Poses: T_world_camera of the optical centre, camera x right / y down / z forward, world Z up.",
             "start_time": scene.t0, "duration": scene.duration, "config": dataclasses.asdict(c),
+            "depth_noise": dataclasses.asdict(cam.depth_noise),
         },
     }
 

@@ -23,13 +23,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from d2slam.data.base import Camera, RGBDFrame
+from d2slam.data.base import RGBDFrame
 from d2slam.errors import D2SlamError
 from d2slam.ranges import AnyConfig, part_of
 from d2slam.segmentation import get_segmenter
 from d2slam.slam.config import EngineConfig, OrbConfig
 from d2slam.slam.frame import OrbExtractor
-from d2slam.synth.config import SynthConfig, SynthEvalConfig
+from d2slam.synth.config import SYNTH_CAMERA, SynthConfig, SynthEvalConfig
 from d2slam.synth.generate import render_frame
 from d2slam.synth.scene import Scene
 from d2slam.synth.world import WorldRenderer
@@ -68,10 +68,8 @@ def ratio(kp: np.ndarray, area: np.ndarray) -> np.ndarray:
 
 
 def extractor(camera=None, config: AnyConfig | None = None):
-    """The engine's ORB extractor (ORB-SLAM settings) for a 640x480 fr3-like camera."""
-    if camera is None:
-        s = part_of(config, "synth", SynthConfig)
-        camera = Camera(s.fx, s.fy, s.cx, s.cy, s.width, s.height)
+    """The engine's ORB extractor (ORB-SLAM settings) for ``camera`` (default the synthetic one, freiburg3's)."""
+    camera = camera or SYNTH_CAMERA
     return OrbExtractor(part_of(config, "orb", OrbConfig), part_of(config, "engine", EngineConfig), camera)
 
 
@@ -130,7 +128,7 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
         dyn_lut[[o.oid for o in scene.objects if o.moving(t)]] = True
         masks = [person_lut[f["mask_gt"]], dyn_lut[f["mask_gt"]]]
         gray = cv2.cvtColor(f["rgb"], cv2.COLOR_RGB2GRAY)
-        areas, kps, n = frame_stats(gray, f["depth"].astype(np.float32) / cfg.depth_factor, masks, ext)
+        areas, kps, n = frame_stats(gray, f["depth"].astype(np.float32) / scene.intrinsics.depth_factor, masks, ext)
         rows.append((areas[0], kps[0], n, areas[1], kps[1], *texture_stats(gray, part_of(config, "synth_eval", SynthEvalConfig))))
     renderer.close()
     a = np.array(rows, float).reshape(-1, 7)

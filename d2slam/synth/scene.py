@@ -9,14 +9,12 @@ path and the clock of its dynamic sequence.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from d2slam.errors import D2SlamError
 from d2slam.synth import bodies
 from d2slam.synth.actors import BOX_HALF, Chair, FloorPlan, HeldObject, Leg, Person, Planner, Timeline
-from d2slam.synth.config import SynthConfig
+from d2slam.synth.config import SYNTH_CAMERA, SynthConfig
 from d2slam.synth.render import Quad, QuadSet, box_quads, boxes
 from d2slam.synth.rigid import look_at, rot_x, rot_y, rot_z, rots, tf, yaw_pose  # noqa: F401 (re-exported)
 from d2slam.synth.textures import make_texture
@@ -193,7 +191,8 @@ class CameraPath:
 # the scene
 # --------------------------------------------------------------------------------------------------
 class Scene:
-    """Room, people, moved objects, camera path and clock of one synthetic sequence."""
+    """Room, people, moved objects, camera path (``camera``) and clock of one synthetic sequence, and the camera its
+    images are taken through (``intrinsics``: ``SYNTH_CAMERA``, or a twin's recording's)."""
 
     def __init__(self, scenario: str, seed: int = 0, frames: int = 300, static_twin: bool = False,
                  cfg: SynthConfig | None = None, recording=None):
@@ -212,9 +211,10 @@ class Scene:
         else:
             self.scenario, self.seed, self.frames = scenario, int(seed), int(frames)
             self.static_twin = bool(static_twin)
-            c = self.cfg
-            self.K = np.array([[c.fx, 0, c.cx], [0, c.fy, c.cy], [0, 0, 1.0]])
-            self.canvas_K, self.canvas_size = self.K, (c.width, c.height)
+            c, cam = self.cfg, SYNTH_CAMERA
+            self.intrinsics = cam
+            self.K = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+            self.canvas_K, self.canvas_size = self.K, (cam.width, cam.height)
             # clock: frame times (relative) with small jitter, depth a few ms later (rendered at the RGB instant)
             clock = np.random.default_rng([self.seed, 4, sidx])
             jit = clock.uniform(-c.frame_jitter, c.frame_jitter, size=frames)
@@ -252,11 +252,12 @@ class Scene:
         """A twin's camera, clock and path: the recording's camera and first ``frames`` frames (RGB and depth
         times), its ground truth placed in the room (d2slam.synth.twin); static (no people)."""
         tw = self.cfg.twin
-        self.cfg = twin_config(self.cfg, rec.camera)
+        self.cfg = twin_config(self.cfg)
         self.frames = min(frames, len(rec))
         self.static_twin = True
-        c = self.cfg
-        self.K = np.array([[c.fx, 0, c.cx], [0, c.fy, c.cy], [0, 0, 1.0]])
+        c, cam = self.cfg, rec.camera
+        self.intrinsics = cam
+        self.K = np.array([[float(cam.fx), 0, float(cam.cx)], [0, float(cam.fy), float(cam.cy)], [0, 0, 1.0]])
         self.lens = LensMap(rec.camera, tw.distortion)
         self.canvas_K, self.canvas_size = self.lens.K, (self.lens.width, self.lens.height)
         ts = np.asarray(rec.rgb_times[:self.frames], float)
@@ -371,7 +372,7 @@ class Scene:
         b = self.cfg.body
         shape = tuple(float(v) for v in rng.uniform(b.shape_low, b.shape_high))
         clothes = bodies.random_clothes(rng, b)
-        return shape, clothes, float(rng.uniform(*b.gait_jitter)), self._garments(rng, clothes)
+        return shape, clothes, float(rng.uniform(*b.motion.gait_jitter)), self._garments(rng, clothes)
 
     def _garments(self, rng, clothes: bodies.Clothes) -> np.ndarray:
         """One texture per garment (shirt, trousers, shoes, skin with the face in front, hair) in its colour: one turn
@@ -390,7 +391,7 @@ class Scene:
     def _new_person(self, k: int, role: str, rng, timeline: Timeline) -> Person:
         """Person k (id k + 1): look from its own texture stream, gait stride and seated movements from ``rng``."""
         shape, clothes, style, tex = self._person_look(self._texture_rng(k))
-        params = {"style": style, "stride": float(rng.uniform(*self.cfg.body.stride_m)),
+        params = {"style": style, "stride": float(rng.uniform(*self.cfg.body.motion.stride_m)),
                   "f": rng.uniform(2.0, 6.0, size=8), "ph": rng.uniform(0, 2 * np.pi, size=8)}
         return Person(k + PERSON_IDS_START, f"person_{k + 1}", role, shape, clothes, params, self.cfg.body, timeline,
                       tex)
@@ -403,7 +404,7 @@ class Scene:
             seats = [(-0.55, 2.55, -np.pi / 2 + 0.35), (0.6, 2.45, -np.pi / 2 - 0.35)]
             for k, (x, y, hd) in enumerate(seats):
                 x, y, hd = x + rng.uniform(-0.1, 0.1), y + rng.uniform(-0.15, 0.15), hd + rng.uniform(-0.15, 0.15)
-                chair = Chair(0, "chair", np.array([x, y]) + a.seat_offset_m * np.array([np.cos(hd), np.sin(hd)]),
+                chair = Chair(0, "chair", np.array([x, y]) + a.sitting.seat_offset_m * np.array([np.cos(hd), np.sin(hd)]),
                               hd, self._tex(self._texture_rng(k), "seat", 0.5, 0.5, c.room_texels_per_m))
                 tl = Timeline(a)
                 tl.add(Leg("sit", -1.0, self.duration + 1.0, 0.0, chair.xy, chair=chair))
@@ -412,27 +413,27 @@ class Scene:
                     self.static_quads += box_quads(T, half, tex, 0)
             return
         # two desk chairs that shift a little when somebody sits down or gets up
-        jx, jy = a.desk_chair_jitter
+        jx, jy = a.sitting.desk_chair_jitter
         chairs = []
         for j, (oid, side) in enumerate(zip(DESK_CHAIR_IDS, (-1.0, 1.0))):
-            xy = np.array([side * a.desk_chair_x + rng.uniform(-jx, jx), a.desk_chair_y + rng.uniform(-jy, jy)])
-            h = np.pi / 2 + rng.uniform(-a.desk_chair_turn, a.desk_chair_turn)
+            xy = np.array([side * a.sitting.desk_chair_x + rng.uniform(-jx, jx), a.sitting.desk_chair_y + rng.uniform(-jy, jy)])
+            h = np.pi / 2 + rng.uniform(-a.sitting.desk_chair_turn, a.sitting.desk_chair_turn)
             tex = self._tex(self._texture_rng(10 + j), "seat", 0.5, 0.5, c.body_texels_per_m)
             chairs.append(Chair(oid, f"desk_chair_{j + 1}", xy, float(h), tex))
         held = []
         if self.scenario in INTERACTION_SCENARIOS:  # the box / chair on one side of the view, taken from the camera's side
             side = rng.choice([-1.0, 1.0])
-            xy = np.array([side * rng.uniform(*a.object_x), rng.uniform(*a.object_y)])
-            h = np.pi / 2 + rng.uniform(-a.object_turn, a.object_turn)
+            xy = np.array([side * rng.uniform(*a.holding.object_x), rng.uniform(*a.holding.object_y)])
+            h = np.pi / 2 + rng.uniform(-a.holding.object_turn, a.holding.object_turn)
             trng = self._texture_rng(0)
             if self.scenario == "walking_carry":
                 tex = self._tex(trng, "box", 0.45, 0.32, c.body_texels_per_m)
                 held.append(HeldObject(MOVED_BOX_ID, "carried_box", "box", tex, yaw_pose(xy, h, BOX_HALF[2]),
-                                       tf(t=a.box_offset), float(BOX_HALF[2])))
+                                       tf(t=a.holding.box_offset), float(BOX_HALF[2])))
             else:
                 tex = self._tex(trng, "seat", 0.5, 0.5, c.body_texels_per_m)
                 held.append(HeldObject(MOVED_CHAIR_ID, "pushed_chair", "chair", tex, yaw_pose(xy, h),
-                                       tf(t=a.push_offset), 0.0))
+                                       tf(t=a.holding.push_offset), 0.0))
         floor = FloorPlan((-ROOM_X, ROOM_X, ROOM_Y[0], ROOM_Y[1]), self.floor_rects, a.floor_clearance)
         for k in range(2):  # with an object to move, the first person moves it
             role = ("carry" if held[0].kind == "box" else "push") if held and k == 0 else "walk"

@@ -38,26 +38,26 @@ def simulate_segmenter(ids: np.ndarray, depth: np.ndarray, person_ids: list[int]
         area = int(np.count_nonzero(m))
         x, y, w, h = cv2.boundingRect(m)
         z = float(np.median(depth[m != 0]))
-        s = float(np.clip((z - cfg.seg_z_near) / (cfg.seg_z_far - cfg.seg_z_near), 0.0, 1.0))
-        rel = cfg.seg_rel_err_near + (cfg.seg_rel_err_far - cfg.seg_rel_err_near) * s
+        s = float(np.clip((z - cfg.segsim.seg_z_near) / (cfg.segsim.seg_z_far - cfg.segsim.seg_z_near), 0.0, 1.0))
+        rel = cfg.segsim.seg_rel_err_near + (cfg.segsim.seg_rel_err_far - cfg.segsim.seg_rel_err_near) * s
         size = float(np.sqrt(w * h))
         err = rel * size
         u_miss, bias, sub_seed = draws[pid]
         # probability of missing this person in this frame
-        p_miss = cfg.seg_flicker
-        p_miss += cfg.seg_far_miss * float(np.clip((z - cfg.seg_far_start) / max(cfg.seg_z_far - cfg.seg_far_start,
+        p_miss = cfg.segsim.seg_flicker
+        p_miss += cfg.segsim.seg_far_miss * float(np.clip((z - cfg.segsim.seg_far_start) / max(cfg.segsim.seg_z_far - cfg.segsim.seg_far_start,
                                                                                    1e-6), 0.0, 1.0))
         cut = x == 0 or y == 0 or x + w >= W or y + h >= H
         if cut:
             fy, fx = K[1, 1], K[0, 0]
             full = (1.75 * fy / z) * (0.5 * fx / z)  # expected pixels of a whole standing body at this depth
             visible = area / max(full, 1.0)
-            p_miss += cfg.seg_cut_miss * float(np.clip(1.0 - visible / cfg.seg_cut_visible, 0.0, 1.0))
+            p_miss += cfg.segsim.seg_cut_miss * float(np.clip(1.0 - visible / cfg.segsim.seg_cut_visible, 0.0, 1.0))
         reason = None
-        if area < cfg.seg_min_area:
+        if area < cfg.segsim.seg_min_area:
             reason = "small"
         elif u_miss < p_miss:
-            reason = "far" if z > cfg.seg_far_start else ("cut" if cut else "flicker")
+            reason = "far" if z > cfg.segsim.seg_far_start else ("cut" if cut else "flicker")
         info.append({"id": pid, "area": area, "depth": z, "rel_err": rel, "error_px": err, "missed": reason is not None,
                      "reason": reason})
         if reason is not None:

@@ -181,14 +181,11 @@ class LensMap:
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
-def twin_config(cfg: SynthConfig, camera: Camera) -> SynthConfig:
-    """The twin's ``SynthConfig``: ``cfg`` with the recording camera's intrinsics, size and depth factor, and the
-    twin's RGB noise and hole blobs (``TwinConfig.rgb_noise_sigma``, ``hole_blob_fraction``)."""
+def twin_config(cfg: SynthConfig) -> SynthConfig:
+    """The twin's ``SynthConfig``: ``cfg`` with the twin's RGB noise and hole blobs (``TwinConfig.rgb_noise_sigma``,
+    ``hole_blob_fraction``); its camera is the recording's (``Scene.intrinsics``)."""
     tw = cfg.twin
-    return dataclasses.replace(cfg, fx=float(camera.fx), fy=float(camera.fy), cx=float(camera.cx),
-                               cy=float(camera.cy), width=int(camera.width), height=int(camera.height),
-                               depth_factor=float(camera.depth_factor), rgb_noise_sigma=tw.rgb_noise_sigma,
-                               hole_blob_fraction=tw.hole_blob_fraction)
+    return dataclasses.replace(cfg, rgb_noise_sigma=tw.rgb_noise_sigma, hole_blob_fraction=tw.hole_blob_fraction)
 
 
 def shadow_holes(z: np.ndarray, cfg: SynthConfig) -> np.ndarray:
@@ -267,7 +264,7 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
     """Frame ``i`` of a twin scene, as ``d2slam.synth.generate.render_frame`` returns a frame (see the module
     docstring for what the sensor does)."""
     cfg, tw = scene.cfg, scene.cfg.twin
-    H, W = cfg.height, cfg.width
+    H, W = int(scene.intrinsics.height), int(scene.intrinsics.width)
     t = float(scene.t_rel[i])
     rngs = [np.random.default_rng([scene.seed, scene.sidx, i, k]) for k in (11, 12, 13)]
     ms, cpu = {}, {}
@@ -311,7 +308,7 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
     lap("gl")
     rgb = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
     rgb = rgb_sensor(rgb, (0.0, 0.0), rngs[1], cfg, bank_seed=scene.seed)
-    depth = depth_to_png(zd, rngs[0], cfg)
+    depth = depth_to_png(zd, rngs[0], cfg, camera=scene.intrinsics)
     depth[shadow_holes(zd, cfg)] = 0
     top, bottom, left, right = tw.depth_border
     depth[:top] = 0
