@@ -65,7 +65,36 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
     if engine is None:
         ensure_vocabulary(config)
         engine = Engine(sequence.camera, config, keypoint_filter)
+    cached, recorder_f = _check_features(features, engine, sequence, n)
+    tally = _Tally(n, mask_provider is not None)
+    source = _FrameSource(sequence, n, cached, keypoint_filter is not None, mask_provider, prefetch)
+    bar = tqdm(range(n), desc=desc or f"run {getattr(sequence, 'name', '')}", unit="frame",
+               disable=None if progress is None else not progress)
+    for i in bar:
+        frame, masks, load_s, segment_s, upcoming = source.get(i)
+        if cached is not None:  # frame is the depth image or None
+            res = engine.process(None, frame, i, float(cached.timestamps[i]), masks=masks, features=cached.frame(i))
+            tally.stored_extraction(res, float(cached.extract_ms[i]) / 1000.0)
+        else:
+            res = engine.process(frame.gray, frame.depth, i, frame.timestamp, masks=masks, upcoming=upcoming)
+            if recorder_f is not None:
+                recorder_f.add(engine.last, res.timings["extract"])
+        tally.add(i, res, load_s, segment_s, engine)
+        if recorder is not None:
+            last = engine.last
+            recorder(i, last.kps, last.belief, getattr(keypoint_filter, "last", None))
+        if i == 0:
+            tally.first_frame_at = time.time()
+        if i % 10 == 0:
+            bar.set_postfix(tracked=tally.tracked, kfs=tally.keyframes)
+    source.close()
+    engine.close()
+    return tally.run(engine, getattr(sequence, "name", ""))
 
+
+def _check_features(features, engine: Engine, sequence, n: int):
+    """(stored features to read, a recorder of the extracted features to fill): one of them or neither; a clear error
+    for anything else, and for features with an engine whose budget follows its filter."""
     cached = features if isinstance(features, CachedFeatures) else None
     recorder_f = features if isinstance(features, FeatureRecorder) else None
     if features is not None and cached is None and recorder_f is None:
@@ -76,96 +105,108 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
                           "filter (run without features, or with refill_filtered=False)")
     if cached is not None:
         cached.check(sequence.timestamps[:n])
-    # What is read per frame: the whole frame, the depth image only (stored features and a filter), or nothing.
-    if cached is None:
-        reader = sequence.__getitem__
-    elif keypoint_filter is not None:
-        reader = getattr(sequence, "depth_image", None) or (lambda i: sequence[i].depth)
-    else:
-        reader = None
-    extract_adjust = 0.0  # cached extraction time minus the time the cached read took
-    first_frame_at = float("nan")
-    totals = dict.fromkeys(STAGES, 0.0)
-    states, per_frame = [], []
-    keyframes = 0
-    t_start = time.perf_counter()
-    bar = tqdm(range(n), desc=desc or f"run {getattr(sequence, 'name', '')}", unit="frame",
-               disable=None if progress is None else not progress)
-    # Frames and their masks are read one and two ahead by a reader thread (PNG decoding releases the GIL), and the
-    # engine extracts frame i+1 in its worker while it tracks frame i (``Engine.process(upcoming=...)``): results
-    # identical to doing it all in order; ``load`` is the time spent waiting for the images and masks, ``segment`` the
-    # mask provider's own time in the reader thread.
-    pool = ThreadPoolExecutor(max_workers=1) if prefetch and reader is not None and n > 1 else None
-    pending: dict = {}
+    return cached, recorder_f
 
-    def read(j: int):
-        frame = reader(j)
-        if mask_provider is None:
+
+class _FrameSource:
+    """Frame ``i`` and its masks, as ``run_sequence`` asks for them: what is read per frame is the whole frame, the
+    depth image only (stored features and a filter), or nothing. Frames and their masks are read one and two ahead
+    by a reader thread (PNG decoding releases the GIL), and the engine extracts frame i+1 in its worker while it
+    tracks frame i (``Engine.process(upcoming=...)``): results identical to doing it all in order."""
+
+    def __init__(self, sequence, n: int, cached, has_filter: bool, mask_provider, prefetch: bool):
+        if cached is None:
+            self.reader = sequence.__getitem__
+        elif has_filter:
+            self.reader = getattr(sequence, "depth_image", None) or (lambda i: sequence[i].depth)
+        else:
+            self.reader = None
+        self.n, self.cached, self.mask_provider = n, cached, mask_provider
+        self.pool = ThreadPoolExecutor(max_workers=1) if prefetch and self.reader is not None and n > 1 else None
+        self.pending: dict = {}
+        self._fetch(0)
+        self._fetch(1)
+
+    def _read(self, j: int):
+        frame = self.reader(j)
+        if self.mask_provider is None:
             return frame, None, 0.0
         t = time.perf_counter()
-        return frame, mask_provider(j), time.perf_counter() - t
+        return frame, self.mask_provider(j), time.perf_counter() - t
 
-    def fetch(j: int) -> None:
-        if pool is not None and j < n and j not in pending:
-            pending[j] = pool.submit(read, j)
+    def _fetch(self, j: int) -> None:
+        if self.pool is not None and j < self.n and j not in self.pending:
+            self.pending[j] = self.pool.submit(self._read, j)
 
-    fetch(0)
-    fetch(1)
-    for i in bar:
+    def get(self, i: int):
+        """(frame i: the frame, its depth image or None; its masks or None; seconds spent waiting for the images
+        (``load``); seconds the mask provider took (``segment``); the next frame's ``(gray, depth, index,
+        timestamp)`` for the engine to extract ahead, or None)."""
         t0 = time.perf_counter()
+        if self.pool is None:
+            frame = self.reader(i) if self.reader is not None else None
+            t1 = time.perf_counter()
+            masks = self.mask_provider(i) if self.mask_provider is not None else None
+            return frame, masks, t1 - t0, time.perf_counter() - t1, None
+        frame, masks, segment_s = self.pending.pop(i).result()
+        self._fetch(i + 2)
         upcoming = None
-        if pool:
-            frame, masks, segment_s = pending.pop(i).result()
-            fetch(i + 2)
-            if cached is None and i + 1 < n:
-                nxt = pending[i + 1].result()[0]
-                upcoming = (nxt.gray, nxt.depth, i + 1, nxt.timestamp)
-            t1 = time.perf_counter()
-        else:
-            frame = reader(i) if reader is not None else None
-            t1 = time.perf_counter()
-            masks = mask_provider(i) if mask_provider is not None else None
-            segment_s = time.perf_counter() - t1
-        if cached is not None:  # frame is the depth image or None
-            res = engine.process(None, frame, i, float(cached.timestamps[i]), masks=masks,
-                                 features=cached.frame(i))
-            stored = float(cached.extract_ms[i]) / 1000.0
-            extract_adjust += stored - res.timings["extract"]
-            res.timings["extract"] = stored
-        else:
-            res = engine.process(frame.gray, frame.depth, i, frame.timestamp, masks=masks, upcoming=upcoming)
-            if recorder_f is not None:
-                recorder_f.add(engine.last, res.timings["extract"])
-        totals["load"] += t1 - t0
-        totals["segment"] += segment_s
+        if self.cached is None and i + 1 < self.n:
+            nxt = self.pending[i + 1].result()[0]
+            upcoming = (nxt.gray, nxt.depth, i + 1, nxt.timestamp)
+        return frame, masks, time.perf_counter() - t0, segment_s, upcoming
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown()
+
+
+class _Tally:
+    """The per-stage timings, states and per-frame rows of a run, and the :class:`EngineRun` they make."""
+
+    def __init__(self, n: int, has_masks: bool):
+        self.n, self.has_masks = n, has_masks
+        self.totals = dict.fromkeys(STAGES, 0.0)
+        self.states: list[str] = []
+        self.per_frame: list[dict] = []
+        self.keyframes = 0
+        self.extract_adjust = 0.0  # stored extraction time minus the time the stored read took
+        self.first_frame_at = float("nan")  # time.time() when the first frame was done
+        self.t_start = time.perf_counter()
+
+    @property
+    def tracked(self) -> int:
+        return sum(s == "ok" for s in self.states)
+
+    def stored_extraction(self, res, stored_s: float) -> None:
+        """Frame features that came stored: their extraction counts with the time it took when they were stored."""
+        self.extract_adjust += stored_s - res.timings["extract"]
+        res.timings["extract"] = stored_s
+
+    def add(self, i: int, res, load_s: float, segment_s: float, engine: Engine) -> None:
+        self.totals["load"] += load_s
+        self.totals["segment"] += segment_s
         for k, v in res.timings.items():
-            totals[k] += v
-        states.append(res.state)
-        keyframes += int(res.keyframe)
-        per_frame.append({"index": i, "state": res.state, "how": res.how, "keypoints": res.n_keypoints,
-                          "inliers": res.n_inliers, "keyframe": res.keyframe,
-                          "map_points": engine.map.n_points, "keyframes": len(engine.map.good_keyframes())})
-        if recorder is not None:
-            last = engine.last
-            recorder(i, last.kps, last.belief, getattr(keypoint_filter, "last", None))
-        if i == 0:
-            first_frame_at = time.time()
-        if i % 10 == 0:
-            bar.set_postfix(tracked=sum(s == "ok" for s in states), kfs=keyframes)
-    if pool:
-        pool.shutdown()
-    engine.close()
-    total = time.perf_counter() - t_start + extract_adjust
-    _, ts, poses = engine.trajectory()
-    tracked = int(sum(s == "ok" for s in states))
-    stage_ms = {k: 1000.0 * v / n for k, v in totals.items() if k != "segment" or mask_provider is not None}
-    lc = engine.loop
-    return EngineRun(trajectory=Trajectory(ts, poses, meta={"sequence": getattr(sequence, "name", "")}),
-                     frames=n, tracked=tracked, lost=n - tracked, states=states,
-                     keyframes=len(engine.map.good_keyframes()), map_points=engine.map.n_points, stage_ms=stage_ms,
-                     total_s=total, fps=n / total if total > 0 else float("inf"), per_frame=per_frame,
-                     first_frame_at=first_frame_at,
-                     loop_closing=lc is not None, loops=[x.to_dict() for x in engine.loops],
-                     loop_candidates=list(lc.log) if lc is not None else [],
-                     loop_detect_ms=[1000.0 * t for t in lc.detect_s] if lc is not None else [],
-                     loop_detect_cpu_ms=[1000.0 * t for t in lc.detect_cpu_s] if lc is not None else [])
+            self.totals[k] += v
+        self.states.append(res.state)
+        self.keyframes += int(res.keyframe)
+        self.per_frame.append({"index": i, "state": res.state, "how": res.how, "keypoints": res.n_keypoints,
+                               "inliers": res.n_inliers, "keyframe": res.keyframe,
+                               "map_points": engine.map.n_points, "keyframes": len(engine.map.good_keyframes())})
+
+    def run(self, engine: Engine, name: str) -> EngineRun:
+        n = self.n
+        total = time.perf_counter() - self.t_start + self.extract_adjust
+        _, ts, poses = engine.trajectory()
+        tracked = int(self.tracked)
+        stage_ms = {k: 1000.0 * v / n for k, v in self.totals.items() if k != "segment" or self.has_masks}
+        lc = engine.loop
+        return EngineRun(trajectory=Trajectory(ts, poses, meta={"sequence": name}), frames=n, tracked=tracked,
+                         lost=n - tracked, states=self.states, keyframes=len(engine.map.good_keyframes()),
+                         map_points=engine.map.n_points, stage_ms=stage_ms, total_s=total,
+                         fps=n / total if total > 0 else float("inf"), per_frame=self.per_frame,
+                         first_frame_at=self.first_frame_at, loop_closing=lc is not None,
+                         loops=[x.to_dict() for x in engine.loops],
+                         loop_candidates=list(lc.log) if lc is not None else [],
+                         loop_detect_ms=[1000.0 * t for t in lc.detect_s] if lc is not None else [],
+                         loop_detect_cpu_ms=[1000.0 * t for t in lc.detect_cpu_s] if lc is not None else [])
