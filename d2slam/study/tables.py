@@ -542,6 +542,31 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
         return "\n".join(["# D2SLAM study: results", "", "## Real recordings", "", REAL_NOTE, "",
                           real_markdown(real, methods), "", "## Runs without metrics", "",
                           failures_markdown(real), ""])
+    out = _header_markdown(df, methods, seeds, frames, manifest)
+    loops = df[df["scenario"].isin(LOOP_SCENARIOS)]
+    df = df[~(df["scenario"].isin(LOOP_SCENARIOS) & (df["loop_closing"] == 0))]  # the others: loop closing on
+    have_orb = ORBSLAM3 in methods and np.isfinite(df[df["method"] == ORBSLAM3]["ate_rmse_m"]).any()
+    ours = df[df["scenario"].isin(INTERACTION_SCENARIOS)]
+    df_all, df = df, df[~df["scenario"].isin(INTERACTION_SCENARIOS + LOOP_SCENARIOS)]  # the paper's: fr3
+    out += _metric_tables_markdown(df, methods, have_orb)
+    out += _ours_markdown(ours, loops, df_all, methods)
+    out += _twins_markdown(df_all, methods)
+    out += ["", "## Frames tracked (%), median over seeds", "",
+            "ATE and RPE are computed on the tracked frames only (the TUM convention); a method that loses track "
+            "early can show a small error over a short trajectory: read the errors with this table.", "",
+            tracking_markdown(df_all, methods)]
+    out += ["", "## Dynamic-keypoint classification: F1 (precision / recall), medians over seeds", "",
+            keypoint_markdown(df_all, methods)]
+    if not real.empty:
+        out += ["", "## Real recordings", "", REAL_NOTE, "", real_markdown(real, methods)]
+    out += ["", "## Runs without metrics", "", failures_markdown(pd.concat([df_all, real])), ""]
+    return "\n".join(out)
+
+
+def _header_markdown(df: pd.DataFrame, methods: list[str], seeds: list[int], frames: list[int],
+                     manifest: dict | None) -> list[str]:
+    """The title and what the tables are made of: the sequences (``df``: the synthetic or fr3 runs), the seeds and
+    frames of every run, the conventions, the config and code."""
     src = "real TUM RGB-D" if (df["source"] == "tum").all() else "synthetic TUM-like"
     out = ["# D2SLAM study: results", "",
            f"Sequences: {src}, {', '.join(_frames_label(f) for f in frames)} frames; seeds "
@@ -559,14 +584,14 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
     if manifest:
         out.append(f"Config hash `{manifest.get('config_hash', '')}`, git `{manifest.get('git', {}).get('commit', '')}`"
                    f", generator `{manifest.get('generator_version', '')}`.")
-    loops = df[df["scenario"].isin(LOOP_SCENARIOS)]
-    df = df[~(df["scenario"].isin(LOOP_SCENARIOS) & (df["loop_closing"] == 0))]  # the others: loop closing on
-    have_orb = ORBSLAM3 in methods and np.isfinite(df[df["method"] == ORBSLAM3]["ate_rmse_m"]).any()
-    ours = df[df["scenario"].isin(INTERACTION_SCENARIOS)]
-    df_all, df = df, df[~df["scenario"].isin(INTERACTION_SCENARIOS + LOOP_SCENARIOS)]  # the paper's: fr3
-    n = 0
-    for metric in METRIC_COLUMNS:
-        n += 1
+    return out
+
+
+def _metric_tables_markdown(df: pd.DataFrame, methods: list[str], have_orb: bool) -> list[str]:
+    """Tables 1-3 (ATE, RPE translation and rotation) on the paper's fr3 scenarios: the improvement over ``none``
+    and (when it ran) over ORB-SLAM3, the absolute values, and the benchmark against the published record."""
+    out = []
+    for n, metric in enumerate(METRIC_COLUMNS, start=1):
         title, unit = TITLES[metric], UNITS[metric]
         out += ["", f"## Table {n}: {title} ({unit}), improvement over `{BASELINE}`", ""]
         if BASELINE in methods:
@@ -586,6 +611,12 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
                     "over seeds) beside the published values on the real TUM sequences (`d2slam bench calibration`; "
                     "d2slam.study.calibration).", "", calibration_markdown(cal), ""]
             out += [f"- {label}: {what}: {'met' if ok else 'not met'}" for label, what, ok in calibration_checks(cal)]
+    return out
+
+
+def _ours_markdown(ours: pd.DataFrame, loops: pd.DataFrame, df_all: pd.DataFrame, methods: list[str]) -> list[str]:
+    """The scenarios beyond the paper's (people moving objects, the loop) and what the OIM buys."""
+    out = []
     if not ours.empty:
         out += ["", "## Interaction scenarios (ours): people moving objects", "",
                 "A person carries a box (`walking_carry`) or pushes a chair (`walking_push`) across the view while "
@@ -598,8 +629,13 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
                 "`d2slam` with and without the Object Interaction Module (eq 9-10): ATE (medians over seeds) and the "
                 "recall of the final classification on the keypoints of moved objects while they move (which the "
                 "masks do not cover) and on every dynamic keypoint.", "", oim_markdown(df_all)]
-    df = df_all
+    return out
+
+
+def _twins_markdown(df: pd.DataFrame, methods: list[str]) -> list[str]:
+    """The static twins' ATE, each method's ATE over the twin's, the targets run by run, and the occluded twin."""
     occluded = _has_occluded(df)
+    out = []
     if (df["twin"] == 1).any():
         out += ["", "## Static twins: ATE (m), absolute", ""]
         if occluded:
@@ -621,16 +657,7 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
         out += ["", "## ATE relative to the occluded twin", "", OCCLUDED_NOTE, "",
                 "Median ATE of each method on the dynamic sequence / median ATE of the occluded twin; in brackets "
                 "the range of the per-seed ratios.", "", occluded_markdown(df, [m for m in methods])]
-    out += ["", "## Frames tracked (%), median over seeds", "",
-            "ATE and RPE are computed on the tracked frames only (the TUM convention); a method that loses track "
-            "early can show a small error over a short trajectory: read the errors with this table.", "",
-            tracking_markdown(df, methods)]
-    out += ["", "## Dynamic-keypoint classification: F1 (precision / recall), medians over seeds", "",
-            keypoint_markdown(df, methods)]
-    if not real.empty:
-        out += ["", "## Real recordings", "", REAL_NOTE, "", real_markdown(real, methods)]
-    out += ["", "## Runs without metrics", "", failures_markdown(pd.concat([df, real])), ""]
-    return "\n".join(out)
+    return out
 
 
 REAL_NOTE = ("The real TUM fr1/rpy (723 frames of a Kinect turning fast about its own axes, with blur and lens "
