@@ -90,7 +90,6 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
     ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.keys.run_key`: the run, config,
     masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
     and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
-
     checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
     if specs is None:
@@ -100,83 +99,118 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
                             source="tum" if tum_root else "synth")
     if not specs:
         raise D2SlamError("the study grid is empty")
-    method_order = list(dict.fromkeys(s.method for s in specs))
     out = Path(out).expanduser()
     out.mkdir(parents=True, exist_ok=True)
     options = run_options(config, cache_root=cache_root, tum_root=tum_root, masks=masks,
                           orbslam3_repeats=orbslam3_repeats, orbslam3_timeout=orbslam3_timeout)
-    remove_stale_temps(options, out)
-
-    def phase(fn, items, desc, unit, on_result=None, cost=None) -> list:  # interrupted: nothing its killed workers left
-        if progress is not False and items:
-            announce(*plans[desc](items))
-        try:
-            return map_ordered(fn, items, (options,), jobs, scheduler, desc=desc, progress=progress,
-                               on_result=on_result, cost=cost, unit=unit)
-        except BaseException:
-            remove_stale_temps(options, out)
-            raise
-
-    ex = {"executor": executor_name(jobs, scheduler), "jobs": int(jobs),
-          "scheduler": scheduler if isinstance(scheduler, str) else (None if scheduler is None else "in-process")}
-    t0 = time.perf_counter()
-
-    plans = phase_plans(options, None if scheduler is not None else int(jobs))
-    keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    prepared = phase(prepare_sequence, keys, "sequences", "sequence", cost=sequence_cost)
-    prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
-    t_seq = time.perf_counter() - t0
-
+    study = _Phases(out, options, jobs, scheduler, progress)
+    prep_error = study.sequences(specs)
     if any(s.method in G.REPEATED or (s.loop_closing and config.engine.loop_closing) for s in specs):
         _prepare_vocabulary(progress is not False)
-    if ex["executor"] != "serial":
+    if study.executor["executor"] != "serial":
         _prepare_kernels()
     keys_by_id = {s.run_id: run_key(s, options) for s in specs}
-    reused = {}
-    if resume:
-        for s in specs:
-            r = load_run(out, s, keys_by_id[s.run_id])
-            if r is not None:
-                reused[s.run_id] = r
+    reused = _reusable(out, specs, keys_by_id) if resume else {}
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
-    t_seg = time.perf_counter()
-    phase(segment_sequence, onnx_sequence_keys(todo, options), "segmentation", "sequence", cost=sequence_cost)
-    t_seg = time.perf_counter() - t_seg
-    (out / "runs").mkdir(exist_ok=True)
-
-    def checkpoint(i, r):  # each run is saved as it finishes, so that --resume recovers an interrupted study
-        save_run(out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
-
-    if progress is not False and reused:
-        announce(f"runs: {len(reused)} reused from {out / 'runs'} (--resume)")
-    done = phase(execute_run, todo, "runs", "run", on_result=checkpoint, cost=lambda s: run_cost(s, options))
-    by_id = {s.run_id: r for s, r in zip(todo, done)}
-    by_id.update(reused)
+    study.segmentation(todo)
+    by_id = {**study.runs(todo, keys_by_id, reused), **reused}
+    results = [by_id.get(s.run_id) or {"row": failed_row(s, f"sequence: {prep_error[s.sequence_key]}"),
+                                       "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}}
+               for s in specs]
     for s in specs:
         if s.run_id in by_id:
             by_id[s.run_id]["key"] = keys_by_id[s.run_id]
-    results = []
-    for s in specs:
-        if s.run_id in by_id:
-            results.append(by_id[s.run_id])
-        else:
-            results.append({"row": failed_row(s, f"sequence: {prep_error[s.sequence_key]}"), "trajectory": None,
-                            "aligned": None, "keypoints": None, "stage_ms": {}})
-    t_runs = time.perf_counter() - t0 - t_seq - t_seg
+    manifest = build_manifest(config, _grid(specs, options, masks, reused), study.executor, generator_version(),
+                              study.timing(), git=checkout, code=code)
+    # the finished runs are on disk already (saved as they finished, or read from there by --resume)
+    method_order = list(dict.fromkeys(s.method for s in specs))
+    res = write_results(out, specs, results, method_order, manifest, plots=plots, saved=set(by_id))
+    manifest["timing"]["total_s"] = round(time.perf_counter() - study.t0, 2)
+    write_bytes(out / "manifest.json", json.dumps(manifest, indent=2, default=_json_default) + "\n")
+    return res
 
-    grid = {"scenarios": list(dict.fromkeys(s.scenario for s in specs)), "methods": method_order,
+
+class _Phases:
+    """A study's three phases on its executor (``jobs`` processes or a Dask ``scheduler``): the sequences, their
+    segmentation, the runs; each announced before it starts (``phase_plans``) and timed. An interrupted phase leaves
+    nothing its killed workers were writing."""
+
+    def __init__(self, out: Path, options: RunOptions, jobs: int, scheduler, progress: bool | None):
+        self.out, self.options, self.jobs, self.scheduler, self.progress = out, options, jobs, scheduler, progress
+        self.executor = {"executor": executor_name(jobs, scheduler), "jobs": int(jobs),
+                         "scheduler": scheduler if isinstance(scheduler, str) else (None if scheduler is None
+                                                                                   else "in-process")}
+        remove_stale_temps(options, out)
+        self.t0 = time.perf_counter()
+        self.plans = phase_plans(options, None if scheduler is not None else int(jobs))
+        self.seconds = {"sequences_s": 0.0, "segmentation_s": 0.0, "runs_s": 0.0}  # each phase's own
+
+    def _phase(self, fn, items, desc: str, unit: str, on_result=None, cost=None) -> list:
+        if self.progress is not False and items:
+            announce(*self.plans[desc](items))
+        t = time.perf_counter()
+        try:
+            return map_ordered(fn, items, (self.options,), self.jobs, self.scheduler, desc=desc,
+                               progress=self.progress, on_result=on_result, cost=cost, unit=unit)
+        except BaseException:
+            remove_stale_temps(self.options, self.out)
+            raise
+        finally:
+            self.seconds[f"{desc}_s"] += time.perf_counter() - t
+
+    def sequences(self, specs) -> dict:
+        """Generate (or find) every sequence of ``specs``; the key -> error of those that failed."""
+        keys = list(dict.fromkeys(s.sequence_key for s in specs))
+        prepared = self._phase(prepare_sequence, keys, "sequences", "sequence", cost=sequence_cost)
+        return {p["key"]: p["error"] for p in prepared if p["error"]}
+
+    def segmentation(self, todo) -> None:
+        """The real segmenter's masks of the sequences some run of ``todo`` reads them of, into the mask cache."""
+        self._phase(segment_sequence, onnx_sequence_keys(todo, self.options), "segmentation", "sequence",
+                    cost=sequence_cost)
+
+    def runs(self, todo, keys_by_id: dict, reused: dict) -> dict:
+        """Run ``todo``, each saved as it finishes (so that --resume recovers an interrupted study); run id ->
+        its result."""
+        (self.out / "runs").mkdir(exist_ok=True)
+
+        def checkpoint(i, r):
+            save_run(self.out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
+
+        if self.progress is not False and reused:
+            announce(f"runs: {len(reused)} reused from {self.out / 'runs'} (--resume)")
+        done = self._phase(execute_run, todo, "runs", "run", on_result=checkpoint,
+                           cost=lambda s: run_cost(s, self.options))
+        return {s.run_id: r for s, r in zip(todo, done)}
+
+    def timing(self) -> dict:
+        """Seconds of the sequences, of the segmentation, and of everything else up to now (the runs, with the
+        vocabulary and the kernels prepared for them)."""
+        s = self.seconds
+        rest = time.perf_counter() - self.t0 - s["sequences_s"] - s["segmentation_s"]
+        return {"sequences_s": round(s["sequences_s"], 2), "segmentation_s": round(s["segmentation_s"], 2),
+                "runs_s": round(rest, 2)}
+
+
+def _reusable(out: Path, specs, keys_by_id: dict) -> dict:
+    """The runs of ``out/runs`` --resume reuses: run id -> result, those whose key is this study's and that did not
+    fail."""
+    reused = {}
+    for s in specs:
+        r = load_run(out, s, keys_by_id[s.run_id])
+        if r is not None:
+            reused[s.run_id] = r
+    return reused
+
+
+def _grid(specs, options: RunOptions, masks: str | None, reused: dict) -> dict:
+    """The manifest's ``grid``: what the study ran."""
+    return {"scenarios": list(dict.fromkeys(s.scenario for s in specs)),
+            "methods": list(dict.fromkeys(s.method for s in specs)),
             "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
             "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
             "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options.orbslam3_repeats,
             "masks": masks, "reused_runs": sorted(reused)}
-    manifest = build_manifest(config, grid, ex, generator_version(),
-                              {"sequences_s": round(t_seq, 2), "segmentation_s": round(t_seg, 2),
-                               "runs_s": round(t_runs, 2)}, git=checkout, code=code)
-    # the finished runs are on disk already (saved as they finished, or read from there by --resume)
-    res = write_results(out, specs, results, method_order, manifest, plots=plots, saved=set(by_id))
-    manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
-    write_bytes(out / "manifest.json", json.dumps(manifest, indent=2, default=_json_default) + "\n")
-    return res
 
 
 def run_cost(spec: RunSpec, options: RunOptions) -> float:
