@@ -222,40 +222,52 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     ``zone`` is the zone flag where step 3 ran (False elsewhere), and ``oim = zone`` (those keypoints flip)."""
     n = len(maps.z)
     zone = np.zeros(n, dtype=bool)
-    edges = fm.edges
-    if not edges or n == 0:
+    if not fm.edges or n == 0:
         return zone, zone.copy()
-    z = maps.z
-    finite = fm.kp.finite
     reach = cfg.zone_factor * delta(z_n, cfg, use_depth)
     zn_ok = valid_depth(z_n)
     with np.errstate(invalid="ignore"):
-        near_depth = [maps.valid & (np.abs(z - z_n[k]) < cfg.zone_depth) for k in range(len(edges))] \
+        near_depth = [maps.valid & (np.abs(maps.z - z_n[k]) < cfg.zone_depth) for k in range(len(fm.edges))] \
             if use_depth else None
     # 1. candidates
-    cand = np.zeros(n, dtype=bool)
-    for k, e in enumerate(edges):  # loop over masks only
-        if e.empty or (use_depth and not zn_ok[k]):
-            continue
-        ok = fm.box[k] <= reach[k]
-        if use_depth:
-            ok &= near_depth[k]
-        cand |= ok
-    cand &= finite & candidates
+    cand = _near_a_mask(fm, reach, zn_ok, near_depth) & fm.kp.finite & candidates
     # 2. eq 10
-    would_flip, _ = object_interaction(kps, z, cand, dynamic, cfg, use_depth, maps=maps, finite=finite,
+    would_flip, _ = object_interaction(kps, maps.z, cand, dynamic, cfg, use_depth, maps=maps, finite=fm.kp.finite,
                                        matched=matched)
     rows = np.flatnonzero(would_flip)
     if len(rows) == 0:
         return zone, zone.copy()
     # 3. eq 9 on the rows that would flip
+    zone[rows] = _in_a_zone(fm, d, rows, reach, zn_ok, near_depth, known)
+    return zone, zone.copy()
+
+
+def _near_a_mask(fm: FrameMasks, reach: np.ndarray, zn_ok: np.ndarray, near_depth: list | None) -> np.ndarray:
+    """(N,) bool, ``oim_frame``'s step 1: within ``reach`` px of some mask's bounding box (a lower bound of the
+    distance to the mask) and, with the depths (``near_depth`` given), at that mask's depth."""
+    cand = np.zeros(len(fm.kp.finite), dtype=bool)
+    for k, e in enumerate(fm.edges):  # loop over masks only
+        if e.empty or (near_depth is not None and not zn_ok[k]):
+            continue
+        ok = fm.box[k] <= reach[k]
+        if near_depth is not None:
+            ok &= near_depth[k]
+        cand |= ok
+    return cand
+
+
+def _in_a_zone(fm: FrameMasks, d: np.ndarray, rows: np.ndarray, reach: np.ndarray, zn_ok: np.ndarray,
+               near_depth: list | None, known: float) -> np.ndarray:
+    """(len(rows),) bool, ``oim_frame``'s step 3: eq 9's zone for the keypoints ``rows``; signed distances ``d``
+    beyond ``known`` px are searched again up to the zone's reach with the mask's cached edge trees."""
+    finite = fm.kp.finite
     hit = np.zeros(len(rows), dtype=bool)
-    for k, e in enumerate(edges):  # loop over masks only
+    for k, e in enumerate(fm.edges):  # loop over masks only
         dk = d[rows, k]
-        depth_ok = near_depth[k][rows] if use_depth else None
-        if not (e.empty or e.full or reach[k] <= known) and (zn_ok[k] or not use_depth):
+        depth_ok = near_depth[k][rows] if near_depth is not None else None
+        if not (e.empty or e.full or reach[k] <= known) and (zn_ok[k] or near_depth is None):
             sel = (dk <= -known) & finite[rows]
-            if use_depth:
+            if near_depth is not None:
                 sel &= depth_ok
             sel &= fm.box[k][rows] <= reach[k]
             if sel.any():
@@ -263,11 +275,10 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
                 dk[sel] = fm.signed(k, float(reach[k]), rows[sel])
         with np.errstate(invalid="ignore"):
             zk = dk > -reach[k]
-        if use_depth:
+        if near_depth is not None:
             zk &= depth_ok & zn_ok[k]
         hit |= zk
-    zone[rows] = hit
-    return zone, zone.copy()
+    return hit
 
 
 def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: np.ndarray,
