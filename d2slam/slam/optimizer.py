@@ -378,7 +378,6 @@ def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray
     updates ``T <- exp(xi) T`` (``lm.update_pose``), first-order Jacobians ``Ad(meas^-1)`` and ``-Ad(meas^-1 T_i
     T_j^-1)`` (g2o's ``EdgeSE3Expmap``), g2o's Levenberg-Marquardt damping (``lm``) over a sparse system (SuperLU).
     Returns the optimised poses."""
-
     T = np.ascontiguousarray(poses, dtype=np.float64).copy()
     n, E = len(T), len(ei)
     col = np.full(n, -1, np.int64)
@@ -396,27 +395,9 @@ def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray
     e, R = residual(T)
     chi = float(np.sum(e * e))
     lam, nu = 0.0, 2.0
-    r6 = np.arange(6)
+    size = 6 * len(free)
     for it in range(iterations):
-        Jj = -adjoint(R)
-        blocks, brow, bcol = [], [], []
-        b = np.zeros(6 * len(free))
-        for Ja, a in ((Ji, ei), (Jj, ej)):
-            ca = col[a]
-            ok = ca >= 0
-            np.add.at(b, (6 * ca[ok])[:, None] + r6, -np.einsum("eki,ek->ei", Ja[ok], e[ok]))
-            for Jb, bb in ((Ji, ei), (Jj, ej)):
-                cb = col[bb]
-                both = ok & (cb >= 0)
-                blocks.append(np.einsum("eki,ekj->eij", Ja[both], Jb[both]))
-                brow.append(ca[both])
-                bcol.append(cb[both])
-        blk = np.concatenate(blocks)
-        rr = (6 * np.concatenate(brow))[:, None, None] + r6[None, :, None]
-        cc = (6 * np.concatenate(bcol))[:, None, None] + r6[None, None, :]
-        size = 6 * len(free)
-        H = coo_matrix((blk.ravel(), (np.broadcast_to(rr, blk.shape).ravel(), np.broadcast_to(cc, blk.shape).ravel())),
-                       shape=(size, size)).tocsc()
+        H, b = _pose_graph_system(Ji, -adjoint(R), e, ei, ej, col, size)
         if it == 0:
             lam = 1e-5 * float(H.diagonal().max())
         trials, rho = 0, 0.0
@@ -438,3 +419,28 @@ def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray
         if rho <= 0 or not np.isfinite(lam):
             break
     return T
+
+
+def _pose_graph_system(Ji: np.ndarray, Jj: np.ndarray, e: np.ndarray, ei: np.ndarray, ej: np.ndarray,
+                       col: np.ndarray, size: int):
+    """The normal equations (H sparse CSC (size, size), b (size,)) of the pose graph: edge Jacobians ``Ji`` / ``Jj``
+    (E, 6, 6) of the poses ``ei`` / ``ej``, residuals ``e`` (E, 6); ``col`` each pose's block (-1: fixed)."""
+    r6 = np.arange(6)
+    blocks, brow, bcol = [], [], []
+    b = np.zeros(size)
+    for Ja, a in ((Ji, ei), (Jj, ej)):
+        ca = col[a]
+        ok = ca >= 0
+        np.add.at(b, (6 * ca[ok])[:, None] + r6, -np.einsum("eki,ek->ei", Ja[ok], e[ok]))
+        for Jb, bb in ((Ji, ei), (Jj, ej)):
+            cb = col[bb]
+            both = ok & (cb >= 0)
+            blocks.append(np.einsum("eki,ekj->eij", Ja[both], Jb[both]))
+            brow.append(ca[both])
+            bcol.append(cb[both])
+    blk = np.concatenate(blocks)
+    rr = (6 * np.concatenate(brow))[:, None, None] + r6[None, :, None]
+    cc = (6 * np.concatenate(bcol))[:, None, None] + r6[None, None, :]
+    H = coo_matrix((blk.ravel(), (np.broadcast_to(rr, blk.shape).ravel(), np.broadcast_to(cc, blk.shape).ravel())),
+                   shape=(size, size)).tocsc()
+    return H, b
