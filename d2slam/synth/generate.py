@@ -302,12 +302,28 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
     frames, static_twin = scene.frames, scene.static_twin
     t_scene = time.perf_counter() - t_start
     _prepare_out(out)
+    n_gt = _write_lists(scene, out, scenario, seed, recording)
+    n_workers = worker_count(frames, workers, cfg)
+    t_frames = time.perf_counter()
+    stats = _render_frames(scene, out, n_workers, progress, (scenario, seed, frames, static_twin, cfg, str(out),
+                                                            recording))
+    wall = time.perf_counter() - t_start
+    frames_wall = time.perf_counter() - t_frames
+    return {"out": out, "scenario": scenario, "seed": seed, "frames": frames, "static_twin": static_twin,
+            "workers": n_workers, "person_ids": scene.person_ids, "moved_object_ids": scene.moved_object_ids,
+            "objects": scene.objects_info(), "stats": stats, "seconds": wall, "seconds_frames": frames_wall,
+            "seconds_scene": t_scene, "gt_poses": n_gt}
+
+
+def _write_lists(scene: Scene, out: Path, scenario: str, seed: int, recording) -> int:
+    """``rgb.txt``, ``depth.txt``, ``groundtruth.txt`` (TUM's comment lines first) and ``scene.json`` of ``scene``
+    into ``out``; returns the ground truth's sample count."""
     stamps = [stamp(scene.t0 + t) for t in scene.t_rel]
     dstamps = [stamp(scene.t0 + t + d) for t, d in zip(scene.t_rel, scene.depth_offset)]
     if len(set(stamps)) != len(stamps):
         raise D2SlamError("duplicate frame timestamps (frame_jitter too large for fps)")
     on = f" on {recording.name}" if recording is not None else ""
-    head = f"# file: 'd2slam-synth {scenario}{on} seed {seed}{' static twin' if static_twin else ''}'\n"
+    head = f"# file: 'd2slam-synth {scenario}{on} seed {seed}{' static twin' if scene.static_twin else ''}'\n"
     (out / "rgb.txt").write_text("# color images\n" + head + "# timestamp filename\n"
                                  + "".join(f"{s} rgb/{s}.png\n" for s in stamps))
     (out / "depth.txt").write_text("# depth maps\n" + head + "# timestamp filename\n"
@@ -318,36 +334,32 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
     (out / "groundtruth.txt").write_text("# ground truth trajectory\n" + head
                                          + "# timestamp tx ty tz qx qy qz qw\n" + lines)
     (out / "scene.json").write_text(json.dumps(scene_json(scene), indent=1) + "\n")
+    return len(ts)
 
-    n_workers = worker_count(frames, workers, cfg)
+
+def _render_frames(scene: Scene, out: Path, n_workers: int, progress: bool, scene_args: tuple) -> list:
+    """Render and write every frame of ``scene`` into ``out`` (``_frame_job``), here or on ``n_workers`` processes
+    that rebuild the scene from ``scene_args``; the per-frame stats."""
+    frames = scene.frames
     renderer = WorldRenderer(scene) if n_workers == 1 else None  # workers make their own OpenGL contexts
     _STATE.clear()
     _STATE.update(scene=scene, renderer=renderer, out=out)
-    bar = dict(total=frames, desc=f"synth {scenario}{' (static twin)' if static_twin else ''}", unit="frame",
-               enabled=progress)
-    t_frames = time.perf_counter()
+    bar = dict(total=frames, desc=f"synth {scene.scenario}{' (static twin)' if scene.static_twin else ''}",
+               unit="frame", enabled=progress)
     try:
         if n_workers == 1:
             prev = cv2.getNumThreads()
             cv2.setNumThreads(1)
             try:
-                stats = [_frame_job(i) for i in _progress(range(frames), **bar)]
+                return [_frame_job(i) for i in _progress(range(frames), **bar)]
             finally:
                 cv2.setNumThreads(prev)
-        else:
-            # spawn, not fork: a forked child inherits OpenCV's (possibly locked) thread pool and can hang;
-            # each worker rebuilds the scene from its arguments, which is deterministic
-            ctx = mp.get_context("spawn")
-            initargs = ((scenario, seed, frames, static_twin, cfg, str(out), recording),)
-            with ctx.Pool(n_workers, initializer=_init_worker, initargs=initargs) as pool:
-                stats = list(_progress(pool.imap(_frame_job, range(frames), chunksize=2), **bar))
+        # spawn, not fork: a forked child inherits OpenCV's (possibly locked) thread pool and can hang; each worker
+        # rebuilds the scene from its arguments, which is deterministic
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(n_workers, initializer=_init_worker, initargs=(scene_args,)) as pool:
+            return list(_progress(pool.imap(_frame_job, range(frames), chunksize=2), **bar))
     finally:
         _STATE.clear()
         if renderer is not None:
             renderer.close()
-    wall = time.perf_counter() - t_start
-    frames_wall = time.perf_counter() - t_frames
-    return {"out": out, "scenario": scenario, "seed": seed, "frames": frames, "static_twin": static_twin,
-            "workers": n_workers, "person_ids": scene.person_ids, "moved_object_ids": scene.moved_object_ids,
-            "objects": scene.objects_info(), "stats": stats, "seconds": wall, "seconds_frames": frames_wall,
-            "seconds_scene": t_scene, "gt_poses": len(ts)}

@@ -292,7 +292,15 @@ class Scene:
     def _build_room(self, rng):
         """An office corner in a hall: plain painted walls, a plain floor, a structured hall ceiling, a cork
         partition behind two white desks with monitors and keyboards, shelves with books, a cabinet, a whiteboard,
-        a few posters and cardboard boxes. Plain surfaces are most of the view, as in the TUM fr3 office."""
+        a few posters and cardboard boxes. Plain surfaces are most of the view, as in the TUM fr3 office. One ``rng``
+        draws everything, in this order: the walls, the desks, the furniture, the desks' clutter."""
+        self._walls(rng)
+        self._desks(rng)
+        self._furniture(rng)
+        self._clutter(rng)
+
+    def _walls(self, rng):
+        """The walls, floor and ceiling, the partition behind the desks with its posters, the whiteboard."""
         tpm = self.cfg.room_texels_per_m
         X, (Y0, Y1), Hh = ROOM_X, ROOM_Y, ROOM_H
         W, D = 2 * X, Y1 - Y0
@@ -319,7 +327,9 @@ class Scene:
             self.static_quads.append(Quad(np.array(O, float), U, V, tex))
         # white boards in dark frames on the back wall, above the partition
         self._box(rng, (1.2, Y1 - 0.02, 1.95), (0.7, 0.01, 0.45), "plastic", front=2, front_kind="panels")
-        # two white desks with a modesty panel, a monitor (dark frame, screen) and a keyboard each
+
+    def _desks(self, rng):
+        """Two white desks with a modesty panel, a monitor (dark frame, screen) and a keyboard each."""
         for x in (-1.0, 1.05):
             self._box(rng, (x, 3.42, 0.735), (0.8, 0.4, 0.02), "desk")
             self.floor_rects.append((x - 0.8, x + 0.8, 3.02, 3.82))  # under the desk: its legs and panel
@@ -330,6 +340,9 @@ class Scene:
             self._box(rng, (mx, 3.6, 0.98), (0.25, 0.025, 0.18), "plastic", front=2, front_kind="screen")
             self._box(rng, (mx, 3.62, 0.78), (0.04, 0.04, 0.04), "plastic")
             self._box(rng, (mx + rng.uniform(-0.05, 0.05), 3.3, 0.765), (0.22, 0.07, 0.012), "keyboard")
+
+    def _furniture(self, rng):
+        """Shelves with books, a cabinet, cardboard boxes on the floor, small boxes on the desks."""
         self._box(rng, (-ROOM_X + 0.2, 2.0, 1.0), (0.2, 0.75, 1.0), "plastic", front=1, front_kind="books", floor=True)
         self._box(rng, (ROOM_X - 0.2, 1.3, 0.9), (0.2, 0.8, 0.9), "plastic", front=0, front_kind="books", floor=True)
         self._box(rng, (ROOM_X - 0.25, 3.4, 0.55), (0.25, 0.4, 0.55), "plastic", floor=True)
@@ -343,8 +356,10 @@ class Scene:
         for x in (-1.6, -0.3, 0.6, 1.7):
             h = rng.uniform(0.04, 0.1)
             self._box(rng, (x + rng.uniform(-0.1, 0.1), 3.25, 0.755 + h), (rng.uniform(0.05, 0.12), 0.08, h), "box")
-        # the clutter of a used desk, as on the TUM fr3 desks: sheets of paper, a stack of books, a mug, a tool; under
-        # each desk a computer and beside it a waste bin
+
+    def _clutter(self, rng):
+        """The clutter of a used desk, as on the TUM fr3 desks: sheets of paper, a stack of books, a mug, a tool; under
+        each desk a computer and beside it a waste bin."""
         for x in (-1.0, 1.05):
             for _ in range(int(rng.integers(2, 4))):
                 self._box(rng, (x + rng.uniform(-0.65, 0.65), rng.uniform(3.1, 3.5), 0.757), (rng.uniform(0.1, 0.15),
