@@ -143,17 +143,7 @@ def _sequence_frames(args):
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser()
-    p.add_argument("--sequence", default=None)
-    p.add_argument("--frames", default=None, help="a frame store (write_frame_store) instead of --sequence")
-    p.add_argument("--camera", default=None)
-    p.add_argument("--vocab", required=True)
-    p.add_argument("--settings", required=True)
-    p.add_argument("--work", required=True)
-    p.add_argument("--max-frames", type=int, default=0)
-    p.add_argument("--masks", default=None, help="person masks to remove (d2slam.segmentation.masks_for kind)")
-    p.add_argument("--config", default=None, help="the masks' and the fill's settings (MaskedFramesConfig) as JSON (with --masks)")
-    args = p.parse_args(argv)
+    args = _parser().parse_args(argv)
     work = Path(args.work)
     done = work / "done.json"
 
@@ -176,29 +166,12 @@ def main(argv: list[str] | None = None) -> int:
         return fail(f"ORB-SLAM3 did not start: {exc}", 4)
     load_s = time.perf_counter() - t0
     (work / "loaded").write_text(f"{load_s:.3f}")
-    n = io_s = segment_s = mask_s = 0.0
     t_loop = time.perf_counter()
-    with open(work / "progress.txt", "w") as prog:
-        i = 0
-        while True:
-            try:
-                item = next(frames, None)
-            except D2SlamError as exc:
-                slam.shutdown()
-                return fail(str(exc), 3)
-            if item is None:
-                break
-            timestamp, rgb, depth, io_i, seg_i, mask_i = item
-            io_s, segment_s, mask_s = io_s + io_i, segment_s + seg_i, mask_s + mask_i
-            t = time.perf_counter()
-            res = slam.track_rgbd(rgb, depth, timestamp)
-            ms = (time.perf_counter() - t + mask_i) * 1000.0
-            pose = res.pose_wc
-            pose_txt = "-" if pose is None else " ".join(f"{v:.9g}" for v in np.asarray(pose).ravel())
-            prog.write(f"{i} {timestamp:.6f} {int(res.state)} {ms:.3f} {int(res.num_tracked_points)} {pose_txt}\n")
-            prog.flush()
-            i += 1
-        n = i
+    try:
+        n, io_s, segment_s, mask_s = _track(slam, frames, work / "progress.txt")
+    except D2SlamError as exc:
+        slam.shutdown()
+        return fail(str(exc), 3)
     loop_s = time.perf_counter() - t_loop
     t = time.perf_counter()
     slam.shutdown()
@@ -219,6 +192,42 @@ def main(argv: list[str] | None = None) -> int:
     info.update(save_s=time.perf_counter() - t, cpu_s=usage.ru_utime + usage.ru_stime)
     done.write_text(json.dumps(info))
     return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser()
+    p.add_argument("--sequence", default=None)
+    p.add_argument("--frames", default=None, help="a frame store (write_frame_store) instead of --sequence")
+    p.add_argument("--camera", default=None)
+    p.add_argument("--vocab", required=True)
+    p.add_argument("--settings", required=True)
+    p.add_argument("--work", required=True)
+    p.add_argument("--max-frames", type=int, default=0)
+    p.add_argument("--masks", default=None, help="person masks to remove (d2slam.segmentation.masks_for kind)")
+    p.add_argument("--config", default=None,
+                   help="the masks' and the fill's settings (MaskedFramesConfig) as JSON (with --masks)")
+    return p
+
+
+def _track(slam, frames, progress: Path) -> tuple[int, float, float, float]:
+    """Every frame through ORB-SLAM3, one line each in ``progress`` (index, timestamp, state, milliseconds, tracked
+    points, the pose or -) as it is tracked; (frames, seconds reading, segmenting, removing the people). A frame
+    that cannot be read raises the reader's D2SlamError."""
+    n = io_s = segment_s = mask_s = 0.0
+    with open(progress, "w") as prog:
+        i = 0
+        for timestamp, rgb, depth, io_i, seg_i, mask_i in frames:
+            io_s, segment_s, mask_s = io_s + io_i, segment_s + seg_i, mask_s + mask_i
+            t = time.perf_counter()
+            res = slam.track_rgbd(rgb, depth, timestamp)
+            ms = (time.perf_counter() - t + mask_i) * 1000.0
+            pose = res.pose_wc
+            pose_txt = "-" if pose is None else " ".join(f"{v:.9g}" for v in np.asarray(pose).ravel())
+            prog.write(f"{i} {timestamp:.6f} {int(res.state)} {ms:.3f} {int(res.num_tracked_points)} {pose_txt}\n")
+            prog.flush()
+            i += 1
+        n = i
+    return n, io_s, segment_s, mask_s
 
 
 if __name__ == "__main__":

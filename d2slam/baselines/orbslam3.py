@@ -467,7 +467,6 @@ def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json
 def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, settings, camera, max_frames: int,
             timeout, config: AnyConfig, progress: bool, evaluate: bool, keep_work: bool, masks) -> tuple[dict, object]:
     """:func:`orbslam3_report`'s runs: (the run JSON, the sequence)."""
-
     sequence_dir = Path(sequence_dir).expanduser().resolve()
     if repeats < 1:
         raise D2SlamError(f"repeats must be >= 1, got {repeats}")
@@ -476,24 +475,8 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
         check_output_file(metrics_json, "metrics JSON")
     for stale in [out_traj, out_traj.with_name(out_traj.stem + ".online.txt")]:
         stale.unlink(missing_ok=True)  # a failed run must not leave an older trajectory behind
-    camera_file = read_camera_file(camera) if is_camera_file(camera) else None  # read once (the worker reads its own)
-    if camera_file is not None and camera_file.th_depth is not None:
-        # a settings YAML's own close-point threshold replaces the TUM value (the engine's ThDepth is ORB-SLAM3's)
-        config = overridden(config, {"engine": {"th_depth": camera_file.th_depth}})
-    seq_camera = camera_file.camera if camera_file is not None else camera
-    seq = open_sequence(sequence_dir, camera=seq_camera) if seq_camera else open_sequence(sequence_dir)
-    n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
-
-    camera_source = (str(Path(camera).expanduser().resolve()) if camera_file is not None else
-                     "scene.json" if isinstance(seq, SyntheticSequence) else camera or "folder name")
-    base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
-            "repeats": repeats,
-            "camera": seq.camera.name, "camera_source": camera_source,
-            "camera_settings": dataclasses.asdict(seq.camera), "config_hash": config.hash()}
-    if masks is not None:
-        origin = _prepare_masks(seq, masks, n_frames, config, progress)
-        base.update(method=MASKED_METHOD, masks=masks, masks_origin=origin,
-                    masking=dataclasses.asdict(config.masking))
+    config, seq, base = _open(sequence_dir, camera, max_frames, repeats, config, masks, progress)
+    n_frames = base["frames_expected"]
     work_root = Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_", dir=out_traj.parent))
     store = None
     try:
@@ -520,28 +503,83 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
             meta = write_frame_store(seq, n_frames, store, masks, config, progress)
             base["frame_store"] = dict(meta, wall_s=round(time.perf_counter() - t0, 3),
                                        bytes=sum(f.stat().st_size for f in store.iterdir()))
-        runs = []
-        for r in range(repeats):
-            traj_r = out_traj if repeats == 1 else out_traj.with_name(f"{out_traj.stem}.rep{r}{out_traj.suffix}")
-            run = _run_once(sequence_dir, traj_r, vinfo, settings_path, camera, max_frames, n_frames, timeout,
-                            config, progress, work_root / f"rep{r}", masks, store, repeat=r)
-            kept = None  # the log is kept when asked to, or when the run did not end well
-            if keep_work or run.status not in ("ok", "lost"):
-                kept = str(out_traj.with_name(f"{out_traj.stem}.rep{r}.orbslam3.log"))
-                if Path(run.log).is_file():
-                    shutil.copyfile(run.log, kept)
-            run = dataclasses.replace(run, log=kept)
-            if evaluate and run.trajectory and seq.groundtruth is not None:
-                t0 = time.perf_counter()
-                evaluation = evaluate_trajectory(seq, run.trajectory)
-                run = dataclasses.replace(run, evaluation=evaluation,
-                                          seconds={**run.seconds, "evaluate": round(time.perf_counter() - t0, 3)})
-            runs.append(run.to_dict())
+        repeat = _Repeats(seq, sequence_dir, out_traj, vinfo, settings_path, camera, max_frames, n_frames, timeout,
+                          config, progress, work_root, masks, store, keep_work, evaluate, repeats)
+        runs = [repeat(r) for r in range(repeats)]
         return _finish(_summarise(base, runs, out_traj), metrics_json, config), seq
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
         if store is not None:
             shutil.rmtree(store.parent, ignore_errors=True)
+
+
+def _open(sequence_dir: Path, camera, max_frames: int, repeats: int, config: AnyConfig, masks,
+          progress: bool) -> tuple[AnyConfig, object, dict]:
+    """(the config, with a camera settings file's ThDepth; the sequence through its camera; the run JSON's common
+    fields: the sequence, the frames to run, the camera and where it came from, the masks removed and where they come
+    from, the config's hash)."""
+    camera_file = read_camera_file(camera) if is_camera_file(camera) else None  # read once (the worker reads its own)
+    if camera_file is not None and camera_file.th_depth is not None:
+        # a settings YAML's own close-point threshold replaces the TUM value (the engine's ThDepth is ORB-SLAM3's)
+        config = overridden(config, {"engine": {"th_depth": camera_file.th_depth}})
+    seq_camera = camera_file.camera if camera_file is not None else camera
+    seq = open_sequence(sequence_dir, camera=seq_camera) if seq_camera else open_sequence(sequence_dir)
+    n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
+    camera_source = (str(Path(camera).expanduser().resolve()) if camera_file is not None else
+                     "scene.json" if isinstance(seq, SyntheticSequence) else camera or "folder name")
+    base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
+            "repeats": repeats,
+            "camera": seq.camera.name, "camera_source": camera_source,
+            "camera_settings": dataclasses.asdict(seq.camera), "config_hash": config.hash()}
+    if masks is not None:
+        origin = _prepare_masks(seq, masks, n_frames, config, progress)
+        base.update(method=MASKED_METHOD, masks=masks, masks_origin=origin,
+                    masking=dataclasses.asdict(config.masking))
+    return config, seq, base
+
+
+@dataclasses.dataclass
+class _Repeats:
+    """What every repeat of a run shares; ``repeat(r)`` runs repeat ``r``."""
+
+    seq: object
+    sequence_dir: Path
+    out_traj: Path
+    vinfo: dict
+    settings_path: Path
+    camera: object
+    max_frames: int
+    n_frames: int
+    timeout: float | None
+    config: AnyConfig
+    progress: bool
+    work_root: Path
+    masks: str | None
+    store: Path | None
+    keep_work: bool
+    evaluate: bool
+    repeats: int
+
+    def __call__(self, r: int) -> dict:
+        """Repeat ``r``'s run (its own trajectory file when there are several), its log kept when asked to or when
+        the run did not end well, evaluated against the ground truth when asked to; as the run JSON records it."""
+        out = self.out_traj
+        traj_r = out if self.repeats == 1 else out.with_name(f"{out.stem}.rep{r}{out.suffix}")
+        run = _run_once(self.sequence_dir, traj_r, self.vinfo, self.settings_path, self.camera, self.max_frames,
+                        self.n_frames, self.timeout, self.config, self.progress, self.work_root / f"rep{r}",
+                        self.masks, self.store, repeat=r)
+        kept = None
+        if self.keep_work or run.status not in ("ok", "lost"):
+            kept = str(out.with_name(f"{out.stem}.rep{r}.orbslam3.log"))
+            if Path(run.log).is_file():
+                shutil.copyfile(run.log, kept)
+        run = dataclasses.replace(run, log=kept)
+        if self.evaluate and run.trajectory and self.seq.groundtruth is not None:
+            t0 = time.perf_counter()
+            evaluation = evaluate_trajectory(self.seq, run.trajectory)
+            run = dataclasses.replace(run, evaluation=evaluation,
+                                      seconds={**run.seconds, "evaluate": round(time.perf_counter() - t0, 3)})
+        return run.to_dict()
 
 
 def _frame_store_root(seq, n_frames: int, repeats: int, config: AnyConfig, work_root: Path) -> Path | None:
