@@ -181,15 +181,20 @@ def build_tree(desc: np.ndarray, image_ids: np.ndarray, k: int = 10, L: int = 6,
     vocab = Vocabulary(k=k, L=L, parent=parent, descriptors=descriptors, is_leaf=~has_child,
                        weight=np.zeros(n_nodes))
     vocab.is_leaf[0] = False
-    # idf: N training images, n_word = images with at least one descriptor falling in the word (DBoW2 descent)
+    vocab.weight = _idf(vocab, desc, image_ids)
+    return vocab
+
+
+def _idf(vocab: Vocabulary, desc: np.ndarray, image_ids: np.ndarray) -> np.ndarray:
+    """Each node's weight: a word's idf ``ln(N / n_word)`` (N training images, n_word the images with at least one
+    descriptor falling in the word by DBoW2's descent), 0 for inner nodes."""
     leaf = vocab.transform(desc)
     n_images = int(len(np.unique(image_ids)))
     pairs = np.unique(np.stack([leaf, np.asarray(image_ids, np.int64)], axis=1), axis=0)
-    n_word = np.bincount(pairs[:, 0], minlength=n_nodes)
+    n_word = np.bincount(pairs[:, 0], minlength=len(vocab.parent))
     # a word no training descriptor reaches by descent (possible with k-majority) counts as seen once (rarest)
     idf = np.log(n_images / np.maximum(n_word, 1))
-    vocab.weight = np.where(vocab.is_leaf, idf, 0.0)
-    return vocab
+    return np.where(vocab.is_leaf, idf, 0.0)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -373,21 +378,13 @@ def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path
     build it once: the second waits for the first (a lock file beside it) and reuses its result."""
 
     out = Path(out) if out else default_vocab_path()
-    groups: list[tuple[str, Path, list[Path]]] = []
-    if real:
-        frames = tum_frames()
-        groups.append(("real", frames[0].parent, frames))
-    for d in images_dirs:
-        groups.append(("images", Path(d), images_of_dir(d)))
-    for s in sequences:
-        groups.append(("sequence", Path(s), images_of_sequence(s, cfg.vocab_train_stride)))
+    groups = _image_groups(images_dirs, sequences, real, cfg)
     jobs = training_jobs(cfg) if synthetic else []
     if not groups and not jobs:
         raise D2SlamError("no training images: give --images-dir or --sequences, or allow the default sources")
     out.parent.mkdir(parents=True, exist_ok=True)
     with file_lock(out.with_name(out.name + ".lock"),
                    waiting=f"vocabulary: another process is building {out}; waiting for it"):
-
         remove_stale_temps(out.parent, f"{glob.escape(out.name)}*.tmp-*")  # what a killed build was writing
         if synthetic and not all(j["done"] for j in jobs):
             jobs = training_jobs(cfg)  # another process may have rendered them while this one waited
@@ -420,6 +417,19 @@ def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path
         print(f"vocabulary: built in {manifest['seconds']['total']:.0f} s: {manifest['n_words']} words, "
               f"{manifest['bytes'] / 1e6:.1f} MB", file=sys.stderr, flush=True)
         return manifest
+
+
+def _image_groups(images_dirs, sequences, real: bool, cfg: BaselineConfig) -> list[tuple[str, Path, list[Path]]]:
+    """The training images other than the synthetic ones, by source: (kind, folder, images)."""
+    groups: list[tuple[str, Path, list[Path]]] = []
+    if real:
+        frames = tum_frames()
+        groups.append(("real", frames[0].parent, frames))
+    for d in images_dirs:
+        groups.append(("images", Path(d), images_of_dir(d)))
+    for s in sequences:
+        groups.append(("sequence", Path(s), images_of_sequence(s, cfg.vocab_train_stride)))
+    return groups
 
 
 def _request(groups: list, jobs: list[dict], cfg: BaselineConfig, orb: OrbConfig) -> tuple[list, dict, str]:

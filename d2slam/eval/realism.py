@@ -466,7 +466,6 @@ def depth_consistency(seq, indices, offset: float, step: int = 4, edge_m: float 
     relative motion wherever the camera's motion changes between the frames, so the residual over many frames is
     least at the true one; a wrong ``readout`` gives each row the wrong motion, the more so the faster the camera
     turns."""
-
     cam = seq.camera
     K = cam.K
     gt = seq.groundtruth
@@ -499,25 +498,34 @@ def depth_consistency(seq, indices, offset: float, step: int = 4, edge_m: float 
         src = vv.ravel()[ok]
         X = rays[ok] * zs[ok, None]
         Xw = np.einsum("nij,nj->ni", Ta[src, :3, :3], X) + Ta[src, :3, 3]
-        row = np.full(len(X), (H - 1) // 2)
-        for _ in range(2):  # the row a point lands on decides the instant it is seen at: twice is enough
-            Xb = np.einsum("nji,nj->ni", Tb[row, :3, :3], Xw - Tb[row, :3, 3])
-            front = Xb[:, 2] > 0.1
-            uv, _ = cv2.projectPoints(np.where(front[:, None], Xb, [0.0, 0.0, 1.0]).reshape(-1, 1, 3), np.zeros(3),
-                                      np.zeros(3), K, np.asarray(cam.dist))
-            uv = uv.reshape(-1, 2)
-            row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
-            if readout == 0:
-                break
-        Xb, uv = Xb[front], np.rint(uv[front]).astype(np.int64)
+        Xb, uv = _seen_by_rows(Xw, Tb, cam, readout)
         inside = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
         zb = cur[uv[inside, 1], uv[inside, 0]].astype(np.float64)
         zp = Xb[inside, 2]
         valid = zb > 0
-        r = np.abs(zb[valid] - zp[valid]) / np.hypot(depth_sigma(zb[valid], cam.depth_noise), depth_sigma(zp[valid], cam.depth_noise))
+        noise = cam.depth_noise
+        r = np.abs(zb[valid] - zp[valid]) / np.hypot(depth_sigma(zb[valid], noise), depth_sigma(zp[valid], noise))
         out.append(float(np.median(r)) if r.size else np.nan)
         prev = (i, cur)
     return np.array(out)
+
+
+def _seen_by_rows(Xw: np.ndarray, Tb: np.ndarray, cam, readout: float) -> tuple[np.ndarray, np.ndarray]:
+    """World points ``Xw`` (M, 3) as the camera sees them through a rolling shutter (``Tb``: the camera's pose
+    T_world_camera at each image row's instant, (H, 4, 4); ``readout`` 0: one instant): (the points in the camera
+    frame at the instant of the row they land on, (M', 3); their pixels, rounded) for those in front of it."""
+    K, H = cam.K, len(Tb)
+    row = np.full(len(Xw), (H - 1) // 2)
+    for _ in range(2):  # the row a point lands on decides the instant it is seen at: twice is enough
+        Xb = np.einsum("nji,nj->ni", Tb[row, :3, :3], Xw - Tb[row, :3, 3])
+        front = Xb[:, 2] > 0.1
+        uv, _ = cv2.projectPoints(np.where(front[:, None], Xb, [0.0, 0.0, 1.0]).reshape(-1, 1, 3), np.zeros(3),
+                                  np.zeros(3), K, np.asarray(cam.dist))
+        uv = uv.reshape(-1, 2)
+        row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+        if readout == 0:
+            break
+    return Xb[front], np.rint(uv[front]).astype(np.int64)
 
 
 def hole_kinds(depth: np.ndarray, border: tuple[int, int, int, int], jump_a: float, jump_b: float) -> dict:
