@@ -165,34 +165,47 @@ def loops(args) -> int:
     for seed in seeds:
         seq = open_sequence(ensure_sequence(LOOP_SCENARIO, seed, frames, False))
         budget_ms = 1000.0 * float(np.median(np.diff(seq.timestamps)))
-        for method in args.methods:
-            for on in (True, False):
-                cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, loop_closing=on))
-                res = run_method(seq, method, cfg, synthetic=True, progress=False).engine
-                lp = classify_loops(res.loops, seq.timestamps, seq.groundtruth, cfg.evaluation)
-                lp["closest"] = closest_call(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
-                wrong = wrong_candidates(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
-                lp["wrong_by_stage"] = {st: int(sum(w and c.stage == st for c, w in zip(res.loop_candidates, wrong)))
-                                        for st in STAGES}
-                corr = [x["seconds"] for x in res.loops]
-                row = {"seed": seed, "method": method, "loop_closing": on, "frames": res.frames,
-                       "tracked": res.tracked, "keyframes": res.keyframes, "fps": res.fps,
-                       "ate_rmse_m": evaluate(seq.groundtruth, res.trajectory).ate_rmse_m, **lp,
-                       "detect_ms": res.loop_detect_ms, "detect_cpu_ms": res.loop_detect_cpu_ms, "correct_s": corr,
-                       "stall_ms_per_frame": 1000.0 * sum(corr) / res.frames, "budget_ms": budget_ms}
-                rows.append(row)
-                det = f"{np.median(res.loop_detect_ms):9.2f}" if res.loop_detect_ms else f"{'-':>9}"
-                cs = " ".join(f"{c:.2f}" for c in corr) or "-"
-                print(f"{seed:>4} {method:<8} {'on' if on else 'off':<5} {res.tracked:>4}/{res.frames:<4} "
-                      f"{res.keyframes:>4} {row['ate_rmse_m']:8.4f} {len(lp['loops']):>5} "
-                      f"{len(lp.get('loops_true', [])):>4} {len(lp.get('loops_false', [])):>5} {det} {cs:>14} "
-                      f"{row['stall_ms_per_frame']:14.2f} {res.fps:5.1f}", flush=True)
-                if on:
-                    cc = lp["closest"]
-                    print(f"{'':>19}wrong candidates by the stage they reached: " + ", ".join(
-                        f"{k} {v}" for k, v in lp["wrong_by_stage"].items()) + "; closest call: " + (
-                        f"frames {cc['frames'][0]} -> {cc['frames'][1]}, {cc['stage']}, score {cc['ratio']:.2f} x "
-                        f"the minimum, {cc['inliers']} matches/inliers" if cc else "none"), flush=True)
+        rows += [_loop_run(seq, seed, method, on, budget_ms) for method in args.methods for on in (True, False)]
+    _loop_summary(rows, args.methods)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=1, default=float)
+    return 0
+
+
+def _loop_run(seq, seed: int, method: str, on: bool, budget_ms: float) -> dict:
+    """One run of ``--loops`` (loop closing ``on`` or off): its row, printed."""
+    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, loop_closing=on))
+    res = run_method(seq, method, cfg, synthetic=True, progress=False).engine
+    lp = classify_loops(res.loops, seq.timestamps, seq.groundtruth, cfg.evaluation)
+    lp["closest"] = closest_call(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
+    wrong = wrong_candidates(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
+    lp["wrong_by_stage"] = {st: int(sum(w and c.stage == st for c, w in zip(res.loop_candidates, wrong)))
+                            for st in STAGES}
+    corr = [x["seconds"] for x in res.loops]
+    row = {"seed": seed, "method": method, "loop_closing": on, "frames": res.frames,
+           "tracked": res.tracked, "keyframes": res.keyframes, "fps": res.fps,
+           "ate_rmse_m": evaluate(seq.groundtruth, res.trajectory).ate_rmse_m, **lp,
+           "detect_ms": res.loop_detect_ms, "detect_cpu_ms": res.loop_detect_cpu_ms, "correct_s": corr,
+           "stall_ms_per_frame": 1000.0 * sum(corr) / res.frames, "budget_ms": budget_ms}
+    det = f"{np.median(res.loop_detect_ms):9.2f}" if res.loop_detect_ms else f"{'-':>9}"
+    cs = " ".join(f"{c:.2f}" for c in corr) or "-"
+    print(f"{seed:>4} {method:<8} {'on' if on else 'off':<5} {res.tracked:>4}/{res.frames:<4} "
+          f"{res.keyframes:>4} {row['ate_rmse_m']:8.4f} {len(lp['loops']):>5} "
+          f"{len(lp.get('loops_true', [])):>4} {len(lp.get('loops_false', [])):>5} {det} {cs:>14} "
+          f"{row['stall_ms_per_frame']:14.2f} {res.fps:5.1f}", flush=True)
+    if on:
+        cc = lp["closest"]
+        print(f"{'':>19}wrong candidates by the stage they reached: " + ", ".join(
+            f"{k} {v}" for k, v in lp["wrong_by_stage"].items()) + "; closest call: " + (
+            f"frames {cc['frames'][0]} -> {cc['frames'][1]}, {cc['stage']}, score {cc['ratio']:.2f} x "
+            f"the minimum, {cc['inliers']} matches/inliers" if cc else "none"), flush=True)
+    return row
+
+
+def _loop_summary(rows: list[dict], methods: list[str]) -> None:
+    """``--loops``' verdicts: the detection time per keyframe, the corrections' stall, each method's ATE with over
+    without loop closing and its false loops."""
     on_rows = [r for r in rows if r["loop_closing"]]
     detect = np.concatenate([r["detect_ms"] for r in on_rows] + [np.zeros(0)])
     cpu = np.concatenate([r["detect_cpu_ms"] for r in on_rows] + [np.zeros(0)])
@@ -205,7 +218,7 @@ def loops(args) -> int:
         print(f"corrections: {sum(len(r['correct_s']) for r in on_rows)}, stall per frame on average "
               f"{np.mean(stall):.2f}"
               f" ms (max over runs {np.max(stall):.2f}); target <= one frame's budget, {rows[0]['budget_ms']:.1f} ms")
-    for method in args.methods:
+    for method in methods:
         on = {r["seed"]: r["ate_rmse_m"] for r in on_rows if r["method"] == method}
         off = {r["seed"]: r["ate_rmse_m"] for r in rows if r["method"] == method and not r["loop_closing"]}
         ratio = [on[s] / off[s] for s in on if s in off and off[s] > 0]
@@ -213,10 +226,6 @@ def loops(args) -> int:
         print(f"{method}: ATE with / without loop closing, median over seeds {np.median(ratio):.2f} "
               f"(per seed {', '.join(f'{x:.2f}' for x in ratio)}); false loops {false}")
     print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}")
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(rows, fh, indent=1, default=float)
-    return 0
 
 
 # ---------------------------------------------------------------------------------------------- optimisers

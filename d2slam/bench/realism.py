@@ -115,8 +115,7 @@ def run_calibrate(args) -> int:
     """The real recording's sensor, as ``SynthConfig.twin`` holds it (docs/real_data.md)."""
     t0 = time.perf_counter()
     seq = open_sequence(args.calibrate)
-    gt = seq.groundtruth
-    if gt is None:
+    if seq.groundtruth is None:
         raise D2SlamError("the recording has no ground truth: the calibration measures against it", path=seq.root)
     n = min(len(seq), args.frames or 200)
     tw = DEFAULT.synth.twin
@@ -125,6 +124,17 @@ def run_calibrate(args) -> int:
     off = 1e3 * (dts - ts)
     print(f"  depth timestamp - RGB timestamp (ms): median |.| {np.median(np.abs(off)):.1f}, min {off.min():.1f}, "
           f"max {off.max():.1f} [depth rendered at its own timestamp: {tw.depth_at_depth_time}]")
+    best_o = _calibrate_rgb_time(seq, n, tw)
+    _calibrate_depth_time(seq, n, tw)
+    depths, noise = _calibrate_blur(seq, n, best_o, tw)
+    _calibrate_holes(depths, noise, tw)
+    print(f"({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def _calibrate_rgb_time(seq, n: int, tw) -> float:
+    """The RGB images' time shift and row readout by the epipolar error against the ground truth's motion, printed
+    as a table; the best shift."""
     log = engine_log(seq, n, progress=True)
     offsets = np.round(np.arange(-0.012, 0.0121, 0.002), 4)
     readouts = np.round(np.arange(0.0, 8.1e-5, 2e-5), 7)
@@ -137,7 +147,12 @@ def run_calibrate(args) -> int:
     print(f"  best: RGB time shift {1e3 * best_o:+.1f} ms [{1e3 * tw.rgb_time_shift:+.1f}], readout "
           f"{1e6 * best_r:.0f} us/row [{1e6 * tw.row_readout:.0f}]; the readout's gain over a global shutter: "
           f"{table[list(offsets).index(best_o), 0] - table.min():.3f} px")
+    return best_o
 
+
+def _calibrate_depth_time(seq, n: int, tw) -> None:
+    """The depth images' time shift and row readout by the agreement of one frame's depth moved into the next,
+    printed as a table."""
     shifts = np.round(np.arange(-0.03, -0.0149, 0.0025), 4)
     dreadouts = np.round(np.arange(0.0, 1.01e-4, 2.5e-5), 7)
     cons = np.array([[float(np.nanmean(depth_consistency(seq, np.arange(1, n), float(o), readout=float(r))))
@@ -151,6 +166,12 @@ def run_calibrate(args) -> int:
     print(f"  best: depth time shift {1e3 * shifts[i]:+.1f} ms [{1e3 * tw.depth_time_shift:+.1f}], readout "
           f"{1e6 * dreadouts[j]:.0f} us/row [{1e6 * tw.depth_row_readout:.0f}]; the readout's gain over a global "
           f"shutter: {cons[:, 0].min() - cons.min():.3f}")
+
+
+def _calibrate_blur(seq, n: int, best_o: float, tw) -> tuple[list, list]:
+    """The exposure from the motion blur's extent against the image speed (every second frame), printed; (those
+    frames' depth images, their image noise)."""
+    gt = seq.groundtruth
 
     def poses_at(t):
         return interpolate_poses(gt.timestamps, gt.poses, np.clip(np.asarray(t) + best_o, gt.timestamps[0],
@@ -172,6 +193,11 @@ def run_calibrate(args) -> int:
         print(f"    {lo:5d}-{hi:<5d} {int(sel.sum()):5d} patches  {np.median(ext[sel]) if sel.any() else np.nan:5.1f}")
     print(f"  exposure (Theil-Sen slope over {used} patches): {1e3 * e:.1f} ms [{1e3 * tw.exposure:.1f}], intercept "
           f"{b:.1f} px")
+    return depths, noise
+
+
+def _calibrate_holes(depths: list, noise: list, tw) -> None:
+    """The depth border, the holes at depth edges and elsewhere, the image noise, printed."""
     border = depth_border(depths)
     print(f"  depth border (top, bottom, left, right px, holes in >= half): {border} [{tw.depth_border}]")
     t_, b_, l_, r_ = border
@@ -189,8 +215,6 @@ def run_calibrate(args) -> int:
           f"[shadow_px {tw.shadow_px}], on the left {np.median(left) if left.size else np.nan:.0f} px ({left.size})")
     print(f"  image noise (grey levels) p10/p50/p90: {'/'.join(f'{v:.2f}' for v in pct(noise, (10, 50, 90)))} "
           f"[the twin's rgb_noise_sigma {tw.rgb_noise_sigma}: reads 0.49 on its images]")
-    print(f"({time.perf_counter() - t0:.1f} s)")
-    return 0
 
 
 def run_anchor(args) -> int:
