@@ -18,7 +18,7 @@ from d2slam.config import DEFAULT
 from d2slam.data import open_sequence, read_tum_trajectory
 from d2slam.data.intrinsics import FREIBURG3
 from d2slam.errors import D2SlamError
-from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.orbslam3_runs import run_orbslam3
 
 pytest.importorskip("pyorbslam3")
 
@@ -151,7 +151,7 @@ def test_run_seconds_say_where_the_time_went(tmp_path, seq_dir, built_vocab):
     assert sec["track"] + sec["decode"] <= sec["loop"] <= run["wall_s"]
     assert abs(sec["process"] + sec["load"] + sec["loop"] + sec["save"] - run["wall_s"]) < 0.01
     assert run["cpu_s"] > 0 and "frame_store" not in run  # a single run decodes in its worker
-    from d2slam.bench.orbslam3 import overhead
+    from d2slam.bench.orbslam3_vs_engine import overhead
 
     o = overhead(run)
     assert o["overhead"] == pytest.approx(sum(o[k] for k in ("process", "load", "decode", "save", "evaluate")))
@@ -254,9 +254,9 @@ def test_config_section_defaults():
 
 def test_bench_helpers_and_topic_registered(capsys):
     from d2slam import bench
-    from d2slam.bench import orbslam3 as B
+    from d2slam.bench import orbslam3_vs_engine as B
 
-    assert "orbslam3" in bench.topics()
+    assert "orbslam3_vs_engine" in bench.topics()
     assert B._ms_per_frame({"fps": 20.0}) == 50.0 and B._ms_per_frame({"ms_per_frame": 7}) == 7.0
     assert B._ms_per_frame({}) is None
     assert B._ms_per_frame({"method": "none", "fps": 5.0, "stage_ms": {"load": 30.0, "extract": 20.0,
@@ -322,7 +322,7 @@ def test_the_worker_imports_this_d2slam_from_any_folder(tmp_path, seq_dir, built
 
 
 def test_bench_prints_the_per_run_split_and_takes_a_config(tmp_path, built_vocab, capsys):
-    """`d2slam bench orbslam3` prints where each run's seconds went; `--config` reaches ORB-SLAM3's runs (here:
+    """`d2slam bench orbslam3_vs_engine` prints where each run's seconds went; `--config` reaches ORB-SLAM3's runs (here:
     no frame store, every repeat decodes its frames)."""
     from d2slam.cli import main
     from d2slam.study.sequences import ensure_sequence

@@ -101,7 +101,7 @@ def test_repeats_share_frames_masked_once(seq, vocab, tmp_path):
     import numpy as np
 
     from d2slam.baselines import _orbslam3_worker as W
-    from d2slam.run.orbslam3 import run_orbslam3
+    from d2slam.run.orbslam3_runs import run_orbslam3
     from d2slam.data import open_sequence
     from d2slam.segmentation import masks_for
 

@@ -22,7 +22,7 @@ from d2slam.data import open_sequence
 from d2slam.data.depth_scale import depth_scale_warning
 from d2slam.data.intrinsics import FREIBURG1, FREIBURG3, read_camera_file
 from d2slam.errors import D2SlamError
-from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.slam.fixture import write_room_sequence
 
 # ORB-SLAM2 / ORB-SLAM3 0.x style (TUM3.yaml), with OpenCV's first line that PyYAML rejects.

@@ -443,7 +443,7 @@ def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json
                  config: AnyConfig = None, progress: bool = True, evaluate: bool = True,
                  keep_work: bool = False, masks: str | None = None) -> tuple[dict, object]:
     """Run the real ORB-SLAM3 RGB-D on ``sequence_dir`` ``repeats`` times; write ``out_traj`` (TUM) and the run
-    JSON (``metrics_json``); return the run JSON and the sequence read (``d2slam.run.orbslam3.run_orbslam3`` makes
+    JSON (``metrics_json``); return the run JSON and the sequence read (``d2slam.run.orbslam3_runs.run_orbslam3`` makes
     the run's ``RunRecord`` of them). Never raises for an
     ORB-SLAM3 failure: the record's ``status`` says what happened and ``error`` why (see the module docstring).
     Bad arguments (no sequence, repeats < 1) raise :class:`D2SlamError`.

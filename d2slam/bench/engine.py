@@ -24,7 +24,7 @@ from d2slam.errors import D2SlamError
 from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candidates
 from d2slam.eval.trajectory import evaluate
 from d2slam.outputs import check_output_file
-from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.run.record import EXIT_FRAGMENT
 from d2slam.run.runner import run_method
 from d2slam.run.sequence import run_sequence

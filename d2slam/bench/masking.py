@@ -27,7 +27,7 @@ from d2slam.baselines.masking import FILLS, boundary_band, keypoints_in, mask_fr
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
-from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.segmentation import masks_for, stack_masks
 from d2slam.slam.frame import OrbExtractor
 from d2slam.study.sequences import ensure_sequence

@@ -22,7 +22,7 @@ from d2slam.dynamics import classifier
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
 from d2slam.eval.keypoints import OracleFilter
-from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.orbslam3_runs import run_orbslam3
 
 if TYPE_CHECKING:  # the records' module loads numpy and the data readers: not for listing the methods
     from d2slam.run.record import RunRecord

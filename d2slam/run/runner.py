@@ -1,7 +1,7 @@
 """One run of a method of our engine on a sequence (:func:`run_method`): its keypoint filter (from the registry,
 :mod:`d2slam.run.methods`), its masks, the loop over the frames (:func:`d2slam.run.sequence.run_sequence`) and the
 record (:class:`~d2slam.run.record.RunRecord`) evaluated against the ground truth. The one place where ``d2slam run``
-and the study run a method; the real ORB-SLAM3 has its own runner (:mod:`d2slam.run.orbslam3`)."""
+and the study run a method; the real ORB-SLAM3 has its own runner (:mod:`d2slam.run.orbslam3_runs`)."""
 
 from __future__ import annotations
 

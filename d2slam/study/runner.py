@@ -26,7 +26,7 @@ from d2slam.digests import digest, source_digest
 from d2slam.errors import D2SlamError
 from d2slam.paths import cache_dir
 from d2slam.run.methods import get_method, mask_kind, methods
-from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.run.record import RunRecord
 from d2slam.run.runner import run_config, run_method
 from d2slam.run.sequence import STAGES as ENGINE_STAGES

@@ -1,4 +1,4 @@
-"""``d2slam bench segmentation``: frames per second of the ONNX person segmenter, per model, with the time split
+"""``d2slam bench segmenter_speed``: frames per second of the ONNX person segmenter, per model, with the time split
 into preprocess (resize, scale, NCHW), inference (onnxruntime) and postprocess (decode, NMS, masks at frame size),
 on the five real TUM frames (``d2slam.assets``) repeated. Targets: >= 20 fps at 256x320, >= 15 fps at 384x512.
 

@@ -1,4 +1,4 @@
-"""``d2slam bench orbslam3``: the real ORB-SLAM3 (pyorbslam3) against our engine's ``none`` method, side by side on
+"""``d2slam bench orbslam3_vs_engine``: the real ORB-SLAM3 (pyorbslam3) against our engine's ``none`` method, side by side on
 the same synthetic sequences: the static twins and the walking scenarios (benchmark seeds 101, 102, 103: never
 tuned on). Figures: status, tracked frames, ATE RMSE, RPE (translation m, rotation deg over 1 s pairs; evo via
 :mod:`d2slam.eval.trajectory`), ms per frame. ORB-SLAM3 is not deterministic (threads): ``--repeats N`` runs it N
@@ -23,7 +23,7 @@ from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
 from d2slam.outputs import check_output_dir
 from d2slam.paths import cache_dir
-from d2slam.run.orbslam3 import run_orbslam3
+from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.run.record import EXIT_FRAGMENT
 from d2slam.study.sequences import ensure_sequence, sequence_dir
 
