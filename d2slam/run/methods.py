@@ -14,7 +14,7 @@ A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and `
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 from d2slam.config import Config
 from d2slam.data import SyntheticSequence, open_sequence
@@ -23,9 +23,7 @@ from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
 from d2slam.eval.keypoints import OracleFilter
 from d2slam.run.orbslam3_runs import run_orbslam3
-
-if TYPE_CHECKING:  # the records' module loads numpy and the data readers: not for listing the methods
-    from d2slam.run.record import RunRecord
+from d2slam.run.record import RunRecord
 
 
 @dataclass(frozen=True)
@@ -88,7 +86,6 @@ register("none", lambda config: None, needs_masks=False, help="engine with the k
          "stand-in)")
 
 
-
 def _orbslam3_runner(args) -> RunRecord:
     """``d2slam run --method orbslam3[-masked]``: the real ORB-SLAM3 on ``args.sequence`` (on frames with the people
     removed when ``args.masks`` is set), writing ``args.out`` and ``args.metrics_json``."""
@@ -103,7 +100,7 @@ register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_ru
 
 
 def _orbslam3_masked_runner(args) -> RunRecord:
-
+    """``d2slam run --method orbslam3-masked``: the masks the method reads (``mask_kind``), then ORB-SLAM3's run."""
     seq = open_sequence(args.sequence, **({"camera": args.camera} if getattr(args, "camera", None) else {}))
     args.masks = mask_kind(get_method("orbslam3-masked"), args.masks, synthetic=isinstance(seq, SyntheticSequence))
     return _orbslam3_runner(args)
@@ -115,7 +112,6 @@ register("orbslam3-masked", lambda config: None, needs_masks=True, runner=_orbsl
 
 
 def _oracle(config: Config):
-
     return OracleFilter()
 
 
@@ -123,9 +119,10 @@ register("oracle", _oracle, needs_masks=True, masks="truth",
          help="upper bound, not a method: the keypoint truth (persons, moved objects while they move) as the filter; "
               "synthetic sequences only")
 
+
 class _Dynamics:
     """config -> a filter of ``d2slam.dynamics.classifier`` (``kind``: its class name; ``switches`` for
-    ``D2SlamFilter``), imported when a filter is built: the command line lists the methods without loading it."""
+    ``D2SlamFilter``)."""
 
     def __init__(self, name: str, kind: str = "D2SlamFilter", switches: Switches | None = None):
         self.name, self.kind, self.switches = name, kind, switches
