@@ -13,6 +13,7 @@ module gets those inputs in two calls, so that a notebook explains, plots and me
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -64,9 +65,9 @@ class RecordedRun:
 
 
 def config_values(cfg, *names: str) -> str:
-    """Markdown naming fields of a config dataclass with their values ("`beta_min` = 0.05, ..."): prose that relies on
-    defaults states them from the config itself."""
-    return ", ".join(f"`{n}` = {getattr(cfg, n)}" for n in names)
+    """Markdown naming fields of a config dataclass with their values ("`beta_min` = 0.05, ..."; a dotted name reaches
+    into a section: "`ours.p_g_exceed` = 0.7"): prose that relies on defaults states them from the config itself."""
+    return ", ".join(f"`{n}` = {functools.reduce(getattr, n.split('.'), cfg)}" for n in names)
 
 
 def development_sequence(scenario: str, seed: int, frames: int, twin: bool = False, root=None):
