@@ -1321,6 +1321,23 @@ class EvalConfig(_Checked):
 
 
 @dataclass(frozen=True)
+class OnlineConfig(_Checked):
+    """An online run (``d2slam run --online``, ``d2slam.online``): frames replayed at the sensor's rate, the
+    segmenter in its own thread, a frame the tracker cannot take in time dropped. Offline runs read none of it."""
+
+    # Frames arrive at this rate (Hz); 0: at their own timestamps (the recording's rate and its jitter).
+    rate_hz: float = within(0.0, 0.0, 1000.0)
+    # The mask a frame reads: "latest", the newest the segmenter has finished (of an earlier frame: tracking never
+    # waits for its own), at most mask_max_age_s older, as NGD-SLAM carries its masks forward; "off", none (the
+    # segmenter does not run; eq 7 has no mask area: matched keypoints take P_g, unmatched ones 0.5, and eq 8
+    # carries their belief). A frame whose mask is too old reads none either.
+    masks: str = one_of("latest", "latest", "off")
+    mask_max_age_s: float = within(0.2, 0.0, 10.0)
+    # onnxruntime's intra-op threads of the segmenter's thread (the tracker has the other core).
+    segmenter_threads: int = within(1, 1, 64)
+
+
+@dataclass(frozen=True)
 class Config(_Checked):
     # The engine initialises on a frame with init_min_keypoints keypoints with depth: fewer features never track.
     _RULES = (rule(("orb.n_features", "engine.init_min_keypoints"), lambda n, k: n >= k,
@@ -1337,6 +1354,7 @@ class Config(_Checked):
     data: DataConfig = section(DataConfig)
     study: StudyConfig = section(StudyConfig)
     evaluation: EvalConfig = section(EvalConfig)
+    online: OnlineConfig = section(OnlineConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

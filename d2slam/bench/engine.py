@@ -41,6 +41,10 @@ def add_arguments(parser) -> None:
                         "`none` <= 2x its twin target); default: the cached twin when SEQ is the default")
     parser.add_argument("--methods", nargs="+", default=["none", "d2slam"], help="--against: our methods to run")
     parser.add_argument("--repeats", type=int, default=3, help="--against: ORB-SLAM3 runs (median [min, max])")
+    parser.add_argument("--online", action="store_true", help="online at --rate: `d2slam bench online` (its options: "
+                        "SEQ, --seeds, --frames)")
+    parser.add_argument("--rate", type=float, default=30.0, help="--online: frames arrive at this rate (Hz)")
+    parser.add_argument("--no-real", action="store_true", help="--online: without the real fr1/rpy")
 
 
 # ---------------------------------------------------------------------------------------------- accuracy / speed
@@ -80,6 +84,15 @@ def _fmt(row: dict) -> str:
 
 
 def run(args) -> int:
+    if args.online:
+        import argparse
+
+        from d2slam.bench import online
+        from d2slam.study.grid import DEFAULT_FRAMES
+
+        return online.run(argparse.Namespace(sequences=[args.sequence] if args.sequence else [],
+                                             seeds=args.seeds or [args.seed], frames=args.frames or DEFAULT_FRAMES,
+                                             rate=args.rate, no_real=args.no_real, json=args.json))
     if args.compare_optimisers:
         return compare_optimisers(args)
     if args.loops:
@@ -345,15 +358,16 @@ def compare_optimisers(args) -> int:
 
 
 # ---------------------------------------------------------------------------------------------- against ORB-SLAM3
-def _engine_run(seq, method: str, out) -> dict:
-    """``d2slam run SEQ --method METHOD`` in a child process (as a user runs it); its run JSON."""
+def engine_run(seq, method: str, out, extra: list[str] = ()) -> dict:
+    """``d2slam run SEQ --method METHOD [EXTRA...]`` in a child process (as a user runs it); its run JSON."""
     import subprocess
     import sys
 
+    out.mkdir(parents=True, exist_ok=True)
     traj, js = out / f"{method}.txt", out / f"{method}.json"
     js.unlink(missing_ok=True)
     proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
-                           "--metrics-json", str(js), "--quiet"], capture_output=True, text=True)
+                           "--metrics-json", str(js), "--quiet", *extra], capture_output=True, text=True)
     from d2slam.commands.run import EXIT_FRAGMENT
 
     if proc.returncode not in (0, EXIT_FRAGMENT) or not js.is_file():
@@ -393,10 +407,10 @@ def against_orbslam3(args) -> int:
                        progress=False).orbslam3
     rows = [("orbslam3", orb)]
     for method in args.methods:
-        rows.append((method, _engine_run(seq, method, out)))
+        rows.append((method, engine_run(seq, method, out)))
     if twin is not None:
         (out / "twin").mkdir()
-        rows.append(("none (twin)", _engine_run(twin, "none", out / "twin")))
+        rows.append(("none (twin)", engine_run(twin, "none", out / "twin")))
     ref = orb.get("ms_per_frame") if orb.get("frames") else None
     print(f"d2slam bench engine --against orbslam3: {seq}" + (f"\n  static twin: {twin}" if twin else ""))
     print(f"ORB-SLAM3: {args.repeats} run(s), ms/frame = mean time in TrackRGBD (median over runs; its local mapping "
