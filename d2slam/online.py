@@ -9,8 +9,9 @@ paper's protocol. Online:
   arrives while the tracker is busy waits in a one-frame slot, where the next arrival replaces it: every frame but
   the newest is dropped, as a camera with a one-frame buffer (a ROS subscriber with ``queue_size=1``) drops them;
 - a frame reads the newest mask the segmenter has finished, of an earlier frame at most
-  ``OnlineConfig.mask_max_age_s`` older (``masks="latest"``; NGD-SLAM carries its masks forward the same way), or
-  none (``masks="off"``). Without a mask eq 7 has no mask area: matched keypoints take P_g, unmatched ones 0.5, and
+  ``OnlineConfig.mask_max_age_s`` older (``masks="latest"``; NGD-SLAM carries its masks forward the same way), each
+  person moved on by its motion between the segmenter's two newest results (``mask_motion``, ours:
+  :func:`extrapolate_masks`), or none (``masks="off"``). Without a mask eq 7 has no mask area: matched keypoints take P_g, unmatched ones 0.5, and
   eq 8 carries each keypoint's belief through its match and its map point.
 
 What happens depends on timing, so an online run is not reproducible. Its :class:`Schedule` (which frames were
@@ -43,7 +44,8 @@ class Schedule:
     """What an online run did, enough to run it again (:func:`replay`) and to judge it. Times in seconds from the
     first frame's arrival. ``processed[j]`` was tracked with the mask of frame ``mask_of[j]`` (-1: none), taken at
     ``start_s[j]`` and done at ``done_s[j]``; the segmenter segmented ``segmented[m]`` from ``seg_start_s[m]`` to
-    ``seg_done_s[m]``; ``masks[k]`` are frame ``k``'s person masks (n, H, W) bool, for every ``k`` in ``mask_of``."""
+    ``seg_done_s[m]``; ``masks[i]`` are the person masks (n, H, W) bool frame ``i`` read (those of frame
+    ``mask_of[j]``, moved on: :func:`pick_mask`), for every processed frame that read some."""
 
     frames: int
     rate_hz: float  # 0: the frames' timestamps
@@ -131,7 +133,7 @@ class Schedule:
                 start_s=data["start_s"].tolist(), done_s=data["done_s"].tolist(),
                 segmented=data["segmented"].tolist(), seg_start_s=data["seg_start_s"].tolist(),
                 seg_done_s=data["seg_done_s"].tolist(), masks=masks, meta=head.get("meta", {}))
-        missing = sorted({k for k in s.mask_of if k >= 0} - set(masks))
+        missing = sorted({i for i, k in zip(s.processed, s.mask_of) if k >= 0} - set(masks))
         if missing or len(s.processed) != len(s.mask_of):
             raise D2SlamError(f"online schedule is inconsistent (masks missing for frames {missing[:5]})", path=path)
         return s
@@ -152,7 +154,7 @@ class MaskThread:
         self._stack, self._idle = stack_masks, idle_s
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._latest: tuple[int, np.ndarray] | None = None
+        self._latest: tuple | None = None  # (frame, masks, previous frame, its masks) of the two newest results
         self.log: list[tuple[int, float, float]] = []  # (frame, start, done)
         self.error: BaseException | None = None
         self._thread = threading.Thread(target=self._loop, name="d2slam-segment", daemon=True)
@@ -170,12 +172,14 @@ class MaskThread:
                 masks = self._stack(self._segmenter(rgb), self._shape)
                 t1 = self._clock()
                 with self._lock:
-                    self._latest = (int(k), masks)
+                    prev = self._latest[:2] if self._latest is not None else (-1, None)
+                    self._latest = (int(k), masks, *prev)
                     self.log.append((int(k), t0, t1))
         except BaseException as exc:  # reported by close(): a thread's exception is otherwise lost
             self.error = exc
 
-    def latest(self) -> tuple[int, np.ndarray] | None:
+    def latest(self) -> tuple | None:
+        """``(frame, masks, previous frame, its masks)`` of the two newest results (-1, None: no previous), or None."""
         with self._lock:
             return self._latest
 
@@ -200,15 +204,55 @@ def online_segmenter(config: Config):
 
 
 def pick_mask(latest, index: int, arrival_s: np.ndarray, config: Config):
-    """The mask a frame reads online: the newest finished one (``latest``: ``(frame, masks)`` or None) when
-    ``OnlineConfig.masks`` is "latest", its frame is not after ``index`` and at most ``mask_max_age_s`` older;
-    ``(-1, None)`` otherwise."""
+    """The masks frame ``index`` reads online, and the frame they were segmented on (``(-1, None)``: none).
+    ``latest``: :meth:`MaskThread.latest`, or None. With ``OnlineConfig.masks`` "latest": the newest masks, of a frame
+    not after ``index`` and at most ``mask_max_age_s`` older, each person moved on by its motion between the two
+    newest results (:func:`extrapolate_masks`, with ``mask_motion``)."""
     if latest is None or config.online.masks == "off":
         return -1, None
-    k, masks = latest
+    k, masks, kp, prev = latest
     if k > index or arrival_s[index] - arrival_s[k] > config.online.mask_max_age_s:
         return -1, None
+    if config.online.mask_motion and kp >= 0 and index > k and len(masks):
+        masks = extrapolate_masks(masks, prev, (arrival_s[index] - arrival_s[k]) / (arrival_s[k] - arrival_s[kp]),
+                                  config.online.mask_match_px)
     return k, masks
+
+
+def _centroids(masks: np.ndarray) -> np.ndarray:
+    """(n, 2) pixel centroids (u, v) of (n, H, W) masks (NaN for an empty one)."""
+    out = np.full((len(masks), 2), np.nan)
+    for j, m in enumerate(masks):
+        v, u = np.nonzero(m)
+        if len(u):
+            out[j] = u.mean(), v.mean()
+    return out
+
+
+def extrapolate_masks(masks: np.ndarray, prev: np.ndarray, ratio: float, match_px: float) -> np.ndarray:
+    """Each person of ``masks`` moved on by ``ratio`` times its centroid's motion since ``prev`` (the segmenter's
+    previous result), matched to the previous person nearest its centroid within ``match_px``; a person with no
+    match stays where it was. Ours: a mask of an earlier frame lags its person by the segmenter's latency, and the
+    motion in the image (the person's and the camera's) carries on over so short a time."""
+    import cv2
+
+    if prev is None or not len(prev) or ratio <= 0:
+        return masks
+    c, cp = _centroids(masks), _centroids(prev)
+    out = masks.copy()
+    h, w = masks.shape[1:]
+    for j in range(len(masks)):
+        if not np.isfinite(c[j, 0]):
+            continue
+        d = np.hypot(*(cp - c[j]).T)
+        d[~np.isfinite(d)] = np.inf
+        q = int(np.argmin(d))
+        if d[q] > match_px:
+            continue
+        du, dv = ratio * (c[j] - cp[q])
+        shift = np.float32([[1, 0, du], [0, 1, dv]])
+        out[j] = cv2.warpAffine(masks[j].astype(np.uint8), shift, (w, h), flags=cv2.INTER_NEAREST) > 0
+    return out
 
 
 def _engine(camera, config: Config, keypoint_filter):
@@ -266,7 +310,7 @@ class OnlineSLAM:
             return self._offered
 
     def track(self, frame):
-        """Track ``frame`` now with the newest mask (:func:`pick_mask`); its result (``TrackResult``)."""
+        """Track ``frame`` now (an ``RGBDFrame``, arrived at its timestamp); its result (``TrackResult``)."""
         if self._t0 is None:
             self._t0, self._ts0 = self._clock(), float(frame.timestamp)
         i = len(self.arrivals)
@@ -274,17 +318,20 @@ class OnlineSLAM:
         if self.masks is not None:
             with self._lock:
                 self._offered = (i, frame.rgb)
-        arrival = np.asarray(self.arrivals)
+        return self.step(i, frame.gray, frame.depth, float(frame.timestamp), np.asarray(self.arrivals))
+
+    def step(self, i: int, gray, depth, timestamp: float, arrival: np.ndarray):
+        """Track frame ``i`` now with the masks it reads (:func:`pick_mask`) and record it in the schedule."""
         k, masks = pick_mask(self.masks.latest() if self.masks else None, i, arrival, self.config)
         start = self._now()
-        res = self.engine.process(frame.gray, frame.depth, i, float(frame.timestamp), masks=masks)
+        res = self.engine.process(gray, depth, i, timestamp, masks=masks)
         s = self.schedule
         s.processed.append(i)
         s.mask_of.append(k)
         s.start_s.append(start)
         s.done_s.append(self._now())
         if k >= 0:
-            s.masks.setdefault(k, masks)
+            s.masks[i] = masks
         return res
 
     def close(self) -> tuple[Trajectory, Schedule]:
@@ -381,16 +428,7 @@ def run_online(seq, method: str = "d2slam", config: Config = DEFAULT, frames: in
         if i < nxt:
             time.sleep(max(0.0, arrival[nxt] - (clock() - t0)))
             continue
-        k, masks = pick_mask(slam.masks.latest() if slam.masks else None, i, arrival, config)
-        start = clock() - t0
-        res = slam.engine.process(data.gray[i], data.depth[i], i, float(data.timestamps[i]), masks=masks)
-        sch = slam.schedule
-        sch.processed.append(i)
-        sch.mask_of.append(k)
-        sch.start_s.append(start)
-        sch.done_s.append(clock() - t0)
-        if k >= 0:
-            sch.masks.setdefault(k, masks)
+        res = slam.step(i, data.gray[i], data.depth[i], float(data.timestamps[i]), arrival)
         states.append(res.state)
         nxt = i + 1
     wall = clock() - t0
@@ -422,7 +460,7 @@ def replay(seq, schedule: Schedule, method: str = "d2slam", config: Config = DEF
     for i, k in tqdm(list(zip(schedule.processed, schedule.mask_of)), desc=f"replay {getattr(seq, 'name', '')}",
                      unit="frame", disable=None if progress is None else not progress):
         f = seq[i]
-        res = engine.process(f.gray, f.depth, i, float(f.timestamp), masks=schedule.masks[k] if k >= 0 else None)
+        res = engine.process(f.gray, f.depth, i, float(f.timestamp), masks=schedule.masks[i] if k >= 0 else None)
         states.append(res.state)
     wall = time.perf_counter() - t0
     engine.close()

@@ -36,12 +36,25 @@ def test_a_frame_reads_the_newest_mask_of_an_earlier_frame_not_too_old():
     arrival = np.arange(10) / 30.0
     m = np.ones((1, 4, 4), bool)
     assert pick_mask(None, 5, arrival, DEFAULT) == (-1, None)
-    assert pick_mask((3, m), 5, arrival, DEFAULT)[0] == 3
-    assert pick_mask((6, m), 5, arrival, DEFAULT)[0] == -1  # a later frame's mask is never read
+    assert pick_mask((3, m, -1, None), 5, arrival, DEFAULT)[0] == 3
+    assert pick_mask((6, m, -1, None), 5, arrival, DEFAULT)[0] == -1  # a later frame's mask is never read
     old = dataclasses.replace(DEFAULT, online=dataclasses.replace(DEFAULT.online, mask_max_age_s=0.05))
-    assert pick_mask((3, m), 5, arrival, old)[0] == -1  # 67 ms older than the frame
+    assert pick_mask((3, m, -1, None), 5, arrival, old)[0] == -1  # 67 ms older than the frame
     off = dataclasses.replace(DEFAULT, online=dataclasses.replace(DEFAULT.online, masks="off"))
-    assert pick_mask((5, m), 5, arrival, off) == (-1, None)
+    assert pick_mask((5, m, -1, None), 5, arrival, off) == (-1, None)
+
+
+def test_a_stale_mask_moves_on_with_its_person():
+    arrival = np.arange(10) / 30.0
+    prev, now = np.zeros((1, 40, 60), bool), np.zeros((1, 40, 60), bool)
+    prev[0, 10:20, 10:20] = True
+    now[0, 10:20, 16:26] = True  # 6 px to the right in 3 frames (frames 0 -> 3)
+    k, moved = pick_mask((3, now, 0, prev), 6, arrival, DEFAULT)  # 3 frames on: 6 px further
+    assert k == 3 and np.array_equal(np.nonzero(moved[0])[1].min(), 22)
+    still = dataclasses.replace(DEFAULT, online=dataclasses.replace(DEFAULT.online, mask_motion=False))
+    assert np.array_equal(pick_mask((3, now, 0, prev), 6, arrival, still)[1], now)
+    far = dataclasses.replace(DEFAULT, online=dataclasses.replace(DEFAULT.online, mask_match_px=2.0))
+    assert np.array_equal(pick_mask((3, now, 0, prev), 6, arrival, far)[1], now)  # no match: stays
 
 
 class _BoxSegmenter:
@@ -74,6 +87,7 @@ def test_an_online_run_accounts_for_every_frame(online_run):
     assert s.processed == sorted(set(s.processed)) and s.processed[0] == 0
     assert all(k <= i for i, k in zip(s.processed, s.mask_of))  # never a later frame's mask
     assert set(k for k in s.mask_of if k >= 0) <= set(s.segmented)
+    assert set(s.masks) == {i for i, k in zip(s.processed, s.mask_of) if k >= 0}
     lag = s.lag_ms
     assert len(lag) == len(s.processed) and (lag >= 0).all()
     summary = s.summary()
@@ -86,7 +100,7 @@ def test_the_schedule_replays_byte_for_byte(online_run, head, tmp_path):
     run.schedule.save(path)
     loaded = Schedule.load(path)
     assert loaded.processed == run.schedule.processed and loaded.mask_of == run.schedule.mask_of
-    for k, m in run.schedule.masks.items():
+    for k, m in run.schedule.masks.items():  # the masks each frame read
         assert np.array_equal(loaded.masks[k], m)
     again = replay(head, loaded, "d2slam", cfg, progress=False)
     assert again.trajectory.timestamps.tobytes() == run.trajectory.timestamps.tobytes()
