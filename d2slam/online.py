@@ -507,3 +507,40 @@ def online_line(report: dict) -> str:
     how = "replayed deterministically" if o["deterministic"] else f"online ({TIMING_NOTE})"
     return (f"{how}: at {rate}, processed {o['processed']}/{o['frames']} frames ({o['dropped']} dropped), lag median "
             f"{o['lag_ms_median']:.1f} ms, p95 {o['lag_ms_p95']:.1f} ms{seg}")
+
+
+def simulated_schedule(seq, latency: int, config: Config = DEFAULT, frames: int | None = None) -> Schedule:
+    """A timing-free online schedule: every frame tracked, the segmenter starting on frame 0 and taking ``latency``
+    frames per mask (so its mask of frame ``k`` is ready from frame ``k + latency`` on, and it then starts on that
+    frame), each frame reading what :func:`pick_mask` gives it then (``latency`` 0: its own mask, the offline
+    protocol). The masks are the real segmenter's from the mask cache. It isolates what stale masks cost in accuracy
+    from what a machine's speed costs in dropped frames (``d2slam bench online --latency``)."""
+    from d2slam.segmentation import masks_for, stack_masks
+
+    n = len(seq) if frames is None else min(len(seq), int(frames))
+    shape = (seq.camera.height, seq.camera.width)
+    arrival = arrival_times(np.asarray(seq.timestamps[:n], dtype=np.float64), float(config.online.rate_hz))
+    cache: dict[int, np.ndarray] = {}
+
+    def masks_of(k: int) -> np.ndarray:
+        if k not in cache:
+            cache[k] = stack_masks(masks_for(seq, k, "onnx", config), shape)
+        return cache[k]
+
+    s = Schedule(frames=n, rate_hz=float(config.online.rate_hz), arrival_s=arrival, processed=list(range(n)),
+                 meta={"sequence": getattr(seq, "name", ""), "simulated_latency_frames": int(latency)})
+    segmented = list(range(0, n, latency)) if latency > 0 else list(range(n))
+    for i in range(n):
+        if latency <= 0:
+            s.mask_of.append(i)
+            s.masks[i] = masks_of(i)
+            continue
+        done = [k for k in segmented if k + latency <= i][-2:]
+        latest = None if not done else (done[-1], masks_of(done[-1]),
+                                         *((done[0], masks_of(done[0])) if len(done) == 2 else (-1, None)))
+        k, m = pick_mask(latest, i, arrival, config)
+        s.mask_of.append(k)
+        if k >= 0:
+            s.masks[i] = m
+    s.segmented = segmented
+    return s

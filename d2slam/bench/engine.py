@@ -92,7 +92,7 @@ def run(args) -> int:
 
         return online.run(argparse.Namespace(sequences=[args.sequence] if args.sequence else [],
                                              seeds=args.seeds or [args.seed], frames=args.frames or DEFAULT_FRAMES,
-                                             rate=args.rate, no_real=args.no_real, json=args.json))
+                                             rate=args.rate, no_real=args.no_real, json=args.json, latency=None))
     if args.compare_optimisers:
         return compare_optimisers(args)
     if args.loops:

@@ -22,15 +22,21 @@ def add_arguments(parser) -> None:
     parser.add_argument("sequences", nargs="*", metavar="SEQ", help="TUM or synthetic sequence folders (default: the "
                         "four fr3 walking scenarios of --seeds and --frames, and the whole real fr1/rpy when fetched)")
     parser.add_argument("--rate", type=float, default=30.0, help="frames arrive at this rate (Hz; default 30)")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[DEFAULT_SEEDS[0]],
-                        help=f"sequence seeds of the default scenarios (default {DEFAULT_SEEDS[0]})")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None,
+                        help=f"sequence seeds of the default scenarios (default {DEFAULT_SEEDS[0]}, a study seed; "
+                        "with --latency 3, a development seed)")
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="frames of the default scenarios")
     parser.add_argument("--no-real", action="store_true", help="without the real fr1/rpy")
+    parser.add_argument("--latency", type=int, nargs="+", metavar="FRAMES", default=None,
+                        help="instead, timing-free (deterministic): d2slam with every frame tracked and the segmenter's "
+                        "masks LATENCY frames late (d2slam.online.simulated_schedule), with the masks moved on with "
+                        "their people and without, beside the offline run (latency 0); default scenarios: dev seeds")
     parser.add_argument("--json", metavar="PATH", help="also write the rows as JSON")
 
 
 def _sequences(args) -> list[Path]:
     from d2slam.assets import real_full
+    from d2slam.study.grid import DEFAULT_SEEDS
     from d2slam.errors import D2SlamError
     from d2slam.study.sequences import ensure_sequence
 
@@ -39,7 +45,8 @@ def _sequences(args) -> list[Path]:
         if missing:
             raise D2SlamError(f"no sequence folder {missing[0]}")
         return [Path(s) for s in args.sequences]
-    out = [ensure_sequence(s, seed, args.frames, False) for seed in args.seeds for s in WALKING]
+    seeds = args.seeds or [3 if getattr(args, "latency", None) else DEFAULT_SEEDS[0]]
+    out = [ensure_sequence(s, seed, args.frames, False) for seed in seeds for s in WALKING]
     real = None if args.no_real else real_full()
     return out + ([Path(real)] if real is not None else [])
 
@@ -79,9 +86,50 @@ def _line(name: str, r: dict, ref_ate, orb_ate) -> str:
     return " ".join(cells)
 
 
+def latency(args) -> int:
+    """What stale masks cost d2slam in accuracy, without a clock (``--latency``)."""
+    import dataclasses
+
+    from d2slam.config import DEFAULT
+    from d2slam.data import open_sequence
+    from d2slam.eval.trajectory import evaluate_run
+    from d2slam.online import replay, simulated_schedule
+
+    still = dataclasses.replace(DEFAULT, online=dataclasses.replace(DEFAULT.online, mask_motion=False))
+    print("d2slam bench online --latency: d2slam on every frame, the segmenter's masks L frames late (a mask every L "
+          "frames), moved on with their people (online.mask_motion) or not; ATE (m) and its ratio to offline (L 0)")
+    print(f"{'sequence':44} {'offline':>8} " + " ".join(f"{f'L{n} moved':>13} {f'L{n} still':>13}"
+                                                        for n in args.latency))
+    rows = []
+    for seq_dir in _sequences(args):
+        seq = open_sequence(seq_dir)
+
+        def ate(sched, cfg):
+            r = replay(seq, sched, "d2slam", cfg, progress=False)
+            return evaluate_run(seq.groundtruth, r.trajectory).ate_rmse_m
+
+        ref = ate(simulated_schedule(seq, 0), DEFAULT)
+        row = {"sequence": str(seq_dir), "offline": ref}
+        cells = []
+        for n in args.latency:
+            for name, cfg in (("moved", DEFAULT), ("still", still)):
+                a = ate(simulated_schedule(seq, n, cfg), cfg)
+                row[f"L{n} {name}"] = a
+                cells.append(f"{a:7.4f} {a / ref:4.2f}x")
+        rows.append(row)
+        print(f"{seq.name[:44]:44} {ref:8.4f} " + " ".join(f"{c:>13}" for c in cells), flush=True)
+    if args.json:
+        from d2slam.outputs import write_bytes
+
+        write_bytes(Path(args.json), json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
 def run(args) -> int:
     from d2slam.bench.engine import _loadavg
 
+    if args.latency:
+        return latency(args)
     seqs = _sequences(args)
     out = Path(tempfile.mkdtemp(prefix="d2slam_bench_online_"))
     rows = []
