@@ -145,15 +145,18 @@ def _median_ms(seconds: np.ndarray):
 
 class MaskThread:
     """The segmenter in its own thread. ``source()`` gives the newest frame not yet segmented, ``(index, rgb)``, or
-    None (then the thread waits ``idle_s`` and asks again); each finished mask replaces the one before (``latest``)."""
+    the seconds until the next frame arrives, or None when that is not known (then the thread waits ``idle_s``, or
+    until :meth:`wake`); each finished mask replaces the one before (``latest``). It never polls faster: a thread
+    that wakes often takes the interpreter's lock from the tracker."""
 
-    def __init__(self, segmenter, source, shape: tuple[int, int], clock, idle_s: float = 0.002):
+    def __init__(self, segmenter, source, shape: tuple[int, int], clock, idle_s: float = 0.1):
         from d2slam.segmentation import stack_masks
 
         self._segmenter, self._source, self._shape, self._clock = segmenter, source, shape, clock
         self._stack, self._idle = stack_masks, idle_s
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._wakeup = threading.Event()
         self._latest: tuple | None = None  # (frame, masks, previous frame, its masks) of the two newest results
         self.log: list[tuple[int, float, float]] = []  # (frame, start, done)
         self.error: BaseException | None = None
@@ -164,8 +167,9 @@ class MaskThread:
         try:
             while not self._stop.is_set():
                 item = self._source()
-                if item is None:
-                    self._stop.wait(self._idle)
+                if item is None or isinstance(item, float):  # nothing new: wait (until the next arrival, if known)
+                    self._wakeup.wait(self._idle if item is None else max(item, 0.0005))
+                    self._wakeup.clear()
                     continue
                 k, rgb = item
                 t0 = self._clock()
@@ -178,6 +182,10 @@ class MaskThread:
         except BaseException as exc:  # reported by close(): a thread's exception is otherwise lost
             self.error = exc
 
+    def wake(self) -> None:
+        """A frame was offered: stop waiting (the live API calls it)."""
+        self._wakeup.set()
+
     def latest(self) -> tuple | None:
         """``(frame, masks, previous frame, its masks)`` of the two newest results (-1, None: no previous), or None."""
         with self._lock:
@@ -185,6 +193,7 @@ class MaskThread:
 
     def close(self) -> None:
         self._stop.set()
+        self._wakeup.set()
         self._thread.join()
         if self.error is not None:
             if isinstance(self.error, D2SlamError):
@@ -318,6 +327,7 @@ class OnlineSLAM:
         if self.masks is not None:
             with self._lock:
                 self._offered = (i, frame.rgb)
+            self.masks.wake()
         return self.step(i, frame.gray, frame.depth, float(frame.timestamp), np.asarray(self.arrivals))
 
     def step(self, i: int, gray, depth, timestamp: float, arrival: np.ndarray):
@@ -411,9 +421,10 @@ def run_online(seq, method: str = "d2slam", config: Config = DEFAULT, frames: in
     state = {"taken": -1}
 
     def for_segmenter():
-        k = newest_arrived(arrival, clock() - t0)
-        if k <= state["taken"]:
-            return None
+        elapsed = clock() - t0
+        k = newest_arrived(arrival, elapsed)
+        if k <= state["taken"]:  # nothing new: the seconds until the next arrival
+            return float(arrival[k + 1] - elapsed) if k + 1 < n else None
         state["taken"] = k
         return k, data.rgb[k]
 
@@ -434,6 +445,7 @@ def run_online(seq, method: str = "d2slam", config: Config = DEFAULT, frames: in
     wall = clock() - t0
     slam.arrivals = list(arrival)
     trajectory, schedule = slam.close()
+    schedule.rate_hz = float(config.online.rate_hz)
     schedule.meta.update({"sequence": getattr(seq, "name", ""), "method": method, "config_hash": config.hash(),
                           "masks": config.online.masks if reads_masks else "none"})
     return OnlineRun(trajectory, schedule, states, len(slam.engine.map.good_keyframes()), slam.engine.map.n_points,
