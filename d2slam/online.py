@@ -431,8 +431,9 @@ def run_online(seq, method: str = "d2slam", config: Config = DEFAULT, frames: in
     states = []
     t0 = clock()
     slam._t0 = t0  # the schedule's times count from the first frame's arrival
-    if slam.masks is not None:
+    if slam.masks is not None:  # the replayed camera feeds the segmenter from now on
         slam.masks._source = for_segmenter
+        slam.masks.wake()
     nxt = 0
     while nxt < n:
         i = newest_arrived(arrival, clock() - t0)

@@ -223,7 +223,8 @@ def run_online_command(args, seq, config, out) -> int:
     if not quiet:
         print(online_line(report))
         ate = report.get("metrics", {}).get("ate_rmse_m")
-        masks = "onnx (online segmenter thread)" if run.schedule.segmented or report["online"]["with_mask"] else "none"
+        masks = ("none" if not report["online"]["with_mask"] and not run.schedule.segmented else
+                 "onnx (the schedule's)" if args.deterministic else "onnx (the segmenter's thread)")
         print(summary_line(args.method, masks, camera_text(seq.camera.name, args.camera or "folder name",
                                                            args.camera),
                            run.tracked, len(run.schedule.processed), ate,
