@@ -220,7 +220,9 @@ def loops(args) -> int:
         false = sum(len(r.get("loops_false", [])) for r in on_rows if r["method"] == method)
         print(f"{method}: ATE with / without loop closing, median over seeds {np.median(ratio):.2f} "
               f"(per seed {', '.join(f'{x:.2f}' for x in ratio)}); false loops {false}")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}")
+    from d2slam.bench.online import loadavg
+
+    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1, default=float)
@@ -358,23 +360,10 @@ def compare_optimisers(args) -> int:
 
 
 # ---------------------------------------------------------------------------------------------- against ORB-SLAM3
-def engine_run(seq, method: str, out, extra: list[str] = ()) -> dict:
-    """``d2slam run SEQ --method METHOD [EXTRA...]`` in a child process (as a user runs it); its run JSON."""
-    import subprocess
-    import sys
+def _engine_run(seq, method: str, out) -> dict:
+    from d2slam.bench.online import engine_run
 
-    out.mkdir(parents=True, exist_ok=True)
-    traj, js = out / f"{method}.txt", out / f"{method}.json"
-    js.unlink(missing_ok=True)
-    proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
-                           "--metrics-json", str(js), "--quiet", *extra], capture_output=True, text=True)
-    from d2slam.commands.run import EXIT_FRAGMENT
-
-    if proc.returncode not in (0, EXIT_FRAGMENT) or not js.is_file():
-        tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
-        return {"method": method, "status": "failed", "message": tail}
-    run = json.loads(js.read_text())
-    return {**run, "status": "fragment" if run.get("fragment") else "ok"}  # a fragment ran: its timings count
+    return engine_run(seq, method, out)
 
 
 def engine_ms_per_frame(run: dict) -> float:
@@ -407,10 +396,10 @@ def against_orbslam3(args) -> int:
                        progress=False).orbslam3
     rows = [("orbslam3", orb)]
     for method in args.methods:
-        rows.append((method, engine_run(seq, method, out)))
+        rows.append((method, _engine_run(seq, method, out)))
     if twin is not None:
         (out / "twin").mkdir()
-        rows.append(("none (twin)", engine_run(twin, "none", out / "twin")))
+        rows.append(("none (twin)", _engine_run(twin, "none", out / "twin")))
     ref = orb.get("ms_per_frame") if orb.get("frames") else None
     print(f"d2slam bench engine --against orbslam3: {seq}" + (f"\n  static twin: {twin}" if twin else ""))
     print(f"ORB-SLAM3: {args.repeats} run(s), ms/frame = mean time in TrackRGBD (median over runs; its local mapping "
@@ -442,11 +431,7 @@ def against_orbslam3(args) -> int:
               f"{str(r.get('map_points', '-')):>7} {ate_s} {ms_s} {ratio}  {stages}")
     if none_ms and twin_ms:
         print(f"none on the sequence / none on its static twin: {none_ms / twin_ms:.2f}x")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}; runs and trajectories in {out}")
+    from d2slam.bench.online import loadavg
+
+    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}; runs and trajectories in {out}")
     return 0
-
-
-def _loadavg() -> tuple:
-    import os
-
-    return os.getloadavg()

@@ -51,9 +51,32 @@ def _sequences(args) -> list[Path]:
     return out + ([Path(real)] if real is not None else [])
 
 
-def _run(seq: Path, method: str, out: Path, extra: list[str]) -> dict:
-    from d2slam.bench.engine import engine_run
+def engine_run(seq, method: str, out, extra: list[str] = ()) -> dict:
+    """``d2slam run SEQ --method METHOD [EXTRA...]`` in a child process (as a user runs it); its run JSON."""
+    import subprocess
+    import sys
 
+    out.mkdir(parents=True, exist_ok=True)
+    traj, js = out / f"{method}.txt", out / f"{method}.json"
+    js.unlink(missing_ok=True)
+    proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
+                           "--metrics-json", str(js), "--quiet", *extra], capture_output=True, text=True)
+    from d2slam.commands.run import EXIT_FRAGMENT
+
+    if proc.returncode not in (0, EXIT_FRAGMENT) or not js.is_file():
+        tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
+        return {"method": method, "status": "failed", "message": tail}
+    run = json.loads(js.read_text())
+    return {**run, "status": "fragment" if run.get("fragment") else "ok"}  # a fragment ran: its timings count
+
+
+def loadavg() -> tuple:
+    import os
+
+    return os.getloadavg()
+
+
+def _run(seq: Path, method: str, out: Path, extra: list[str]) -> dict:
     return engine_run(seq, method, out, extra)
 
 
@@ -126,8 +149,6 @@ def latency(args) -> int:
 
 
 def run(args) -> int:
-    from d2slam.bench.engine import _loadavg
-
     if args.latency:
         return latency(args)
     seqs = _sequences(args)
@@ -150,7 +171,7 @@ def run(args) -> int:
             d = _ate(r["d2slam online"])
             if isinstance(d, float):
                 print(f"d2slam online against the real ORB-SLAM3 offline: {100 * (1 - d / orb_off):.1f} % better")
-    print(f"\nload average: {', '.join(f'{x:.1f}' for x in _loadavg())}; runs in {out}")
+    print(f"\nload average: {', '.join(f'{x:.1f}' for x in loadavg())}; runs in {out}")
     if args.json:
         from d2slam.outputs import write_bytes
 
