@@ -1342,10 +1342,11 @@ class OnlineConfig(_Checked):
     # carries their belief). A frame whose mask is too old reads none either.
     masks: str = one_of("latest", "latest", "off")
     mask_max_age_s: float = within(0.2, 0.0, 10.0)
-    # Ours: a mask of an earlier frame lags its person by the segmenter's latency (about 3 frames at 30 Hz); each
-    # person is moved on by its centroid's motion between the segmenter's two newest results, matched to the
-    # previous person nearest it within mask_match_px (measured: docs/online.md).
-    mask_motion: bool = flag(True)
+    # Ours, off: a mask of an earlier frame lags its person by the segmenter's latency (3-5 frames at 30 Hz); with
+    # mask_motion each person is moved on by its centroid's motion between the segmenter's two newest results,
+    # matched to the previous person nearest it within mask_match_px. Off because on development seeds it helped
+    # with masks 3 frames late and hurt with masks 5 frames late (docs/online.md).
+    mask_motion: bool = flag(False)
     mask_match_px: float = within(80.0, 0.0, 10000.0)
     # onnxruntime's intra-op threads of the segmenter's thread (the tracker has the other core).
     segmenter_threads: int = within(1, 1, 64)

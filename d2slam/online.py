@@ -9,9 +9,9 @@ paper's protocol. Online:
   arrives while the tracker is busy waits in a one-frame slot, where the next arrival replaces it: every frame but
   the newest is dropped, as a camera with a one-frame buffer (a ROS subscriber with ``queue_size=1``) drops them;
 - a frame reads the newest mask the segmenter has finished, of an earlier frame at most
-  ``OnlineConfig.mask_max_age_s`` older (``masks="latest"``; NGD-SLAM carries its masks forward the same way), each
-  person moved on by its motion between the segmenter's two newest results (``mask_motion``, ours:
-  :func:`extrapolate_masks`), or none (``masks="off"``). Without a mask eq 7 has no mask area: matched keypoints take P_g, unmatched ones 0.5, and
+  ``OnlineConfig.mask_max_age_s`` older (``masks="latest"``; NGD-SLAM carries its masks forward the same way), with
+  ``mask_motion`` (ours, off) each person moved on by its motion between the segmenter's two newest results
+  (:func:`extrapolate_masks`), or none (``masks="off"``). Without a mask eq 7 has no mask area: matched keypoints take P_g, unmatched ones 0.5, and
   eq 8 carries each keypoint's belief through its match and its map point.
 
 What happens depends on timing, so an online run is not reproducible. Its :class:`Schedule` (which frames were

@@ -49,11 +49,11 @@ def test_a_stale_mask_moves_on_with_its_person():
     prev, now = np.zeros((1, 40, 60), bool), np.zeros((1, 40, 60), bool)
     prev[0, 10:20, 10:20] = True
     now[0, 10:20, 16:26] = True  # 6 px to the right in 3 frames (frames 0 -> 3)
-    k, moved = pick_mask((3, now, 0, prev), 6, arrival, DEFAULT)  # 3 frames on: 6 px further
+    moving = dataclasses.replace(DEFAULT, online=dataclasses.replace(DEFAULT.online, mask_motion=True))
+    k, moved = pick_mask((3, now, 0, prev), 6, arrival, moving)  # 3 frames on: 6 px further
     assert k == 3 and np.array_equal(np.nonzero(moved[0])[1].min(), 22)
-    still = dataclasses.replace(DEFAULT, online=dataclasses.replace(DEFAULT.online, mask_motion=False))
-    assert np.array_equal(pick_mask((3, now, 0, prev), 6, arrival, still)[1], now)
-    far = dataclasses.replace(DEFAULT, online=dataclasses.replace(DEFAULT.online, mask_match_px=2.0))
+    assert np.array_equal(pick_mask((3, now, 0, prev), 6, arrival, DEFAULT)[1], now)  # off by default
+    far = dataclasses.replace(moving, online=dataclasses.replace(moving.online, mask_match_px=2.0))
     assert np.array_equal(pick_mask((3, now, 0, prev), 6, arrival, far)[1], now)  # no match: stays
 
 
