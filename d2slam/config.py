@@ -919,6 +919,57 @@ class TwinConfig(_Checked):
 
 
 @dataclass(frozen=True)
+class CompositeConfig(_Checked):
+    """People composited into a real recording (``d2slam synth real_walking --on-trajectory TUM_DIR``,
+    ``d2slam.synth.composite``, ``d2slam.synth.realroom``): where they may stand in the recording's room, measured
+    from its own depth, and how they are put into its images (the twin's camera, timing and sensor,
+    ``TwinConfig``). The measurements behind each value: docs/real_people.md. Only the composite scenarios read it."""
+
+    # Fusion of the recording's depth into its ground truth's world: every fuse_stride-th depth image, every
+    # fuse_step-th pixel of it.
+    fuse_stride: int = within(5, 1, 100_000)
+    fuse_step: int = within(4, 1, 64)
+    # The floor: the lowest height where at least floor_min_share of the fused points lie within floor_band_m (m), a
+    # plane fitted there, at most floor_max_tilt_deg from the world's vertical (the motion capture's Z is up).
+    floor_band_m: float = within(0.03, 0.0, 1.0, lo_open=True)
+    floor_min_share: float = within(0.01, 0.0, 1.0, lo_open=True)
+    floor_max_tilt_deg: float = within(10.0, 0.0, 90.0)
+    # Free space: cells of cell_m on the floor, over the fused points' extent plus room_margin_m. A cell is occupied
+    # when at least occupied_points fused points lie above it between body_low_m and body_high_m (a standing
+    # person's extent); known free when not occupied and either at least floor_points fused points lie on the floor
+    # there (within floor_band_m) or, at every one of probe_heights_m above it, the depth of at least seen_frames
+    # fused frames lies at least see_through_m beyond that point (seen through); never in view when at most
+    # never_view_share of the fused frames hold its point at view_height_m. A person stands on known free or never
+    # seen cells at least clearance_m from occupied ones (a person's half width with their arms): where a frame
+    # could have seen the space but the depth did not (behind the furniture), nobody stands.
+    cell_m: float = within(0.05, 0.0, 10.0, lo_open=True)
+    room_margin_m: float = within(1.0, 0.0, 100.0)
+    body_low_m: float = within(0.08, 0.0, 10.0)
+    body_high_m: float = within(1.9, 0.0, 10.0)
+    occupied_points: int = within(20, 1, 10_000_000)
+    floor_points: int = within(3, 1, 10_000_000)
+    probe_heights_m: tuple[float, ...] = within((0.3, 0.9, 1.5), 0.0, 10.0, ascending=True)
+    see_through_m: float = within(0.15, 0.0, 10.0)
+    seen_frames: int = within(2, 1, 100_000)
+    view_height_m: float = within(0.9, 0.0, 10.0)
+    never_view_share: float = within(0.0, 0.0, 1.0)
+    clearance_m: float = within(0.25, 0.0, 10.0)
+    # Where people are seen (d2slam.synth.composite.person_visibility): a lattice of standable known-free cells every
+    # vis_cell_m; a person there is a cylinder of body_half_width_m x body_half_depth_m, body_height_m tall, whose
+    # image share is its seen points' share times its box's image area times body_fill. Targets in view: cells where
+    # a person is seen at least vis_min_coverage in some frame, drawn by how much over the next vis_horizon_s; exits:
+    # cells never in view within exit_reach_m of a target.
+    vis_cell_m: float = within(0.2, 0.0, 10.0, lo_open=True)
+    body_half_width_m: float = within(0.22, 0.0, 10.0, lo_open=True)
+    body_half_depth_m: float = within(0.15, 0.0, 10.0, lo_open=True)
+    body_height_m: float = within(1.75, 0.0, 10.0, lo_open=True)
+    body_fill: float = within(0.6, 0.0, 1.0, lo_open=True)
+    vis_min_coverage: float = within(0.01, 0.0, 1.0)
+    vis_horizon_s: float = within(3.0, 0.0, 1000.0)
+    exit_reach_m: float = within(2.0, 0.0, 100.0, lo_open=True)
+
+
+@dataclass(frozen=True)
 class SynthConfig(_Checked):
     _RULES = (below("seg_z_near", "seg_z_far"), below("near_plane", "far_plane"),
               below("cx", "width", strict=False), below("cy", "height", strict=False),
@@ -1011,6 +1062,8 @@ class SynthConfig(_Checked):
     actors: ActorsConfig = section(ActorsConfig)
     # The synthetic twin of a real recording and its calibrated sensor (only the twin scenarios read it).
     twin: TwinConfig = section(TwinConfig)
+    # People composited into a real recording (only the composite scenarios read it).
+    composite: CompositeConfig = section(CompositeConfig)
 
 
 @dataclass(frozen=True)

@@ -756,8 +756,7 @@ class Planner:
         s = tl.end_state()
         side = -1.0 if s.xy[0] > 0 else 1.0
         for _ in range(c.tries):
-            y = self.rng.uniform(*c.move_y)
-            target = np.array([side * self.rng.uniform(c.move_side, 1.0) * c.view_slope * y, y])
+            target = self.move_target(side)
             d = target - s.xy
             if np.linalg.norm(d) < c.move_min_m:
                 continue
@@ -766,6 +765,13 @@ class Planner:
             if self._go(tl, self._walk(s, tl.t_end, target, hold=hold), obj):
                 return True
         return False
+
+    def move_target(self, side: float) -> np.ndarray:
+        """Where a held object is taken: a point in view on the ``side`` (+-1) of the camera's axis, y in
+        ``move_y``, at least ``move_side`` of the way from the axis to the view's edge."""
+        c = self.cfg
+        y = self.rng.uniform(*c.move_y)
+        return np.array([side * self.rng.uniform(c.move_side, 1.0) * c.view_slope * y, y])
 
     def _leave(self, tl: Timeline, obj: HeldObject, hold: str) -> None:
         """Put the object down (or let the chair go), then turn round and step away from it."""
