@@ -664,6 +664,10 @@ class SegmentationConfig(_Checked):
     dilation_px: int = within(0, 0, 100)
     # onnxruntime intra-op threads (inter-op 1, sequential); not part of the mask-cache key.
     intra_op_threads: int = within(2, 0, 256)
+    # onnxruntime's intra-op threads spin-wait between operators when True (its default). False: they sleep. Spinning
+    # took 1.7x the CPU time of a frame (65 -> 112 ms) and, with two segmenting processes on 2 cores (the study's
+    # workers), twice the wall time; not part of the mask-cache key. Measured: docs/benchmarks.md.
+    allow_spinning: bool = flag(False)
     # At most this many persons per frame, highest scores first.
     max_persons: int = within(20, 1, 1000)
     # The mask cache file of a sequence is rewritten after this many newly segmented frames (and when the sequence

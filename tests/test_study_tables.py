@@ -349,7 +349,8 @@ def test_a_fragment_of_a_whole_sequence_is_flagged():
     assert T.TRACKED_FLAG == DEFAULT.evaluation.min_tracked_share == 0.9
     assert T.tracked_fraction(df, "fr1_rpy", "d2slam") == pytest.approx(3 / 694)
     assert T._flag(df, "fr1_rpy", "d2slam") == T.DAGGER and T._flag(df, "fr1_rpy", "none") == ""
-    assert "| fr1_rpy | 99 | 0 |" in T.tracking_markdown(df, ["none", "d2slam"])
+    md = T.tracking_markdown(df, ["none", "d2slam"])
+    assert "| fr1/rpy (real) | 99 | 0 |" in md and md.startswith("| sequence (real TUM) |")
     table = T.absolute_markdown(df, "ate_rmse_m", 0, ["none", "d2slam"])
     assert "0.0086 †" in table and "0.0277 †" not in table
     old = df.drop(columns=["tracked_share"])  # a study made before the column: frames 0 says nothing of the share

@@ -46,7 +46,7 @@ class RGBDFrame:
     timestamp: float  # RGB timestamp (s); the frame's time
     depth_timestamp: float
     rgb: np.ndarray  # (H, W, 3) uint8, RGB order
-    depth: np.ndarray  # (H, W) float32 metres, 0 = invalid
+    depth: np.ndarray | None  # (H, W) float32 metres, 0 = invalid; None when only the colour was read
     rgb_path: Path | None = None
     depth_path: Path | None = None
 

@@ -444,6 +444,18 @@ class TumSequence:
                      depth_timestamp=float(self.depth_timestamps[index]), rgb=rgb, depth=depth,
                      rgb_path=self.rgb_files[index], depth_path=self.depth_files[index])
 
+    def rgb_frame(self, index: int) -> RGBDFrame:
+        """Frame ``index`` with its colour image alone (``depth`` None; what a segmenter reads, without decoding the
+        depth image)."""
+        index = int(index)
+        if not 0 <= index < len(self):
+            raise IndexError(f"frame {index} out of range for {len(self)} frames")
+        rgb = read_rgb(self.rgb_files[index], self._rgb_list, int(self._rgb_lines[index]),
+                       (self.camera.height, self.camera.width))
+        return RGBDFrame(index=index, timestamp=float(self.timestamps[index]),
+                         depth_timestamp=float(self.depth_timestamps[index]), rgb=rgb, depth=None,
+                         rgb_path=self.rgb_files[index], depth_path=self.depth_files[index])
+
     def depth_image(self, index: int) -> np.ndarray:
         """The depth image (float32 metres) of frame ``index`` alone, without decoding the RGB image (runs that read
         stored features need only the depth)."""

@@ -449,7 +449,8 @@ class CachedSegmenter:
         cached = self._lookup(self.sequence.timestamps[index])
         if cached is not None:
             return cached
-        return self._compute(self.sequence[index])
+        read = getattr(self.sequence, "rgb_frame", None)  # the colour image alone, where the sequence can
+        return self._compute(read(index) if read is not None else self.sequence[index])
 
     def __call__(self, frame) -> list[PersonInstance]:
         if not self.cacheable:

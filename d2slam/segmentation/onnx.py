@@ -42,7 +42,7 @@ DEFAULT_MODEL_NAME = "yolov8n-seg_deq_384x512.onnx"
 # Version of the decoding below: part of the mask-cache key, bump when decoding changes masks.
 DECODER_VERSION = 1
 # SegmentationConfig fields that do not change masks, left out of the mask-cache key.
-NOT_IN_KEY = ("intra_op_threads", "cache_flush_frames")
+NOT_IN_KEY = ("intra_op_threads", "allow_spinning", "cache_flush_frames")
 
 #: sha256 -> file name of the three YOLOv8n-seg files (``d2slam.assets``).
 KNOWN_MODELS: dict[str, str] = {a.sha256: Path(a.path).name for a in (*DOWNLOADS, *DERIVED)
@@ -166,6 +166,7 @@ class OnnxSegmenter:
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = int(self.config.intra_op_threads)
         opts.inter_op_num_threads = 1
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if self.config.allow_spinning else "0")
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.log_severity_level = 3

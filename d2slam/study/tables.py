@@ -172,7 +172,10 @@ def _fmt_imp(cell) -> str:
 
 
 def _rowhead(df: pd.DataFrame) -> str:
-    return "fr3 (real TUM)" if len(df) and (df["source"] == "tum").all() else "fr3 (synthetic)"
+    """The row header: synthetic fr3-like scenes, real TUM fr3 sequences, or real sequences of other families."""
+    if not (len(df) and (df["source"] == "tum").all()):
+        return "fr3 (synthetic)"
+    return "fr3 (real TUM)" if df["sequence"].astype(str).str.startswith("fr3").all() else "sequence (real TUM)"
 
 
 def _md(header: list[str], rows: list[list[str]]) -> str:
