@@ -941,9 +941,13 @@ class CompositeConfig(_Checked):
     # Free space: cells of cell_m on the floor, over the fused points' extent plus room_margin_m. A cell is occupied
     # when at least occupied_points fused points lie above it between body_low_m and body_high_m (a standing
     # person's extent); known free when not occupied and either at least floor_points fused points lie on the floor
-    # there (within floor_band_m) or, at every one of probe_heights_m above it, the depth of at least seen_frames
-    # fused frames lies at least see_through_m beyond that point (seen through); never in view when at most
-    # never_view_share of the fused frames hold its point at view_height_m. A person stands on known free or never
+    # there (within floor_band_m) or, at every one of probe_heights_m above it that a fused frame held in its image
+    # (at least one), the depth of at least seen_frames fused frames lies at least see_through_m beyond that point
+    # (seen through); never in view when at most
+    # never_view_share of the fused frames hold any of its points at view_heights_m (a standing person's feet to
+    # head) in their image; out of view when the same holds for their image grown by view_margin_px (the frames
+    # between the fused ones turn by up to a few degrees more): where people leave the view to. A person stands on
+    # known free or never
     # seen cells at least clearance_m from occupied ones (a person's half width with their arms): where a frame
     # could have seen the space but the depth did not (behind the furniture), nobody stands.
     cell_m: float = within(0.05, 0.0, 10.0, lo_open=True)
@@ -955,9 +959,13 @@ class CompositeConfig(_Checked):
     probe_heights_m: tuple[float, ...] = within((0.3, 0.9, 1.5), 0.0, 10.0, ascending=True)
     see_through_m: float = within(0.15, 0.0, 10.0)
     seen_frames: int = within(2, 1, 100_000)
-    view_height_m: float = within(0.9, 0.0, 10.0)
+    view_heights_m: tuple[float, ...] = within((0.1, 0.5, 0.9, 1.3, 1.8), 0.0, 10.0, ascending=True)
+    view_margin_px: float = within(40.0, 0.0, 10_000.0)
     never_view_share: float = within(0.0, 0.0, 1.0)
     clearance_m: float = within(0.25, 0.0, 10.0)
+    # The camera's operator: the cells within operator_radius_m of the fused frames' camera centres (on the floor)
+    # are occupied (a hand-held camera's operator stands there; fr1/rpy's centres stay within 0.15 m of their mean).
+    operator_radius_m: float = within(0.4, 0.0, 10.0)
     # Where people are seen (d2slam.synth.composite.person_visibility): a lattice of standable known-free cells every
     # vis_cell_m; a person there is a cylinder of body_half_width_m x body_half_depth_m, body_height_m tall, whose
     # image share is its seen points' share times its box's image area times body_fill. Targets in view: cells where
@@ -971,6 +979,19 @@ class CompositeConfig(_Checked):
     vis_min_coverage: float = within(0.01, 0.0, 1.0)
     vis_horizon_s: float = within(3.0, 0.0, 1000.0)
     exit_reach_m: float = within(2.0, 0.0, 100.0, lo_open=True)
+    # The images (d2slam.synth.compositing). The people's colour is multiplied per channel by the recording's mean
+    # colour (the median of every fuse_stride-th frame's mean) over the office's, office_rgb_mean: the mean RGB of the
+    # synthetic office's frames (walking_xyz, development seed 0, 60 frames; the people's textures were made for
+    # it), so that they take the recording's exposure and white balance.
+    office_rgb_mean: tuple[float, float, float] = within((126.2, 117.4, 108.2), 1.0, 255.0)
+    # The holes of the Kinect's edge model (SynthConfig.hole_edge_*) are kept within edge_band_px of the edges the
+    # people make; the real depth elsewhere is left as it was.
+    edge_band_px: int = within(3, 0, 100)
+    # The people's colour sub-frames (TwinConfig.subframe_px's rule, over the twin's exposure): at most subframe_px of
+    # the camera's image motion apart (measured: docs/real_people.md, the colour against 1 px apart), and at least
+    # subframes_min (the people's own motion: a hand at 2 m/s moves about 9 px at 2 m over the exposure).
+    subframe_px: float = within(2.0, 0.0, 1000.0, lo_open=True)
+    subframes_min: int = within(5, 1, 10_000)
 
 
 @dataclass(frozen=True)
@@ -1244,6 +1265,10 @@ class CliConfig(_Checked):
     # A twin's frame (d2slam.synth.twin: sub-frames over the exposure and the rolling shutters) takes
     # synth_twin_frame_s instead (1.0 frames/s measured on fr1/rpy's first 200 frames, one worker, a busy machine).
     synth_twin_frame_s: float = within(1.0, 0.0, 1000.0)
+    # A composite's frame (d2slam.synth.compositing: the people's sub-frames over the exposure, z-tested, on the real
+    # images) takes synth_composite_frame_s on average (fr1/rpy's first 120 frames, people in 40 % of them, one
+    # worker, a busy machine: 1.05 s).
+    synth_composite_frame_s: float = within(1.0, 0.0, 1000.0)
     segment_frame_s: float = within(0.15, 0.0, 1000.0)
     # The caches' cheap checks (the mask cache's image digest, a cached folder's manifest) trust a file's size and
     # modification time only when it was last modified at least this long before they were recorded: a change made

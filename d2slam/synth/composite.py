@@ -25,8 +25,6 @@ its images are the background, its ground truth the camera path, its camera and 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
-
 import numpy as np
 
 from d2slam.errors import D2SlamError
@@ -62,7 +60,8 @@ class RealRoom:
                 "room_frame": self.M.round(9).tolist(),
                 "area_m2": {"occupied": round(s.area(s.occupied), 3), "known_free": round(s.area(s.known_free), 3),
                             "standable_known_free": round(s.area(s.standable & s.known_free), 3),
-                            "never_in_view": round(s.area(s.never_in_view & s.standable), 3)},
+                            "never_in_view": round(s.area(s.never_in_view & s.standable), 3),
+                            "out_of_view": round(s.area(s.out_of_view & s.standable), 3)},
                 "seen_cells": int((cov.max(axis=1, initial=0.0) >= min_coverage).sum()) if cov.size else 0}
 
 
@@ -94,20 +93,19 @@ def person_visibility(space, fused, M: np.ndarray, camera, t0: float, rgb_times:
         seen = np.zeros(len(P), bool)
         seen[idx] = (d <= 0) | (zc[idx] < d)
         dist = np.maximum(np.median(zc.reshape(len(xy), -1), axis=1), 0.1)
-        cov[:, f] = seen.reshape(len(xy), -1).mean(axis=1) * box / dist ** 2 / (camera.width * camera.height)
+        cov[:, f] = np.minimum(seen.reshape(len(xy), -1).mean(axis=1) * box / dist ** 2 / (camera.width *
+                                                                                            camera.height), 1.0)
     return Visibility(xy, np.asarray(rgb_times, float)[fused.frames] - t0, cov)
 
 
-@lru_cache(maxsize=2)
-def _room(root: str, n: int, first: float, cfg) -> RealRoom:
+_ROOMS: dict = {}
+
+
+def _room(rec, cfg) -> RealRoom:
     from d2slam.data.tum import TumSequence
     from d2slam.synth import realroom
-    from d2slam.synth.twin import read_recording
 
-    rec = read_recording(root)
-    if len(rec) != n or rec.rgb_times[0] != first:
-        raise D2SlamError("the recording changed while it was read", path=root)
-    seq = TumSequence(root, camera=rec.camera)
+    seq = TumSequence(rec.root, camera=rec.camera)
     fused = realroom.fuse_depth(rec, lambda i: seq.depth_image(int(rec.frame_index[i])), cfg)
     normal, offset = realroom.estimate_floor(fused.points, cfg)
     M = realroom.room_frame(normal, offset, fused.row_poses[:, rec.camera.height // 2])
@@ -117,11 +115,15 @@ def _room(root: str, n: int, first: float, cfg) -> RealRoom:
 
 
 def real_room(rec, cfg) -> RealRoom:
-    """The room of the recording ``rec`` (``d2slam.synth.twin.Recording``, read from its folder), measured once per
-    process (module docstring). ``cfg``: the ``SynthConfig``."""
-    if rec.root is None:
+    """The room of the recording ``rec`` (``d2slam.synth.twin.Recording``, read from its folder: its frames, which may
+    be a part of the folder's), measured once per process (module docstring). ``cfg``: the ``SynthConfig``."""
+    if rec.root is None or rec.frame_index is None:
         raise D2SlamError("the composite needs the recording's folder (d2slam.synth.twin.read_recording)")
-    return _room(str(rec.root), len(rec), float(rec.rgb_times[0]), cfg)
+    key = (str(rec.root), np.asarray(rec.frame_index).tobytes(), np.asarray(rec.rgb_times).tobytes(), cfg)
+    if key not in _ROOMS:
+        _ROOMS.clear()
+        _ROOMS[key] = _room(rec, cfg)
+    return _ROOMS[key]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -150,7 +152,7 @@ class RoomPlanner(Planner):
         n, lab = cv2.connectedComponents(s.standable.astype(np.uint8), connectivity=8)
         ti, tj, _ = s.cells(self.room.visibility.xy[self.targets])
         comps = set(lab[ti, tj].tolist())
-        ix, iy = np.nonzero(s.standable & s.never_in_view & np.isin(lab, list(comps)))
+        ix, iy = np.nonzero(s.standable & s.out_of_view & np.isin(lab, list(comps)))
         xy = s.centre(ix, iy)
         tx = self.room.visibility.xy[self.targets]
         near = np.min(np.linalg.norm(xy[:, None] - tx[None], axis=2), axis=1) <= self.cc.exit_reach_m
@@ -215,3 +217,15 @@ def box_rest(rng, planner: RoomPlanner, cfg) -> tuple[np.ndarray, float]:
         if planner.room.space.free(np.stack([xy, xy - (a.box_offset[1] + a.take_approach_m) * unit(h)])):
             return xy, h
     raise D2SlamError("no free floor in view holds the carried box and its carrier")
+
+
+def composite_groundtruth(scene) -> tuple[np.ndarray, np.ndarray]:
+    """(timestamps, (N, 7) tx ty tz qx qy qz qw): the recording's own ground truth samples over the frames plus
+    ``gt_margin``, in its own world (the composite's camera is the recording's)."""
+    from d2slam.synth.rigid import pose_rows
+
+    rec = scene.recording
+    a = scene.t0 + scene.t_rel[0] - scene.cfg.gt_margin
+    b = scene.t0 + scene.t_rel[-1] + scene.cfg.gt_margin
+    sel = (rec.gt_times >= a) & (rec.gt_times <= b)
+    return rec.gt_times[sel], pose_rows(rec.gt_poses[sel])

@@ -16,12 +16,15 @@ from the recording itself (``CompositeConfig``; the measurements: docs/real_peop
   which the people are planned (``d2slam.synth.actors``: the camera's home at the origin, looking along +y).
 - **Free space** (:class:`FreeSpace`): a grid of ``cell_m`` cells on the floor. A cell is *occupied* when the fused
   depth holds at least ``occupied_points`` points above it between ``body_low_m`` and ``body_high_m`` (furniture,
-  walls); *seen free* when a frame's depth looked through the space above it (a point at one of ``probe_heights_m``
-  over the cell projects onto a depth at least ``see_through_m`` farther in at least ``seen_frames`` frames) and it is
-  not occupied; *in view* by the share of frames whose image holds it at ``view_height_m``. A person may stand where
+  walls); *seen free* when it is not occupied and either the floor was seen there (``floor_points`` fused points) or
+  the frames' depth looked through the space above it: each of its points at ``probe_heights_m`` that some fused
+  frame held in its image projects onto a depth at least ``see_through_m`` farther in at least ``seen_frames`` frames,
+  and at least one of them does; *in view* by the share of frames whose image (grown by ``view_margin_px``) holds any of its points at
+  ``view_heights_m``. A person may stand where
   no occupied cell lies within ``clearance_m`` and the cell is seen free, or never in view (``never_view_share``):
   where no frame shows the space, whatever stands there is never seen and nothing is known of it; where a frame
-  could have seen it but the depth did not (behind the furniture), nobody stands.
+  could have seen it but the depth did not (behind the furniture), nobody stands. The camera's operator stands
+  under the camera: the cells within ``operator_radius_m`` of its centres are occupied.
 """
 
 from __future__ import annotations
@@ -167,13 +170,16 @@ class FreeSpace:
     """Where a person can stand in the room frame (module docstring): boolean grids over cells of ``cell_m``,
     index [ix, iy] of the cell whose lower corner is ``origin + (ix, iy) cell_m``: ``occupied``, ``known_free``
     (not occupied, and the floor seen or the space above seen through at every probe height), ``never_in_view``,
-    ``standable`` (a person's root may stand there) and ``view_share``. ``free(P)`` is the planner's test
+    ``standable`` (a person's root may stand there), ``view_share`` and ``out_of_view`` (never within the images grown
+    by ``view_margin_px``). ``free(P)`` is the planner's test
     (``d2slam.synth.actors.FloorPlan``), ``path(a, b)`` a route."""
 
-    def __init__(self, origin, cell: float, occupied, known_free, view_share, cfg):
+    def __init__(self, origin, cell: float, occupied, known_free, view_share, near_view_share, cfg):
         cc = cfg.composite
         self.origin, self.cell = np.asarray(origin, float), float(cell)
         self.occupied, self.known_free, self.view_share = occupied, known_free, view_share
+        # out of view with a margin: where a person is surely unseen (where people leave the view to)
+        self.out_of_view = near_view_share <= cc.never_view_share
         r = int(np.ceil(cc.clearance_m / self.cell))
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         near = cv2.dilate(occupied.astype(np.uint8), disc, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
@@ -291,37 +297,59 @@ def free_space(fused: Fused, M: np.ndarray, camera, cfg) -> FreeSpace:
         return out
 
     occupied = count(body) >= cc.occupied_points
+    # the camera's operator stands under the camera: within operator_radius_m of its centres on the floor
+    centres = fused.row_poses[:, camera.height // 2, :3, 3] @ M[:3, :3].T + M[:3, 3]
+    ix, iy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    cells = lo + (np.stack([ix, iy], axis=-1) + 0.5) * cc.cell_m
+    for c in centres[:, :2]:
+        occupied |= np.hypot(cells[..., 0] - c[0], cells[..., 1] - c[1]) <= cc.operator_radius_m
     floor_seen = count(np.abs(h) <= cc.floor_band_m) >= cc.floor_points
-    through, view = _seen_and_view(fused, M, camera, lo, shape, cfg)
-    known = ~occupied & (floor_seen | (through >= cc.seen_frames).all(axis=0))
-    return FreeSpace(lo, cc.cell_m, occupied, known, view, cfg)
+    through, probed, view, near_view = _seen_and_view(fused, M, camera, lo, shape, cfg)
+    clear = through >= cc.seen_frames
+    known = ~occupied & (floor_seen | ((clear | (probed == 0)).all(axis=0) & clear.any(axis=0)))
+    return FreeSpace(lo, cc.cell_m, occupied, known, view, near_view, cfg)
 
 
-def _seen_and_view(fused: Fused, M, camera, origin, shape, cfg) -> tuple[np.ndarray, np.ndarray]:
+def _seen_and_view(fused: Fused, M, camera, origin, shape, cfg) -> tuple[np.ndarray, ...]:
     """((P, nx, ny) how many fused frames looked through the space ``probe_heights_m`` above each cell (a depth at
-    least ``see_through_m`` beyond the probe, at the probe's pixel), (nx, ny) the share of fused frames whose image
-    holds the cell's point at ``view_height_m``)."""
+    least ``see_through_m`` beyond the probe, at the probe's pixel), (P, nx, ny) how many held the probe in their
+    image, (nx, ny) the share of fused frames whose image
+    holds any of the cell's points at ``view_heights_m``, (nx, ny) the same share with the image grown by
+    ``view_margin_px``)."""
     cc = cfg.composite
     ix, iy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
     xy = origin + (np.stack([ix.ravel(), iy.ravel()], axis=1) + 0.5) * cc.cell_m
     Minv = np.linalg.inv(M)
     heights = tuple(cc.probe_heights_m)
+    m = cc.view_margin_px
     through = np.zeros((len(heights), len(xy)), np.int64)
+    probed = np.zeros((len(heights), len(xy)), np.int64)
     in_view = np.zeros(len(xy), np.int64)
+    near_view = np.zeros(len(xy), np.int64)
     for k, z in enumerate(fused.depths):
         mid = fused.row_poses[k][camera.height // 2]
-        for j, h in enumerate(heights + (cc.view_height_m,)):
+        seen, near = np.zeros(len(xy), bool), np.zeros(len(xy), bool)
+        for h in tuple(cc.view_heights_m):
+            X = np.concatenate([xy, np.full((len(xy), 1), h)], axis=1) @ Minv[:3, :3].T + Minv[:3, 3]
+            uv, zc = _project(X, mid, camera)
+            seen |= (zc > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & \
+                (uv[:, 1] < camera.height)
+            near |= (zc > 0.1) & (uv[:, 0] >= -m) & (uv[:, 0] < camera.width + m) & (uv[:, 1] >= -m) & \
+                (uv[:, 1] < camera.height + m)
+        in_view += seen
+        near_view += near
+        for j, h in enumerate(heights):
             X = np.concatenate([xy, np.full((len(xy), 1), h)], axis=1) @ Minv[:3, :3].T + Minv[:3, 3]
             uv, zc = _project(X, mid, camera)
             inside = (zc > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & \
                 (uv[:, 1] < camera.height)
-            if j == len(heights):
-                in_view += inside
-                continue
             idx = np.flatnonzero(inside)
             d = z[uv[idx, 1].astype(np.int64), uv[idx, 0].astype(np.int64)]
             through[j, idx] += (d > 0) & (d >= zc[idx] + cc.see_through_m)
-    return through.reshape((len(heights),) + tuple(shape)), (in_view / max(len(fused.depths), 1)).reshape(shape)
+            probed[j, idx] += 1
+    n = max(len(fused.depths), 1)
+    P = (len(heights),) + tuple(shape)
+    return (through.reshape(P), probed.reshape(P), (in_view / n).reshape(shape), (near_view / n).reshape(shape))
 
 
 def _project(X: np.ndarray, T_world_camera: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
@@ -335,8 +363,8 @@ def _project(X: np.ndarray, T_world_camera: np.ndarray, camera) -> tuple[np.ndar
     K = camera.K
     if camera.has_distortion:  # the lens polynomial folds back far outside the image: only rays the image can see
         reach = np.abs(_pixel_reach(camera))
-        zc = np.where((np.abs(x) <= 1.05 * reach).all(axis=1), zc, -1.0)
-        x = distort_normalised(np.clip(x, -1.05 * reach, 1.05 * reach), camera.dist)
+        zc = np.where((np.abs(x) <= 1.2 * reach).all(axis=1), zc, -1.0)
+        x = distort_normalised(np.clip(x, -1.2 * reach, 1.2 * reach), camera.dist)
     return np.stack([x[:, 0] * K[0, 0] + K[0, 2], x[:, 1] * K[1, 1] + K[1, 2]], axis=1), zc
 
 

@@ -269,10 +269,13 @@ def subframe_times(start: float, end: float, n: int) -> np.ndarray:
 
 
 def subframe_plan(scene, start: float, end: float, windows: np.ndarray, z: np.ndarray,
-                  step_px: float) -> tuple[np.ndarray, np.ndarray]:
+                  step_px: float, least: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """(instants (n,), (H, n) row weights) of the sub-frames that render an image whose rows are exposed over
-    ``windows`` within ``[start, end]`` (:func:`subframe_count` of them at ``step_px``, :func:`row_weights`)."""
+    ``windows`` within ``[start, end]`` (:func:`subframe_count` of them at ``step_px``, at least ``least`` over a
+    window of some length, :func:`row_weights`)."""
     n = subframe_count(scene, start, end, z, step_px)
+    if end > start:
+        n = max(n, int(least))
     return subframe_times(start, end, n), row_weights(start, end, n, windows)
 
 

@@ -69,12 +69,13 @@ def quad_mesh(q: QuadSet, rects: np.ndarray):
 class WorldRenderer:
     """Renders a ``Scene`` at time t from pose T: the room uploaded once, people and moved objects per frame."""
 
-    def __init__(self, scene, alpha: bool = False):
+    def __init__(self, scene):
         c = scene.cfg
         self.scene = scene
         atlas, self.rects = build_atlas(scene.textures)
+        # a composite's people are drawn over a real image: their colour with its coverage (alpha)
         self.gl = GLRenderer(scene.canvas_K, *scene.canvas_size, atlas, c.near_plane, c.far_plane, c.gl_threads,
-                             alpha=alpha)
+                             alpha=bool(getattr(scene, "composite", False)))
         if len(scene.static_set):  # a composite's scene has no room: the real recording is its background
             self.gl.set_static(*quad_mesh(scene.static_set, self.rects))
 
