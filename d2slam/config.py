@@ -963,6 +963,10 @@ class CompositeConfig(_Checked):
     view_margin_px: float = within(40.0, 0.0, 10_000.0)
     never_view_share: float = within(0.0, 0.0, 1.0)
     clearance_m: float = within(0.25, 0.0, 10.0)
+    # Routes run along the shortest chain of standable cells, their corners rounded by a Gaussian of route_smooth_m
+    # (the office's: 0.4 m), which may cut across the cells within route_slack_m of standable ones, never occupied ones.
+    route_smooth_m: float = within(0.2, 0.0, 10.0)
+    route_slack_m: float = within(0.1, 0.0, 10.0)
     # The camera's operator: the cells within operator_radius_m of the fused frames' camera centres (on the floor)
     # are occupied (a hand-held camera's operator stands there; fr1/rpy's centres stay within 0.15 m of their mean).
     operator_radius_m: float = within(0.4, 0.0, 10.0)

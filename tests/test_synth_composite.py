@@ -22,14 +22,7 @@ from d2slam.synth import generate
 from d2slam.synth.scene import Scene
 from d2slam.synth.twin import read_recording
 
-FIRST, FRAMES = 30, 30
-
-
-def _part(rec, first: int, n: int):
-    """The recording's frames first .. first + n - 1 (its ground truth whole)."""
-    cut = slice(first, first + n)
-    return dataclasses.replace(rec, rgb_times=rec.rgb_times[cut], depth_times=rec.depth_times[cut],
-                               frame_index=rec.frame_index[cut])
+FIRST, FRAMES, SEED = 30, 30, 2  # seed 2: both people walk in view in half of these frames
 
 
 def _fast() -> SynthConfig:
@@ -42,8 +35,8 @@ def _fast() -> SynthConfig:
 @pytest.fixture(scope="module")
 def composite(tmp_path_factory):
     root = tmp_path_factory.mktemp("composite")
-    rec = _part(read_recording(real_head()), FIRST, FRAMES)
-    res = generate("real_walking", root / "c", frames=FRAMES, seed=0, workers=1, progress=False, recording=rec,
+    rec = read_recording(real_head()).part(FIRST, FRAMES)
+    res = generate("real_walking", root / "c", frames=FRAMES, seed=SEED, workers=1, progress=False, recording=rec,
                    cfg=_fast())
     return rec, res
 

@@ -191,3 +191,78 @@ def composite_coverage(seq, stride: int = 1) -> dict:
     share = coverage(ids, [np.zeros(i.shape) for i in ids], list(seq.person_ids))
     depth = coverage(md, z, list(seq.person_ids))
     return {**share, "depth": depth["depth"]}
+
+
+# --------------------------------------------------------------------------------------------------
+# figures (notebooks/11_real_people.ipynb)
+# --------------------------------------------------------------------------------------------------
+def room_figure(room, camera_centres: np.ndarray, ax=None):
+    """The room a composite's people were planned in, from above (room frame: the floor at Z = 0, the cameras' mean
+    view along +y): occupied cells, known free floor, where a person may stand (seen free, never seen), out of view,
+    the camera's centres and the lattice where a person would be seen (``RealRoom.visibility``, coloured by the
+    largest image share)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    s = room.space
+    img = np.ones(s.shape + (3,))
+    classes = [(s.out_of_view & s.standable, (0.62, 0.66, 0.95), "standable, out of view"),
+               (s.never_in_view & s.standable & ~s.out_of_view, (0.85, 0.75, 0.97), "standable, never in view"),
+               (s.known_free, (0.70, 0.90, 0.70), "seen free"),
+               (s.known_free & s.standable, (0.20, 0.65, 0.25), "standable, seen free"),
+               (s.occupied, (0.75, 0.15, 0.15), "occupied (fused depth, the operator)")]
+    for sel, colour, _ in classes:
+        img[sel] = colour
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6.5, 6))
+    ext = [s.origin[0], s.origin[0] + s.shape[0] * s.cell, s.origin[1], s.origin[1] + s.shape[1] * s.cell]
+    ax.imshow(img.transpose(1, 0, 2), origin="lower", extent=ext, interpolation="nearest")
+    ax.plot(camera_centres[:, 0], camera_centres[:, 1], "k.", ms=2, label="camera centres")
+    v = room.visibility
+    sc = ax.scatter(v.xy[:, 0], v.xy[:, 1], c=v.coverage.max(axis=1, initial=0.0), s=14, cmap="viridis", vmin=0,
+                    vmax=0.5, edgecolors="k", linewidths=0.3)
+    plt.colorbar(sc, ax=ax, fraction=0.04, label="largest image share of a person there")
+    ax.legend(handles=[Patch(color=c, label=lab) for _, c, lab in classes], loc="upper right", fontsize=7)
+    ix, iy = np.nonzero(s.occupied | s.known_free)  # what the depth saw, and a metre round it
+    lo = s.origin + np.array([ix.min(), iy.min()]) * s.cell - 1.0
+    hi = s.origin + (np.array([ix.max(), iy.max()]) + 1) * s.cell + 1.0
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    return ax
+
+
+def composite_figure(seq, real, frames, axes=None):
+    """Rows of frames of a composite ``seq`` beside its recording ``real`` (a ``TumSequence``; frame ``i`` of ``seq``
+    is frame ``real_index[i]`` of ``real``, the same timestamps): the real colour image, the composite's, its truth
+    (``mask_gt`` over it), and its depth image with what it shows of the people (``mask_depth``, outlined)."""
+    import matplotlib.pyplot as plt
+    from pathlib import Path
+
+    frames = list(frames)
+    if axes is None:
+        _, axes = plt.subplots(len(frames), 4, figsize=(13, 2.6 * len(frames)), squeeze=False)
+    where = {round(float(t), 6): k for k, t in enumerate(real.timestamps)}
+    colours = np.array([[0, 0, 0], [230, 60, 40], [40, 120, 230], [240, 200, 40]], float)
+    for row, i in zip(axes, frames):
+        k = where[round(float(seq.timestamps[i]), 6)]
+        c = seq[i]
+        ids = seq.mask_gt(i)
+        over = c.rgb.astype(float)
+        lab = np.clip(ids, 0, 3)
+        lab[ids >= 10] = 3  # a moved object
+        sel = ids > 0
+        over[sel] = 0.45 * over[sel] + 0.55 * colours[lab[sel]]
+        md = cv2.imread(str(Path(seq.root) / "mask_depth" / Path(seq.depth_files[i]).name), cv2.IMREAD_UNCHANGED)
+        edge = (cv2.dilate((md > 0).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0) & ~(md > 0)
+        depth = np.ma.masked_where(c.depth <= 0, c.depth)  # holes: white
+        row[0].imshow(real.rgb_frame(k).rgb)
+        row[1].imshow(c.rgb)
+        row[2].imshow(over.astype(np.uint8))
+        row[3].imshow(depth, cmap="turbo", vmin=0.5, vmax=4.0)
+        row[3].imshow(np.ma.masked_where(~edge, edge), cmap="gray_r", vmin=0, vmax=1)
+        for ax, title in zip(row, ("real", "composite", "truth (mask_gt)", "depth; people outlined (mask_depth)")):
+            ax.set_title(f"frame {i}: {title}", fontsize=8)
+            ax.axis("off")
+    return axes

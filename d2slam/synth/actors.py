@@ -399,6 +399,7 @@ class Planner:
         self._relax = 1.0  # factor on the gaps: below 1 for a person boxed in for a while (see plan)
         self._objects_block = True
         self._times = np.arange(0.0, self.duration + cfg.check_dt, cfg.check_dt)
+        self.route_smooth = 0.4  # the routes' corners are rounded by a Gaussian of this (m; ``Route``)
 
     # ---- sampling ----
     def in_view_point(self) -> np.ndarray:
@@ -495,7 +496,7 @@ class Planner:
         pts = self._route_points(s.xy, target, ignore)
         if pts is None:
             return None
-        route = Route(pts)
+        route = Route(pts, smooth=self.route_smooth)
         c = self.cfg
         v = float(self.rng.uniform(*c.walk_speed)) * (c.hold_speed if hold else 1.0)
         ramp = min(c.ramp_s, route.length / v)

@@ -143,9 +143,11 @@ class RoomPlanner(Planner):
         if not len(self.targets):
             raise D2SlamError("no free floor of the recording is ever in view: no person could be seen there")
         self.exits = self._exit_cells()
+        self.route_smooth = composite.route_smooth_m
 
     def _exit_cells(self) -> np.ndarray:
-        """Standable cells never in view within ``exit_reach_m`` of a target and connected to it (floor points)."""
+        """Standable cells out of view within ``exit_reach_m`` of a target and connected to it (floor points); the
+        targets are left with those connected to an exit."""
         import cv2
 
         s = self.room.space
@@ -159,6 +161,9 @@ class RoomPlanner(Planner):
         if not near.any():
             raise D2SlamError(f"no standable floor out of view within {self.cc.exit_reach_m:g} m of where people are "
                               "seen: they could not walk in and out of view")
+        # only the targets a person can reach from an exit (the same connected floor)
+        ei, ej, _ = s.cells(xy[near])
+        self.targets = self.targets[np.isin(lab[ti, tj], np.unique(lab[ei, ej]))]
         return xy[near]
 
     def _now(self) -> float:
@@ -185,7 +190,8 @@ class RoomPlanner(Planner):
         pts = self.room.space.path(a, b)
         if pts is None or len(pts) < 2 or np.linalg.norm(pts[-1] - pts[0]) < 1e-6:
             return None
-        return pts if self.room.space.free(Route(pts).xy) else None  # the walked route is the smoothed one
+        # the walked route is the smoothed one
+        return pts if self.room.space.passes(Route(pts, smooth=self.route_smooth).xy) else None
 
     def _in_view(self, xy: np.ndarray) -> bool:
         vis = self.room.visibility
@@ -193,7 +199,7 @@ class RoomPlanner(Planner):
         return bool(d.min() <= self.cc.vis_cell_m)
 
     def _go(self, tl, legs, holding=None) -> bool:
-        """As the planner's, and a carried box keeps to standable cells too."""
+        """As the planner's, and a carried box keeps to passable cells too (``FreeSpace.passes``)."""
         if legs is not None and any(leg.hold == "box" for leg in legs):
             off = np.asarray(self.cfg.box_offset[:2], float)
             for leg in legs:
@@ -202,7 +208,7 @@ class RoomPlanner(Planner):
                 for t in np.arange(leg.t0, leg.t1 + self.cfg.check_dt, self.cfg.check_dt):
                     st = leg.state(min(t, leg.t1), self.cfg)
                     c, s = np.cos(st.heading - np.pi / 2), np.sin(st.heading - np.pi / 2)
-                    if not self.room.space.free(st.xy + np.array([c * off[0] - s * off[1], s * off[0] + c * off[1]])):
+                    if not self.room.space.passes(st.xy + np.array([c * off[0] - s * off[1], s * off[0] + c * off[1]])):
                         return False
         return super()._go(tl, legs, holding)
 

@@ -170,8 +170,8 @@ class FreeSpace:
     """Where a person can stand in the room frame (module docstring): boolean grids over cells of ``cell_m``,
     index [ix, iy] of the cell whose lower corner is ``origin + (ix, iy) cell_m``: ``occupied``, ``known_free``
     (not occupied, and the floor seen or the space above seen through at every probe height), ``never_in_view``,
-    ``standable`` (a person's root may stand there), ``view_share`` and ``out_of_view`` (never within the images grown
-    by ``view_margin_px``). ``free(P)`` is the planner's test
+    ``standable`` (a person's root may stand there), ``passable`` (a walked route's rounded corners may cross it),
+    ``view_share`` and ``out_of_view`` (never within the images grown by ``view_margin_px``). ``free(P)`` is the planner's test
     (``d2slam.synth.actors.FloorPlan``), ``path(a, b)`` a route."""
 
     def __init__(self, origin, cell: float, occupied, known_free, view_share, near_view_share, cfg):
@@ -185,6 +185,10 @@ class FreeSpace:
         near = cv2.dilate(occupied.astype(np.uint8), disc, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         self.never_in_view = view_share <= cc.never_view_share
         self.standable = ~near & (known_free | self.never_in_view)
+        # where a walked route's rounded corners may pass: within route_slack_m of standable cells, never occupied
+        r = int(np.ceil(cc.route_slack_m / self.cell))
+        slack = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        self.passable = (cv2.dilate(self.standable.astype(np.uint8), slack) > 0) & ~occupied
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -207,6 +211,12 @@ class FreeSpace:
     def free(self, P) -> bool:
         ix, iy, inside = self.cells(P)
         return bool((inside & self.standable[ix, iy]).all())
+
+    def passes(self, P) -> bool:
+        """May a walked route go through the points P (N, 2)? (``passable``: its corners rounded off standable
+        cells by at most ``route_slack_m``.)"""
+        ix, iy, inside = self.cells(P)
+        return bool((inside & self.passable[ix, iy]).all())
 
     def path(self, a, b) -> np.ndarray | None:
         """The shortest 8-connected chain of standable cells from the cell of ``a`` to the cell of ``b`` (A*), as

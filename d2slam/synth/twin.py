@@ -58,6 +58,18 @@ class Recording:
     def __len__(self) -> int:
         return len(self.rgb_times)
 
+    def part(self, first: int, frames: int) -> "Recording":
+        """The recording's frames ``first`` .. ``first + frames - 1`` (its ground truth whole)."""
+        import dataclasses
+
+        if not 0 <= int(first) < len(self) or int(frames) < 1:
+            raise D2SlamError(f"frames {first} to {int(first) + int(frames) - 1} are not in the recording's "
+                              f"{len(self)} frames", path=self.root)
+        cut = slice(int(first), int(first) + int(frames))
+        index = None if self.frame_index is None else self.frame_index[cut]
+        return dataclasses.replace(self, rgb_times=self.rgb_times[cut], depth_times=self.depth_times[cut],
+                                   frame_index=index)
+
 
 def read_recording(path: str | Path) -> Recording:
     """A TUM folder (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``; the camera from its name) as a
