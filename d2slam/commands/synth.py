@@ -157,6 +157,7 @@ def run(args) -> int:
 
     out = check_sequence_out(args.out)
     Scene.check_recording(args.scenario, args.on_trajectory)
+    Scene.check_static_twin(args.scenario, args.static_twin)
     recording = read_recording(args.on_trajectory) if args.on_trajectory is not None else None
     frames = resolve_frames(args.scenario, args.frames, recorded=len(recording) if recording is not None else None)
     remove_stale_temps(out.parent, f"{glob.escape(out.name)}.tmp-*")  # an earlier run killed before it cleaned up

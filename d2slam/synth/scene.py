@@ -206,9 +206,7 @@ class Scene:
         twin = scenario in TWIN_SCENARIOS
         self.composite = scenario in COMPOSITE_SCENARIOS
         self.check_recording(scenario, recording)
-        if self.composite and static_twin:
-            raise D2SlamError(f"the static twin of {scenario} is its recording itself (the TUM folder given to "
-                              "--on-trajectory): nothing to generate")
+        self.check_static_twin(scenario, static_twin)
         if int(frames) < 1:
             raise D2SlamError(f"--frames must be at least 1 (got {frames})")
         if int(seed) < 0:
@@ -253,10 +251,17 @@ class Scene:
         scenario_index(scenario)
         if scenario in RECORDED_SCENARIOS and recording is None:
             raise D2SlamError(f"{scenario} follows a real recording's trajectory: give its TUM folder "
-                              "(--on-trajectory TUM_DIR)")
+                              "(--on-trajectory TUM_DIR, or --on)")
         if scenario not in RECORDED_SCENARIOS and recording is not None:
-            raise D2SlamError(f"{scenario} has its own camera path; --on-trajectory is for the scenarios on a real "
-                              f"recording ({', '.join(RECORDED_SCENARIOS)})")
+            raise D2SlamError(f"{scenario} has its own camera path; --on (--on-trajectory) is for the scenarios on a "
+                              f"real recording ({', '.join(RECORDED_SCENARIOS)})")
+
+    @staticmethod
+    def check_static_twin(scenario: str, static_twin: bool) -> None:
+        """A composite has no static twin to generate: it is its recording."""
+        if scenario in COMPOSITE_SCENARIOS and static_twin:
+            raise D2SlamError(f"the static twin of {scenario} is its recording itself (the TUM folder given to --on): "
+                              "nothing to generate")
 
     def _twin_clock(self, rec, frames: int) -> None:
         """The camera, clock and path of a scene on a real recording: the recording's camera and first ``frames``
