@@ -941,9 +941,10 @@ class CompositeConfig(_Checked):
     # Free space: cells of cell_m on the floor, over the fused points' extent plus room_margin_m. A cell is occupied
     # when at least occupied_points fused points lie above it between body_low_m and body_high_m (a standing
     # person's extent); known free when not occupied and either at least floor_points fused points lie on the floor
-    # there (within floor_band_m) or, at every one of probe_heights_m above it that a fused frame held in its image
-    # (at least one), the depth of at least seen_frames fused frames lies at least see_through_m beyond that point
-    # (seen through); never in view when at most
+    # there (within floor_band_m) or, at one of probe_heights_m above it at least, the depth of at least seen_frames
+    # fused frames lies at least see_through_m beyond that point (seen through), and at each of the others too or no
+    # frame's depth lies within see_through_m of it (no surface was ever seen there: out of view, hidden behind
+    # nearer surfaces, holes); never in view when at most
     # never_view_share of the fused frames hold any of its points at view_heights_m (a standing person's feet to
     # head) in their image; out of view when the same holds for their image grown by view_margin_px (the frames
     # between the fused ones turn by up to a few degrees more): where people leave the view to. A person stands on
@@ -962,26 +963,27 @@ class CompositeConfig(_Checked):
     view_heights_m: tuple[float, ...] = within((0.1, 0.5, 0.9, 1.3, 1.8), 0.0, 10.0, ascending=True)
     view_margin_px: float = within(40.0, 0.0, 10_000.0)
     never_view_share: float = within(0.0, 0.0, 1.0)
-    clearance_m: float = within(0.25, 0.0, 10.0)
+    clearance_m: float = within(0.35, 0.0, 10.0)
     # Routes run along the shortest chain of standable cells, their corners rounded by a Gaussian of route_smooth_m
     # (the office's: 0.4 m), which may cut across the cells within route_slack_m of standable ones, never occupied ones.
     route_smooth_m: float = within(0.2, 0.0, 10.0)
     route_slack_m: float = within(0.1, 0.0, 10.0)
     # The camera's operator: the cells within operator_radius_m of the fused frames' camera centres (on the floor)
-    # are occupied (a hand-held camera's operator stands there; fr1/rpy's centres stay within 0.15 m of their mean).
+    # are occupied (a hand-held camera's operator stands there; fr1/rpy's centres stay within 0.11 m of their mean).
     operator_radius_m: float = within(0.4, 0.0, 10.0)
     # Where people are seen (d2slam.synth.composite.person_visibility): a lattice of standable known-free cells every
     # vis_cell_m; a person there is a cylinder of body_half_width_m x body_half_depth_m, body_height_m tall, whose
-    # image share is its seen points' share times its box's image area times body_fill. Targets in view: cells where
-    # a person is seen at least vis_min_coverage in some frame, drawn by how much over the next vis_horizon_s; exits:
-    # cells never in view within exit_reach_m of a target.
+    # image share is the part of its outline within the image times body_fill times the share of its points there
+    # that are seen. Targets in view: cells where a person is seen at least vis_min_coverage in some frame, drawn by
+    # how often (the share of the frames) to the power vis_weight_power; exits: cells out of view within
+    # exit_reach_m of a target.
     vis_cell_m: float = within(0.2, 0.0, 10.0, lo_open=True)
     body_half_width_m: float = within(0.22, 0.0, 10.0, lo_open=True)
     body_half_depth_m: float = within(0.15, 0.0, 10.0, lo_open=True)
     body_height_m: float = within(1.75, 0.0, 10.0, lo_open=True)
     body_fill: float = within(0.6, 0.0, 1.0, lo_open=True)
     vis_min_coverage: float = within(0.01, 0.0, 1.0)
-    vis_horizon_s: float = within(3.0, 0.0, 1000.0)
+    vis_weight_power: float = within(2.0, 0.0, 100.0)
     exit_reach_m: float = within(2.0, 0.0, 100.0, lo_open=True)
     # The images (d2slam.synth.compositing). The people's colour is multiplied per channel by the recording's mean
     # colour (the median of every fuse_stride-th frame's mean) over the office's, office_rgb_mean: the mean RGB of the

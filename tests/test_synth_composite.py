@@ -88,3 +88,20 @@ def test_composite_refuses_bad_input():
         Scene("real_walking", 0, 10, True, None, rec)
     with pytest.raises(D2SlamError, match="--on-trajectory"):
         Scene("real_carry", 0, 10, False, None, None)
+
+
+def test_holes_are_filled_for_the_z_test_by_what_surrounds_them():
+    """A hole inside the registered depth (a black monitor the Kinect does not measure) takes the nearest depth on its
+    outline, so that nobody shows through it; the border the depth never covers takes the nearest valid pixel's."""
+    from d2slam.synth.compositing import filled_depth
+
+    z = np.full((60, 80), 3.0, np.float32)  # a wall at 3 m
+    z[20:40, 30:60] = 1.0  # a monitor at 1 m ...
+    z[24:36, 34:56] = 0.0  # ... whose screen is a hole
+    z[10:14, 5:9] = 0.0  # a hole in the wall
+    z[:5] = 0.0  # the border
+    z[30:50, 0:3] = 0.0
+    f = filled_depth(z, (5, 0, 3, 0))
+    assert np.all(f[24:36, 34:56] == 1.0) and np.all(f[10:14, 5:9] == 3.0)
+    assert np.all(f[:5, 40] == 3.0) and np.all(f[40, 0:3] == 3.0)
+    assert np.all(f > 0) and np.array_equal(f[z > 0], z[z > 0])

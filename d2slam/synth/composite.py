@@ -10,12 +10,13 @@ its images are the background, its ground truth the camera path, its camera and 
   their mean view along +y) and the free space (where a person can stand).
 - **Where people are seen** (:func:`person_visibility`): for a lattice of standable, known-free cells (every
   ``vis_cell_m``) and every fused frame, an estimate of the image share a person standing there covers: a body-sized
-  cylinder's points projected into the frame and tested against its depth (a point nearer than the real depth, or
-  over a hole, is seen), their seen share times the body's image area at its depth (``body_fill`` of its box).
+  cylinder's points projected into the frame, the part of their outline (convex hull) within the image, times
+  ``body_fill``, times the share of the points in the image that are seen (nearer than the real depth, or over one of
+  its holes, over which the composite draws them).
 - **The people** (:class:`RoomPlanner`, the benchmark's planner on the room's free space): targets "in view" are the
-  lattice cells where a person is ever seen (at least ``vis_min_coverage``), drawn with weights by how much a person
-  there will be seen over the next ``vis_horizon_s`` (people go where the camera is about to look), else by how much
-  over the whole recording; exits are standable cells never in view, within ``exit_reach_m`` of a target and
+  lattice cells where a person is ever seen (at least ``vis_min_coverage``), drawn with weights by how often a person
+  there is seen (the share of the frames, to the power ``vis_weight_power``: the camera of a hand-held recording
+  sweeps back and forth, so people keep to where it keeps coming back to); exits are standable cells never in view, within ``exit_reach_m`` of a target and
   reachable from it; routes follow the shortest chain of standable cells (A*). ``real_walking``: two walkers, as the
   fr3 walking people (without chairs to sit on: the room's chairs are part of the real background);
   ``real_carry``: one carries a box (resting on a target cell at the start; the box, too, keeps to standable cells),
@@ -79,23 +80,30 @@ def person_visibility(space, fused, M: np.ndarray, camera, t0: float, rgb_times:
     h = np.linspace(0.05, cc.body_height_m, 18)
     ring = np.stack([cc.body_half_width_m * np.cos(a), cc.body_half_depth_m * np.sin(a)], axis=1)
     offsets = np.concatenate([np.repeat(ring, len(h), axis=0), np.tile(h, len(a))[:, None]], axis=1)  # (S, 3)
+    import cv2
+
     Minv = np.linalg.inv(M)
     cov = np.zeros((len(xy), len(fused.frames)))
-    box = 2 * cc.body_half_width_m * cc.body_height_m * cc.body_fill * camera.fx * camera.fy
+    W, H = camera.width, camera.height
+    frame = np.array([[0, 0], [W, 0], [W, H], [0, H]], np.float32)
+    S = len(offsets)
     for f, z in enumerate(fused.depths):
         T = fused.row_poses[f][camera.height // 2]
         P = (np.concatenate([xy, np.zeros((len(xy), 1))], axis=1)[:, None] + offsets[None]).reshape(-1, 3)
         uv, zc = _project(P @ Minv[:3, :3].T + Minv[:3, 3], T, camera)
-        inside = (zc > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & \
-            (uv[:, 1] < camera.height)
+        front = zc > 0.1
+        inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
         idx = np.flatnonzero(inside)
         d = z[uv[idx, 1].astype(np.int64), uv[idx, 0].astype(np.int64)]
         seen = np.zeros(len(P), bool)
-        seen[idx] = (d <= 0) | (zc[idx] < d)
-        dist = np.maximum(np.median(zc.reshape(len(xy), -1), axis=1), 0.1)
-        cov[:, f] = np.minimum(seen.reshape(len(xy), -1).mean(axis=1) * box / dist ** 2 / (camera.width *
-                                                                                            camera.height), 1.0)
-    return Visibility(xy, np.asarray(rgb_times, float)[fused.frames] - t0, cov)
+        seen[idx] = (d <= 0) | (zc[idx] < d)  # the composite draws people over the real depth's holes
+        for j in np.flatnonzero(inside.reshape(len(xy), S).any(axis=1)):
+            pts = uv[j * S:(j + 1) * S][front[j * S:(j + 1) * S]].astype(np.float32)
+            hull = cv2.convexHull(pts)
+            area = cv2.intersectConvexConvex(hull, frame)[0]  # the body's outline within the image
+            n_in = int(inside[j * S:(j + 1) * S].sum())
+            cov[j, f] = area * cc.body_fill * seen[j * S:(j + 1) * S].sum() / max(n_in, 1) / (W * H)
+    return Visibility(xy, np.asarray(rgb_times, float)[fused.frames] - t0, np.clip(cov, 0.0, 1.0))
 
 
 _ROOMS: dict = {}
@@ -137,6 +145,7 @@ class RoomPlanner(Planner):
         super().__init__(rng, cfg, room.space, duration, [], objects)
         self.room, self.cc = room, composite
         vis = room.visibility
+        # how often a person at each lattice cell would be seen (the share of the fused frames)
         self.seen_share = (vis.coverage >= composite.vis_min_coverage).mean(axis=1) if vis.coverage.size else \
             np.zeros(0)
         self.targets = np.flatnonzero(self.seen_share > 0)
@@ -161,9 +170,6 @@ class RoomPlanner(Planner):
         if not near.any():
             raise D2SlamError(f"no standable floor out of view within {self.cc.exit_reach_m:g} m of where people are "
                               "seen: they could not walk in and out of view")
-        # only the targets a person can reach from an exit (the same connected floor)
-        ei, ej, _ = s.cells(xy[near])
-        self.targets = self.targets[np.isin(lab[ti, tj], np.unique(lab[ei, ej]))]
         return xy[near]
 
     def _now(self) -> float:
@@ -172,11 +178,7 @@ class RoomPlanner(Planner):
 
     def in_view_point(self) -> np.ndarray:
         vis = self.room.visibility
-        t = self._now()
-        window = (vis.t >= t) & (vis.t <= t + self.cc.vis_horizon_s)
-        w = vis.coverage[self.targets][:, window].sum(axis=1) if window.any() else np.zeros(len(self.targets))
-        if w.sum() <= 0:
-            w = self.seen_share[self.targets]
+        w = self.seen_share[self.targets] ** self.cc.vis_weight_power
         k = self.targets[int(self.rng.choice(len(self.targets), p=w / w.sum()))]
         return vis.xy[k] + self.rng.uniform(-0.5, 0.5, 2) * self.cc.vis_cell_m
 

@@ -11,13 +11,14 @@ ground truth interpolated at every instant a row of an image is taken.
   sub-frame's instant. It goes through the benchmark's Kinect model (``d2slam.synth.sensor``: the depth noise and
   quantisation, holes at the depth edges the people make, hole blobs on them) and the projector's shadow the people
   cast on what lies behind them (``twin.shadow_holes``). Then the z-test: a pixel shows a person where the person's
-  noisy depth is nearer than the real depth, or the real depth is a hole; elsewhere the real depth is kept as it
-  was, untouched. The border the registered depth never covers stays a hole.
+  noisy depth is nearer than the real depth, its holes filled (:func:`filled_depth`: a hole takes the nearest depth on
+  its outline, so that nobody shows through a black monitor the Kinect does not measure); elsewhere the real depth is
+  kept as it was, untouched. The border the registered depth never covers stays a hole.
 - **Colour** (:func:`composite_colour`): the people are rendered with their alpha (the share of a pixel's samples they
   cover, 4x multisampling) in sub-frames spread over each row's exposure (``exposure``, ``rgb_time_shift``,
   ``row_readout``: the motion blur and rolling shutter measured on the recording), each sub-frame z-tested against the
-  real scene's depth at the colour instant: the real depth image moved from the instants its rows were taken to the
-  colour image's (:func:`real_depth_at_colour`: every valid real depth pixel back-projected through the lens with
+  real scene's depth at the colour instant: the real depth image, its holes filled, moved from the instants its rows
+  were taken to the colour image's (:func:`real_depth_at_colour`: every valid real depth pixel back-projected through the lens with
   its row's pose and projected into the colour image with its row's pose, the nearest kept, one-pixel cracks
   filled). The real image is the background: ``out = real (1 - A) + g C`` with ``C`` the people's premultiplied
   colour and ``A`` their coverage averaged over the exposure, ``g`` the recording's exposure and white balance
@@ -104,6 +105,43 @@ def colour_gain(scene) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # the real scene's depth at the colour image's instants
 # --------------------------------------------------------------------------------------------------
+def filled_depth(real_z: np.ndarray, border) -> np.ndarray:
+    """(H, W) float32: the real depth with its holes filled for the z-test, so that nobody shows through what the
+    Kinect did not measure: a hole inside the registered depth's border takes the nearest depth on its outline (a
+    black monitor screen takes its frame's or the desk's in front of it; the projector's shadow beside an edge the
+    nearer side's); the border the registered depth never covers (``TwinConfig.depth_border``), and the holes that
+    reach it, take the nearest valid pixel's depth. All 0 when no pixel is valid."""
+    z = np.asarray(real_z, np.float32)
+    hole = z <= 0
+    if not hole.any() or hole.all():
+        return z.copy()
+    H, W = z.shape
+    top, bottom, left, right = border
+    edge = np.ones((H, W), bool)
+    edge[top:H - bottom, left:W - right] = False
+    n, lab = cv2.connectedComponents(hole.view(np.uint8), connectivity=4)
+    outer = np.unique(lab[edge & hole])
+    low = np.full(n, np.inf, np.float32)  # each hole's nearest depth on its outline
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        a = lab[max(dy, 0):H + min(dy, 0), max(dx, 0):W + min(dx, 0)]  # a hole pixel ...
+        b = z[max(-dy, 0):H + min(-dy, 0), max(-dx, 0):W + min(-dx, 0)]  # ... and its valid neighbour
+        sel = (a > 0) & (b > 0)
+        np.minimum.at(low, a[sel], b[sel])
+    low[outer] = np.inf
+    out = z.copy()
+    inner = hole & np.isfinite(low[lab])
+    out[inner] = low[lab[inner]]
+    rest = out <= 0
+    if rest.any():  # the border's holes: the nearest valid pixel's depth
+        # every pixel's label: that of the nearest valid pixel (each valid pixel its own)
+        _, near = cv2.distanceTransformWithLabels(rest.view(np.uint8), cv2.DIST_L2, 5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+        valid = ~rest
+        values = np.zeros(int(near.max()) + 1, np.float32)
+        values[near[valid]] = out[valid]
+        out[rest] = values[near[rest]]
+    return out
+
 def _project(Xw: np.ndarray, T: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
     """(pixels (N, 2) through the lens, depth (N,)) of world points Xw (N, 3) in the cameras T (N, 4, 4) or (4, 4)."""
     from d2slam.synth.twin import distort_normalised
@@ -117,6 +155,11 @@ def _project(Xw: np.ndarray, T: np.ndarray, camera) -> tuple[np.ndarray, np.ndar
         x = distort_normalised(np.clip(x, -2.0, 2.0), camera.dist)
     K = camera.K
     return np.stack([x[:, 0] * K[0, 0] + K[0, 2], x[:, 1] * K[1, 1] + K[1, 2]], axis=1), z
+
+
+def depth_png(z: np.ndarray, factor: float) -> np.ndarray:
+    """A depth image (float32 m, read from a 16-bit PNG of ``factor`` steps a metre) as its PNG values again."""
+    return np.rint(np.asarray(z, np.float64) * float(factor)).astype(np.uint16)
 
 
 def real_depth_at_colour(scene, real_z: np.ndarray, depth_rows_t: np.ndarray, colour_rows_t: np.ndarray) -> np.ndarray:
@@ -186,14 +229,15 @@ def composite_depth(scene, renderer, poser, i: int, real_z: np.ndarray, rng) -> 
     cfg, cc = scene.cfg, scene.cfg.composite
     start, end, windows = depth_windows(scene, i)
     zp, idp, canvas, nd = depth_rows(scene, renderer, start, end, windows, at=poser)
-    real_png = np.rint(real_z * cfg.depth_factor).astype(np.uint16)
+    real_png = depth_png(real_z, cfg.depth_factor)
     person = zp > 0
     if not person.any():
         return {"depth": real_png, "ids": np.zeros(zp.shape, np.uint8), "zp": zp, "canvas": canvas, "subframes": nd}
-    front = person & ((real_z <= 0) | (zp < real_z))
+    behind = filled_depth(real_z, cfg.twin.depth_border)  # the real scene, its holes filled
+    front = person & (zp < behind)
     noisy = depth_to_png(np.where(front, zp, 0.0).astype(np.float32), rng, cfg, holes=False)
     zn = noisy.astype(np.float32) / np.float32(cfg.depth_factor)
-    shown = front & ((real_z <= 0) | (zn < real_z))  # the z-test on the measured depth: the nearer surface wins
+    shown = front & (zn < behind)  # the z-test on the measured depth: the nearer surface wins
     combined = np.where(shown, zp, real_z).astype(np.float32)
     far, edge, blob = depth_holes(combined, rng, cfg)
     k = np.ones((2 * cc.edge_band_px + 1,) * 2, np.uint8)
@@ -269,13 +313,13 @@ def render_composite_frame(scene, renderer, i: int) -> dict:
     clock.lap("bodies")
     if quiet:
         zeros = np.zeros((H, cfg.width), np.uint8)
-        depth = np.rint(real_z * cfg.depth_factor).astype(np.uint16)
+        depth = depth_png(real_z, cfg.depth_factor)
         return {"rgb": real_rgb, "depth": depth, "depth_clean": real_z, "mask_gt": zeros, "mask_depth": zeros,
                 "mask_sim": zeros, "pose": scene.camera.poses([t])[0], "subframes": 0, "depth_subframes": 0,
                 "ms": clock.ms, "cpu_ms": clock.cpu_ms}
     d = composite_depth(scene, renderer, poser, i, real_z, rngs[0])
     clock.lap("depth")
-    real_col = real_depth_at_colour(scene, real_z, dwin[:, 0], cwin.mean(axis=1))
+    real_col = real_depth_at_colour(scene, filled_depth(real_z, tw.depth_border), dwin[:, 0], cwin.mean(axis=1))
     clock.lap("warp")
     c = composite_colour(scene, renderer, poser, i, real_rgb, real_col, d["canvas"], ids_all)
     clock.lap("colour")

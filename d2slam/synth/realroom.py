@@ -17,9 +17,11 @@ from the recording itself (``CompositeConfig``; the measurements: docs/real_peop
 - **Free space** (:class:`FreeSpace`): a grid of ``cell_m`` cells on the floor. A cell is *occupied* when the fused
   depth holds at least ``occupied_points`` points above it between ``body_low_m`` and ``body_high_m`` (furniture,
   walls); *seen free* when it is not occupied and either the floor was seen there (``floor_points`` fused points) or
-  the frames' depth looked through the space above it: each of its points at ``probe_heights_m`` that some fused
-  frame held in its image projects onto a depth at least ``see_through_m`` farther in at least ``seen_frames`` frames,
-  and at least one of them does; *in view* by the share of frames whose image (grown by ``view_margin_px``) holds any of its points at
+  the frames' depth looked through the space above it: at least one of its points at ``probe_heights_m`` projects
+  onto a depth at least ``see_through_m`` farther in at least ``seen_frames`` frames, and each of the others either
+  does too or was never seen with a surface at it (within ``see_through_m``: never in view, or always hidden behind
+  nearer surfaces or over holes). So the space behind a desk counts as free when the space above the desk is seen
+  through: whatever stands hidden there is hidden in every frame, and so is whatever part of a person the z-test hides; *in view* by the share of frames whose image (grown by ``view_margin_px``) holds any of its points at
   ``view_heights_m``. A person may stand where
   no occupied cell lies within ``clearance_m`` and the cell is seen free, or never in view (``never_view_share``):
   where no frame shows the space, whatever stands there is never seen and nothing is known of it; where a frame
@@ -316,14 +318,14 @@ def free_space(fused: Fused, M: np.ndarray, camera, cfg) -> FreeSpace:
     floor_seen = count(np.abs(h) <= cc.floor_band_m) >= cc.floor_points
     through, probed, view, near_view = _seen_and_view(fused, M, camera, lo, shape, cfg)
     clear = through >= cc.seen_frames
-    known = ~occupied & (floor_seen | ((clear | (probed == 0)).all(axis=0) & clear.any(axis=0)))
+    known = ~occupied & (floor_seen | ((clear | (probed == 0)).all(axis=0) & clear.any(axis=0)))  # probed: touched
     return FreeSpace(lo, cc.cell_m, occupied, known, view, near_view, cfg)
 
 
 def _seen_and_view(fused: Fused, M, camera, origin, shape, cfg) -> tuple[np.ndarray, ...]:
     """((P, nx, ny) how many fused frames looked through the space ``probe_heights_m`` above each cell (a depth at
-    least ``see_through_m`` beyond the probe, at the probe's pixel), (P, nx, ny) how many held the probe in their
-    image, (nx, ny) the share of fused frames whose image
+    least ``see_through_m`` beyond the probe, at the probe's pixel), (P, nx, ny) how many saw a surface at the probe
+    (a depth within ``see_through_m`` of it), (nx, ny) the share of fused frames whose image
     holds any of the cell's points at ``view_heights_m``, (nx, ny) the same share with the image grown by
     ``view_margin_px``)."""
     cc = cfg.composite
@@ -356,7 +358,7 @@ def _seen_and_view(fused: Fused, M, camera, origin, shape, cfg) -> tuple[np.ndar
             idx = np.flatnonzero(inside)
             d = z[uv[idx, 1].astype(np.int64), uv[idx, 0].astype(np.int64)]
             through[j, idx] += (d > 0) & (d >= zc[idx] + cc.see_through_m)
-            probed[j, idx] += 1
+            probed[j, idx] += (d > 0) & (np.abs(d - zc[idx]) < cc.see_through_m)  # a surface at the probe
     n = max(len(fused.depths), 1)
     P = (len(heights),) + tuple(shape)
     return (through.reshape(P), probed.reshape(P), (in_view / n).reshape(shape), (near_view / n).reshape(shape))
