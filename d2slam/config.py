@@ -337,6 +337,15 @@ class DynamicsConfig(_Checked):
     # neighbour_p_g) is no OIM candidate either. Off because it lowers the recall at a given static precision, the
     # keypoint target (docs/deviations.md).
     oim_skip_neighbour_static: bool = flag(False)
+    # eq 9 (ours): a person's interaction zone exists only while the person moves: more of the matched keypoints on
+    # its mask fail the geometric test (eq 5 or the pose test) than the thresholds' false alarms explain, a one-sided
+    # binomial test at oim_moving_alpha with the false-alarm rate 1 - noise_confidence. A still person (seated behind
+    # a desk) moves no object, and each false alarm near it would otherwise turn its neighbours dynamic. A mask with
+    # fewer than oim_moving_min matched keypoints cannot be told still and keeps its zone. False = the paper's OIM
+    # (every person). See interaction.moving_masks; measured: docs/deviations.md.
+    oim_moving_test: bool = flag(True)
+    oim_moving_alpha: float = within(0.01, 0.0, 1.0, lo_open=True, hi_open=True)
+    oim_moving_min: int = within(5, 1, 100_000)
     # eq 4-5: fundamental matrix by RANSAC (OpenCV), seeded for determinism.
     f_ransac_threshold_px: float = within(1.0, 0.0, 100.0, lo_open=True)
     f_ransac_confidence: float = within(0.999, 0.0, 1.0, lo_open=True, hi_open=True)
@@ -1405,6 +1414,28 @@ class EvalConfig(_Checked):
 
 
 @dataclass(frozen=True)
+class OnlineConfig(_Checked):
+    """An online run (``d2slam run --online``, ``d2slam.online``): frames replayed at the sensor's rate, the
+    segmenter in its own thread, a frame the tracker cannot take in time dropped. Offline runs read none of it."""
+
+    # Frames arrive at this rate (Hz); 0: at their own timestamps (the recording's rate and its jitter).
+    rate_hz: float = within(0.0, 0.0, 1000.0)
+    # The mask a frame reads: "latest", the newest the segmenter has finished (of an earlier frame: tracking never
+    # waits for its own), at most mask_max_age_s older, as NGD-SLAM carries its masks forward; "off", none (the
+    # segmenter does not run; eq 7 has no mask area: matched keypoints take P_g, unmatched ones 0.5, and eq 8
+    # carries their belief). A frame whose mask is too old reads none either.
+    masks: str = one_of("latest", "latest", "off")
+    mask_max_age_s: float = within(0.2, 0.0, 10.0)
+    # Ours: a mask of an earlier frame lags its person by the segmenter's latency (about 3 frames at 30 Hz); each
+    # person is moved on by its centroid's motion between the segmenter's two newest results, matched to the
+    # previous person nearest it within mask_match_px (measured: docs/online.md).
+    mask_motion: bool = flag(True)
+    mask_match_px: float = within(80.0, 0.0, 10000.0)
+    # onnxruntime's intra-op threads of the segmenter's thread (the tracker has the other core).
+    segmenter_threads: int = within(1, 1, 64)
+
+
+@dataclass(frozen=True)
 class Config(_Checked):
     # The engine initialises on a frame with init_min_keypoints keypoints with depth: fewer features never track.
     _RULES = (rule(("orb.n_features", "engine.init_min_keypoints"), lambda n, k: n >= k,
@@ -1421,6 +1452,7 @@ class Config(_Checked):
     data: DataConfig = section(DataConfig)
     study: StudyConfig = section(StudyConfig)
     evaluation: EvalConfig = section(EvalConfig)
+    online: OnlineConfig = section(OnlineConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

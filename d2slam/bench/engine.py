@@ -41,6 +41,10 @@ def add_arguments(parser) -> None:
                         "`none` <= 2x its twin target); default: the cached twin when SEQ is the default")
     parser.add_argument("--methods", nargs="+", default=["none", "d2slam"], help="--against: our methods to run")
     parser.add_argument("--repeats", type=int, default=3, help="--against: ORB-SLAM3 runs (median [min, max])")
+    parser.add_argument("--online", action="store_true", help="online at --rate: `d2slam bench online` (its options: "
+                        "SEQ, --seeds, --frames)")
+    parser.add_argument("--rate", type=float, default=30.0, help="--online: frames arrive at this rate (Hz)")
+    parser.add_argument("--no-real", action="store_true", help="--online: without the real fr1/rpy")
 
 
 # ---------------------------------------------------------------------------------------------- accuracy / speed
@@ -80,6 +84,15 @@ def _fmt(row: dict) -> str:
 
 
 def run(args) -> int:
+    if args.online:
+        import argparse
+
+        from d2slam.bench import online
+        from d2slam.study.grid import DEFAULT_FRAMES
+
+        return online.run(argparse.Namespace(sequences=[args.sequence] if args.sequence else [],
+                                             seeds=args.seeds or [args.seed], frames=args.frames or DEFAULT_FRAMES,
+                                             rate=args.rate, no_real=args.no_real, json=args.json, latency=None))
     if args.compare_optimisers:
         return compare_optimisers(args)
     if args.loops:
@@ -207,7 +220,9 @@ def loops(args) -> int:
         false = sum(len(r.get("loops_false", [])) for r in on_rows if r["method"] == method)
         print(f"{method}: ATE with / without loop closing, median over seeds {np.median(ratio):.2f} "
               f"(per seed {', '.join(f'{x:.2f}' for x in ratio)}); false loops {false}")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}")
+    from d2slam.bench.online import loadavg
+
+    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1, default=float)
@@ -346,21 +361,9 @@ def compare_optimisers(args) -> int:
 
 # ---------------------------------------------------------------------------------------------- against ORB-SLAM3
 def _engine_run(seq, method: str, out) -> dict:
-    """``d2slam run SEQ --method METHOD`` in a child process (as a user runs it); its run JSON."""
-    import subprocess
-    import sys
+    from d2slam.bench.online import engine_run
 
-    traj, js = out / f"{method}.txt", out / f"{method}.json"
-    js.unlink(missing_ok=True)
-    proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
-                           "--metrics-json", str(js), "--quiet"], capture_output=True, text=True)
-    from d2slam.commands.run import EXIT_FRAGMENT
-
-    if proc.returncode not in (0, EXIT_FRAGMENT) or not js.is_file():
-        tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
-        return {"method": method, "status": "failed", "message": tail}
-    run = json.loads(js.read_text())
-    return {**run, "status": "fragment" if run.get("fragment") else "ok"}  # a fragment ran: its timings count
+    return engine_run(seq, method, out)
 
 
 def engine_ms_per_frame(run: dict) -> float:
@@ -428,11 +431,7 @@ def against_orbslam3(args) -> int:
               f"{str(r.get('map_points', '-')):>7} {ate_s} {ms_s} {ratio}  {stages}")
     if none_ms and twin_ms:
         print(f"none on the sequence / none on its static twin: {none_ms / twin_ms:.2f}x")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}; runs and trajectories in {out}")
+    from d2slam.bench.online import loadavg
+
+    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}; runs and trajectories in {out}")
     return 0
-
-
-def _loadavg() -> tuple:
-    import os
-
-    return os.getloadavg()

@@ -52,7 +52,8 @@ from d2slam.dynamics import depth as dz
 from d2slam.dynamics.fusion import bayes_update, check_edge_band, edge_band, fuse, prior_belief
 from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import check_matches, geometric_module
-from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_g, oim_candidates, oim_frame
+from d2slam.dynamics.interaction import (MatchedPoints, mask_depths, moving_masks, neighbour_p_g, oim_candidates,
+                                         oim_frame)
 from d2slam.dynamics.semantic import FrameMasks, semantic_module
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
@@ -271,8 +272,9 @@ class D2SlamFilter:
         if not self.switches.oim:
             return None, None
         cand = oim_candidates(bel, geo.observed, geo.dynamic, self.cfg, p_nb)
+        moving = moving_masks(fm, geo.observed, geo.dynamic, self.cfg)
         return oim_frame(fm, kps, maps, z_n, sem.d, margin, cand, geo.dynamic, self.cfg, self.switches.depth,
-                         matched)
+                         matched, moving)
 
 
 class _OneModule:

@@ -202,9 +202,33 @@ def object_interaction(kps: np.ndarray, z: np.ndarray, candidate: np.ndarray, dy
     return flip, centroid
 
 
+def moving_masks(fm: FrameMasks, observed: np.ndarray, dynamic: np.ndarray,
+                 cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """eq 9 (ours, ``DynamicsConfig.oim_moving_test``): (n,) bool, whether each person moves this frame: of the m
+    matched keypoints on its mask (``observed``), d failed the geometric test (``dynamic``), and a binomial tail
+    P(X >= d | m, 1 - noise_confidence) below ``oim_moving_alpha`` says more failed than the thresholds' false alarms
+    explain. A mask with fewer than ``oim_moving_min`` matched keypoints counts as moving (it cannot be told still);
+    an empty mask as still. Without the test every mask moves (the paper's OIM)."""
+    from scipy.stats import binom
+
+    n = len(fm.edges)
+    if not cfg.oim_moving_test:
+        return np.ones(n, dtype=bool)
+    observed = np.asarray(observed, dtype=bool)
+    dynamic = np.asarray(dynamic, dtype=bool) & observed
+    out = np.zeros(n, dtype=bool)
+    for k, inside in enumerate(fm.inside):  # loop over masks only
+        if inside is None:
+            continue
+        m, d = int((inside & observed).sum()), int((inside & dynamic).sum())
+        out[k] = m < cfg.oim_moving_min or binom.sf(d - 1, m, 1.0 - cfg.noise_confidence) < cfg.oim_moving_alpha
+    return out
+
+
 def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray, d: np.ndarray, known: float,
               candidates: np.ndarray, dynamic: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
-              use_depth: bool = True, matched: MatchedPoints | None = None) -> tuple[np.ndarray, np.ndarray]:
+              use_depth: bool = True, matched: MatchedPoints | None = None,
+              moving: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """eq 9-10 for one frame, reusing the semantic module's work: (zone (N,) bool, oim (N,) bool).
 
     ``fm`` the frame's ``FrameMasks`` (edges, trees, pixel lookups, bounding-box distances), ``maps`` its
@@ -219,6 +243,8 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     3. the exact zone (eq 9, the test of ``interaction_zone``) on those rows only: distances beyond ``known`` are
        searched again up to the zone's reach with the mask's cached edge trees.
 
+    ``moving`` (optional (n,) bool, :func:`moving_masks`): only these masks have a zone.
+
     ``zone`` is the zone flag where step 3 ran (False elsewhere), and ``oim = zone`` (those keypoints flip)."""
     n = len(maps.z)
     zone = np.zeros(n, dtype=bool)
@@ -229,13 +255,16 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     finite = fm.kp.finite
     reach = cfg.zone_factor * delta(z_n, cfg, use_depth)
     zn_ok = valid_depth(z_n)
+    still = np.zeros(len(edges), dtype=bool) if moving is None else ~np.asarray(moving, dtype=bool)
+    if still.all():  # a still person has no zone
+        return zone, zone.copy()
     with np.errstate(invalid="ignore"):
         near_depth = [maps.valid & (np.abs(z - z_n[k]) < cfg.zone_depth) for k in range(len(edges))] \
             if use_depth else None
     # 1. candidates
     cand = np.zeros(n, dtype=bool)
     for k, e in enumerate(edges):  # loop over masks only
-        if e.empty or (use_depth and not zn_ok[k]):
+        if e.empty or still[k] or (use_depth and not zn_ok[k]):
             continue
         ok = fm.box[k] <= reach[k]
         if use_depth:
@@ -253,6 +282,8 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     for k, e in enumerate(edges):  # loop over masks only
         dk = d[rows, k]
         depth_ok = near_depth[k][rows] if use_depth else None
+        if still[k]:
+            continue
         if not (e.empty or e.full or reach[k] <= known) and (zn_ok[k] or not use_depth):
             sel = (dk <= -known) & finite[rows]
             if use_depth:
