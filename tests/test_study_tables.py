@@ -302,6 +302,22 @@ def test_sequence_cache_key_names_generator(tmp_path):
     assert not is_complete(p)
 
 
+def test_composite_cache_key_names_recording_and_generator(tmp_path):
+    """A composite is cached by its recording (name and a digest of its lists), scenario, seed, frames and the
+    generator version: another recording of the same name, or a changed list, is another composite."""
+    from d2slam.study.sequences import composite_dir, generator_version
+
+    rec = tmp_path / "rgbd_dataset_freiburg1_rpy"
+    rec.mkdir()
+    for n in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+        (rec / n).write_text(f"# {n}\n")
+    p = composite_dir("real_walking", 101, 0, rec, root=tmp_path)
+    assert p.name.startswith("real_walking_on_rgbd_dataset_freiburg1_rpy-") and p.name.endswith(
+        f"_s101_n0-{generator_version()}")
+    (rec / "rgb.txt").write_text("# changed\n")
+    assert composite_dir("real_walking", 101, 0, rec, root=tmp_path) != p
+
+
 def test_short_tracking_is_flagged():
     df = _runs()
     df.loc[(df["method"] == "d2slam") & (df["twin"] == 0), "frames_tracked"] = [30, 60, 20]  # median 50 %
