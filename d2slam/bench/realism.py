@@ -327,13 +327,16 @@ def run_composite(args) -> int:
         a, z = column(rows, "area"), column(rows, "depth")
         print(f"    {name:<22} {'/'.join(f'{v:.3f}' for v in np.percentile(a, (10, 50, 90)))}; "
               f"{'/'.join(f'{v:.2f}' for v in np.nanpercentile(z, (10, 50, 90)))} ({len(rows)} people)")
-    print(f"  {'':<24} {'people':>6} {'detected':>9} {'upright':>9}")
+    print("  detection rate of the people: as recorded, upright (the camera's roll undone), isolated (upright, the "
+          "background grey)")
+    print(f"  {'':<24} {'people':>6} {'detected':>9} {'upright':>9} {'isolated':>9}")
     verdicts = []
     for name, rows in [(q.root.name, [r for r in comp if r["sequence"] == q.root.name]) for q in seqs] + \
             [("all composites", comp), ("synthetic office", office)]:
         n, r0 = rate(rows)
         _, r1 = rate(rows, "iou_upright")
-        print(f"  {name:<24} {n:>6} {r0:9.3f} {r1:9.3f}")
+        _, r2 = rate(rows, "iou_isolated")
+        print(f"  {name:<24} {n:>6} {r0:9.3f} {r1:9.3f} {r2:9.3f}")
         if name == "all composites":
             verdicts.append(f"detection >= {ev.seg_eval_target:g}: {r0:.3f} {'met' if r0 >= ev.seg_eval_target else 'NOT met'}"
                             f" (upright {r1:.3f} {'met' if r1 >= ev.seg_eval_target else 'NOT met'})")
@@ -347,7 +350,7 @@ def run_composite(args) -> int:
         print(f"    {label:<8} {rc:6.3f} [{nc:>4}]  {ro:6.3f} [{no:>4}]")
     print("  mean IoU by the person's median depth (people >= the area threshold): composites, office, difference")
     ok_all = True
-    for key, what in (("iou", "as recorded"), ("iou_upright", "upright")):
+    for key, what in (("iou", "as recorded"), ("iou_upright", "upright"), ("iou_isolated", "isolated")):
         big_c, big_o = column(comp, "area") >= lo, column(office, "area") >= lo
         tc = depth_bin_table(column(comp, "depth")[big_c], column(comp, key)[big_c], ev.seg_eval_depth_bins)
         to = depth_bin_table(column(office, "depth")[big_o], column(office, key)[big_o], ev.seg_eval_depth_bins)
@@ -359,7 +362,7 @@ def run_composite(args) -> int:
                 ok_all &= within
             print(f"      {label:<12} {mc:6.3f} [{nc:>4}]  {mo:6.3f} [{no:>4}]  {d:+6.3f}"
                   + ("" if not (nc and no) else ("" if within else "  (beyond 0.1)")))
-    for key, what in (("iou", "as recorded"), ("iou_upright", "upright")):
+    for key, what in (("iou", "as recorded"), ("iou_upright", "upright"), ("iou_isolated", "isolated")):
         m = matched(comp, office, ev.seg_eval_depth_bins, key, lo, thr)
         print(f"  matched distance and coverage ({what}): {m['people']} composited people ({m['unmatched']} in cells "
               f"the office lacks): detection {m['composite_rate']:.3f} against the office's {m['office_rate']:.3f}, "

@@ -9,7 +9,8 @@ up to about 50 degrees, the fr3 walking sequences hardly). A composite's person 
 shows that person (``mask_depth``: the depth is taken at another instant than the colour).
 
 The same frames are also segmented *upright*: turned about the image centre by the roll (onto a canvas that holds the
-whole turned image), the masks turned back: what the segmenter makes of the same people without the camera's roll.
+whole turned image), the masks turned back: what the segmenter makes of the same people without the camera's roll;
+and *isolated*: upright, every pixel outside the objects' truth masks grey: the people without the background.
 
 The comparison at matched distance and coverage (:func:`matched`): the office's people weighted so that their
 histogram over (depth bin, area bin) is the composite's.
@@ -51,6 +52,19 @@ def upright_masks(segmenter, rgb: np.ndarray, roll: float) -> list[np.ndarray]:
     return out
 
 
+def _variants(segmenter, rgb, ids, people: list[dict], roll: float) -> None:
+    """``iou_upright`` and ``iou_isolated`` of each row of ``people`` (module docstring), in place."""
+    if not people:
+        return
+    pids = [r["id"] for r in people]
+    grey = rgb.copy()
+    grey[ids == 0] = 128
+    for key, img in (("iou_upright", rgb), ("iou_isolated", grey)):
+        iou = person_ious(ids, pids, upright_masks(segmenter, img, roll))
+        for r, row in zip(people, iou):
+            r[key] = float(row.max()) if row.size else 0.0
+
+
 def composite_rows(seq, segmenter, stride: int = 5, upright: bool = True) -> list[dict]:
     """One row per person visible in every ``stride``-th frame of the composite ``seq`` (a ``SyntheticSequence``):
     ``frame``, ``id``, ``area``, ``depth`` (median of its pixels in the depth image), ``iou`` (the segmenter on the
@@ -74,10 +88,8 @@ def composite_rows(seq, segmenter, stride: int = 5, upright: bool = True) -> lis
         masks = [p.mask for p in segmenter(f.rgb)]
         roll = roll_deg(seq.gt_pose(f.timestamp))
         people = frame_rows(ids, zmap, pids, masks)
-        if upright and people:
-            iou_up = person_ious(ids, [r["id"] for r in people], upright_masks(segmenter, f.rgb, roll))
-            for r, row in zip(people, iou_up):
-                r["iou_upright"] = float(row.max()) if row.size else 0.0
+        if upright:
+            _variants(segmenter, f.rgb, ids, people, roll)
         rows += [dict(r, frame=i, roll=roll) for r in people]
     return rows
 
@@ -105,11 +117,8 @@ def office_rows(scenarios, seeds, frames: int, stride: int, segmenter, config, u
                     masks = [p.mask for p in segmenter(f["rgb"])]
                     roll = roll_deg(f["pose"])
                     people = frame_rows(f["mask_gt"], f["depth_clean"], scene.person_ids, masks)
-                    if upright and people:
-                        iou_up = person_ious(f["mask_gt"], [r["id"] for r in people],
-                                             upright_masks(segmenter, f["rgb"], roll))
-                        for r, row in zip(people, iou_up):
-                            r["iou_upright"] = float(row.max()) if row.size else 0.0
+                    if upright:
+                        _variants(segmenter, f["rgb"], f["mask_gt"], people, roll)
                     rows += [dict(r, scenario=scenario, seed=seed, frame=int(i), roll=roll) for r in people]
                     bar.update()
             finally:
