@@ -41,7 +41,8 @@ def register(sub) -> None:
                    "truth: its dynamic truth (persons and moving objects), what --method oracle always uses")
     p.add_argument("--masks-from", metavar="SEQUENCE_DIR", default=None,
                    help="read the masks from this sequence instead (same frames and timestamps), e.g. --method "
-                   "oracle on a static twin with its dynamic sequence: the occluded twin of the study")
+                   "oracle on a static twin with its dynamic sequence, or on a real recording with a composite made "
+                   "of it (d2slam synth real_walking --on): the occluded twin of the study")
     p.add_argument("--camera", metavar="fr1|fr2|fr3|FILE.yaml", default=None,
                    help="camera of a TUM-layout folder: fr1/fr2/fr3, or an ORB-SLAM3 RGB-D settings YAML (Camera.fx, "
                    "..., DepthMapFactor, ThDepth; old Camera.* or new Camera1.* keys) for any other RGB-D camera "
@@ -118,11 +119,13 @@ def run(args) -> int:
     if args.no_loop_closing:
         config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, loop_closing=False))
     seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
-    synthetic = isinstance(seq, SyntheticSequence)
     _warn_depth_scale(seq, config)
     if args.online or args.deterministic:
         return run_online_command(args, seq, config, out)
     mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
+    # the truth masks of --masks-from a synthetic sequence serve a real one too (a composite's recording: the
+    # occluded twin)
+    synthetic = isinstance(seq, SyntheticSequence) or isinstance(mask_seq, SyntheticSequence)
     run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
                      progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
     engine, masks_kind, ev = run.engine, run.masks, run.evaluation

@@ -157,9 +157,14 @@ def _downloaded(tum_root, scenarios: list[str]) -> list[str]:
 def _dry_run(specs) -> int:
     from d2slam.study.sequences import is_complete, sequence_dir
 
+    from d2slam.study.core import _composite_cached
+
     keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    cached = [k for k in keys if k[0] == "synth" and is_complete(sequence_dir(*k[1:]))]
-    print(f"{len(specs)} runs on {len(keys)} sequences ({len(cached)} already cached)")
+    cached = [k for k in keys if (k[0] == "synth" and is_complete(sequence_dir(*k[1:])))
+              or (k[0] == "composite" and not k[4] and _composite_cached(k, {}))]
+    real = [k for k in keys if k[0] in ("tum", "real") or (k[0] == "composite" and k[4])]
+    print(f"{len(specs)} runs on {len(keys)} sequences ({len(cached)} already cached"
+          + (f"; {len(real)} of them real recordings" if real else "") + ")")
     for s in specs:
         print(f"  {s.run_id}")
     return 0
