@@ -3,8 +3,9 @@
 Each part declares its settings beside it, every field with its valid range (:mod:`d2slam.ranges`): the data's
 (``d2slam.data.config``), the engine's (``d2slam.slam.config``), the paper's modules' (``d2slam.dynamics.config``),
 the segmenter's (``d2slam.segmentation.config``), the synthetic benchmark's (``d2slam.synth.config``), the
-evaluation's (``d2slam.eval.config``), the baselines' (``d2slam.baselines.config``), and here the study scheduler's
-(``StudyConfig``: the study sits above the run path, which reads this module). ``Config`` composes them as the
+evaluation's (``d2slam.eval.config``), the baselines' (``d2slam.baselines.config``), and here the online runs'
+(``OnlineConfig``) and the study scheduler's (``StudyConfig``): the run path and the study sit above this module and
+read it. ``Config`` composes them as the
 sections of a config file (``--config FILE.yaml``: ``section: {field: value}``); ``Config.hash()`` identifies a
 configuration in results. ``CliConfig`` composes what the commands around a run announce and check, which changes no
 number of a run.
@@ -32,18 +33,19 @@ from d2slam.dynamics.config import DynamicsConfig, FlowConfig, OursConfig, PoseT
 from d2slam.errors import D2SlamError
 from d2slam.eval.config import BelongsConfig, EvalConfig
 from d2slam.progress import ProgressConfig
-from d2slam.ranges import Checked, ConfigError, Range, build_section, name_sections, overridden, section, within
+from d2slam.ranges import (Checked, ConfigError, Range, build_section, flag, name_sections, one_of, overridden, section,
+                           within)
 from d2slam.segmentation.config import SegmentationConfig
 from d2slam.slam.config import (EngineConfig, KeyframeConfig, LoopConfig, MappingConfig, OrbConfig, RelocalisationConfig,
                                 SlamConfig, TrackingConfig)
-from d2slam.synth.config import (SYNTH_CAMERA, ActorsConfig, BodyConfig, BodyMotionConfig, ClothConfig, HoldingConfig,
-                                 SegSimConfig, SittingConfig, SynthConfig, SynthEvalConfig, TwinConfig)
+from d2slam.synth.config import (SYNTH_CAMERA, ActorsConfig, BodyConfig, BodyMotionConfig, ClothConfig, CompositeConfig,
+                                 HoldingConfig, SegSimConfig, SittingConfig, SynthConfig, SynthEvalConfig, TwinConfig)
 
 __all__ = ["ActorsConfig", "BaselineConfig", "BelongsConfig", "BodyConfig", "BodyMotionConfig", "CacheConfig", "CLI",
-           "CliConfig", "ClothConfig", "Config", "ConfigError", "DataConfig", "DEFAULT", "DepthCheckConfig",
+           "CliConfig", "ClothConfig", "CompositeConfig", "Config", "ConfigError", "DataConfig", "DEFAULT", "DepthCheckConfig",
            "DepthNoise", "DynamicsConfig", "EngineConfig", "EvalConfig", "FlowConfig", "HoldingConfig",
            "KeyframeConfig", "LoopConfig", "MASK_FILLS", "MappingConfig", "MaskedFramesConfig", "MaskingConfig",
-           "OrbConfig", "OursConfig", "PoseTestConfig", "ProgressConfig", "Range", "RelocalisationConfig",
+           "OnlineConfig", "OrbConfig", "OursConfig", "PoseTestConfig", "ProgressConfig", "Range", "RelocalisationConfig",
            "SegSimConfig", "SegmentationConfig", "SittingConfig", "SlamConfig", "StudyConfig", "SYNTH_CAMERA",
            "SynthConfig", "SynthEvalConfig", "TrackingConfig", "TwinConfig", "load_config_file", "with_overrides"]
 
@@ -67,6 +69,29 @@ class StudyConfig(Checked):
 
 
 @dataclass(frozen=True)
+class OnlineConfig(Checked):
+    """An online run (``d2slam run --online``, ``d2slam.run.online``): frames replayed at the sensor's rate, the
+    segmenter in its own thread, a frame the tracker cannot take in time dropped. Offline runs read none of it."""
+
+    # Frames arrive at this rate (Hz); 0: at their own timestamps (the recording's rate and its jitter).
+    rate_hz: float = within(0.0, 0.0, 1000.0)
+    # The mask a frame reads: "latest", the newest the segmenter has finished (of an earlier frame: tracking never
+    # waits for its own), at most mask_max_age_s older, as NGD-SLAM carries its masks forward; "off", none (the
+    # segmenter does not run; eq 7 has no mask area: matched keypoints take P_g, unmatched ones 0.5, and eq 8
+    # carries their belief). A frame whose mask is too old reads none either.
+    masks: str = one_of("latest", "latest", "off")
+    mask_max_age_s: float = within(0.2, 0.0, 10.0)
+    # Ours, off: a mask of an earlier frame lags its person by the segmenter's latency (3-5 frames at 30 Hz); with
+    # mask_motion each person is moved on by its centroid's motion between the segmenter's two newest results,
+    # matched to the previous person nearest it within mask_match_px. Off because on development seeds it helped
+    # with masks 3 frames late and hurt with masks 5 frames late (docs/online.md).
+    mask_motion: bool = flag(False)
+    mask_match_px: float = within(80.0, 0.0, 10000.0)
+    # onnxruntime's intra-op threads of the segmenter's thread (the tracker has the other core).
+    segmenter_threads: int = within(1, 1, 64)
+
+
+@dataclass(frozen=True)
 class Config(Checked):
     _RULES = SlamConfig._RULES  # the engine's sections, checked together as the engine reads them
 
@@ -81,6 +106,7 @@ class Config(Checked):
     data: DataConfig = section(DataConfig)
     study: StudyConfig = section(StudyConfig)
     evaluation: EvalConfig = section(EvalConfig)
+    online: OnlineConfig = section(OnlineConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

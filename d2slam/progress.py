@@ -37,6 +37,10 @@ class ProgressConfig(Checked):
     # A twin's frame (d2slam.synth.twin: sub-frames over the exposure and the rolling shutters) takes
     # synth_twin_frame_s instead (1.0 frames/s measured on fr1/rpy's first 200 frames, one worker, a busy machine).
     synth_twin_frame_s: float = within(1.0, 0.0, 1000.0)
+    # A composite's frame (d2slam.synth.compositing: the people's sub-frames over the exposure, z-tested, on the real
+    # images) takes synth_composite_frame_s on average (fr1/rpy's first 120 frames, people in 40 % of them, one
+    # worker, a busy machine: 1.05 s).
+    synth_composite_frame_s: float = within(1.0, 0.0, 1000.0)
     segment_frame_s: float = within(0.15, 0.0, 1000.0)
 
 

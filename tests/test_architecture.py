@@ -35,8 +35,12 @@ IN_FUNCTION_IMPORTS = {
     ("d2slam.bench.engine", "gtsam.symbol_shorthand"): "optional, as gtsam",
     ("d2slam.dequantize", "onnx"): "54 ms, on every run that reads the segmenter's assets; only dequantizing needs it",
     ("d2slam.dynamics.depth", "scipy.stats"): "1.9 s; only the depth-edge test needs it, once per process",
+    ("d2slam.dynamics.interaction", "scipy.stats"): "0.7 s after scipy.spatial; only the OIM's moving test needs "
+                                                    "it (`none` and the runs without the OIM never do)",
     ("d2slam.eval.plots", "matplotlib.figure"): "0.7-1.3 s; `d2slam run` never plots",
     ("d2slam.eval.realism", "scipy.stats"): "1.8 s; only the exposure fit needs it",
+    ("d2slam.eval.people_realism", "matplotlib.pyplot"): "0.95 s; only the notebook's figures need it",
+    ("d2slam.eval.people_realism", "matplotlib.patches"): "as matplotlib.pyplot (imported with it)",
     ("d2slam.kernel_cache", "numba.core"): "1 s; the commands that only check the caches never compile a kernel",
     ("d2slam.study.executors", "distributed"): "1.6 s, and optional: only a Dask scheduler needs it",
     ("d2slam.study.plots", "matplotlib.figure"): "1.4 s; a study without plots (and --tables-only) never draws",

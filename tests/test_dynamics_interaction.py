@@ -7,8 +7,9 @@ import pytest
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps
-from d2slam.dynamics.interaction import (MatchedPoints, interaction_zone, mask_depths, neighbour_p_g,
+from d2slam.dynamics.interaction import (MatchedPoints, interaction_zone, mask_depths, moving_masks, neighbour_p_g,
                                          object_interaction, oim_candidates)
+from d2slam.dynamics.semantic import FrameMasks
 from d2slam.ranges import overridden
 
 CFG = DynamicsConfig()
@@ -209,3 +210,28 @@ def test_mask_median_equals_numpy_median():
         for vals in (rng.uniform(0.5, 4.5, n).astype(np.float32), rng.uniform(0.5, 4.5, n),
                      rng.integers(30000, 65535, n).astype(np.uint16)):  # a uint16 sum of two would overflow
             assert _median(vals) == float(np.median(vals))
+
+
+def test_only_a_person_whose_keypoints_move_beyond_the_false_alarms_has_an_interaction_zone():
+    """moving_masks (OursConfig.oim_moving_test): a one-sided binomial test of the failed geometric tests on a
+    mask's matched keypoints against the thresholds' false-alarm rate (1 - noise_confidence)."""
+    h, w = 60, 80
+    masks = np.zeros((3, h, w), bool)
+    masks[0, 5:25, 5:25] = True  # walking: 8 of 20 matched keypoints fail
+    masks[1, 5:25, 40:60] = True  # seated: 1 of 20 fails, a false alarm
+    masks[2, 40:50, 40:50] = True  # 3 matched keypoints: too few to tell still
+    kps = np.concatenate([np.stack([np.arange(20) % 20 + 5, np.full(20, 10)], 1),
+                          np.stack([np.arange(20) % 20 + 40, np.full(20, 10)], 1),
+                          np.array([[42, 45], [44, 45], [46, 45]])]).astype(np.float64)
+    observed = np.ones(len(kps), bool)
+    dynamic = np.zeros(len(kps), bool)
+    dynamic[:8] = True
+    dynamic[20] = True
+    fm = FrameMasks(masks, kps, (h, w))
+    cfg = DynamicsConfig()
+    assert moving_masks(fm, observed, dynamic, cfg).tolist() == [True, False, True]
+    paper = overridden(cfg, {"ours": {"oim_moving_test": False}})
+    assert moving_masks(fm, observed, dynamic, paper).tolist() == [True, True, True]
+    unmatched = observed.copy()
+    unmatched[:20] = False  # nothing observed on the walking person this frame: it cannot be told still
+    assert moving_masks(fm, unmatched, dynamic, cfg).tolist() == [True, False, True]

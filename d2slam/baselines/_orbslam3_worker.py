@@ -41,6 +41,7 @@ from tqdm import tqdm
 from d2slam.baselines.config import MaskedFramesConfig
 from d2slam.baselines.masking import mask_frame
 from d2slam.data import open_sequence
+from d2slam.data.live import arrival_times, newest_arrived
 from d2slam.errors import D2SlamError
 from d2slam.ranges import build_section
 from d2slam.segmentation import masks_for, stack_masks
@@ -132,6 +133,40 @@ def store_frames(root: Path):
     return frames()
 
 
+def online_frames(root: Path, rate_hz: float, log):
+    """The frames of a store (decoded before the clock starts, as a camera driver delivers them; memory-backed in
+    ``/dev/shm`` where it has room) as a live camera gives them (:mod:`d2slam.data.live`): each time the tracker asks, the
+    newest frame that has arrived (waiting for the next one when it has taken the newest), every older one dropped;
+    ``log`` gets ``index arrival_s taken_s done_s`` per frame given (seconds from the first arrival; done: when the
+    tracker asks again), then ``frames N``."""
+    meta = json.loads((root / STORE_META).read_text())
+    rgb = np.load(root / "rgb.npy", mmap_mode="r")
+    depth = np.load(root / "depth.npy", mmap_mode="r")
+    stamps = np.load(root / "timestamps.npy")[:meta["frames"]]
+    arrival = arrival_times(stamps, rate_hz)
+
+    def frames():
+        t0 = time.perf_counter()
+        nxt, given = 0, None
+        while nxt < len(stamps):
+            elapsed = time.perf_counter() - t0
+            if given is not None:  # the tracker asks for the next frame: the one given is done
+                log.write(f"{given[0]} {given[1]:.6f} {given[2]:.6f} {elapsed:.6f}\n")
+                given = None
+            i = newest_arrived(arrival, elapsed)
+            if i < nxt:
+                time.sleep(max(0.0, arrival[nxt] - elapsed))
+                continue
+            given = (i, arrival[i], time.perf_counter() - t0)
+            yield float(stamps[i]), np.ascontiguousarray(rgb[i]), np.ascontiguousarray(depth[i]), 0.0, 0.0, 0.0
+            nxt = i + 1
+        if given is not None:
+            log.write(f"{given[0]} {given[1]:.6f} {given[2]:.6f} {time.perf_counter() - t0:.6f}\n")
+        log.write(f"frames {len(stamps)}\n")
+
+    return frames()
+
+
 def _sequence_frames(args):
     """The frames of ``--sequence`` (opened now: a bad folder fails before ORB-SLAM3 starts), decoded one by one."""
     seq = open_sequence(args.sequence, camera=args.camera) if args.camera else open_sequence(args.sequence)
@@ -152,8 +187,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"d2slam worker: {message}", file=sys.stderr, flush=True)
         return code
 
+    online_log = None
     try:
-        frames = store_frames(Path(args.frames)) if args.frames else _sequence_frames(args)
+        if args.online_rate is not None:
+            if not args.frames:
+                return fail("--online-rate needs --frames", 3)
+            online_log = open(work / "online.txt", "w")
+        else:
+            frames = store_frames(Path(args.frames)) if args.frames else _sequence_frames(args)
     except D2SlamError as exc:
         return fail(str(exc), 3)
     import pyorbslam3
@@ -166,6 +207,8 @@ def main(argv: list[str] | None = None) -> int:
         return fail(f"ORB-SLAM3 did not start: {exc}", 4)
     load_s = time.perf_counter() - t0
     (work / "loaded").write_text(f"{load_s:.3f}")
+    if online_log is not None:  # the camera starts once ORB-SLAM3 is ready, as ours starts after its warm-up
+        frames = online_frames(Path(args.frames), args.online_rate, online_log)
     t_loop = time.perf_counter()
     try:
         n, io_s, segment_s, mask_s = _track(slam, frames, work / "progress.txt")
@@ -173,6 +216,8 @@ def main(argv: list[str] | None = None) -> int:
         slam.shutdown()
         return fail(str(exc), 3)
     loop_s = time.perf_counter() - t_loop
+    if online_log is not None:
+        online_log.close()
     t = time.perf_counter()
     slam.shutdown()
     shutdown_s = time.perf_counter() - t
@@ -206,6 +251,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--masks", default=None, help="person masks to remove (d2slam.segmentation.masks_for kind)")
     p.add_argument("--config", default=None,
                    help="the masks' and the fill's settings (MaskedFramesConfig) as JSON (with --masks)")
+    p.add_argument("--online-rate", type=float, default=None,
+                   help="with --frames: replay the store as a live camera at this rate (0: its timestamps), "
+                   "dropping the frames that arrive while ORB-SLAM3 is busy (d2slam.data.live); online.txt")
     return p
 
 

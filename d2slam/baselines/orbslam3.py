@@ -198,7 +198,7 @@ def _log_tail(log: Path, n: int = 6) -> str:
 
 def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: Path, camera: str | None,
                max_frames: int, n_frames: int, timeout: float | None, config: AnyConfig, progress: bool,
-               masks: str | None = None, store: Path | None = None) -> dict:
+               masks: str | None = None, store: Path | None = None, online_rate: float | None = None) -> dict:
     """Start the worker, follow its progress, enforce the time limits. Returns raw outcome fields."""
 
     cfg = config.baseline
@@ -206,7 +206,7 @@ def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: P
     cmd = [sys.executable, "-m", "d2slam.baselines._orbslam3_worker", "--vocab", vocab_path, "--settings",
            str(settings_path), "--work", str(work)]
     if store is not None:  # frames decoded (and people removed) once by the caller
-        cmd += ["--frames", str(store)]
+        cmd += ["--frames", str(store)] + ([] if online_rate is None else ["--online-rate", f"{online_rate:g}"])
     else:
         cmd += ["--sequence", str(sequence_dir), "--max-frames", str(max_frames)] + (["--camera", camera] if camera
                                                                                      else [])
@@ -312,6 +312,7 @@ class Attempt:
     trajectory_poses: int
     repeat: int = 0
     evaluation: dict | None = None  # ``evaluate_trajectory``'s {"metrics": ...} or {"metrics_error": ...}
+    online: dict | None = None  # an online run's frames processed and dropped and its lag (:func:`_online_summary`)
 
     def to_dict(self) -> dict:
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "evaluation"}
@@ -320,13 +321,16 @@ class Attempt:
 
 def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Path, camera: str | None,
               max_frames: int, n_frames: int, timeout: float | None, config: AnyConfig, progress: bool,
-              work: Path, masks: str | None = None, store: Path | None = None, repeat: int = 0) -> Attempt:
+              work: Path, masks: str | None = None, store: Path | None = None, repeat: int = 0,
+              online_rate: float | None = None) -> Attempt:
     work.mkdir(parents=True, exist_ok=True)
-    for name in ("progress.txt", "final.txt", "done.json", "loaded", "orbslam3.log"):
+    for name in ("progress.txt", "final.txt", "done.json", "loaded", "orbslam3.log", "online.txt"):
         (work / name).unlink(missing_ok=True)
     raw = _run_child(sequence_dir, vocab["path"], settings_path, work, camera, max_frames, n_frames, timeout,
-                     config, progress, masks, store)
+                     config, progress, masks, store, online_rate)
     rec = _read_progress(work / "progress.txt")
+    online = _online_summary(work / "online.txt", n_frames, online_rate) if online_rate is not None else None
+    expected = online["processed"] if online and online.get("complete") else n_frames  # dropped frames: not a crash
     done = {}
     if (work / "done.json").is_file():
         try:
@@ -347,7 +351,7 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
     maps = max(log.read_text(errors="replace").count("Creation of new map with id") if log.is_file() else 0,
                int(seg.max() + 1) if frames and seg.max() >= 0 else 0)
     tracked, lost, resets = int(ok.sum()), int(lost_state.sum()), maps - 1 if frames else 0
-    status, message = _outcome(raw, done, work, log, frames, n_frames, tracked, lost, resets)
+    status, message = _outcome(raw, done, work, log, frames, expected, tracked, lost, resets)
     traj, source = _trajectory(rec, ok, work / "final.txt", out_traj, sequence_dir)
     ms = rec["ms"]
     return Attempt(
@@ -359,7 +363,26 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
         wall_s=raw["wall_s"], seconds=_seconds(raw["wall_s"], done, ms), cpu_s=done.get("cpu_s"),
         stage_ms=_stage_ms(stages, frames, ms, masks), log=str(log), status=status, message=message,
         trajectory=str(out_traj) if traj is not None else None, trajectory_source=source,
-        trajectory_poses=int(len(traj)) if traj is not None else 0, repeat=repeat)
+        trajectory_poses=int(len(traj)) if traj is not None else 0, repeat=repeat, online=online)
+
+
+def _online_summary(path: Path, n_frames: int, rate_hz: float) -> dict:
+    """An online run's account (the worker's ``online.txt``): frames processed and dropped, the lag from a frame's
+    arrival to ORB-SLAM3's pose (median, 95th percentile, ms), whether the run reached the last frame."""
+    rows, complete = [], False
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            parts = line.split()
+            if len(parts) == 4:
+                rows.append([float(x) for x in parts])
+            elif len(parts) == 2 and parts[0] == "frames":
+                complete = True
+    a = np.array(rows, dtype=np.float64).reshape(-1, 4)
+    lag = 1000.0 * (a[:, 3] - a[:, 1])
+    return {"rate_hz": rate_hz, "frames": int(n_frames), "processed": int(len(a)), "dropped": int(n_frames - len(a)),
+            "processed_share": round(len(a) / max(n_frames, 1), 4),
+            "lag_ms_median": round(float(np.median(lag)), 2) if len(lag) else None,
+            "lag_ms_p95": round(float(np.percentile(lag, 95)), 2) if len(lag) else None, "complete": complete}
 
 
 def _stage_ms(stages: dict, frames: int, ms: np.ndarray, masks: str | None) -> dict:
@@ -441,7 +464,8 @@ def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json
                  repeats: int = 1, vocab: str | Path | None = None, settings: str | Path | None = None,
                  camera: str | None = None, max_frames: int = 0, timeout: float | None = None,
                  config: AnyConfig = None, progress: bool = True, evaluate: bool = True,
-                 keep_work: bool = False, masks: str | None = None) -> tuple[dict, object]:
+                 keep_work: bool = False, masks: str | None = None,
+                 online_rate: float | None = None) -> tuple[dict, object]:
     """Run the real ORB-SLAM3 RGB-D on ``sequence_dir`` ``repeats`` times; write ``out_traj`` (TUM) and the run
     JSON (``metrics_json``); return the run JSON and the sequence read (``d2slam.run.orbslam3_runs.run_orbslam3`` makes
     the run's ``RunRecord`` of them). Never raises for an
@@ -455,17 +479,20 @@ def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json
     person masks to remove from the frames (``orbslam3-masked``, module docstring; they must exist: a synthetic
     sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`); ``config``:
     the run's whole config (``d2slam.config.Config``, required: its ``orb``, ``baseline``, ``masking``,
-    ``segmentation`` and ``evaluation`` sections, and its hash)."""
+    ``segmentation`` and ``evaluation`` sections, and its hash); ``online_rate``: replay the frames as a live camera
+    at this rate (0: their timestamps; ``d2slam.data.live``), dropping those that arrive while ORB-SLAM3 is busy (each
+    run's ``online``: frames processed, dropped, lag)."""
     if config is None:
         raise TypeError("orbslam3_report needs the run's config")
     out_traj = Path(out_traj).expanduser()
     report, seq = _report(sequence_dir, out_traj, metrics_json, repeats, vocab, settings, camera, max_frames, timeout,
-                          config, progress, evaluate, keep_work, masks)
+                          config, progress, evaluate, keep_work, masks, online_rate)
     return report, seq
 
 
 def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, settings, camera, max_frames: int,
-            timeout, config: AnyConfig, progress: bool, evaluate: bool, keep_work: bool, masks) -> tuple[dict, object]:
+            timeout, config: AnyConfig, progress: bool, evaluate: bool, keep_work: bool, masks,
+            online_rate: float | None = None) -> tuple[dict, object]:
     """:func:`orbslam3_report`'s runs: (the run JSON, the sequence)."""
     sequence_dir = Path(sequence_dir).expanduser().resolve()
     if repeats < 1:
@@ -497,14 +524,14 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
             check_settings(settings_path)
         except D2SlamError as exc:
             return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json, config), seq
-        store = _frame_store_root(seq, n_frames, repeats, config, work_root)
+        store = _frame_store_root(seq, n_frames, repeats, config, work_root, force=online_rate is not None)
         if store is not None:
             t0 = time.perf_counter()
             meta = write_frame_store(seq, n_frames, store, masks, config, progress)
             base["frame_store"] = dict(meta, wall_s=round(time.perf_counter() - t0, 3),
                                        bytes=sum(f.stat().st_size for f in store.iterdir()))
         repeat = _Repeats(seq, sequence_dir, out_traj, vinfo, settings_path, camera, max_frames, n_frames, timeout,
-                          config, progress, work_root, masks, store, keep_work, evaluate, repeats)
+                          config, progress, work_root, masks, store, keep_work, evaluate, repeats, online_rate)
         runs = [repeat(r) for r in range(repeats)]
         return _finish(_summarise(base, runs, out_traj), metrics_json, config), seq
     finally:
@@ -559,6 +586,7 @@ class _Repeats:
     keep_work: bool
     evaluate: bool
     repeats: int
+    online_rate: float | None
 
     def __call__(self, r: int) -> dict:
         """Repeat ``r``'s run (its own trajectory file when there are several), its log kept when asked to or when
@@ -567,7 +595,7 @@ class _Repeats:
         traj_r = out if self.repeats == 1 else out.with_name(f"{out.stem}.rep{r}{out.suffix}")
         run = _run_once(self.sequence_dir, traj_r, self.vinfo, self.settings_path, self.camera, self.max_frames,
                         self.n_frames, self.timeout, self.config, self.progress, self.work_root / f"rep{r}",
-                        self.masks, self.store, repeat=r)
+                        self.masks, self.store, repeat=r, online_rate=self.online_rate)
         kept = None
         if self.keep_work or run.status not in ("ok", "lost"):
             kept = str(out.with_name(f"{out.stem}.rep{r}.orbslam3.log"))
@@ -582,13 +610,15 @@ class _Repeats:
         return run.to_dict()
 
 
-def _frame_store_root(seq, n_frames: int, repeats: int, config: AnyConfig, work_root: Path) -> Path | None:
+def _frame_store_root(seq, n_frames: int, repeats: int, config: AnyConfig, work_root: Path,
+                      force: bool = False) -> Path | None:
     """Where the frames of a repeated run are decoded once (:func:`~d2slam.baselines._orbslam3_worker.
     write_frame_store`): a new folder in ``BaselineConfig.orbslam3_frame_store_dir`` (memory-backed ``/dev/shm``)
     when it has room, else in the run's work folder; None (every worker decodes its frames) for a single run or when
-    the frames would exceed ``orbslam3_frame_store_mb``."""
+    the frames would exceed ``orbslam3_frame_store_mb``. ``force`` (an online run: its frames are decoded before the
+    camera starts): always a store."""
     size = n_frames * int(seq.camera.height) * int(seq.camera.width) * (3 + 4)  # RGB uint8 + depth float32
-    if repeats < 2 or size > config.baseline.orbslam3_frame_store_mb * 2**20:
+    if not force and (repeats < 2 or size > config.baseline.orbslam3_frame_store_mb * 2**20):
         return None
     parent = Path(config.baseline.orbslam3_frame_store_dir)
     try:
@@ -665,6 +695,8 @@ def _summarise(base: dict, runs: list[dict], out_traj: Path) -> dict:
         shutil.copyfile(pick["trajectory"], out_traj)
         out["trajectory"] = str(out_traj)
         out["trajectory_repeat"] = pick["repeat"]
+        if pick.get("online"):  # an online run: the account of the repeat whose trajectory is kept
+            out["online"] = pick["online"]
     else:
         out["trajectory"] = None
     worst = ("failed", "timeout", "crashed", "reset", "lost", "ok")

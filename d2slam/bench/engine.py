@@ -6,6 +6,7 @@ the same local-BA problem."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import os
@@ -18,6 +19,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from d2slam.bench import online
+from d2slam.bench.online import engine_run, loadavg
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
@@ -31,6 +34,7 @@ from d2slam.run.sequence import run_sequence
 from d2slam.slam import optimizer as opt_mod
 from d2slam.slam.config import EngineConfig
 from d2slam.slam.fixture import FR3
+from d2slam.study.grid import DEFAULT_FRAMES
 from d2slam.study.sequences import ensure_sequence
 from d2slam.synth.scene import default_frames
 
@@ -63,6 +67,10 @@ def add_arguments(parser) -> None:
                         "`none` <= 2x its twin target); default: the cached twin when SEQ is the default")
     parser.add_argument("--methods", nargs="+", default=["none", "d2slam"], help="--against: our methods to run")
     parser.add_argument("--repeats", type=int, default=3, help="--against: ORB-SLAM3 runs (median [min, max])")
+    parser.add_argument("--online", action="store_true", help="online at --rate: `d2slam bench online` (its options: "
+                        "SEQ, --seeds, --frames)")
+    parser.add_argument("--rate", type=float, default=30.0, help="--online: frames arrive at this rate (Hz)")
+    parser.add_argument("--no-real", action="store_true", help="--online: without the real fr1/rpy")
 
 
 # ---------------------------------------------------------------------------------------------- accuracy / speed
@@ -96,6 +104,10 @@ def _fmt(row: dict) -> str:
 
 
 def run(args) -> int:
+    if args.online:
+        return online.run(argparse.Namespace(sequences=[args.sequence] if args.sequence else [],
+                                             seeds=args.seeds or [args.seed], frames=args.frames or DEFAULT_FRAMES,
+                                             rate=args.rate, no_real=args.no_real, json=args.json, latency=None))
     if args.compare_optimisers:
         return compare_optimisers(args)
     if args.loops:
@@ -225,7 +237,7 @@ def _loop_summary(rows: list[dict], methods: list[str]) -> None:
         false = sum(len(r.get("loops_false", [])) for r in on_rows if r["method"] == method)
         print(f"{method}: ATE with / without loop closing, median over seeds {np.median(ratio):.2f} "
               f"(per seed {', '.join(f'{x:.2f}' for x in ratio)}); false loops {false}")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}")
+    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}")
 
 
 # ---------------------------------------------------------------------------------------------- optimisers
@@ -352,16 +364,7 @@ def compare_optimisers(args) -> int:
 # ---------------------------------------------------------------------------------------------- against ORB-SLAM3
 def _engine_run(seq, method: str, out) -> dict:
     """``d2slam run SEQ --method METHOD`` in a child process (as a user runs it); its run JSON."""
-    traj, js = out / f"{method}.txt", out / f"{method}.json"
-    js.unlink(missing_ok=True)
-    proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
-                           "--metrics-json", str(js), "--quiet"], capture_output=True, text=True)
-
-    if proc.returncode not in (0, EXIT_FRAGMENT) or not js.is_file():
-        tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
-        return {"method": method, "status": "failed", "message": tail}
-    run = json.loads(js.read_text())
-    return {**run, "status": "fragment" if run.get("fragment") else "ok"}  # a fragment ran: its timings count
+    return engine_run(seq, method, out)
 
 
 def engine_ms_per_frame(run: dict) -> float:
@@ -422,9 +425,5 @@ def against_orbslam3(args) -> int:
               f"{str(r.get('map_points', '-')):>7} {ate_s} {ms_s} {ratio}  {stages}")
     if none_ms and twin_ms:
         print(f"none on the sequence / none on its static twin: {none_ms / twin_ms:.2f}x")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}; runs and trajectories in {out}")
+    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}; runs and trajectories in {out}")
     return 0
-
-
-def _loadavg() -> tuple:
-    return os.getloadavg()

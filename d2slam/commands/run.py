@@ -17,7 +17,9 @@ from d2slam.data.intrinsics import is_camera_file, read_camera_file
 from d2slam.errors import D2SlamError
 from d2slam.eval.fragment import is_fragment, tracked_share
 from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
+from d2slam.ranges import overridden
 from d2slam.run.methods import get_method, methods
+from d2slam.run.online import Schedule, online_line, online_report, replay, run_online
 from d2slam.run.metrics import RunSource, run_json
 from d2slam.run.record import EXIT_FRAGMENT
 from d2slam.run.runner import run_config, run_method
@@ -55,7 +57,8 @@ def register(sub) -> None:
                    "truth: its dynamic truth (persons and moving objects), what --method oracle always uses")
     p.add_argument("--masks-from", metavar="SEQUENCE_DIR", default=None,
                    help="read the masks from this sequence instead (same frames and timestamps), e.g. --method "
-                   "oracle on a static twin with its dynamic sequence: the occluded twin of the study")
+                   "oracle on a static twin with its dynamic sequence, or on a real recording with a composite made "
+                   "of it (d2slam synth real_walking --on): the occluded twin of the study")
     p.add_argument("--camera", metavar="fr1|fr2|fr3|FILE.yaml", default=None,
                    help="camera of a TUM-layout folder: fr1/fr2/fr3, or an ORB-SLAM3 RGB-D settings YAML (Camera.fx, "
                    "..., DepthMapFactor, ThDepth; old Camera.* or new Camera1.* keys) for any other RGB-D camera "
@@ -69,12 +72,24 @@ def register(sub) -> None:
                    "relocalisation then searches the recent keyframes)")
     p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
                    "ORB-SLAM3 (default 1)")
+    p.add_argument("--online", action="store_true",
+                   help="run as on a live camera (d2slam.run.online): frames arrive at their timestamps (or --rate), the "
+                   "segmenter runs in its own thread on the newest frame, tracking never waits for it and takes the "
+                   "newest frame when free, dropping the rest. Depends on timing: see --online-log")
+    p.add_argument("--rate", type=float, default=None, metavar="HZ",
+                   help="--online: frames arrive at HZ instead of their timestamps (online.rate_hz)")
+    p.add_argument("--online-log", metavar="LOG.npz", default=None,
+                   help="--online: write the run's schedule (frames tracked, the masks each read) for --deterministic")
+    p.add_argument("--deterministic", metavar="LOG.npz", default=None,
+                   help="replay an online run's schedule (--online-log) without a clock: the same frames with the same "
+                   "masks, the same trajectory byte for byte")
     p.add_argument("--quiet", action="store_true", help="no progress, no summary")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     method = get_method(args.method)
+    _check_online_args(args, method)
     out = _check_outputs(args, method)
     camera, camera_source, th_depth = _camera(args)
     if method.runner is not None:  # not a keypoint filter of our engine (orbslam3[-masked]): its own command
@@ -82,9 +97,13 @@ def run(args) -> int:
     config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
     config = run_config(config, args.seed, not args.no_loop_closing, th_depth)
     seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
-    synthetic = isinstance(seq, SyntheticSequence)
     _warn_depth_scale(seq, config)
+    if args.online or args.deterministic:
+        return run_online_command(args, seq, config, out)
     mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
+    # the truth masks of --masks-from a synthetic sequence serve a real one too (a composite's recording: the
+    # occluded twin)
+    synthetic = isinstance(seq, SyntheticSequence) or isinstance(mask_seq, SyntheticSequence)
     record = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
                         progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
     write_tum_trajectory(out, record.trajectory, header=(f"d2slam run {args.method}: no frame tracked" if
@@ -163,6 +182,59 @@ def _print_run(record, js: dict, args, seq, out: Path) -> None:
                        min_share=record.min_tracked_share))
 
 
+def run_online_command(args, seq, config, out) -> int:
+    """``d2slam run --online`` and ``--deterministic``: run, write ``--out``, ``--metrics-json`` and ``--online-log``,
+    print the online line and the summary line; the exit status (3: a fragment of the processed frames)."""
+    if args.rate is not None:
+        config = overridden(config, {"online": {"rate_hz": float(args.rate)}})
+    quiet = getattr(args, "quiet", False)
+    if args.deterministic:
+        run = replay(seq, Schedule.load(args.deterministic), args.method, config, progress=False if quiet else None)
+    else:
+        run = run_online(seq, args.method, config, progress=False if quiet else None)
+        if args.online_log:
+            run.schedule.save(args.online_log)
+    report = online_report(run, seq, config, replayed=bool(args.deterministic))
+    write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} --online {seq.root}")
+    record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "config_hash": config.hash(),
+              "frames": run.schedule.frames, "tracked": run.tracked, "keyframes": run.keyframes,
+              "map_points": run.map_points, **report, "trajectory": str(out)}
+    if args.metrics_json:
+        write_bytes(Path(args.metrics_json).expanduser(), json.dumps(record, indent=2) + "\n")
+    if not quiet:
+        print(online_line(report))
+        ate = report.get("metrics", {}).get("ate_rmse_m")
+        masks = ("none" if not report["online"]["with_mask"] and not run.schedule.segmented else
+                 "onnx (the schedule's)" if args.deterministic else "onnx (the segmenter's thread)")
+        print(summary_line(args.method, masks, camera_text(seq.camera.name, args.camera or "folder name",
+                                                           args.camera),
+                           run.tracked, len(run.schedule.processed), ate,
+                           [out, args.metrics_json, None if args.deterministic else args.online_log],
+                           ate_note=" over the processed frames", min_share=config.evaluation.min_tracked_share))
+    return EXIT_FRAGMENT if report["fragment"] else 0
+
+
+def _check_online_args(args, method) -> None:
+    """The online options together: one clear error for a combination that cannot run."""
+    online = getattr(args, "online", False)
+    replaying = getattr(args, "deterministic", None)
+    if online and replaying:
+        raise D2SlamError("--online and --deterministic exclude each other: --deterministic replays an online run")
+    if not online and (args.rate is not None or args.online_log):
+        raise D2SlamError("--rate and --online-log need --online")
+    if replaying and args.rate is not None:
+        raise D2SlamError("--deterministic replays the schedule it reads: --rate does not apply")
+    orbslam3 = method.name == "orbslam3" and online
+    if (online or replaying) and not orbslam3 and (method.runner is not None or method.masks is not None
+                                                   or args.masks_from or args.masks not in (None, "onnx")):
+        raise D2SlamError(f"--online runs none, the dynamics methods (with the real segmenter) and orbslam3, not "
+                          f"--method {args.method}" + (" with other masks" if args.masks or args.masks_from else ""))
+    if orbslam3 and args.online_log:
+        raise D2SlamError("--online-log: ORB-SLAM3's online run has no schedule to replay (its threads are its own)")
+    if args.rate is not None and not 0 < args.rate <= 1000:
+        raise D2SlamError(f"--rate {args.rate:g}: must be in (0, 1000] Hz")
+
+
 def run_outputs(args, method) -> list[tuple[str, object]]:
     """What ``d2slam run`` writes: ``--out``, ``--metrics-json``, and for the real ORB-SLAM3 the files it keeps
     beside the trajectory (its settings and online poses)."""
@@ -170,7 +242,8 @@ def run_outputs(args, method) -> list[tuple[str, object]]:
     extra = [] if method.runner is None else [
         ("--out's ORB-SLAM3 settings", out.with_name(out.stem + ".orbslam3.yaml")),
         ("--out's online poses", out.with_name(out.stem + ".online.txt"))]
-    return [("--out", out), ("--metrics-json", args.metrics_json)] + extra
+    return [("--out", out), ("--metrics-json", args.metrics_json),
+            ("--online-log", getattr(args, "online_log", None))] + extra
 
 
 def run_inputs(args) -> list[tuple[str, object]]:
@@ -178,7 +251,8 @@ def run_inputs(args) -> list[tuple[str, object]]:
     vocabulary (``$PYORBSLAM3_VOCAB``)."""
     return [("sequence", args.sequence), ("--masks-from sequence", args.masks_from),
             ("--camera file", args.camera if is_camera_file(args.camera) else None), ("--config file", args.config),
-            ("vocabulary ($PYORBSLAM3_VOCAB)", os.environ.get("PYORBSLAM3_VOCAB") or None)]
+            ("vocabulary ($PYORBSLAM3_VOCAB)", os.environ.get("PYORBSLAM3_VOCAB") or None),
+            ("--deterministic schedule", getattr(args, "deterministic", None))]
 
 
 def print_orbslam3(run, args) -> int:
@@ -195,6 +269,11 @@ def print_orbslam3(run, args) -> int:
         print(f"  vocabulary: {v['kind']} {v['path']} (sha256 {v['sha256'][:16]})", file=stream)
     if isinstance(report.get("ms_per_frame"), (int, float)):
         print(f"  {report['ms_per_frame']:.1f} ms/frame", file=stream)
+    if report.get("online"):
+        o = report["online"]
+        rate = f"{o['rate_hz']:g} Hz" if o["rate_hz"] > 0 else "the frames' timestamps"
+        print(f"  online at {rate}: processed {o['processed']}/{o['frames']} frames ({o['dropped']} dropped), lag "
+              f"median {o['lag_ms_median']} ms, p95 {o['lag_ms_p95']} ms (depends on timing)", file=stream)
     if not getattr(args, "quiet", False):
         repeats = int(report.get("repeats", 1) or 1)
         many = " (median of {repeats} runs)".format(repeats=repeats) if repeats > 1 else ""

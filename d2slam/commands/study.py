@@ -10,7 +10,7 @@ from d2slam.errors import D2SlamError
 from d2slam.outputs import check_output_dir, check_outputs
 from d2slam.run.methods import methods as registered
 from d2slam.study import grid as G, run_study
-from d2slam.study.core import rebuild_tables
+from d2slam.study.core import composite_cached, rebuild_tables
 from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS, SCENARIOS, TUM_FOLDERS, TWIN_METHODS
 from d2slam.study.sequences import is_complete, sequence_dir
 from d2slam.synth.scene import frames_arg
@@ -147,8 +147,11 @@ def _downloaded(tum_root, scenarios: list[str]) -> list[str]:
 
 def _dry_run(specs) -> int:
     keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    cached = [k for k in keys if k[0] == "synth" and is_complete(sequence_dir(*k[1:]))]
-    print(f"{len(specs)} runs on {len(keys)} sequences ({len(cached)} already cached)")
+    cached = [k for k in keys if (k[0] == "synth" and is_complete(sequence_dir(*k[1:])))
+              or (k[0] == "composite" and not k[4] and composite_cached(k))]
+    real = [k for k in keys if k[0] in ("tum", "real") or (k[0] == "composite" and k[4])]
+    print(f"{len(specs)} runs on {len(keys)} sequences ({len(cached)} already cached"
+          + (f"; {len(real)} of them real recordings" if real else "") + ")")
     for s in specs:
         print(f"  {s.run_id}")
     return 0

@@ -53,7 +53,8 @@ from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.fusion import bayes_update, check_edge_band, edge_band, fuse, prior_belief
 from d2slam.dynamics.geometric import GeometricResult, PoseInputs, check_matches, geometric_module
-from d2slam.dynamics.interaction import MatchedPoints, mask_depths, neighbour_p_g, oim_candidates, oim_frame
+from d2slam.dynamics.interaction import (MatchedPoints, mask_depths, moving_masks, neighbour_p_g, oim_candidates,
+                                         oim_frame)
 from d2slam.dynamics.semantic import FrameMasks, SemanticResult, semantic_module
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
@@ -302,8 +303,9 @@ class D2SlamFilter:
         if not self.switches.oim:
             return None, None
         cand = oim_candidates(bel, f.geo.observed, f.geo.dynamic, self.cfg, f.p_nb)
+        moving = moving_masks(f.masks, f.geo.observed, f.geo.dynamic, self.cfg)
         return oim_frame(f.masks, f.px, f.maps, f.z_n, f.sem.d, f.margin, cand, f.geo.dynamic, self.cfg,
-                         self.switches.depth, f.matched)
+                         self.switches.depth, f.matched, moving)
 
 
 def _semantic_fields(sem) -> dict:

@@ -50,6 +50,15 @@ class OursConfig(Checked):
     # neighbour_p_g) is no OIM candidate either. Off because it lowers the recall at a given static precision, the
     # keypoint target (docs/deviations.md).
     oim_skip_neighbour_static: bool = flag(False)
+    # eq 9 (ours): a person's interaction zone exists only while the person moves: more of the matched keypoints on
+    # its mask fail the geometric test (eq 5 or the pose test) than the thresholds' false alarms explain, a one-sided
+    # binomial test at oim_moving_alpha with the false-alarm rate 1 - noise_confidence. A still person (seated behind
+    # a desk) moves no object, and each false alarm near it would otherwise turn its neighbours dynamic. A mask with
+    # fewer than oim_moving_min matched keypoints cannot be told still and keeps its zone. False = the paper's OIM
+    # (every person). See interaction.moving_masks; measured: docs/deviations.md.
+    oim_moving_test: bool = flag(True)
+    oim_moving_alpha: float = within(0.01, 0.0, 1.0, lo_open=True, hi_open=True)
+    oim_moving_min: int = within(5, 1, 100_000)
     # eq 5-6 and the pose test (ours): each threshold is widened, frame by frame, to at least the noise_confidence
     # quantile of the frame's static residuals (a chi distribution fitted to their median; geometric.widening):
     # alpha(z) (0.5-0.9 px) sits at the noise floor of a sharp sensor whose depth and colour are taken at one instant,

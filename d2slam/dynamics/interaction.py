@@ -202,9 +202,34 @@ def object_interaction(kps: np.ndarray, z: np.ndarray, candidate: np.ndarray, dy
     return flip, centroid
 
 
+def moving_masks(fm: FrameMasks, observed: np.ndarray, dynamic: np.ndarray,
+                 cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """eq 9 (ours, ``OursConfig.oim_moving_test``): (n,) bool, whether each person moves this frame: of the m
+    matched keypoints on its mask (``observed``), d failed the geometric test (``dynamic``), and a binomial tail
+    P(X >= d | m, 1 - noise_confidence) below ``oim_moving_alpha`` says more failed than the thresholds' false alarms
+    explain. A mask with fewer than ``oim_moving_min`` matched keypoints counts as moving (it cannot be told still);
+    an empty mask as still. Without the test every mask moves (the paper's OIM)."""
+    from scipy.stats import binom
+
+    n = len(fm.edges)
+    ours = cfg.ours
+    if not ours.oim_moving_test:
+        return np.ones(n, dtype=bool)
+    observed = np.asarray(observed, dtype=bool)
+    dynamic = np.asarray(dynamic, dtype=bool) & observed
+    out = np.zeros(n, dtype=bool)
+    for k, inside in enumerate(fm.inside):  # loop over masks only
+        if inside is None:
+            continue
+        m, d = int((inside & observed).sum()), int((inside & dynamic).sum())
+        out[k] = m < ours.oim_moving_min or binom.sf(d - 1, m, 1.0 - ours.noise_confidence) < ours.oim_moving_alpha
+    return out
+
+
 def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray, d: np.ndarray, known: float,
               candidates: np.ndarray, dynamic: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
-              use_depth: bool = True, matched: MatchedPoints | None = None) -> tuple[np.ndarray, np.ndarray]:
+              use_depth: bool = True, matched: MatchedPoints | None = None,
+              moving: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """eq 9-10 for one frame, reusing the semantic module's work: (zone (N,) bool, oim (N,) bool).
 
     ``fm`` the frame's ``FrameMasks`` (edges, trees, pixel lookups, bounding-box distances), ``maps`` its
@@ -219,6 +244,8 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     3. the exact zone (eq 9, the test of ``interaction_zone``) on those rows only: distances beyond ``known`` are
        searched again up to the zone's reach with the mask's cached edge trees.
 
+    ``moving`` (optional (n,) bool, :func:`moving_masks`): only these masks have a zone.
+
     ``zone`` is the zone flag where step 3 ran (False elsewhere), and ``oim = zone`` (those keypoints flip)."""
     n = len(maps.z)
     zone = np.zeros(n, dtype=bool)
@@ -226,11 +253,14 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
         return zone, zone.copy()
     reach = cfg.zone_factor * delta(z_n, cfg, use_depth)
     zn_ok = valid_depth(z_n)
+    still = np.zeros(len(fm.edges), dtype=bool) if moving is None else ~np.asarray(moving, dtype=bool)
+    if still.all():  # a still person has no zone
+        return zone, zone.copy()
     with np.errstate(invalid="ignore"):
         near_depth = [maps.valid & (np.abs(maps.z - z_n[k]) < cfg.zone_depth) for k in range(len(fm.edges))] \
             if use_depth else None
     # 1. candidates
-    cand = _near_a_mask(fm, reach, zn_ok, near_depth) & fm.kp.finite & candidates
+    cand = _near_a_mask(fm, reach, zn_ok, near_depth, still) & fm.kp.finite & candidates
     # 2. eq 10
     would_flip, _ = object_interaction(kps, maps.z, cand, dynamic, cfg, use_depth, maps=maps, finite=fm.kp.finite,
                                        matched=matched)
@@ -238,16 +268,17 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     if len(rows) == 0:
         return zone, zone.copy()
     # 3. eq 9 on the rows that would flip
-    zone[rows] = _in_a_zone(fm, d, rows, reach, zn_ok, near_depth, known)
+    zone[rows] = _in_a_zone(fm, d, rows, reach, zn_ok, near_depth, known, still)
     return zone, zone.copy()
 
 
-def _near_a_mask(fm: FrameMasks, reach: np.ndarray, zn_ok: np.ndarray, near_depth: list | None) -> np.ndarray:
-    """(N,) bool, ``oim_frame``'s step 1: within ``reach`` px of some mask's bounding box (a lower bound of the
-    distance to the mask) and, with the depths (``near_depth`` given), at that mask's depth."""
+def _near_a_mask(fm: FrameMasks, reach: np.ndarray, zn_ok: np.ndarray, near_depth: list | None,
+                 still: np.ndarray) -> np.ndarray:
+    """(N,) bool, ``oim_frame``'s step 1: within ``reach`` px of the bounding box of some mask not ``still`` (a lower
+    bound of the distance to the mask) and, with the depths (``near_depth`` given), at that mask's depth."""
     cand = np.zeros(len(fm.kp.finite), dtype=bool)
     for k, e in enumerate(fm.edges):  # loop over masks only
-        if e.empty or (near_depth is not None and not zn_ok[k]):
+        if e.empty or still[k] or (near_depth is not None and not zn_ok[k]):
             continue
         ok = fm.box[k] <= reach[k]
         if near_depth is not None:
@@ -257,14 +288,16 @@ def _near_a_mask(fm: FrameMasks, reach: np.ndarray, zn_ok: np.ndarray, near_dept
 
 
 def _in_a_zone(fm: FrameMasks, d: np.ndarray, rows: np.ndarray, reach: np.ndarray, zn_ok: np.ndarray,
-               near_depth: list | None, known: float) -> np.ndarray:
-    """(len(rows),) bool, ``oim_frame``'s step 3: eq 9's zone for the keypoints ``rows``; signed distances ``d``
+               near_depth: list | None, known: float, still: np.ndarray) -> np.ndarray:
+    """(len(rows),) bool, ``oim_frame``'s step 3: eq 9's zone (of the masks not ``still``) for the keypoints ``rows``; signed distances ``d``
     beyond ``known`` px are searched again up to the zone's reach with the mask's cached edge trees."""
     finite = fm.kp.finite
     hit = np.zeros(len(rows), dtype=bool)
     for k, e in enumerate(fm.edges):  # loop over masks only
         dk = d[rows, k]
         depth_ok = near_depth[k][rows] if near_depth is not None else None
+        if still[k]:
+            continue
         if not (e.empty or e.full or reach[k] <= known) and (zn_ok[k] or near_depth is None):
             sel = (dk <= -known) & finite[rows]
             if near_depth is not None:

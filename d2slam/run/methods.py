@@ -92,7 +92,8 @@ def _orbslam3_runner(args) -> RunRecord:
     return run_orbslam3(args.sequence, args.out, getattr(args, "metrics_json", None),
                         repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
                         camera=getattr(args, "camera", None),
-                        progress=not getattr(args, "quiet", False), masks=getattr(args, "masks", None))
+                        progress=not getattr(args, "quiet", False), masks=getattr(args, "masks", None),
+                        online_rate=(getattr(args, "rate", None) or 0.0) if getattr(args, "online", False) else None)
 
 
 register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_runner,

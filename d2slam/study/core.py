@@ -43,7 +43,7 @@ from d2slam.study.keys import code_info, run_key
 from d2slam.study.manifest import build_manifest, git_info
 from d2slam.study.runner import (RunOptions, execute_run, failed_row, features_dir, onnx_sequence_keys,
                                  prepare_sequence, run_options, segment_sequence)
-from d2slam.study.sequences import is_complete, sequence_dir
+from d2slam.study.sequences import composite_dir, is_complete, real_sequence_dir, sequence_dir
 from d2slam.synth.generate import estimated_seconds
 from d2slam.synth.version import generator_version
 
@@ -219,7 +219,8 @@ def run_cost(spec: RunSpec, options: RunOptions) -> float:
     study = options.config.study
     ms = float(dict(study.run_cost_ms).get(spec.method, study.run_cost_default_ms))
     repeats = int(options.orbslam3_repeats or 1) if spec.method in G.REPEATED else 1
-    return max(int(spec.frames), 1) * ms * repeats
+    frames = int(spec.frames) or (COMPOSITE_FRAMES if spec.source == "composite" else 1)  # 0: all of the recording
+    return max(frames, 1) * ms * repeats
 
 
 def phase_plans(options: RunOptions, workers: int | None) -> dict:
@@ -233,13 +234,21 @@ def phase_plans(options: RunOptions, workers: int | None) -> dict:
     def spread(seconds: list[float]) -> float | None:  # the longest item bounds it from below
         return None if workers is None or not seconds else max(sum(seconds) / max(workers, 1), max(seconds))
 
+    def composite_frames(k) -> int:  # a composite's frames: the recording's when 0
+        return int(k[3]) or COMPOSITE_FRAMES
+
     def sequences(keys):
         synth = [k for k in keys if k[0] == "synth"]
         todo = [k for k in synth if not is_complete(sequence_dir(*k[1:], root=options.cache_root))]
-        what = (f"sequences: {len(todo)} to generate{on} ({sum(int(k[3]) for k in todo)} frames), "
-                f"{len(synth) - len(todo)} cached" + (f", {len(keys) - len(synth)} real (TUM)" if len(synth) < len(keys)
-                                                      else ""))
-        return what, spread([estimated_seconds(int(k[3]), 1) for k in todo])
+        comp = [k for k in keys if k[0] == "composite" and not k[4]]
+        ctodo = [k for k in comp if not composite_cached(k, options.cache_root)]
+        made = len(synth) + len(comp)
+        what = (f"sequences: {len(todo) + len(ctodo)} to generate{on} "
+                f"({sum(int(k[3]) for k in todo) + sum(composite_frames(k) for k in ctodo)} frames), "
+                f"{made - len(todo) - len(ctodo)} cached" + (f", {len(keys) - made} real (TUM)" if made < len(keys)
+                                                             else ""))
+        return what, spread([estimated_seconds(int(k[3]), 1) for k in todo]
+                            + [estimated_seconds(composite_frames(k), 1, scenario=k[1]) for k in ctodo])
 
     def segmentation(keys):
         frames = [int(k[3]) for k in keys]
@@ -255,8 +264,26 @@ def phase_plans(options: RunOptions, workers: int | None) -> dict:
     return {"sequences": sequences, "segmentation": segmentation, "runs": runs}
 
 
+# The frames of a composite over the whole recording, for the phase's estimate (fr1/rpy: 694 associated frames).
+COMPOSITE_FRAMES = 694
+
+
+def composite_cached(key: tuple, cache_root=None) -> bool:
+    """Whether the composite of ``key`` (``RunSpec.sequence_key``) is in the cache (of ``cache_root``, default the
+    user's) (False when its recording is not: the run says why)."""
+    try:
+        rec = real_sequence_dir(G.COMPOSITE_RECORDING)
+    except D2SlamError:
+        return False
+    return is_complete(composite_dir(key[1], key[2], key[3], rec, root=cache_root))
+
+
 def sequence_cost(key: tuple) -> float:
-    """Estimated cost of generating or segmenting a sequence (``RunSpec.sequence_key``): its frames."""
+    """Estimated cost of generating or segmenting a sequence (``RunSpec.sequence_key``): its frames (a composite's
+    over its whole recording: its frames, each as costly as ``synth_composite_frame_s`` over ``synth_frame_s``)."""
+    if key[0] == "composite":
+        return float(int(key[3]) or COMPOSITE_FRAMES) * (1.0 if key[4] else PROGRESS.synth_composite_frame_s /
+                                                          PROGRESS.synth_frame_s)
     return float(max(int(key[3]), 1))
 
 

@@ -33,8 +33,8 @@ from d2slam.run.sequence import STAGES as ENGINE_STAGES
 from d2slam.segmentation import masks_for
 from d2slam.slam.engine import refills
 from d2slam.slam.features import CachedFeatures, FeatureRecorder
-from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3_MASKED, REPEATED, STUDY_MASKS, RunSpec
-from d2slam.study.sequences import ensure_sequence, real_sequence_dir, tum_sequence_dir
+from d2slam.study.grid import COMPOSITE_RECORDING, LABELS, ORACLE, ORBSLAM3_MASKED, REPEATED, STUDY_MASKS, RunSpec
+from d2slam.study.sequences import ensure_composite, ensure_sequence, real_sequence_dir, tum_sequence_dir
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def onnx_sequence_keys(specs, options: RunOptions) -> list[tuple]:
             continue  # an unknown method's run records its own error
         method = get_method(s.method)
         if method.needs_masks and mask_kind(method, None if method.masks else options.masks,
-                                            synthetic=s.source == "synth") == "onnx":
+                                            synthetic=_has_truth(s)) == "onnx":
             keys.append(s.sequence_key)
     return list(dict.fromkeys(keys))
 
@@ -103,7 +103,18 @@ def segment_sequence(key: tuple, options: RunOptions) -> dict:
         return {"key": key, "error": _message(exc)}
 
 
+def _has_truth(spec: RunSpec) -> bool:
+    """Whether the run's masks can come from a synthetic truth: a synthetic sequence or a composite (its twin, the
+    real recording, reads the composite's)."""
+    return spec.source in ("synth", "composite")
+
+
 def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
+    if source == "composite":
+        recording = real_sequence_dir(COMPOSITE_RECORDING)
+        if twin:  # the twin of a composite is its real recording
+            return recording
+        return ensure_composite(scenario, seed, frames, recording, root=options.cache_root, progress=False)
     if source == "real":
         return real_sequence_dir(scenario)
     if source == "tum":
@@ -222,7 +233,8 @@ def _run_engine(spec: RunSpec, path: Path, options: RunOptions) -> tuple[RunReco
     mask_seq = None
     if method.needs_masks and spec.twin and spec.method == ORACLE:
         # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
-        # the people and moving objects are cut out of a scene where nothing moves
+        # the people and moving objects are cut out of a scene where nothing moves (a composite's twin: the real
+        # recording, the composite's silhouettes cut out of its real frames)
         mask_seq = open_sequence(_sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, False, options))
     stored = {}
 
@@ -234,7 +246,7 @@ def _run_engine(spec: RunSpec, path: Path, options: RunOptions) -> tuple[RunReco
         return stored["features"]
 
     record = run_method(seq, spec.method, config, masks=requested if method.needs_masks else None,
-                        mask_seq=mask_seq, synthetic=spec.source == "synth", features=stored_features, progress=False,
+                        mask_seq=mask_seq, synthetic=_has_truth(spec), features=stored_features, progress=False,
                         frames=frames)
     features, save_to = stored["features"], stored["save_to"]
     if save_to is not None:
@@ -287,7 +299,7 @@ def _run_orbslam3(spec: RunSpec, path: Path, options: RunOptions) -> RunRecord:
     repeats = int(options.orbslam3_repeats or config.baseline.orbslam3_repeats)
     masks = None
     if spec.method == ORBSLAM3_MASKED:  # the study's --masks, else the real segmenter's
-        masks = mask_kind(get_method(spec.method), options.masks, synthetic=spec.source == "synth")
+        masks = mask_kind(get_method(spec.method), options.masks, synthetic=_has_truth(spec))
     with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
         return run_orbslam3(path, Path(tmp) / "orbslam3.txt", repeats=repeats, config=config, progress=False,
                             max_frames=spec.frames if spec.source != "synth" else 0,

@@ -17,11 +17,13 @@ processes that were killed before they could.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
 from d2slam.assets import real_full
 from d2slam.cachefiles import Damaged, folder_manifest, folder_problems, read_json, report_damaged
+from d2slam.digests import digest
 from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps as remove, staged_dir, write_bytes
 from d2slam.paths import cache_dir
@@ -29,6 +31,8 @@ from d2slam.progress import announce
 from d2slam.study.grid import TUM_FOLDERS
 from d2slam.synth import generate
 from d2slam.synth.generate import estimated_seconds
+from d2slam.synth.scene import resolve_frames
+from d2slam.synth.twin import read_recording
 from d2slam.synth.version import generator_version
 
 MARKER = ".complete"
@@ -93,6 +97,47 @@ def ensure_sequence(scenario: str, seed: int, frames: int, twin: bool = False, r
             generate(scenario, tmp, frames=int(frames), seed=int(seed), static_twin=bool(twin), workers=1,
                      progress=progress)
             key = {"scenario": scenario, "seed": int(seed), "frames": int(frames), "static_twin": bool(twin),
+                   "generator_version": generator_version()}
+            (tmp / MARKER).write_text(json.dumps({**key, "files": folder_manifest(tmp)}) + "\n")
+    return path
+
+
+def composite_dir(scenario: str, seed: int, frames: int, recording: str | Path,
+                  root: str | Path | None = None) -> Path:
+    """Where the cached composite of ``scenario`` (``grid.COMPOSITE_SCENARIOS``) into the real ``recording`` lives:
+    keyed by the recording (its folder's name and a digest of its lists and ground truth), scenario, seed, frames
+    (0: all) and the generator version."""
+    rec = Path(recording)
+    lists = digest({n: hashlib.sha256((rec / n).read_bytes()).hexdigest() if (rec / n).is_file() else None
+                    for n in ("rgb.txt", "depth.txt", "groundtruth.txt")})
+    base = Path(root) if root is not None else cache_dir("study", "sequences")
+    return base / f"{scenario}_on_{rec.resolve().name}-{lists[:8]}_s{int(seed)}_n{int(frames)}-{generator_version()}"
+
+
+def ensure_composite(scenario: str, seed: int, frames: int, recording: str | Path, root: str | Path | None = None,
+                     progress: bool = True) -> Path:
+    """The cached composite's folder (:func:`composite_dir`), generated (single process, deterministic) if missing,
+    incomplete or damaged, as :func:`ensure_sequence` does a synthetic sequence: the people of ``scenario`` put into
+    the real ``recording``'s first ``frames`` frames (0: all; ``d2slam.synth.compositing``)."""
+    path = composite_dir(scenario, seed, frames, recording, root)
+    if is_complete(path) and not sequence_problems(path):
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with file_lock(path.parent / (path.name + ".lock")):
+        problems = sequence_problems(path)
+        if not problems:
+            return path
+
+        if is_complete(path):
+            report_damaged(path, "cached sequence", "; ".join(problems), "generating it again")
+        rec = read_recording(recording)
+        n = resolve_frames(scenario, int(frames) or None, recorded=len(rec))
+        if progress:
+            announce(f"generating {path.name} (once; cached in {path.parent})",
+                     estimated_seconds(n, 1, scenario=scenario))
+        with staged_dir(path) as tmp:
+            generate(scenario, tmp, frames=n, seed=int(seed), workers=1, progress=progress, recording=rec)
+            key = {"scenario": scenario, "seed": int(seed), "frames": int(frames), "recording": str(recording),
                    "generator_version": generator_version()}
             (tmp / MARKER).write_text(json.dumps({**key, "files": folder_manifest(tmp)}) + "\n")
     return path

@@ -399,6 +399,7 @@ class Planner:
         self._relax = 1.0  # factor on the gaps: below 1 for a person boxed in for a while (see plan)
         self._objects_block = True
         self._times = np.arange(0.0, self.duration + cfg.check_dt, cfg.check_dt)
+        self.route_smooth = 0.4  # the routes' corners are rounded by a Gaussian of this (m; ``Route``)
 
     # ---- sampling ----
     def in_view_point(self) -> np.ndarray:
@@ -495,7 +496,7 @@ class Planner:
         pts = self._route_points(s.xy, target, ignore)
         if pts is None:
             return None
-        route = Route(pts)
+        route = Route(pts, smooth=self.route_smooth)
         c = self.cfg
         v = float(self.rng.uniform(*c.walk_speed)) * (c.hold_speed if hold else 1.0)
         ramp = min(c.ramp_s, route.length / v)
@@ -756,8 +757,7 @@ class Planner:
         s = tl.end_state()
         side = -1.0 if s.xy[0] > 0 else 1.0
         for _ in range(c.tries):
-            y = self.rng.uniform(*c.holding.move_y)
-            target = np.array([side * self.rng.uniform(c.holding.move_side, 1.0) * c.view_slope * y, y])
+            target = self.move_target(side)
             d = target - s.xy
             if np.linalg.norm(d) < c.holding.move_min_m:
                 continue
@@ -766,6 +766,13 @@ class Planner:
             if self._go(tl, self._walk(s, tl.t_end, target, hold=hold), obj):
                 return True
         return False
+
+    def move_target(self, side: float) -> np.ndarray:
+        """Where a held object is taken: a point in view on the ``side`` (+-1) of the camera's axis, y in
+        ``HoldingConfig.move_y``, at least ``move_side`` of the way from the axis to the view's edge."""
+        c = self.cfg
+        y = self.rng.uniform(*c.holding.move_y)
+        return np.array([side * self.rng.uniform(c.holding.move_side, 1.0) * c.view_slope * y, y])
 
     def _leave(self, tl: Timeline, obj: HeldObject, hold: str) -> None:
         """Put the object down (or let the chair go), then turn round and step away from it."""

@@ -281,6 +281,84 @@ class TwinConfig(Checked):
 
 
 @dataclass(frozen=True)
+class CompositeConfig(Checked):
+    """People composited into a real recording (``d2slam synth real_walking --on-trajectory TUM_DIR``,
+    ``d2slam.synth.composite``, ``d2slam.synth.realroom``): where they may stand in the recording's room, measured
+    from its own depth, and how they are put into its images (the twin's camera, timing and sensor,
+    ``TwinConfig``). The measurements behind each value: docs/real_people.md. Only the composite scenarios read it."""
+
+    # Fusion of the recording's depth into its ground truth's world: every fuse_stride-th depth image, every
+    # fuse_step-th pixel of it.
+    fuse_stride: int = within(5, 1, 100_000)
+    fuse_step: int = within(4, 1, 64)
+    # The floor: the lowest height where at least floor_min_share of the fused points lie within floor_band_m (m), a
+    # plane fitted there, at most floor_max_tilt_deg from the world's vertical (the motion capture's Z is up).
+    floor_band_m: float = within(0.03, 0.0, 1.0, lo_open=True)
+    floor_min_share: float = within(0.01, 0.0, 1.0, lo_open=True)
+    floor_max_tilt_deg: float = within(10.0, 0.0, 90.0)
+    # Free space: cells of cell_m on the floor, over the fused points' extent plus room_margin_m. A cell is occupied
+    # when at least occupied_points fused points lie above it between body_low_m and body_high_m (a standing
+    # person's extent); known free when not occupied and either at least floor_points fused points lie on the floor
+    # there (within floor_band_m) or, at one of probe_heights_m above it at least, the depth of at least seen_frames
+    # fused frames lies at least see_through_m beyond that point (seen through), and at each of the others too or no
+    # frame's depth lies within see_through_m of it (no surface was ever seen there: out of view, hidden behind
+    # nearer surfaces, holes); never in view when at most
+    # never_view_share of the fused frames hold any of its points at view_heights_m (a standing person's feet to
+    # head) in their image; out of view when the same holds for their image grown by view_margin_px (the frames
+    # between the fused ones turn by up to a few degrees more): where people leave the view to. A person stands on
+    # known free or never
+    # seen cells at least clearance_m from occupied ones (a person's half width with their arms): where a frame
+    # could have seen the space but the depth did not (behind the furniture), nobody stands.
+    cell_m: float = within(0.05, 0.0, 10.0, lo_open=True)
+    room_margin_m: float = within(1.0, 0.0, 100.0)
+    body_low_m: float = within(0.08, 0.0, 10.0)
+    body_high_m: float = within(1.9, 0.0, 10.0)
+    occupied_points: int = within(20, 1, 10_000_000)
+    floor_points: int = within(3, 1, 10_000_000)
+    probe_heights_m: tuple[float, ...] = within((0.3, 0.9, 1.5), 0.0, 10.0, ascending=True)
+    see_through_m: float = within(0.15, 0.0, 10.0)
+    seen_frames: int = within(2, 1, 100_000)
+    view_heights_m: tuple[float, ...] = within((0.1, 0.5, 0.9, 1.3, 1.8), 0.0, 10.0, ascending=True)
+    view_margin_px: float = within(40.0, 0.0, 10_000.0)
+    never_view_share: float = within(0.0, 0.0, 1.0)
+    clearance_m: float = within(0.35, 0.0, 10.0)
+    # Routes run along the shortest chain of standable cells, their corners rounded by a Gaussian of route_smooth_m
+    # (the office's: 0.4 m), which may cut across the cells within route_slack_m of standable ones, never occupied ones.
+    route_smooth_m: float = within(0.2, 0.0, 10.0)
+    route_slack_m: float = within(0.1, 0.0, 10.0)
+    # The camera's operator: the cells within operator_radius_m of the fused frames' camera centres (on the floor)
+    # are occupied (a hand-held camera's operator stands there; fr1/rpy's centres stay within 0.11 m of their mean).
+    operator_radius_m: float = within(0.4, 0.0, 10.0)
+    # Where people are seen (d2slam.synth.composite.person_visibility): a lattice of standable known-free cells every
+    # vis_cell_m; a person there is a cylinder of body_half_width_m x body_half_depth_m, body_height_m tall, whose
+    # image share is the part of its outline within the image times body_fill times the share of its points there
+    # that are seen. Targets in view: cells where a person is seen at least vis_min_coverage in some frame, drawn by
+    # how often (the share of the frames) to the power vis_weight_power; exits: cells out of view within
+    # exit_reach_m of a target.
+    vis_cell_m: float = within(0.2, 0.0, 10.0, lo_open=True)
+    body_half_width_m: float = within(0.22, 0.0, 10.0, lo_open=True)
+    body_half_depth_m: float = within(0.15, 0.0, 10.0, lo_open=True)
+    body_height_m: float = within(1.75, 0.0, 10.0, lo_open=True)
+    body_fill: float = within(0.6, 0.0, 1.0, lo_open=True)
+    vis_min_coverage: float = within(0.01, 0.0, 1.0)
+    vis_weight_power: float = within(2.0, 0.0, 100.0)
+    exit_reach_m: float = within(2.0, 0.0, 100.0, lo_open=True)
+    # The images (d2slam.synth.compositing). The people's colour is multiplied per channel by the recording's mean
+    # colour (the median of every fuse_stride-th frame's mean) over the office's, office_rgb_mean: the mean RGB of the
+    # synthetic office's frames (walking_xyz, development seed 0, 60 frames; the people's textures were made for
+    # it), so that they take the recording's exposure and white balance.
+    office_rgb_mean: tuple[float, float, float] = within((126.2, 117.4, 108.2), 1.0, 255.0)
+    # The holes of the Kinect's edge model (SynthConfig.hole_edge_*) are kept within edge_band_px of the edges the
+    # people make; the real depth elsewhere is left as it was.
+    edge_band_px: int = within(3, 0, 100)
+    # The people's colour sub-frames (TwinConfig.subframe_px's rule, over the twin's exposure): at most subframe_px of
+    # the camera's image motion apart (measured: docs/real_people.md, the colour against 1 px apart), and at least
+    # subframes_min (the people's own motion: a hand at 2 m/s moves about 9 px at 2 m over the exposure).
+    subframe_px: float = within(2.0, 0.0, 1000.0, lo_open=True)
+    subframes_min: int = within(5, 1, 10_000)
+
+
+@dataclass(frozen=True)
 class ClothConfig(Checked):
     """The garments' texture kinds (d2slam.synth.textures: cloth, trousers)."""
 
@@ -378,6 +456,8 @@ class SynthConfig(Checked):
     actors: ActorsConfig = section(ActorsConfig)
     # The synthetic twin of a real recording and its calibrated sensor (only the twin scenarios read it).
     twin: TwinConfig = section(TwinConfig)
+    # People composited into a real recording (only the composite scenarios read it).
+    composite: CompositeConfig = section(CompositeConfig)
     cloth: ClothConfig = section(ClothConfig)
     segsim: SegSimConfig = section(SegSimConfig)
 

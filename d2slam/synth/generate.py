@@ -40,7 +40,9 @@ from d2slam.errors import D2SlamError
 from d2slam.progress import PROGRESS, progress as _progress
 from d2slam.synth.config import SynthConfig
 from d2slam.synth.rigid import pose_rows
-from d2slam.synth.scene import Scene
+from d2slam.synth.composite import composite_groundtruth
+from d2slam.synth.compositing import render_composite_frame
+from d2slam.synth.scene import COMPOSITE_SCENARIOS, Scene
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor
 from d2slam.synth.twin import render_twin_frame, twin_groundtruth
@@ -79,6 +81,8 @@ def render_frame(scene: Scene, renderer: WorldRenderer, i: int) -> dict:
     mask_gt, mask_sim (uint8), plus the wall time (``ms``) and the CPU time of this process (``cpu_ms``: its OpenGL
     rasteriser threads included) of each stage: posing the bodies (``bodies``), the two OpenGL passes (``gl``), the
     sensor model, the simulated segmenter."""
+    if scene.composite:
+        return render_composite_frame(scene, renderer, i)
     if scene.recording is not None:
         return render_twin_frame(scene, renderer, i)
     cfg = scene.cfg
@@ -166,6 +170,8 @@ def _frame_job(i: int) -> dict:
     write_image(out / "depth" / dname, f["depth"], comp)
     write_image(out / "mask_gt" / name, f["mask_gt"], comp, labels=True)
     write_image(out / "mask_sim" / name, f["mask_sim"], comp, labels=True)
+    if "mask_depth" in f:  # a composite: what its depth image shows (taken at another instant than its colour)
+        write_image(out / "mask_depth" / dname, f["mask_depth"], comp, labels=True)
     clock.lap("write")
     cpu_ms = 1e3 * (time.process_time() - cpu0)
     counts = np.bincount(f["mask_gt"].ravel(), minlength=256)
@@ -190,6 +196,8 @@ def _init_worker(args) -> None:
 def groundtruth(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(timestamps, (N, 7) tx ty tz qx qy qz qw) at ``gt_rate`` Hz on an absolute grid covering the frames (a twin:
     its recording's samples, ``twin_groundtruth``)."""
+    if scene.composite:
+        return composite_groundtruth(scene)
     if scene.recording is not None:
         return twin_groundtruth(scene)
     c = scene.cfg
@@ -208,6 +216,8 @@ def camera_json(cam) -> dict:
 
 def scene_json(scene: Scene) -> dict:
     c = scene.cfg
+    if scene.composite:
+        return composite_scene_json(scene)
     if scene.recording is not None:
         return twin_scene_json(scene)
     return {
@@ -260,14 +270,36 @@ def twin_scene_json(scene: Scene) -> dict:
     }
 
 
-def _prepare_out(out: Path) -> None:
+def composite_scene_json(scene: Scene) -> dict:
+    """``scene.json`` of a composite: the twin's keys (its camera with the lens distortion), its people and objects,
+    the recording it is composited into (name, frames) and that recording's room as measured
+    (``d2slam.synth.composite.RealRoom.summary``: the floor, the room frame the people were planned in, the free
+    space's areas)."""
+    out = twin_scene_json(scene)
+    c, rec = scene.cfg, scene.recording
+    out.update(static_twin=False, objects=scene.objects_info(), person_ids=scene.person_ids,
+               moved_object_ids=scene.moved_object_ids)
+    out["camera"]["name"] = f"{rec.camera.name}-composite"
+    out["recording"] = {"name": rec.name, "frames": len(rec),
+                        "room": scene.room.summary(c.composite.vis_min_coverage)}
+    out["generator"]["notes"] = (
+        "People composited into a real recording (d2slam.synth.compositing): rgb/ and depth/ are the recording's "
+        "images with the people rendered along its ground truth (in the room frame recording.room.room_frame, a 4x4 "
+        "applied to the recording's poses), at its RGB and depth timestamps, through its camera with the lens "
+        "distortion and the sensor of generator.config.twin, z-tested against its depth. groundtruth.txt is the "
+        "recording's, in its own world. mask_gt/: the ids in the colour image; mask_depth/ (named as depth/): the ids "
+        "the depth image shows. moving_intervals are in the clock of rgb.txt.")
+    return out
+
+
+def _prepare_out(out: Path, subdirs=SUBDIRS) -> None:
     if out.exists() and not out.is_dir():
         raise D2SlamError("output path exists and is not a folder", path=out)
     if out.exists() and any(out.iterdir()) and not (out / "scene.json").exists():
         raise D2SlamError("output folder is not empty and holds no synthetic sequence (scene.json); refusing to "
                           "overwrite it", path=out)
     out.mkdir(parents=True, exist_ok=True)
-    for d in SUBDIRS:  # a re-run replaces the previous sequence entirely
+    for d in subdirs:  # a re-run replaces the previous sequence entirely
         if (out / d).exists():
             shutil.rmtree(out / d)
         (out / d).mkdir()
@@ -282,11 +314,11 @@ def worker_count(frames: int, workers: int | None = None, cfg: SynthConfig | Non
 
 
 def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig | None = None,
-                      twin: bool = False) -> float:
+                      twin: bool = False, scenario: str | None = None) -> float:
     """What generating ``frames`` frames should take (``ProgressConfig.synth_setup_s``, ``synth_frame_s``; a twin's:
-    ``synth_twin_frame_s``), announced before it starts."""
-
-    per_frame = PROGRESS.synth_twin_frame_s if twin else PROGRESS.synth_frame_s
+    ``synth_twin_frame_s``; a composite's: ``synth_composite_frame_s``), announced before it starts."""
+    per_frame = PROGRESS.synth_composite_frame_s if scenario in COMPOSITE_SCENARIOS else \
+        PROGRESS.synth_twin_frame_s if twin else PROGRESS.synth_frame_s
     return PROGRESS.synth_setup_s + frames * per_frame / worker_count(frames, workers, cfg)
 
 
@@ -301,7 +333,7 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
     scene = Scene(scenario, seed, frames, static_twin, cfg, recording)
     frames, static_twin = scene.frames, scene.static_twin
     t_scene = time.perf_counter() - t_start
-    _prepare_out(out)
+    _prepare_out(out, SUBDIRS + (("mask_depth",) if scene.composite else ()))
     n_gt = _write_lists(scene, out, scenario, seed, recording)
     n_workers = worker_count(frames, workers, cfg)
     t_frames = time.perf_counter()

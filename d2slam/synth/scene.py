@@ -9,16 +9,18 @@ path and the clock of its dynamic sequence.
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
 from d2slam.errors import D2SlamError
 from d2slam.synth import bodies
 from d2slam.synth.actors import BOX_HALF, Chair, FloorPlan, HeldObject, Leg, Person, Planner, Timeline
+from d2slam.synth.composite import RoomPlanner, box_rest, real_room
 from d2slam.synth.config import SYNTH_CAMERA, SynthConfig
 from d2slam.synth.render import Quad, QuadSet, box_quads, boxes
 from d2slam.synth.rigid import look_at, rot_x, rot_y, rot_z, rots, tf, yaw_pose  # noqa: F401 (re-exported)
 from d2slam.synth.textures import make_texture
-import argparse
 from d2slam.synth.twin import LensMap, RecordedPath, placement, twin_config
 
 # The fr3-named scenarios imitate the TUM fr3 sequences of the same name (camera motion and what the people do);
@@ -33,7 +35,12 @@ SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS
 # truth (an input: ``d2slam synth fr1_rpy_twin --on-trajectory TUM_DIR``), through its camera, with the sensor
 # calibrated against it (SynthConfig.twin). Not part of the study's grid.
 TWIN_SCENARIOS = ("fr1_rpy_twin",)
-ALL_SCENARIOS = SCENARIOS + TWIN_SCENARIOS
+# People composited into a real recording (d2slam.synth.composite, compositing; ours): the recording's images are the
+# background and its ground truth the camera path (an input: ``d2slam synth real_walking --on-trajectory TUM_DIR``);
+# two people walk in and out of view on its free floor (real_walking), or one of them carries a box (real_carry).
+COMPOSITE_SCENARIOS = ("real_walking", "real_carry")
+RECORDED_SCENARIOS = TWIN_SCENARIOS + COMPOSITE_SCENARIOS  # the scenarios that follow a real recording
+ALL_SCENARIOS = SCENARIOS + TWIN_SCENARIOS + COMPOSITE_SCENARIOS
 # ``--frames tum``: the durations (s) of the real TUM fr3 sequences as the dataset lists them; our interaction
 # scenarios take 30 s, about the fr3 walking sequences' mean (office_loop: its default frames).
 TUM_DURATIONS = {"walking_xyz": 28.83, "walking_halfsphere": 35.81, "walking_static": 24.83, "walking_rpy": 30.61,
@@ -88,9 +95,9 @@ def default_frames(scenario: str) -> int:
 
 def resolve_frames(scenario: str, frames: int | str | None, fps: float = 30.0, recorded: int | None = None) -> int:
     """``frames`` as a number of frames for ``scenario`` (``tum``: its TUM duration; None, or ``tum`` for a scenario
-    without one: ``default_frames``). A twin (``recorded``: its recording's frames) takes the recording's frames, at
-    most ``frames``."""
-    if scenario in TWIN_SCENARIOS:
+    without one: ``default_frames``). A twin or a composite (``recorded``: its recording's frames) takes the
+    recording's frames, at most ``frames``."""
+    if scenario in RECORDED_SCENARIOS:
         return int(recorded) if frames in (None, "tum") else min(int(frames), int(recorded))
     if frames is None or (frames == "tum" and scenario in SCENARIO_FRAMES):
         return default_frames(scenario)
@@ -198,7 +205,9 @@ class Scene:
                  cfg: SynthConfig | None = None, recording=None):
         sidx = scenario_index(scenario)
         twin = scenario in TWIN_SCENARIOS
+        self.composite = scenario in COMPOSITE_SCENARIOS
         self.check_recording(scenario, recording)
+        self.check_static_twin(scenario, static_twin)
         if int(frames) < 1:
             raise D2SlamError(f"--frames must be at least 1 (got {frames})")
         if int(seed) < 0:
@@ -206,7 +215,7 @@ class Scene:
         self.cfg = cfg or SynthConfig()
         self.recording = recording
         self.sidx = sidx
-        if twin:
+        if twin or self.composite:
             self._twin_clock(recording, int(frames))
         else:
             self.scenario, self.seed, self.frames = scenario, int(seed), int(frames)
@@ -228,7 +237,8 @@ class Scene:
         self.textures: list[np.ndarray] = []
         self.static_quads: list[Quad] = []
         self.floor_rects: list[tuple[float, float, float, float]] = []  # furniture on the floor (people avoid it)
-        self._build_room(np.random.default_rng([self.seed, 1]))
+        if not self.composite:  # a composite's room is the recording's own
+            self._build_room(np.random.default_rng([self.seed, 1]))
         self.people: list[Person] = []
         self.objects: list[Chair | HeldObject] = []  # everything people move (ids in mask_gt)
         self._build_actors(np.random.default_rng([self.seed, 2, sidx]))
@@ -239,22 +249,31 @@ class Scene:
 
     @staticmethod
     def check_recording(scenario: str, recording) -> None:
-        """A twin scenario needs its recording, and only a twin takes one."""
+        """A twin or composite scenario needs its recording, and only they take one."""
         scenario_index(scenario)
-        if scenario in TWIN_SCENARIOS and recording is None:
+        if scenario in RECORDED_SCENARIOS and recording is None:
             raise D2SlamError(f"{scenario} follows a real recording's trajectory: give its TUM folder "
-                              "(--on-trajectory TUM_DIR)")
-        if scenario not in TWIN_SCENARIOS and recording is not None:
-            raise D2SlamError(f"{scenario} has its own camera path; --on-trajectory is for the twin scenarios "
-                              f"({', '.join(TWIN_SCENARIOS)})")
+                              "(--on-trajectory TUM_DIR, or --on)")
+        if scenario not in RECORDED_SCENARIOS and recording is not None:
+            raise D2SlamError(f"{scenario} has its own camera path; --on (--on-trajectory) is for the scenarios on a "
+                              f"real recording ({', '.join(RECORDED_SCENARIOS)})")
+
+    @staticmethod
+    def check_static_twin(scenario: str, static_twin: bool) -> None:
+        """A composite has no static twin to generate: it is its recording."""
+        if scenario in COMPOSITE_SCENARIOS and static_twin:
+            raise D2SlamError(f"the static twin of {scenario} is its recording itself (the TUM folder given to --on): "
+                              "nothing to generate")
 
     def _twin_clock(self, rec, frames: int) -> None:
-        """A twin's camera, clock and path: the recording's camera and first ``frames`` frames (RGB and depth
-        times), its ground truth placed in the room (d2slam.synth.twin); static (no people)."""
+        """The camera, clock and path of a scene on a real recording: the recording's camera and first ``frames``
+        frames (RGB and depth times); a twin: its ground truth placed in the office (d2slam.synth.twin), static (no
+        people); a composite: its ground truth in the room frame of the recording's own room
+        (d2slam.synth.composite), the room measured from its depth."""
         tw = self.cfg.twin
         self.cfg = twin_config(self.cfg)
         self.frames = min(frames, len(rec))
-        self.static_twin = True
+        self.static_twin = not self.composite
         c, cam = self.cfg, rec.camera
         self.intrinsics = cam
         self.K = np.array([[float(cam.fx), 0, float(cam.cx)], [0, float(cam.fy), float(cam.cy)], [0, 0, 1.0]])
@@ -265,6 +284,10 @@ class Scene:
         self.t_rel = ts - self.t0
         self.depth_offset = np.asarray(rec.depth_times[:self.frames], float) - ts
         self.duration = float(self.t_rel[-1]) + 1.0 / c.fps
+        if self.composite:
+            self.room = real_room(rec, self.cfg)
+            self.camera = RecordedPath(rec, self.room.M, self.t0)
+            return
         first = RecordedPath(rec, np.eye(4), self.t0).poses([0.0])[0]
         self.camera = RecordedPath(rec, placement(first, tw.anchor_xy, tw.anchor_heading_deg), self.t0)
 
@@ -415,6 +438,9 @@ class Scene:
         c, a = self.cfg, self.cfg.actors
         if self.scenario in TWIN_SCENARIOS:  # a static twin: nobody, nothing moved
             return
+        if self.composite:
+            self._composite_actors(rng)
+            return
         if self.scenario == "sitting_static":  # two people seated throughout, their chairs part of the room
             seats = [(-0.55, 2.55, -np.pi / 2 + 0.35), (0.6, 2.45, -np.pi / 2 - 0.35)]
             for k, (x, y, hd) in enumerate(seats):
@@ -456,6 +482,23 @@ class Scene:
         Planner(rng, a, floor, self.duration + 1.0, chairs, held).plan(
             self.people, {self.people[0].pid: held[0]} if held else None)
         self.objects = chairs + held
+
+    def _composite_actors(self, rng):
+        """The people of a composite (d2slam.synth.composite): two walkers on the recording's free floor, the first
+        carrying a box in real_carry, planned together."""
+        c = self.cfg
+        held = []
+        planner = RoomPlanner(rng, c.actors, self.room, self.duration + 1.0, held, c.composite)
+        if self.scenario == "real_carry":
+            xy, h = box_rest(rng, planner, c)
+            tex = self._tex(self._texture_rng(0), "box", 0.45, 0.32, c.body_texels_per_m)
+            held.append(HeldObject(MOVED_BOX_ID, "carried_box", "box", tex, yaw_pose(xy, h, BOX_HALF[2]),
+                                   tf(t=c.actors.holding.box_offset), float(BOX_HALF[2])))
+            planner.objects = list(held)
+        for k in range(2):
+            self.people.append(self._new_person(k, "carry" if held and k == 0 else "walk", rng, Timeline(c.actors)))
+        planner.plan(self.people, {self.people[0].pid: held[0]} if held else None)
+        self.objects = held
 
     # ---- per-frame ----
     @property

@@ -58,9 +58,21 @@ class Recording:
     depth_times: np.ndarray  # (N,) their depth images' timestamps
     gt_times: np.ndarray  # (M,) ground truth timestamps
     gt_poses: np.ndarray  # (M, 4, 4) T_world_camera in the recording's world (Z up)
+    root: Path | None = None  # its folder
+    frame_index: np.ndarray | None = None  # (N,) each frame's index among the folder's associated frames
 
     def __len__(self) -> int:
         return len(self.rgb_times)
+
+    def part(self, first: int, frames: int) -> "Recording":
+        """The recording's frames ``first`` .. ``first + frames - 1`` (its ground truth whole)."""
+        if not 0 <= int(first) < len(self) or int(frames) < 1:
+            raise D2SlamError(f"frames {first} to {int(first) + int(frames) - 1} are not in the recording's "
+                              f"{len(self)} frames", path=self.root)
+        cut = slice(int(first), int(first) + int(frames))
+        index = None if self.frame_index is None else self.frame_index[cut]
+        return dataclasses.replace(self, rgb_times=self.rgb_times[cut], depth_times=self.depth_times[cut],
+                                   frame_index=index)
 
 
 def read_recording(path: str | Path) -> Recording:
@@ -75,7 +87,7 @@ def read_recording(path: str | Path) -> Recording:
     if not inside.any():
         raise D2SlamError("no frame lies within the ground truth's time span", path=seq.root)
     return Recording(seq.name, seq.camera, ts[inside], dts[inside], np.asarray(gt.timestamps, float),
-                     np.asarray(gt.poses, float))
+                     np.asarray(gt.poses, float), Path(seq.root), np.flatnonzero(inside))
 
 
 def placement(first_pose: np.ndarray, anchor_xy: tuple[float, float], heading_deg: float) -> np.ndarray:
@@ -188,16 +200,19 @@ def twin_config(cfg: SynthConfig) -> SynthConfig:
     return dataclasses.replace(cfg, rgb_noise_sigma=tw.rgb_noise_sigma, hole_blob_fraction=tw.hole_blob_fraction)
 
 
-def shadow_holes(z: np.ndarray, cfg: SynthConfig) -> np.ndarray:
+def shadow_holes(z: np.ndarray, cfg: SynthConfig, casters: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: the projector's shadow of a clean depth image ``z`` (m, 0 = nothing): ``TwinConfig.shadow_px``
     pixels to the left of every depth edge whose nearer side is on the right (a step of more than ``hole_edge_jump_a
-    + hole_edge_jump_b z`` between horizontal neighbours)."""
+    + hole_edge_jump_b z`` between horizontal neighbours); with ``casters`` (H, W) bool, only the edges whose nearer
+    pixel is one of them."""
     w = int(cfg.twin.shadow_px)
     out = np.zeros(z.shape, bool)
     if w <= 0:
         return out
     left, right = z[:, :-1], z[:, 1:]
     step = (right > 0) & (left - right > cfg.hole_edge_jump_a + cfg.hole_edge_jump_b * right)
+    if casters is not None:
+        step &= casters[:, 1:]
     out[:, :-1] = step
     band = cv2.dilate(out.view(np.uint8), np.ones((1, w), np.uint8), anchor=(0, 0))  # each step and w - 1 to its left
     return band.astype(bool)
@@ -260,6 +275,53 @@ def subframe_times(start: float, end: float, n: int) -> np.ndarray:
     return start + (np.arange(n) + 0.5) * (end - start) / n
 
 
+def subframe_plan(scene, start: float, end: float, windows: np.ndarray, z: np.ndarray,
+                  step_px: float, least: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(instants (n,), (H, n) row weights) of the sub-frames that render an image whose rows are exposed over
+    ``windows`` within ``[start, end]`` (:func:`subframe_count` of them at ``step_px``, at least ``least`` over a
+    window of some length, :func:`row_weights`)."""
+    n = subframe_count(scene, start, end, z, step_px)
+    if end > start:
+        n = max(n, int(least))
+    return subframe_times(start, end, n), row_weights(start, end, n, windows)
+
+
+def depth_rows(scene, renderer, start: float, end: float, windows: np.ndarray, at=None):
+    """(depth (H, W) float32 m, ids (H, W) uint8, the canvas depth at the middle instant, sub-frames) of a depth
+    image whose rows are taken over ``windows`` within ``[start, end]``: each row from the sub-frame whose slice of
+    time holds it (``depth_subframe_px`` apart), through the lens. ``at(t)``: called before each render with its
+    instant (a composite moves its people there)."""
+    tw, lens = scene.cfg.twin, scene.lens
+    H, W = int(scene.intrinsics.height), int(scene.intrinsics.width)
+    mid = 0.5 * (start + end)
+    if at is not None:
+        at(mid)
+    z, ids = renderer.gl.render_depth(scene.camera.poses([mid])[0])
+    times, weights = subframe_plan(scene, start, end, windows, z, tw.depth_subframe_px)
+    if len(times) == 1:
+        return lens(z, nearest=True), lens(ids, nearest=True), z, 1
+    pick = np.argmax(weights, axis=1)
+    zd, idd = np.zeros((H, W), np.float32), np.zeros((H, W), np.uint8)
+    for k, (tk, Tk) in enumerate(zip(times, scene.camera.poses(times))):
+        rows = pick == k
+        if rows.any():
+            if at is not None:
+                at(float(tk))
+            zk, ik = renderer.gl.render_depth(Tk)
+            zd[rows], idd[rows] = lens(zk, nearest=True)[rows], lens(ik, nearest=True)[rows]
+    return zd, idd, z, len(times)
+
+
+def depth_windows(scene, i: int) -> tuple[float, float, np.ndarray]:
+    """:func:`row_windows` of frame ``i``'s depth image: its own instant and rolling shutter
+    (``depth_at_depth_time``), else the RGB image's instant, global."""
+    tw, H = scene.cfg.twin, int(scene.intrinsics.height)
+    t = float(scene.t_rel[i])
+    if tw.depth_at_depth_time:
+        return row_windows(t + float(scene.depth_offset[i]), tw.depth_time_shift, tw.depth_row_readout, 0.0, H)
+    return row_windows(t, tw.rgb_time_shift, 0.0, 0.0, H)
+
+
 def render_twin_frame(scene, renderer, i: int) -> dict:
     """Frame ``i`` of a twin scene, as ``d2slam.synth.generate.render_frame`` returns a frame (see the module
     docstring for what the sensor does)."""
@@ -281,45 +343,36 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
     lens = scene.lens
     # depth: each row at its own instant (the depth image's timestamp, shifted, and its rolling shutter), from the
     # sub-frame whose slice of time holds it
-    if tw.depth_at_depth_time:
-        dstart, dend, dwin = row_windows(t + float(scene.depth_offset[i]), tw.depth_time_shift,
-                                         tw.depth_row_readout, 0.0, H)
-    else:
-        dstart, dend, dwin = row_windows(t, tw.rgb_time_shift, 0.0, 0.0, H)
-    z, ids = renderer.gl.render_depth(scene.camera.poses([0.5 * (dstart + dend)])[0])
-    nd = subframe_count(scene, dstart, dend, z, tw.depth_subframe_px)
-    if nd == 1:
-        zd, idd = lens(z, nearest=True), lens(ids, nearest=True)
-    else:
-        pick = np.argmax(row_weights(dstart, dend, nd, dwin), axis=1)
-        zd, idd = np.zeros((H, W), np.float32), np.zeros((H, W), np.uint8)
-        for k, Tk in enumerate(scene.camera.poses(subframe_times(dstart, dend, nd))):
-            rows = pick == k
-            if rows.any():
-                zk, ik = renderer.gl.render_depth(Tk)
-                zd[rows], idd[rows] = lens(zk, nearest=True)[rows], lens(ik, nearest=True)[rows]
+    zd, idd, z, nd = depth_rows(scene, renderer, *depth_windows(scene, i))
     # RGB: the average of sub-frames over each row's exposure
     start, end, windows = row_windows(t, tw.rgb_time_shift, tw.row_readout, tw.exposure, H)
-    n = subframe_count(scene, start, end, z, tw.subframe_px)
-    weights = row_weights(start, end, n, windows).astype(np.float32)
+    times, weights = subframe_plan(scene, start, end, windows, z, tw.subframe_px)
+    weights = weights.astype(np.float32)
     acc = np.zeros((H, W, 3), np.float32)
-    for k, Tk in enumerate(scene.camera.poses(subframe_times(start, end, n))):
+    for k, Tk in enumerate(scene.camera.poses(times)):
         acc += weights[:, k, None, None] * lens(renderer.gl.render_colour(Tk)).astype(np.float32)
     lap("gl")
     rgb = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
     rgb = rgb_sensor(rgb, (0.0, 0.0), rngs[1], cfg, bank_seed=scene.seed)
     depth = depth_to_png(zd, rngs[0], cfg, camera=scene.intrinsics)
     depth[shadow_holes(zd, cfg)] = 0
-    top, bottom, left, right = tw.depth_border
-    depth[:top] = 0
-    depth[H - bottom:] = 0
-    depth[:, :left] = 0
-    depth[:, W - right:] = 0
+    clear_border(depth, tw.depth_border)
     lap("sensor")
     sim = simulate_segmenter(idd, zd, scene.person_ids, scene.K, rngs[2], cfg)
     lap("segmenter")
     return {"rgb": rgb, "depth": depth, "depth_clean": zd, "mask_gt": idd, "mask_sim": sim,
-            "pose": scene.camera.poses([t])[0], "subframes": n, "depth_subframes": nd, "ms": ms, "cpu_ms": cpu}
+            "pose": scene.camera.poses([t])[0], "subframes": len(times), "depth_subframes": nd, "ms": ms,
+            "cpu_ms": cpu}
+
+
+def clear_border(depth: np.ndarray, border) -> None:
+    """No depth on the image's border (top, bottom, left, right px: ``TwinConfig.depth_border``), in place."""
+    top, bottom, left, right = border
+    H, W = depth.shape
+    depth[:top] = 0
+    depth[H - bottom:] = 0
+    depth[:, :left] = 0
+    depth[:, W - right:] = 0
 
 
 def twin_groundtruth(scene) -> tuple[np.ndarray, np.ndarray]:
