@@ -36,18 +36,19 @@ from d2slam.progress import ProgressConfig
 from d2slam.ranges import (Checked, ConfigError, Range, build_section, flag, name_sections, one_of, overridden, section,
                            within)
 from d2slam.segmentation.config import SegmentationConfig
-from d2slam.slam.config import (EngineConfig, KeyframeConfig, LoopConfig, MappingConfig, OrbConfig, RelocalisationConfig,
-                                SlamConfig, TrackingConfig)
+from d2slam.slam.config import (EngineConfig, KeyframeConfig, LoopConfig, MappingConfig, OrbConfig,
+                                RelocalisationConfig, SlamConfig, TrackingConfig)
 from d2slam.synth.config import (SYNTH_CAMERA, ActorsConfig, BodyConfig, BodyMotionConfig, ClothConfig, CompositeConfig,
                                  HoldingConfig, SegSimConfig, SittingConfig, SynthConfig, SynthEvalConfig, TwinConfig)
 
 __all__ = ["ActorsConfig", "BaselineConfig", "BelongsConfig", "BodyConfig", "BodyMotionConfig", "CacheConfig", "CLI",
-           "CliConfig", "ClothConfig", "CompositeConfig", "Config", "ConfigError", "DataConfig", "DEFAULT", "DepthCheckConfig",
-           "DepthNoise", "DynamicsConfig", "EngineConfig", "EvalConfig", "FlowConfig", "HoldingConfig",
-           "KeyframeConfig", "LoopConfig", "MASK_FILLS", "MappingConfig", "MaskedFramesConfig", "MaskingConfig",
-           "OnlineConfig", "OrbConfig", "OursConfig", "PoseTestConfig", "ProgressConfig", "Range", "RelocalisationConfig",
-           "SegSimConfig", "SegmentationConfig", "SittingConfig", "SlamConfig", "StudyConfig", "SYNTH_CAMERA",
-           "SynthConfig", "SynthEvalConfig", "TrackingConfig", "TwinConfig", "load_config_file", "with_overrides"]
+           "CliConfig", "ClothConfig", "CompositeConfig", "Config", "ConfigError", "DataConfig", "DEFAULT",
+           "DepthCheckConfig", "DepthNoise", "DynamicsConfig", "EngineConfig", "EvalConfig", "FlowConfig",
+           "HoldingConfig", "KeyframeConfig", "LoopConfig", "MASK_FILLS", "MappingConfig", "MaskedFramesConfig",
+           "MaskingConfig", "OnlineConfig", "OrbConfig", "OursConfig", "PoseTestConfig", "ProgressConfig", "Range",
+           "RelocalisationConfig", "SegSimConfig", "SegmentationConfig", "SittingConfig", "SlamConfig", "StudyConfig",
+           "SYNTH_CAMERA", "SynthConfig", "SynthEvalConfig", "TrackingConfig", "TwinConfig", "load_config_file",
+           "with_overrides"]
 
 
 # --------------------------------------------------------------------------------------------------

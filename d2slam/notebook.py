@@ -125,9 +125,9 @@ def mask_provider(seq, kind: str = "sim", config: Config = DEFAULT) -> Callable[
 
 def recorded_run(seq, method: str = "d2slam", config: Config = DEFAULT, masks: str | None = "sim",
                  also: Callable | None = None, inputs: bool = True) -> RecordedRun:
-    """Run ``method`` (``d2slam.run.methods``) of the engine on ``seq`` (synthetic, or a real recording) with the ``masks`` of
-    :func:`mask_provider` (default the simulated segmenter's: the module notebooks study the modules, not the
-    network; None: no masks) and record every frame. ``also(index, keypoints, beliefs, diagnostics)`` is called
+    """Run ``method`` (``d2slam.run.methods``) of the engine on ``seq`` (synthetic, or a real recording) with the
+    ``masks`` of :func:`mask_provider` (default the simulated segmenter's: the module notebooks study the modules, not
+    the network; None: no masks) and record every frame. ``also(index, keypoints, beliefs, diagnostics)`` is called
     after each frame too (e.g. a ``d2slam.eval.keypoints.KeypointRecorder``). ``inputs=False`` keeps no hook input
     (``FrameRecord.inp`` None): the images it holds take a few MB per frame."""
 

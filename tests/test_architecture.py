@@ -12,8 +12,6 @@ import re
 import shutil
 from pathlib import Path
 
-import pytest
-
 PACKAGE = Path(__file__).resolve().parent.parent / "d2slam"
 CONTRIBUTING = PACKAGE.parent / "CONTRIBUTING.md"
 MAX_FUNCTION_LINES = 60

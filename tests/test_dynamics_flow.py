@@ -131,8 +131,8 @@ def test_flow_matches_new_depth():
     np.testing.assert_array_equal(pz[:3], [1, 2, 3])
     np.testing.assert_array_equal(pz[3:], keypoint_depth(depth, q[2:], 1))
     assert np.all(pz[3:] > 0) and pz[3] == np.median(np.delete(depth[19:22, 29:32].ravel(), 4))
-    np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, cfg=overridden(DynamicsConfig(), {"flow": {"flow_new_depth": False}}))[1],
-                                  [1, 2, 3, 0, 0])
+    no_new_depth = overridden(DynamicsConfig(), {"flow": {"flow_new_depth": False}})
+    np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, cfg=no_new_depth)[1], [1, 2, 3, 0, 0])
     np.testing.assert_array_equal(flow_matches(*args)[1], [1, 2, 3, 0, 0])
     np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, shape=(H, W))[1], pz)
     # a previous depth image of another size than the grey images, or not 2-D: a clear error, not 0 depths
@@ -218,7 +218,8 @@ def test_d2slam_flow_observes_unmatched_keypoints_and_sharpens_eq5():
     inner = in_box(inp.kps, margin=-12)
     assert dfl.geo_dynamic[inner & ~matched].mean() > 0.9  # unmatched moving keypoints caught by the flow
     # the same with FlowConfig.enabled in the d2slam mode
-    np.testing.assert_array_equal(get_filter("d2slam", overridden(DynamicsConfig(), {"flow": {"enabled": True}}))(inp), flow(inp))
+    with_flow = overridden(DynamicsConfig(), {"flow": {"enabled": True}})
+    np.testing.assert_array_equal(get_filter("d2slam", with_flow)(inp), flow(inp))
 
 
 def test_d2slam_flow_pose_test_on_new_matches():
@@ -231,7 +232,8 @@ def test_d2slam_flow_pose_test_on_new_matches():
     f = get_filter("d2slam-flow")
     f(with_depth)
     assert f.last.observed[new].mean() > 0.9 and np.isfinite(f.last.reproj_err[new & f.last.observed]).all()
-    for cfg, x in ((DynamicsConfig(), inp), (overridden(DynamicsConfig(), {"flow": {"flow_new_depth": False}}), with_depth)):
+    no_new_depth = overridden(DynamicsConfig(), {"flow": {"flow_new_depth": False}})
+    for cfg, x in ((DynamicsConfig(), inp), (no_new_depth, with_depth)):
         g = get_filter("d2slam-flow", cfg)
         g(x)
         assert g.last.observed[new].mean() > 0.9 and np.isnan(g.last.reproj_err[new]).all()

@@ -95,7 +95,8 @@ def test_no_F_gives_nan_pose_fields_when_the_pose_test_is_asked_for():
         assert res.F is None and res.reproj_err.shape == res.depth_err.shape == res.pose_dynamic.shape == (10,)
         assert np.isnan(res.reproj_err).all() and np.isnan(res.depth_err).all() and not res.pose_dynamic.any()
     # not asked for (no K or no depths): the fields stay None
-    res = geometric_module(kps, kps, few, np.full(10, 0.5), np.full(10, 0.7), CFG)  # depths without intrinsics: no pose test
+    # depths without intrinsics: no pose test
+    res = geometric_module(kps, kps, few, np.full(10, 0.5), np.full(10, 0.7), CFG)
     assert res.reproj_err is None and res.pose_dynamic is None
 
 

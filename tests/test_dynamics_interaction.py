@@ -1,6 +1,5 @@
 """Object Interaction Module (eq 9-10): neighbours, weighted centroid, zone, mask depth."""
 
-import dataclasses
 
 import numpy as np
 import pytest
@@ -197,8 +196,8 @@ def test_oim_candidates_skip_neighbour_static_only_when_asked():
     p_nb = np.array([0.3, 0.7, np.nan, np.nan, 0.1])  # static neighbours, dynamic ones, too few
     base = oim_candidates(belief, observed, geo_dynamic, CFG, p_nb)
     np.testing.assert_array_equal(base, [True, True, True, False, False])  # the default ignores p_nb
-    strict = oim_candidates(belief, observed, geo_dynamic, overridden(CFG, {"ours": {"oim_skip_neighbour_static": True}}),
-                            p_nb)
+    skip = overridden(CFG, {"ours": {"oim_skip_neighbour_static": True}})
+    strict = oim_candidates(belief, observed, geo_dynamic, skip, p_nb)
     np.testing.assert_array_equal(strict, [False, True, True, False, False])
 
 

@@ -2,7 +2,6 @@
 inverted file, ORB-SLAM's candidate rules and consistency, dynamics-aware words, the 3D-3D RANSAC, the pose graph,
 loops judged against the ground truth, the switch, and a loop closed by the engine in an analytic room."""
 
-import dataclasses
 import json
 
 import cv2

@@ -322,8 +322,8 @@ def test_the_worker_imports_this_d2slam_from_any_folder(tmp_path, seq_dir, built
 
 
 def test_bench_prints_the_per_run_split_and_takes_a_config(tmp_path, built_vocab, capsys):
-    """`d2slam bench orbslam3_vs_engine` prints where each run's seconds went; `--config` reaches ORB-SLAM3's runs (here:
-    no frame store, every repeat decodes its frames)."""
+    """`d2slam bench orbslam3_vs_engine` prints where each run's seconds went; `--config` reaches ORB-SLAM3's runs
+    (here: no frame store, every repeat decodes its frames)."""
     from d2slam.cli import main
     from d2slam.study.sequences import ensure_sequence
 

@@ -568,7 +568,8 @@ def test_keyframe_points_from_depth_up_to_the_kinect_range(room, new_points_dept
     for i in range(2):
         assert eng.process(*frames[i], i, ts[i]).tracked
     f = eng.last
-    assert ((f.mp >= 0) & (f.depth > 0)).sum() > cfg.engine.keyframes.kf_new_points_min  # the count is past maxPoint already
+    # the count is past maxPoint already
+    assert ((f.mp >= 0) & (f.depth > 0)).sum() > cfg.engine.keyframes.kf_new_points_min
     free = np.flatnonzero(f.mp < 0)
     mid, far = free[::2], free[1::2]
     f.depth[mid], f.depth[far] = 3.5, 5.0  # between 2.99 m and 4.5 m / beyond both

@@ -79,12 +79,12 @@ SETTINGS_REQUIRED = (
 # Settings
 # --------------------------------------------------------------------------------------------------
 def settings_yaml(camera, config: AnyConfig | None = None) -> str:
-    """ORB-SLAM3 1.0 settings (``File.version: "1.0"``) for an RGB-D camera: intrinsics and distortion, the
-    virtual baseline ``Stereo.b = bf / fx`` (fr3: 40 / 535.4 = 0.0747 m), ``Stereo.ThDepth`` (ORB-SLAM3's TUM
-    value 40: close points within ThDepth * b), ``RGBD.DepthMapFactor``, the ORB extractor (1000 features, 1.2, 8
-    levels, FAST 20/7). Images are given in RGB order (``Camera.RGB: 1``). The Viewer keys are required by ORB-SLAM3
-    even without a viewer. ``config``: a whole config (its ``orb`` and ``baseline`` sections and ``engine.th_depth``: ORB-SLAM3's
-    ThDepth is the engine's), defaults when None."""
+    """ORB-SLAM3 1.0 settings (``File.version: "1.0"``) for an RGB-D camera: intrinsics and distortion, the virtual
+    baseline ``Stereo.b = bf / fx`` (fr3: 40 / 535.4 = 0.0747 m), ``Stereo.ThDepth`` (ORB-SLAM3's TUM value 40: close
+    points within ThDepth * b), ``RGBD.DepthMapFactor``, the ORB extractor (1000 features, 1.2, 8 levels, FAST 20/7).
+    Images are given in RGB order (``Camera.RGB: 1``). The Viewer keys are required by ORB-SLAM3 even without a viewer.
+    ``config``: a whole config (its ``orb`` and ``baseline`` sections and ``engine.th_depth``: ORB-SLAM3's ThDepth is
+    the engine's), defaults when None."""
     orb, baseline = part_of(config, "orb", OrbConfig), part_of(config, "baseline", BaselineConfig)
     th_depth = part_of(config, "engine", EngineConfig).th_depth
     k1, k2, p1, p2, k3 = (float(c) for c in camera.dist)

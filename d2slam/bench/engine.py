@@ -9,9 +9,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -28,7 +25,6 @@ from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candid
 from d2slam.eval.trajectory import evaluate
 from d2slam.outputs import check_output_file
 from d2slam.run.orbslam3_runs import run_orbslam3
-from d2slam.run.record import EXIT_FRAGMENT
 from d2slam.run.runner import run_method
 from d2slam.run.sequence import run_sequence
 from d2slam.slam import optimizer as opt_mod

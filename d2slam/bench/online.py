@@ -42,7 +42,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-real", action="store_true", help="without the real fr1/rpy")
     parser.add_argument("--latency", type=int, nargs="+", metavar="FRAMES", default=None,
                         help="instead, timing-free (deterministic): d2slam with every frame tracked and the segmenter's "
-                        "masks LATENCY frames late (d2slam.run.online.simulated_schedule), with the masks moved on with "
+                        "masks LATENCY frames late (d2slam.run.online.simulated_schedule), with the masks moved on "
+                        "with "
                         "their people and without, beside the offline run (latency 0); default scenarios: dev seeds")
     parser.add_argument("--json", metavar="PATH", help="also write the rows as JSON")
 
@@ -112,7 +113,6 @@ def _line(name: str, r: dict, ref_ate, orb_ate) -> str:
 
 def latency(args) -> int:
     """What stale masks cost d2slam in accuracy, without a clock (``--latency``)."""
-
     still = overridden(DEFAULT, {"online": {"mask_motion": False}})
     moving = overridden(DEFAULT, {"online": {"mask_motion": True}})
     print("d2slam bench online --latency: d2slam on every frame, the segmenter's masks L frames late (a mask every L "

@@ -1,9 +1,9 @@
-"""``d2slam bench orbslam3_vs_engine``: the real ORB-SLAM3 (pyorbslam3) against our engine's ``none`` method, side by side on
-the same synthetic sequences: the static twins and the walking scenarios (benchmark seeds 101, 102, 103: never
+"""``d2slam bench orbslam3_vs_engine``: the real ORB-SLAM3 (pyorbslam3) against our engine's ``none`` method, side by
+side on the same synthetic sequences: the static twins and the walking scenarios (benchmark seeds 101, 102, 103: never
 tuned on). Figures: status, tracked frames, ATE RMSE, RPE (translation m, rotation deg over 1 s pairs; evo via
-:mod:`d2slam.eval.trajectory`), ms per frame. ORB-SLAM3 is not deterministic (threads): ``--repeats N`` runs it N
-times and prints the median with the [min, max] spread. Sequences come from the study's cache (keyed by the
-generator version)."""
+:mod:`d2slam.eval.trajectory`), ms per frame. ORB-SLAM3 is not deterministic (threads): ``--repeats N`` runs it N times
+and prints the median with the [min, max] spread. Sequences come from the study's cache (keyed by the generator
+version)."""
 
 from __future__ import annotations
 

@@ -9,8 +9,8 @@ first frame needs, the first frame), the whole run's wall time and its frames pe
 1. *empty cache*: a fresh install without the warm-up of ``make install``; numba compiles each kernel on its first
    use, during the run;
 2. *warm cache*: the same again, with the kernels the first run compiled (every later run, and a study's workers);
-3. *after the warm-up*: ``python -m d2slam.run.warmup`` (``make install`` runs it) into another empty cache, then the run:
-   the first run of a fresh install. Target: startup at most 10 s.
+3. *after the warm-up*: ``python -m d2slam.run.warmup`` (``make install`` runs it) into another empty cache, then
+   the run: the first run of a fresh install. Target: startup at most 10 s.
 
 The run's ``onnx`` masks are segmented into the mask cache before the three cases.
 """

@@ -19,8 +19,8 @@ from d2slam.eval.fragment import is_fragment, tracked_share
 from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
 from d2slam.ranges import overridden
 from d2slam.run.methods import get_method, methods
-from d2slam.run.online import Schedule, online_line, online_report, replay, run_online
 from d2slam.run.metrics import RunSource, run_json
+from d2slam.run.online import Schedule, online_line, online_report, replay, run_online
 from d2slam.run.record import EXIT_FRAGMENT
 from d2slam.run.runner import run_config, run_method
 from d2slam.slam.orb_vocabulary import load_vocabulary
@@ -73,7 +73,8 @@ def register(sub) -> None:
     p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
                    "ORB-SLAM3 (default 1)")
     p.add_argument("--online", action="store_true",
-                   help="run as on a live camera (d2slam.run.online): frames arrive at their timestamps (or --rate), the "
+                   help="run as on a live camera (d2slam.run.online): frames arrive at their timestamps (or --rate), "
+                   "the "
                    "segmenter runs in its own thread on the newest frame, tracking never waits for it and takes the "
                    "newest frame when free, dropping the rest. Depends on timing: see --online-log")
     p.add_argument("--rate", type=float, default=None, metavar="HZ",
@@ -167,8 +168,8 @@ def _print_run(record, js: dict, args, seq, out: Path) -> None:
         print(js["frames_note"])
     if record.loop_closing:
         judged = record.evaluation is not None
-        print(f"loops: {len(js['loops'])}" + (f" ({len(js['loops_true'])} true, {len(js['loops_false'])} false)"
-                                              if judged else "") + "".join(f"; frames {a} -> {b}" for a, b in js["loops"]))
+        judged_text = f" ({len(js['loops_true'])} true, {len(js['loops_false'])} false)" if judged else ""
+        print(f"loops: {len(js['loops'])}" + judged_text + "".join(f"; frames {a} -> {b}" for a, b in js["loops"]))
     if "metrics_error" in js:
         print(js["metrics_error"])
     else:

@@ -27,10 +27,10 @@ class DataConfig(Checked):
     rotation_tolerance: float = within(1e-5, 0.0, 1.0, lo_open=True)
     # `d2slam download`: connect/read timeout (s) so an unreachable server fails fast.
     download_timeout: float = within(10.0, 0.0, 10_000.0, lo_open=True)
-    # Depth-scale check of `d2slam run` without ground truth or camera motion (else DepthCheckConfig's): the median valid
-    # depth (m) of the first depth_check_frames frames must lie in depth_median_range (an indoor RGB-D scene; metres
-    # read as 1/5000 m move it out, not every factor of 5); otherwise a warning names the factor that would bring it
-    # in.
+    # Depth-scale check of `d2slam run` without ground truth or camera motion (else DepthCheckConfig's): the median
+    # valid depth (m) of the first depth_check_frames frames must lie in depth_median_range (an indoor RGB-D scene;
+    # metres read as 1/5000 m move it out, not every factor of 5); otherwise a warning names the factor that would bring
+    # it in.
     depth_check_frames: int = within(5, 1, 100_000)
     depth_median_range: tuple[float, float] = within((0.7, 10.0), 0.0, 1000.0, lo_open=True, ascending=True)
     # Depth factors the warning suggests: millimetres, TUM's 1/5000 m, metres.
@@ -48,12 +48,12 @@ class DepthCheckConfig(Checked):
     # the sequence) whose ground-truth poses are depth_min_baseline_m to depth_max_baseline_m apart and turn by at most
     # depth_max_rotation_deg (the views overlap); per frame depth_orb_features ORB keypoints with depth, cross-checked
     # Hamming matches within depth_max_hamming; the relative pose by a 3-D/3-D RANSAC (depth_ransac_iterations
-    # hypotheses of 3 matches, seeded with the run's seed, EngineConfig.seed; inlier when the residual is within depth_inlier_rel of
-    # the point's depth, which does not depend on the scale) with at least depth_min_inliers inliers. The depth is off
-    # when the median ratio of the estimated to the true camera translation is beyond depth_ratio_tolerance either way
-    # (a factor 5, e.g. millimetres read with TUM's 5000, gives 0.2 or 5). Without ground truth or camera motion,
-    # DataConfig's median-depth window decides, and the depth_far_percentile of the valid depth must reach
-    # depth_far_min_m (a room's far side; millimetres read as 1/5000 m bring it within a metre).
+    # hypotheses of 3 matches, seeded with the run's seed, EngineConfig.seed; inlier when the residual is within
+    # depth_inlier_rel of the point's depth, which does not depend on the scale) with at least depth_min_inliers
+    # inliers. The depth is off when the median ratio of the estimated to the true camera translation is beyond
+    # depth_ratio_tolerance either way (a factor 5, e.g. millimetres read with TUM's 5000, gives 0.2 or 5). Without
+    # ground truth or camera motion, DataConfig's median-depth window decides, and the depth_far_percentile of the valid
+    # depth must reach depth_far_min_m (a room's far side; millimetres read as 1/5000 m bring it within a metre).
     depth_candidate_frames: int = within(300, 2, 1_000_000)
     depth_pairs: int = within(5, 1, 1000)
     depth_min_baseline_m: float = within(0.05, 0.0, 100.0)

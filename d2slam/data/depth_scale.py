@@ -143,8 +143,8 @@ def translation_ratios(seq, check: DepthCheckConfig = DepthCheckConfig(), seed: 
 
 
 def _window_warning(seq, cfg: DataConfig, check: DepthCheckConfig) -> str | None:
-    """The fallback: the median valid depth of the first frames against ``DataConfig.depth_median_range``, and their
-    far depth (``depth_far_percentile``) against ``DepthCheckConfig.depth_far_min_m`` (a camera sees something farther than
+    """The fallback: the median valid depth of the first frames against ``DataConfig.depth_median_range``, and their far
+    depth (``depth_far_percentile``) against ``DepthCheckConfig.depth_far_min_m`` (a camera sees something farther than
     that in any room; millimetres read as 1/5000 m put a room's far wall within a metre)."""
     n = min(len(seq), max(1, int(cfg.depth_check_frames)))
     values = [d[d > 0] for d in (seq.depth_image(i) for i in range(n))]
@@ -185,7 +185,8 @@ def depth_scale_warning(seq, config: AnyConfig | DataConfig | None = None, check
         return None
     factor = seq.camera.depth_factor
     wanted = factor * ratio
-    near = [f for f in part_of(config, "data", DataConfig).depth_factor_candidates if abs(np.log(wanted / f)) < np.log(tol)]
+    candidates = part_of(config, "data", DataConfig).depth_factor_candidates
+    near = [f for f in candidates if abs(np.log(wanted / f)) < np.log(tol)]
     best = min(near, key=lambda f: abs(np.log(wanted / f))) if near else float(f"{wanted:.2g}")
     return (f"the depth does not match the ground truth's camera motion: with depth factor {factor:g} the camera "
             f"moves {ratio:.2g} times as far as in groundtruth.txt (median of {len(ratios)} frame pairs), so the "

@@ -85,19 +85,20 @@ def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarra
     start[bad_start] = kps[bad_start]
     idx = np.flatnonzero(use)
     p0 = kps[idx].reshape(-1, 1, 2)
-    win = (int(cfg.flow.flow_window), int(cfg.flow.flow_window))
-    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, int(cfg.flow.flow_iterations), float(cfg.flow.flow_epsilon))
+    fc = cfg.flow
+    win = (int(fc.flow_window), int(fc.flow_window))
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, int(fc.flow_iterations), float(fc.flow_epsilon))
     q1, s1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, start[idx].reshape(-1, 1, 2).copy(), winSize=win,
-                                         maxLevel=int(cfg.flow.flow_levels), criteria=crit,
+                                         maxLevel=int(fc.flow_levels), criteria=crit,
                                          flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     # backward, started at the forward track moved back by the start's offset (the match's motion, reversed)
     back = (q1.reshape(-1, 2) + (kps[idx] - start[idx])).reshape(-1, 1, 2)
-    p1, s2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, q1, back, winSize=win, maxLevel=int(cfg.flow.flow_levels),
+    p1, s2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, q1, back, winSize=win, maxLevel=int(fc.flow_levels),
                                          criteria=crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     q1, p1 = q1.reshape(-1, 2), p1.reshape(-1, 2)
     ok = (s1.reshape(-1) == 1) & (s2.reshape(-1) == 1) & np.isfinite(q1).all(axis=1)
     with np.errstate(invalid="ignore"):
-        ok &= np.hypot(*(p1 - kps[idx]).T) <= cfg.flow.flow_fb_px
+        ok &= np.hypot(*(p1 - kps[idx]).T) <= fc.flow_fb_px
     q[idx[ok]] = q1[ok]
     return q
 

@@ -163,8 +163,9 @@ def relative_pose(X: np.ndarray, p: np.ndarray, K: np.ndarray, cfg: DynamicsConf
     K = np.asarray(K, dtype=np.float64)
     cv2.setRNGSeed(int(seed))
     try:
-        found, rv, tv, inl = cv2.solvePnPRansac(X, p, K, None, iterationsCount=cfg.pose_test.pnp_iterations,
-                                                reprojectionError=cfg.pose_test.pnp_ransac_px, confidence=cfg.pose_test.pnp_confidence,
+        pt = cfg.pose_test
+        found, rv, tv, inl = cv2.solvePnPRansac(X, p, K, None, iterationsCount=pt.pnp_iterations,
+                                                reprojectionError=pt.pnp_ransac_px, confidence=pt.pnp_confidence,
                                                 flags=cv2.SOLVEPNP_SQPNP)
     except cv2.error:  # degenerate point sets OpenCV refuses: no pose, eq 5 decides alone
         return None
@@ -180,9 +181,9 @@ def relative_pose(X: np.ndarray, p: np.ndarray, K: np.ndarray, cfg: DynamicsConf
 def pose_residuals(X: np.ndarray, p: np.ndarray, z: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray,
                    noise: DepthNoise = DepthNoise()) -> tuple[np.ndarray, np.ndarray]:
     """Pose test (ours): (reprojection error (K,) px, normalised depth residual (K,)) of points ``X`` (K, 3) of frame
-    t-1 moved by (R, t), against their matches: pixels ``p`` (K, 2) and measured depths ``z`` (K,) in frame t. The
-    depth residual is (z - z_pred) / sqrt(sigma(z)^2 + sigma(z_pred)^2) with sigma the camera's depth noise (``noise``). NaN where
-    X is not finite or lies behind the camera; the depth residual also where z is invalid.
+    t-1 moved by (R, t), against their matches: pixels ``p`` (K, 2) and measured depths ``z`` (K,) in frame t. The depth
+    residual is (z - z_pred) / sqrt(sigma(z)^2 + sigma(z_pred)^2) with sigma the camera's depth noise (``noise``). NaN
+    where X is not finite or lies behind the camera; the depth residual also where z is invalid.
 
     Why: eq 5 cannot see a point that moves along its epipolar line (an object carried away from the camera, or slid
     along its lines under rotation); the reprojection and depth residuals of the relative pose do. A flag is evidence

@@ -289,8 +289,9 @@ def _near_a_mask(fm: FrameMasks, reach: np.ndarray, zn_ok: np.ndarray, near_dept
 
 def _in_a_zone(fm: FrameMasks, d: np.ndarray, rows: np.ndarray, reach: np.ndarray, zn_ok: np.ndarray,
                near_depth: list | None, known: float, still: np.ndarray) -> np.ndarray:
-    """(len(rows),) bool, ``oim_frame``'s step 3: eq 9's zone (of the masks not ``still``) for the keypoints ``rows``; signed distances ``d``
-    beyond ``known`` px are searched again up to the zone's reach with the mask's cached edge trees."""
+    """(len(rows),) bool, ``oim_frame``'s step 3: eq 9's zone (of the masks not ``still``) for the keypoints ``rows``;
+    signed distances ``d`` beyond ``known`` px are searched again up to the zone's reach with the mask's cached edge
+    trees."""
     finite = fm.kp.finite
     hit = np.zeros(len(rows), dtype=bool)
     for k, e in enumerate(fm.edges):  # loop over masks only

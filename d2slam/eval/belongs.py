@@ -111,7 +111,8 @@ def same_poses(a, b, tol_m: float) -> bool:
     return bool(np.max(np.linalg.norm(at[ok, :3, 3] - np.asarray(a.poses)[ok, :3, 3], axis=1)) <= tol_m)
 
 
-def residual_check(gt_xyz: np.ndarray, est_xyz: np.ndarray, cli: BelongsConfig = BelongsConfig()) -> tuple[bool, float, float, float]:
+def residual_check(gt_xyz: np.ndarray, est_xyz: np.ndarray,
+                   cli: BelongsConfig = BelongsConfig()) -> tuple[bool, float, float, float]:
     """The residual rule (module docstring, 3) on matched ground-truth and aligned estimated positions (M, 3):
     (refused, ATE RMSE, the ground truth's extent, the estimate's extent), extents as RMS distances from the
     centroid."""
@@ -129,7 +130,8 @@ def _who(ident: tuple[str, int]) -> str:
     return f"{ident[0]} seed {ident[1]}"
 
 
-def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Path, cli: BelongsConfig = BelongsConfig()) -> str:
+def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Path,
+                  cli: BelongsConfig = BelongsConfig()) -> str:
     """Why ``est`` (read from ``traj_path``) belongs to ``gt`` (read from ``gt_file``, in the sequence folder
     ``gt_folder`` when there is one), as a short reason; a one-line :class:`D2SlamError` when it does not (module
     docstring)."""

@@ -273,9 +273,9 @@ class Realism:
 def measure(seq, log: EngineLog, stride: int | None = None, config: AnyConfig | None = None,
             time_offset: float | None = None) -> Realism:
     """The realism statistics of the frames of ``seq`` that ``log`` ran (:func:`d2slam.run.observe.engine_log`; the
-    per-frame image statistics on every ``stride``-th: ``SynthEvalConfig.realism_stride``). The ground truth's image motion (for the blur) is taken
-    ``time_offset`` s after the timestamps: what the images show (default ``TwinConfig.rgb_time_shift``, measured on
-    fr1/rpy, which its twin renders)."""
+    per-frame image statistics on every ``stride``-th: ``SynthEvalConfig.realism_stride``). The ground truth's image
+    motion (for the blur) is taken ``time_offset`` s after the timestamps: what the images show (default
+    ``TwinConfig.rgb_time_shift``, measured on fr1/rpy, which its twin renders)."""
 
     ev = part_of(config, "synth_eval", SynthEvalConfig)
     n = log.frames

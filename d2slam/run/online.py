@@ -41,8 +41,8 @@ from d2slam.eval.fragment import fragment_fields
 from d2slam.eval.trajectory import evaluate_run
 from d2slam.outputs import staged_file
 from d2slam.ranges import overridden
-from d2slam.run.methods import get_method
 from d2slam.run import warmup
+from d2slam.run.methods import get_method
 from d2slam.segmentation import get_segmenter, masks_for, stack_masks
 from d2slam.slam.engine import Engine
 
@@ -209,7 +209,6 @@ class MaskThread:
 
 def online_segmenter(config: Config):
     """The real segmenter with the online thread count (``OnlineConfig.segmenter_threads``), as ``rgb -> persons``."""
-
     seg_cfg = overridden(config.segmentation, {"intra_op_threads": int(config.online.segmenter_threads)})
     seg = get_segmenter("onnx", config=seg_cfg)
     return seg.segment

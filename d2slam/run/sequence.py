@@ -1,7 +1,7 @@
 """Run a sequence through the SLAM engine: one function, a progress bar, per-stage timings, a result object.
 
     run = run_sequence(open_sequence(path), keypoint_filter=None, mask_provider=None)
-    run.trajectory  # tracked frames only (T_world_camera), run.tracked / run.lost, run.fps (d2slam.run.record.EngineRun)
+    run.trajectory  # tracked frames only (T_world_camera), run.tracked / run.lost, run.fps (run.record.EngineRun)
 
 Stages timed per frame: ``load`` (waiting for the images and masks; the next two frames and their masks are read by
 one prefetch thread while the current one is processed), ``segment`` (the mask provider's own time, when there is

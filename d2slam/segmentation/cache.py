@@ -22,8 +22,8 @@ Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/masks.npz``, one f
   ``bits[offsets[j]:offsets[j + 1]]``, the ``np.packbits`` of that rectangle (row-major).
 
 Person masks cover a small part of a frame, so the file is small and a frame is decoded by unpacking its rectangles
-into zeroed masks: no decompression and no file access per frame (``d2slam bench segmenter_speed --cache SEQ``). The file
-is read once per process and sequence (``MaskStore``). Frames segmented since are written by rewriting the file
+into zeroed masks: no decompression and no file access per frame (``d2slam bench segmenter_speed --cache SEQ``). The
+file is read once per process and sequence (``MaskStore``). Frames segmented since are written by rewriting the file
 atomically (a temporary file named after the writing process, :mod:`d2slam.outputs`, then a rename; under a lock
 file, merged with what other processes added meanwhile): every
 ``SegmentationConfig.cache_flush_frames`` new frames, when every frame of the sequence is cached, at the end of

@@ -51,7 +51,8 @@ def refills(config: SlamConfig, keypoint_filter: KeypointFilter | None) -> bool:
 
 
 class Engine:
-    def __init__(self, camera: Camera, config: SlamConfig = SlamConfig(), keypoint_filter: KeypointFilter | None = None):
+    def __init__(self, camera: Camera, config: SlamConfig = SlamConfig(),
+                 keypoint_filter: KeypointFilter | None = None):
         cv2.setNumThreads(int(config.engine.cv_threads))
         self.camera = camera
         self.config = config

@@ -49,15 +49,15 @@ class LocalMapper:
         """ORB-SLAM MapPointCulling over the recently created points: found in too few of the frames that should
         have seen them, or too few observations once ``mappoint_cull_age`` keyframes old; points leave the recent
         list at ``mappoint_recent_age`` keyframes."""
-        cfg = self.cfg
+        mc = self.cfg.mapping
         P = self.map.points
         r = self.map.recent_points
         r = r[P.alive[r]]
         ratio = P.found[r] / np.maximum(P.visible[r], 1)
         age = kf.id - P.first_kf[r]
-        bad = (ratio < cfg.mapping.mappoint_found_ratio) | ((age >= cfg.mapping.mappoint_cull_age) & (P.nobs[r] <= cfg.mapping.mappoint_min_obs))
+        bad = (ratio < mc.mappoint_found_ratio) | ((age >= mc.mappoint_cull_age) & (P.nobs[r] <= mc.mappoint_min_obs))
         self.map.cull_points(r[bad])
-        self.map.recent_points = r[~bad & (age < cfg.mapping.mappoint_recent_age)]
+        self.map.recent_points = r[~bad & (age < mc.mappoint_recent_age)]
 
     def search_in_neighbors(self, kf: KeyFrame) -> None:
         """ORB-SLAM SearchInNeighbors (observation part): the new keyframe's points are searched in its covisible

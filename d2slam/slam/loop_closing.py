@@ -287,9 +287,9 @@ class LoopCloser:
         if len(pids):
             pids, u, v, z, level, _ = proj.in_frustum(P, Tcw, pids)
             if len(pids):
-                best, d1, _, _, _ = search_by_projection(kf.grid(cfg.search_grid_cell), np.c_[u, v],
-                                                         u - proj.bf / z, cfg.loops.loop_search_radius * proj.scales[level],
-                                                         level - 1, level, P.desc[pids], free)
+                radius = cfg.loops.loop_search_radius * proj.scales[level]
+                best, d1, _, _, _ = search_by_projection(kf.grid(cfg.search_grid_cell), np.c_[u, v], u - proj.bf / z,
+                                                         radius, level - 1, level, P.desc[pids], free)
                 ok = (best >= 0) & (d1 <= cfg.desc_th_low)
                 k2, p2, d2 = best[ok], pids[ok], d1[ok].astype(np.float64)
                 keep = unique_by_target(p2, k2, d2)

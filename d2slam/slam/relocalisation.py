@@ -43,9 +43,11 @@ def relocalise(tracker, frame: Frame) -> bool:
         img = frame.kps[sel].astype(np.float64)
         cv2.setRNGSeed(int(cfg.seed) + int(frame.index))
         try:
+            rl = cfg.relocalisation
             ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-                obj, img, tracker.proj.K, None, iterationsCount=cfg.relocalisation.relocalisation_pnp_iterations,
-                reprojectionError=cfg.relocalisation.relocalisation_pnp_px, confidence=cfg.relocalisation.relocalisation_pnp_confidence, flags=cv2.SOLVEPNP_EPNP)
+                obj, img, tracker.proj.K, None, iterationsCount=rl.relocalisation_pnp_iterations,
+                reprojectionError=rl.relocalisation_pnp_px, confidence=rl.relocalisation_pnp_confidence,
+                flags=cv2.SOLVEPNP_EPNP)
         except cv2.error:
             continue
         if not ok or inliers is None or len(inliers) < cfg.tracking.tracking_min_inliers:

@@ -311,7 +311,8 @@ class Tracker:
         tracked = (frame.mp >= 0) & ~frame.outlier
         n_tracked_close = int((close & tracked).sum())
         n_untracked_close = int((close & ~tracked).sum())
-        need_close = n_tracked_close < cfg.keyframes.kf_close_tracked and n_untracked_close > cfg.keyframes.kf_close_untracked
+        kfc = cfg.keyframes
+        need_close = n_tracked_close < kfc.kf_close_tracked and n_untracked_close > kfc.kf_close_untracked
         ratio = cfg.keyframes.kf_tracked_ratio if n_kfs >= 2 else cfg.keyframes.kf_tracked_ratio_first
         inl = self.n_inliers
         c1a = frame.index >= self.last_kf_frame + cfg.keyframes.kf_max_frames

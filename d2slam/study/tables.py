@@ -42,8 +42,8 @@ RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp
                                    "kp_static_precision", "kp_object_recall", "kp_object_keypoints", "frames_tracked",
                                    "frames_lost", "tracked_share", "fragment", "keyframes", "map_points", "loops",
                                    "loops_true", "loops_false", "loop_closest_ratio"]
-# tracked_share: frames_tracked over the frames the run went through (``frames`` is the grid's, 0 = all); fragment:
-# 1 when that share is below EvalConfig.min_tracked_share (d2slam.run.record.is_fragment: its errors are over the tracked
+# tracked_share: frames_tracked over the frames the run went through (``frames`` is the grid's, 0 = all); fragment: 1
+# when that share is below EvalConfig.min_tracked_share (d2slam.run.record.is_fragment: its errors are over the tracked
 # part only). loops: detected by the engine's loop closing, true / false against the ground truth; loop_closest_ratio:
 # the score of the wrong place-recognition candidate that went furthest over its keyframe's minimum score
 # (d2slam.eval.loops).

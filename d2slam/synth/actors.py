@@ -736,7 +736,8 @@ class Planner:
         T = obj.pose(t)
         h = float(np.arctan2(T[1, 1], T[0, 1]))  # the object's +y axis: the holder's forward
         stand_at = T[:2, 3] - float(obj.offset[1, 3]) * unit(h)
-        legs = self._walk(tl.end_state(), t, stand_at - c.holding.take_approach_m * unit(h))  # the last step straight at it
+        # the last step straight at it
+        legs = self._walk(tl.end_state(), t, stand_at - c.holding.take_approach_m * unit(h))
         step = self._walk(legs[-1].end(c), legs[-1].t1, stand_at) if legs is not None else None
         legs = legs + step if step is not None else self._walk(tl.end_state(), t, stand_at)
         if legs is None:

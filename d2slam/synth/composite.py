@@ -218,7 +218,8 @@ def box_rest(rng, planner: RoomPlanner, cfg) -> tuple[np.ndarray, float]:
     for _ in range(a.tries * 5):
         xy = planner.in_view_point()
         h = float(rng.uniform(-np.pi, np.pi))
-        if planner.room.space.free(np.stack([xy, xy - (a.holding.box_offset[1] + a.holding.take_approach_m) * unit(h)])):
+        carrier = xy - (a.holding.box_offset[1] + a.holding.take_approach_m) * unit(h)
+        if planner.room.space.free(np.stack([xy, carrier])):
             return xy, h
     raise D2SlamError("no free floor in view holds the carried box and its carrier")
 

@@ -38,10 +38,10 @@ from zlib_ng import zlib_ng
 from d2slam import __version__
 from d2slam.errors import D2SlamError
 from d2slam.progress import PROGRESS, progress as _progress
-from d2slam.synth.config import SynthConfig
-from d2slam.synth.rigid import pose_rows
 from d2slam.synth.composite import composite_groundtruth
 from d2slam.synth.compositing import render_composite_frame
+from d2slam.synth.config import SynthConfig
+from d2slam.synth.rigid import pose_rows
 from d2slam.synth.scene import COMPOSITE_SCENARIOS, Scene
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor

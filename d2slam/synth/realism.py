@@ -129,7 +129,8 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
         masks = [person_lut[f["mask_gt"]], dyn_lut[f["mask_gt"]]]
         gray = cv2.cvtColor(f["rgb"], cv2.COLOR_RGB2GRAY)
         areas, kps, n = frame_stats(gray, f["depth"].astype(np.float32) / scene.intrinsics.depth_factor, masks, ext)
-        rows.append((areas[0], kps[0], n, areas[1], kps[1], *texture_stats(gray, part_of(config, "synth_eval", SynthEvalConfig))))
+        texture = texture_stats(gray, part_of(config, "synth_eval", SynthEvalConfig))
+        rows.append((areas[0], kps[0], n, areas[1], kps[1], *texture))
     renderer.close()
     a = np.array(rows, float).reshape(-1, 7)
     return FrameStats(f"{scenario} seed {seed}", idx, a[:, 0], a[:, 1], a[:, 2].astype(int), dyn_area=a[:, 3],

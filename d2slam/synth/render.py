@@ -218,7 +218,8 @@ class Renderer:
         cv2.fillConvexPoly(cov, pts, 1, cv2.LINE_8, 4)
         # inverse depth, affine in (u, v) on the plane
         a = (view.nc[i] @ self.Kinv) / view.dd[i]
-        iz = (np.float32(a[0]) * self._u[x0:x1])[None, :] + (np.float32(a[1]) * self._v[y0:y1] + np.float32(a[2]))[:, None]
+        iz = (np.float32(a[0]) * self._u[x0:x1])[None, :] \
+            + (np.float32(a[1]) * self._v[y0:y1] + np.float32(a[2]))[:, None]
         # on the polygon 1/z lies between its vertices' values; rasterised edge pixels just outside a near edge-on
         # quad would extrapolate far beyond, so clamp
         np.clip(iz, np.float32(1.0 / zi.max()), np.float32(1.0 / zi.min()), out=iz)

@@ -445,8 +445,9 @@ class Scene:
             seats = [(-0.55, 2.55, -np.pi / 2 + 0.35), (0.6, 2.45, -np.pi / 2 - 0.35)]
             for k, (x, y, hd) in enumerate(seats):
                 x, y, hd = x + rng.uniform(-0.1, 0.1), y + rng.uniform(-0.15, 0.15), hd + rng.uniform(-0.15, 0.15)
-                chair = Chair(0, "chair", np.array([x, y]) + a.sitting.seat_offset_m * np.array([np.cos(hd), np.sin(hd)]),
-                              hd, self._tex(self._texture_rng(k), "seat", 0.5, 0.5, c.room_texels_per_m))
+                seat = np.array([x, y]) + a.sitting.seat_offset_m * np.array([np.cos(hd), np.sin(hd)])
+                tex = self._tex(self._texture_rng(k), "seat", 0.5, 0.5, c.room_texels_per_m)
+                chair = Chair(0, "chair", seat, hd, tex)
                 tl = Timeline(a)
                 tl.add(Leg("sit", -1.0, self.duration + 1.0, 0.0, chair.xy, chair=chair))
                 self.people.append(self._new_person(k, "sit", rng, tl))
@@ -457,7 +458,8 @@ class Scene:
         jx, jy = a.sitting.desk_chair_jitter
         chairs = []
         for j, (oid, side) in enumerate(zip(DESK_CHAIR_IDS, (-1.0, 1.0))):
-            xy = np.array([side * a.sitting.desk_chair_x + rng.uniform(-jx, jx), a.sitting.desk_chair_y + rng.uniform(-jy, jy)])
+            chair_x = side * a.sitting.desk_chair_x + rng.uniform(-jx, jx)  # drawn before y
+            xy = np.array([chair_x, a.sitting.desk_chair_y + rng.uniform(-jy, jy)])
             h = np.pi / 2 + rng.uniform(-a.sitting.desk_chair_turn, a.sitting.desk_chair_turn)
             tex = self._tex(self._texture_rng(10 + j), "seat", 0.5, 0.5, c.body_texels_per_m)
             chairs.append(Chair(oid, f"desk_chair_{j + 1}", xy, float(h), tex))
