@@ -197,7 +197,7 @@ def composite_coverage(seq, stride: int = 1) -> dict:
 
 
 # --------------------------------------------------------------------------------------------------
-# figures (notebooks/11_real_people.ipynb)
+# figures (notebooks/12_real_people.ipynb)
 # --------------------------------------------------------------------------------------------------
 def room_figure(room, camera_centres: np.ndarray, ax=None):
     """The room a composite's people were planned in, from above (room frame: the floor at Z = 0, the cameras' mean
