@@ -340,3 +340,15 @@ def overridden(obj, changes: dict):
             value = overridden(getattr(obj, key), value)
         new[key] = value
     return dataclasses.replace(obj, **new)
+
+
+def flat_fields(obj, prefix: str = "") -> dict:
+    """{dotted name: value} of every field of a section and of its nested sections (``ours.alpha_at_scale``)."""
+    out = {}
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            out.update(flat_fields(value, f"{prefix}{f.name}."))
+        else:
+            out[f"{prefix}{f.name}"] = value
+    return out

@@ -146,9 +146,8 @@ def test_runspec_roundtrip():
 def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     import d2slam.study.core as core
     import d2slam.study.manifest as manifest
-    from d2slam.digests import source_digest
     from d2slam.study.core import load_run
-    from d2slam.study.keys import ENGINE_CODE, ORBSLAM3_CODE, run_key
+    from d2slam.study.keys import code_info, run_key
     from d2slam.study.runner import run_options
 
     out = tmp_path / "resumed"
@@ -165,8 +164,7 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     # the manifest records the checkout and the run keys' code digests as they were when the study started
     m = json.loads((out / "manifest.json").read_text())
     assert m["git"] == {"commit": "a" * 40, "dirty": False}
-    assert m["code"] == {"engine": source_digest(ENGINE_CODE), "orbslam3": source_digest(ORBSLAM3_CODE),
-                         "orbslam3-masked": source_digest(ORBSLAM3_CODE + ("segmentation",))}
+    assert m["code"] == code_info() and m["code"]["none"] != m["code"]["d2slam"] != m["code"]["orbslam3"]
     pd.testing.assert_frame_equal(res.runs, serial.runs, check_exact=True)  # timings too: nothing re-ran
     spec = RunSpec("sitting_static", "none", 101, FRAMES)
     key = run_key(spec, run_options())

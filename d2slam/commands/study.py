@@ -6,6 +6,7 @@ import os
 import sys
 from pathlib import Path
 
+from d2slam.config import load_config_file
 from d2slam.errors import D2SlamError
 from d2slam.outputs import check_output_dir, check_outputs
 from d2slam.run.methods import methods as registered
@@ -65,6 +66,9 @@ def register(sub) -> None:
     p.add_argument("--tables-only", action="store_true",
                    help="re-render OUT/tables.md and OUT/summary.csv from an existing OUT/runs.csv; run nothing")
     p.add_argument("--dry-run", action="store_true", help="print the grid and which sequences are cached; run nothing")
+    p.add_argument("--config", metavar="FILE.yaml", default=None,
+                   help="override config fields for every run, as `d2slam run --config` does (a YAML of `section: "
+                   "{field: value}`); with --resume only the runs that read a changed field run again")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -82,7 +86,7 @@ def run(args) -> int:
         if not tum_root:
             raise D2SlamError(f"--tum needs ${ENV_TUM} pointing at a TUM RGB-D copy")
     check_output_dir(out, "--out")
-    check_outputs([("--out", out)], [("TUM root", tum_root)], folders=True)
+    check_outputs([("--out", out)], [("TUM root", tum_root), ("--config", args.config)], folders=True)
     scenarios = args.scenarios
     if scenarios is None:
         scenarios = G.default_scenarios()
@@ -110,7 +114,8 @@ def run(args) -> int:
     if args.dry_run:
         return _dry_run(specs)
 
-    res = run_study(out, specs=specs, jobs=args.jobs, scheduler=args.scheduler, tum_root=tum_root,
+    config = load_config_file(args.config)[0] if args.config else None
+    res = run_study(out, specs=specs, jobs=args.jobs, scheduler=args.scheduler, tum_root=tum_root, config=config,
                     masks=args.masks, orbslam3_repeats=args.orbslam3_repeats, plots=not args.no_plots,
                     progress=False if args.quiet else None, resume=args.resume)
     df = res.runs

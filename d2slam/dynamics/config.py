@@ -3,9 +3,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
-from d2slam.ranges import Checked, below, flag, one_of, section, within
+from d2slam.ranges import Checked, below, flag, flat_fields, one_of, section, within
 
 
 @dataclass(frozen=True)
@@ -188,3 +189,24 @@ class DynamicsConfig(Checked):
     ours: OursConfig = section(OursConfig)
     pose_test: PoseTestConfig = section(PoseTestConfig)
     flow: FlowConfig = section(FlowConfig)
+
+
+# The fields only the Object Interaction Module reads (eq 9-10 and ours around it), and those only the flow
+# correspondences read (ours): a classifier without the OIM, or without flow, reads none of them. A method declares
+# what it reads with them (d2slam.run.methods.Method.reads), and the study keys its runs by what they read, so that a
+# change to an OIM constant re-runs only the methods with the OIM (tests/test_study_keys.py checks that a change to
+# a field a method is said not to read leaves its trajectory byte-identical).
+OIM_FIELDS = ("delta_a", "delta_b", "delta_min", "delta_max", "rho", "zone_factor", "zone_depth", "gamma_min",
+              "gamma_max", "ours.zone_median_stride", "ours.oim_belief", "ours.oim_skip_observed_static",
+              "ours.oim_skip_neighbour_static", "ours.oim_moving_test", "ours.oim_moving_alpha",
+              "ours.oim_moving_min")
+FLOW_FIELDS = tuple(f"flow.{f.name}" for f in dataclasses.fields(FlowConfig) if f.name != "enabled")
+
+
+def fields_read(cfg: DynamicsConfig, oim: bool = True, flow: bool = False) -> dict:
+    """{dotted name: value} of the ``DynamicsConfig`` fields a classifier reads: every field, but the OIM's without
+    the OIM and the flow's without flow (on by the method's switch or by ``flow.enabled``)."""
+    skip = set() if oim else set(OIM_FIELDS)
+    if not (flow or cfg.flow.enabled):
+        skip |= set(FLOW_FIELDS)
+    return {k: v for k, v in flat_fields(cfg).items() if k not in skip}

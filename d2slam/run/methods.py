@@ -13,17 +13,42 @@ A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and `
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
 from d2slam.config import Config
 from d2slam.data import SyntheticSequence, open_sequence
 from d2slam.dynamics import classifier
+from d2slam.dynamics.config import FLOW_FIELDS, OIM_FIELDS, fields_read
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
+from d2slam.segmentation.config import NOT_IN_KEY
 from d2slam.eval.keypoints import OracleFilter
 from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.run.record import RunRecord
+
+
+# What a run reads, by the kind of run: the config sections and the parts of the package (folders or files of
+# d2slam/) whose source decides its numbers. The study keys a run by them (d2slam.study.keys), so that a change
+# elsewhere does not re-run it.
+RUN_CODE = ("run/__init__.py", "run/methods.py", "run/metrics.py", "run/observe.py", "run/record.py",
+            "run/runner.py", "run/sequence.py", "run/warmup.py", "config.py", "ranges.py", "study/runner.py")
+ENGINE_SECTIONS = ("orb", "engine", "data", "evaluation")
+ENGINE_CODE = ("slam", "data", "eval") + RUN_CODE
+# the classifier without the OIM's code and flow's (added for the methods that use them)
+DYNAMICS_CODE = tuple(f"dynamics/{n}.py" for n in ("__init__", "classifier", "config", "depth", "fusion",
+                                                    "geometric", "kernels", "semantic", "switches"))
+OIM_CODE, FLOW_CODE = ("dynamics/interaction.py",), ("dynamics/flow.py",)
+MASK_CODE = ("segmentation",)  # the real segmenter's masks (and its config, but what does not change them)
+ORBSLAM3_SECTIONS = ("baseline", "data", "evaluation")
+ORBSLAM3_CODE = ("baselines", "data", "eval", "run/orbslam3_runs.py", "run/record.py", "run/metrics.py",
+                 "config.py", "ranges.py", "study/runner.py")
+
+
+def sections_read(*names: str) -> Callable[[Config], dict]:
+    """``reads`` of a method that reads whole config sections."""
+    return lambda config: {n: dataclasses.asdict(getattr(config, n)) for n in names}
 
 
 @dataclass(frozen=True)
@@ -38,6 +63,10 @@ class Method:
     runner: Callable[[object], RunRecord] | None = None
     # The mask kind the method always uses (``--masks`` cannot change it), or None: the run's choice.
     masks: str | None = None
+    # What a run of it reads: ``reads(config)`` -> {section: its fields read, as a dict}; ``code``: the parts of the
+    # package whose source decides its numbers (with the masks' when it reads the real segmenter's, ``mask_code``).
+    reads: Callable[[Config], dict] = sections_read(*ENGINE_SECTIONS)
+    code: tuple[str, ...] = ENGINE_CODE
 
 
 _REGISTRY: dict[str, Method] = {}
@@ -46,8 +75,24 @@ DEFAULT_MASKS = "onnx"
 
 
 def register(name: str, factory: Callable[[Config], object | None], needs_masks: bool = False,
-             help: str = "", runner: Callable[[object], RunRecord] | None = None, masks: str | None = None) -> None:
-    _REGISTRY[name] = Method(name, factory, needs_masks, help, runner, masks)
+             help: str = "", runner: Callable[[object], RunRecord] | None = None, masks: str | None = None,
+             reads: Callable[[Config], dict] | None = None, code: tuple[str, ...] = ENGINE_CODE) -> None:
+    _REGISTRY[name] = Method(name, factory, needs_masks, help, runner, masks,
+                             reads or sections_read(*ENGINE_SECTIONS), code)
+
+
+def run_reads(method: Method, config: Config, masks: str | None) -> tuple[dict, tuple[str, ...]]:
+    """What a run of ``method`` with ``masks`` (its :func:`mask_kind`) reads: the config values and the package's
+    source parts, the segmenter's included when the masks are the real segmenter's (``onnx``), the OIM's and the
+    flow's when it reads their fields."""
+    reads, code = method.reads(config), method.code
+    dyn = reads.get("dynamics", {})
+    code = code + (OIM_CODE if OIM_FIELDS[0] in dyn else ()) + (FLOW_CODE if FLOW_FIELDS[0] in dyn else ())
+    if masks == "onnx":
+        seg = {k: v for k, v in dataclasses.asdict(config.segmentation).items() if k not in NOT_IN_KEY}
+        reads = {**reads, "segmentation": seg}
+        code = code + MASK_CODE
+    return reads, code
 
 
 def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | None:
@@ -97,6 +142,7 @@ def _orbslam3_runner(args) -> RunRecord:
 
 
 register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_runner,
+         reads=sections_read(*ORBSLAM3_SECTIONS), code=ORBSLAM3_CODE,
          help="the real ORB-SLAM3 RGB-D (pyorbslam3) on the sequence, not our engine: d2slam.baselines.orbslam3")
 
 
@@ -108,6 +154,7 @@ def _orbslam3_masked_runner(args) -> RunRecord:
 
 
 register("orbslam3-masked", lambda config: None, needs_masks=True, runner=_orbslam3_masked_runner,
+         reads=sections_read(*ORBSLAM3_SECTIONS, "masking"), code=ORBSLAM3_CODE,
          help="the real ORB-SLAM3 RGB-D on frames whose person pixels (--masks) are removed: depth 0, RGB filled "
               "(d2slam.baselines.masking)")
 
@@ -137,6 +184,14 @@ class _Dynamics:
     def __repr__(self) -> str:
         return f"dynamics filter factory {self.name!r}"
 
+    def reads(self, config: Config) -> dict:
+        """The config a run of the filter reads: the engine's sections and the dynamics fields its modules read
+        (the OIM's only with the OIM on, flow's only with flow; the one-module baselines neither)."""
+        s = self.switches
+        oim, flow = (s.oim, s.flow) if s is not None else (False, False)
+        return {**sections_read(*ENGINE_SECTIONS)(config), "dynamics": fields_read(config.dynamics, oim, flow)}
+
+
 
 # The paper's method and its ablations (the classifier with one switch off), and the two single-module baselines:
 # name -> (factory, needs masks, ``d2slam run --help`` text).
@@ -159,12 +214,14 @@ DYNAMICS = {
 }
 FILTER_HELP = {name: text for name, (_, _, text) in DYNAMICS.items()}
 for _name, (_factory, _needs_masks, _help) in DYNAMICS.items():
-    register(_name, _factory, needs_masks=_needs_masks, help=_help)
+    register(_name, _factory, needs_masks=_needs_masks, help=_help, reads=_factory.reads,
+             code=ENGINE_CODE + DYNAMICS_CODE)
 
 
 def _d2slam(config: Config):
     return get_method("d2slam").factory(config)
 
 
-register("d2slam-sim", _d2slam, needs_masks=True, masks="sim",
+register("d2slam-sim", _d2slam, needs_masks=True, masks="sim", reads=DYNAMICS["d2slam"][0].reads,
+         code=ENGINE_CODE + DYNAMICS_CODE,
          help="d2slam on the simulated segmenter's masks (mask_sim of a synthetic sequence) instead of the real one's")

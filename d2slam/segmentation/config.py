@@ -28,3 +28,7 @@ class SegmentationConfig(Checked):
     # The mask cache file of a sequence is rewritten after this many newly segmented frames (and when the sequence
     # is complete); not part of the mask-cache key.
     cache_flush_frames: int = within(100, 1, 1_000_000)
+
+
+# SegmentationConfig fields that do not change masks: left out of the mask-cache key and of the runs' keys.
+NOT_IN_KEY = ("intra_op_threads", "allow_spinning", "cache_flush_frames")

@@ -36,15 +36,13 @@ from d2slam.assets import DERIVED, DOWNLOADS, assets_cache, find
 from d2slam.cachefiles import sha256_file
 from d2slam.errors import D2SlamError
 from d2slam.segmentation.base import PersonInstance
-from d2slam.segmentation.config import SegmentationConfig
+from d2slam.segmentation.config import NOT_IN_KEY, SegmentationConfig
 
 MODEL_ENV = "D2SLAM_SEG_MODEL"
 ALLOW_UNKNOWN_ENV = "D2SLAM_SEG_ALLOW_UNKNOWN"
 DEFAULT_MODEL_NAME = "yolov8n-seg_deq_384x512.onnx"
 # Version of the decoding below: part of the mask-cache key, bump when decoding changes masks.
 DECODER_VERSION = 1
-# SegmentationConfig fields that do not change masks, left out of the mask-cache key.
-NOT_IN_KEY = ("intra_op_threads", "allow_spinning", "cache_flush_frames")
 
 #: sha256 -> file name of the three YOLOv8n-seg files (``d2slam.assets``).
 KNOWN_MODELS: dict[str, str] = {a.sha256: Path(a.path).name for a in (*DOWNLOADS, *DERIVED)

@@ -19,6 +19,7 @@ Same inputs give the same deterministic columns whichever executor ran them (tes
 from __future__ import annotations
 
 import json
+from collections import Counter
 import math
 import time
 from dataclasses import dataclass, field
@@ -31,6 +32,7 @@ from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
 from d2slam.config import DEFAULT
 from d2slam.data import Trajectory, write_tum_trajectory
+from d2slam.digests import digest
 from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps as remove, staged_file, write_bytes
 from d2slam.paths import cache_dir
@@ -39,7 +41,7 @@ from d2slam.run.warmup import warm_up
 from d2slam.study import grid as G, plots as P, sequences, tables as T
 from d2slam.study.executors import executor_name, map_ordered
 from d2slam.study.grid import RunSpec, expand_grid
-from d2slam.study.keys import code_info, run_key
+from d2slam.study.keys import code_info, key_parts, run_ident, why_changed
 from d2slam.study.manifest import build_manifest, git_info
 from d2slam.study.runner import (RunOptions, execute_run, failed_row, features_dir, onnx_sequence_keys,
                                  prepare_sequence, run_options, segment_sequence)
@@ -109,18 +111,22 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
         _prepare_vocabulary(progress is not False)
     if study.executor["executor"] != "serial":
         _prepare_kernels()
-    keys_by_id = {s.run_id: run_key(s, options) for s in specs}
-    reused = _reusable(out, specs, keys_by_id) if resume else {}
+    idents = {s.run_id: run_ident(s, options) for s in specs}
+    keys_by_id = {i: digest(ident) for i, ident in idents.items()}
+    reused, reasons = _reusable(out, specs, keys_by_id, idents) if resume else ({}, {})
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
+    if resume and progress is not False:
+        announce(resume_plan(len(specs), len(reused), [reasons[s.run_id] for s in todo]))
     study.segmentation(todo)
-    by_id = {**study.runs(todo, keys_by_id, reused), **reused}
+    by_id = {**study.runs(todo, keys_by_id, idents, reused), **reused}
     results = [by_id.get(s.run_id) or {"row": failed_row(s, f"sequence: {prep_error[s.sequence_key]}"),
                                        "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}}
                for s in specs]
     for s in specs:
         if s.run_id in by_id:
             by_id[s.run_id]["key"] = keys_by_id[s.run_id]
-    manifest = build_manifest(config, _grid(specs, options, masks, reused), study.executor, generator_version(),
+    manifest = build_manifest(config, _grid(specs, options, masks, reused, [reasons.get(s.run_id) for s in todo]),
+                              study.executor, generator_version(),
                               study.timing(), git=checkout, code=code)
     # the finished runs are on disk already (saved as they finished, or read from there by --resume)
     method_order = list(dict.fromkeys(s.method for s in specs))
@@ -169,13 +175,14 @@ class _Phases:
         self._phase(segment_sequence, onnx_sequence_keys(todo, self.options), "segmentation", "sequence",
                     cost=sequence_cost)
 
-    def runs(self, todo, keys_by_id: dict, reused: dict) -> dict:
+    def runs(self, todo, keys_by_id: dict, idents: dict, reused: dict) -> dict:
         """Run ``todo``, each saved as it finishes (so that --resume recovers an interrupted study); run id ->
         its result."""
         (self.out / "runs").mkdir(exist_ok=True)
 
         def checkpoint(i, r):
-            save_run(self.out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
+            rid = todo[i].run_id
+            save_run(self.out, todo[i], {**r, "key": keys_by_id[rid], "key_parts": key_parts(idents[rid])})
 
         if self.progress is not False and reused:
             announce(f"runs: {len(reused)} reused from {self.out / 'runs'} (--resume)")
@@ -192,25 +199,49 @@ class _Phases:
                 "runs_s": round(rest, 2)}
 
 
-def _reusable(out: Path, specs, keys_by_id: dict) -> dict:
-    """The runs of ``out/runs`` --resume reuses: run id -> result, those whose key is this study's and that did not
-    fail."""
-    reused = {}
+def _reusable(out: Path, specs, keys_by_id: dict, idents: dict) -> tuple[dict, dict]:
+    """The runs of ``out/runs`` --resume reuses (run id -> result: those whose key is this study's and that did not
+    fail), and why each other run is run again (run id -> :func:`d2slam.study.keys.why_changed`)."""
+    reused, reasons = {}, {}
     for s in specs:
         r = load_run(out, s, keys_by_id[s.run_id])
         if r is not None:
             reused[s.run_id] = r
-    return reused
+            continue
+        record = _saved_record(out, s)
+        if record is None:
+            reasons[s.run_id] = "no earlier result"
+        elif record.get("key") == keys_by_id[s.run_id]:
+            reasons[s.run_id] = f"it ended {(record.get('row') or {}).get('status')}"
+        else:
+            reasons[s.run_id] = why_changed(record.get("key_parts"), idents[s.run_id])
+    return reused, reasons
 
 
-def _grid(specs, options: RunOptions, masks: str | None, reused: dict) -> dict:
+def _saved_record(out: Path, spec: RunSpec) -> dict | None:
+    """A saved run's record as it is on disk (None: none or unreadable; :func:`load_run` says when it is damaged)."""
+    try:
+        return read_json(out / "runs" / f"{spec.run_id}.json")
+    except (OSError, ValueError):
+        return None
+
+
+def resume_plan(total: int, reused: int, reasons: list[str]) -> str:
+    """What ``--resume`` will do, said before it starts: how many runs it reuses and runs, and why those run."""
+    counts = Counter(reasons)
+    why = "; ".join(f"{n} {r}" for r, n in counts.most_common())
+    return f"resume: {total} runs, {reused} reused, {len(reasons)} to run" + (f" ({why})" if why else "")
+
+
+def _grid(specs, options: RunOptions, masks: str | None, reused: dict, reasons: list | None = None) -> dict:
     """The manifest's ``grid``: what the study ran."""
     return {"scenarios": list(dict.fromkeys(s.scenario for s in specs)),
             "methods": list(dict.fromkeys(s.method for s in specs)),
             "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
             "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
             "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options.orbslam3_repeats,
-            "masks": masks, "reused_runs": sorted(reused)}
+            "masks": masks, "reused_runs": sorted(reused),
+            **({"rerun_reasons": dict(Counter(r for r in reasons if r))} if reused or any(reasons or []) else {})}
 
 
 def run_cost(spec: RunSpec, options: RunOptions) -> float:
@@ -384,7 +415,8 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
         npz.unlink(missing_ok=True)
     # the record last, whole or not at all: --resume reuses a run only when its record is there; sealed with the
     # sha256 of its content and of the arrays, so that a damaged one is not reused
-    record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
+    record = {"run": s.to_dict(), "key": r.get("key"), "key_parts": r.get("key_parts"), "row": r["row"],
+              "keypoints": r.get("keypoints"),
               "stage_ms": r.get("stage_ms"), "loops": r.get("loops"),
               "arrays_sha256": sha256_file(npz) if arrays else None}
     record = sealed(json.loads(json.dumps(record, default=_json_default)))  # sealed as it will be read back

@@ -3,50 +3,108 @@ code digests the manifest records."""
 
 from __future__ import annotations
 
+import json
 from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
 
 from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.cachefiles import sha256_file
+from d2slam.config import DEFAULT
 from d2slam.digests import digest, source_digest
-from d2slam.study.grid import ORBSLAM3, ORBSLAM3_MASKED, REPEATED, RunSpec
+from d2slam.run.methods import get_method, mask_kind, methods, run_reads
+from d2slam.study.grid import REPEATED, RunSpec
 from d2slam.study.runner import RunOptions
 from d2slam.synth.version import generator_version
 
-# Source that decides an engine run's numbers, and an ORB-SLAM3 run's (which never touches the engine or dynamics).
-ENGINE_CODE = ("slam", "dynamics", "segmentation", "data", "eval", "methods.py", "pipeline.py", "record.py",
-               "config.py", "study/runner.py")
-ORBSLAM3_CODE = ("baselines", "data", "eval", "record.py", "config.py", "study/runner.py")
-ORBSLAM3_MASKED_CODE = ORBSLAM3_CODE + ("segmentation",)  # ... and the masks it removes
 RUN_PACKAGES = ("numpy", "scipy", "opencv-python-headless", "onnxruntime", "gtsam", "g2opy", "evo", "pyorbslam3")
 
 
 def code_info() -> dict:
-    """The source digests that key the runs (:func:`d2slam.digests.source_digest`: comments and docstrings left out):
-    ``engine`` for the engine's runs, ``orbslam3`` for ORB-SLAM3's, ``orbslam3-masked`` for ORB-SLAM3's on masked
-    frames. Two studies with the same digests ran the same code, whatever their commits."""
-    return {"engine": source_digest(ENGINE_CODE), "orbslam3": source_digest(ORBSLAM3_CODE),
-            "orbslam3-masked": source_digest(ORBSLAM3_MASKED_CODE)}
+    """The source digests of the runs, per method (:func:`d2slam.digests.source_digest` of what the method reads,
+    :func:`d2slam.run.methods.run_reads`: comments and docstrings left out). Two studies with the same digests ran
+    the same code, whatever their commits."""
+    out = {}
+    for name in methods():
+        m = get_method(name)
+        masks = mask_kind(m, None, synthetic=True) if m.needs_masks else None
+        out[name] = source_digest(run_reads(m, DEFAULT, masks)[1])
+    return out
 
 
-def run_key(spec: RunSpec, options: RunOptions) -> str:
-    """What a run's numbers depend on: the run, the config (seeded), the masks, the generator version, the source
-    of the code that computes them and the versions of the numeric packages (and, for ORB-SLAM3, its repeats and
-    vocabulary file). Equal keys => a finished run can be reused (``--resume``)."""
-    orb = spec.method in REPEATED
-    code = {ORBSLAM3: ORBSLAM3_CODE, ORBSLAM3_MASKED: ORBSLAM3_MASKED_CODE}.get(spec.method, ENGINE_CODE)
-    ident = {"spec": spec.to_dict(), "config": options.config.to_dict(), "masks": options.masks,
-             "tum_root": options.tum_root, "code": source_digest(code), "packages": _packages()}
-    if spec.source == "synth":
+def run_ident(spec: RunSpec, options: RunOptions) -> dict:
+    """What a run's numbers depend on, and nothing else: the run, the config values its method reads and the source
+    of the code it runs (:func:`d2slam.run.methods.run_reads`), its masks, the generator version of a synthetic
+    sequence, the versions of the numeric packages and, for ORB-SLAM3, its repeats and vocabulary file (the engine's
+    vocabulary file when it closes loops)."""
+    if spec.method not in methods():
+        return {"spec": spec.to_dict()}  # an unknown method's run fails with its own message
+    method = get_method(spec.method)
+    masks = (mask_kind(method, None if method.masks else options.masks, synthetic=spec.source in ("synth", "composite"))
+             if method.needs_masks else None)
+    reads, code = run_reads(method, options.config, masks)
+    ident = {"spec": spec.to_dict(), "config": reads, "code": source_digest(code), "masks": masks,
+             "tum_root": options.tum_root, "packages": _packages()}
+    if spec.source in ("synth", "composite"):
         ident["generator"] = generator_version()
-    if orb:
+    if spec.method in REPEATED:
         ident["repeats"] = options.orbslam3_repeats
         ident["vocabulary"] = _vocabulary_sha()
     elif spec.loop_closing and options.config.engine.loop_closing:
         vocab = options.config.engine.vocabulary
         ident["vocabulary"] = _file_sha(vocab) if vocab else _vocabulary_sha()
-    return digest(ident)
+    return ident
+
+
+def run_key(spec: RunSpec, options: RunOptions) -> str:
+    """The run's key: the digest of :func:`run_ident`. Equal keys => a finished run can be reused (``--resume``)."""
+    return digest(run_ident(spec, options))
+
+
+def key_parts(ident: dict) -> dict:
+    """Each part of a run's ident as a digest, and the config values it read (flattened to dotted names): what a
+    saved run keeps, so that ``--resume`` can say why a run is run again (:func:`why_changed`)."""
+    return {"parts": {k: digest({"v": v}) for k, v in ident.items()}, "config": _flat(ident["config"])}
+
+
+def why_changed(saved: dict | None, ident: dict) -> str:
+    """Why a run whose saved record holds ``saved`` (its :func:`key_parts`, None when it has none) is run again
+    under ``ident``: the first part that changed (``config: dynamics.delta_a``, ``code``, ``generator``, ...)."""
+    if not saved:
+        return "no earlier result"
+    now = key_parts(ident)
+    for part, d in now["parts"].items():
+        if saved["parts"].get(part) == d:
+            continue
+        if part == "config":
+            old, new = saved.get("config") or {}, now["config"]
+            names = sorted(k for k in set(old) | set(new) if old.get(k, _MISSING) != new.get(k, _MISSING))
+            return "config: " + (", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+                                 if names else "changed")
+        return part
+    return "changed"
+
+
+_MISSING = object()
+
+
+def _flat(reads: dict) -> dict:
+    """{section.field: value} of a run's config reads (a value as JSON, comparable after a round trip)."""
+    out = {}
+    for sec, fields in reads.items():
+        for k, v in (flat_dict(fields) if isinstance(fields, dict) else {"": fields}).items():
+            out[f"{sec}.{k}" if k else sec] = json.loads(json.dumps(v, default=str))
+    return out
+
+
+def flat_dict(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(flat_dict(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
 
 
 def _file_sha(path: str):
