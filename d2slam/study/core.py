@@ -222,7 +222,7 @@ def _saved_record(out: Path, spec: RunSpec) -> dict | None:
     """A saved run's record as it is on disk (None: none or unreadable; :func:`load_run` says when it is damaged)."""
     try:
         return read_json(out / "runs" / f"{spec.run_id}.json")
-    except (OSError, ValueError):
+    except (OSError, ValueError, Damaged):
         return None
 
 

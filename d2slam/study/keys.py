@@ -64,7 +64,7 @@ def run_key(spec: RunSpec, options: RunOptions) -> str:
 def key_parts(ident: dict) -> dict:
     """Each part of a run's ident as a digest, and the config values it read (flattened to dotted names): what a
     saved run keeps, so that ``--resume`` can say why a run is run again (:func:`why_changed`)."""
-    return {"parts": {k: digest({"v": v}) for k, v in ident.items()}, "config": _flat(ident["config"])}
+    return {"parts": {k: digest({"v": v}) for k, v in ident.items()}, "config": _flat(ident.get("config", {}))}
 
 
 def why_changed(saved: dict | None, ident: dict) -> str:
