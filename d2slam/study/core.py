@@ -39,7 +39,7 @@ from d2slam.paths import cache_dir
 from d2slam.progress import PROGRESS, announce
 from d2slam.run.warmup import warm_up
 from d2slam.study import grid as G, plots as P, sequences, tables as T
-from d2slam.study.executors import executor_name, map_ordered
+from d2slam.study.executors import executor_name, map_ordered, process_cpu_s
 from d2slam.study.grid import RunSpec, expand_grid
 from d2slam.study.keys import code_info, key_parts, run_ident, why_changed
 from d2slam.study.manifest import build_manifest, git_info
@@ -150,6 +150,8 @@ class _Phases:
         self.t0 = time.perf_counter()
         self.plans = phase_plans(options, None if scheduler is not None else int(jobs))
         self.seconds = {"sequences_s": 0.0, "segmentation_s": 0.0, "runs_s": 0.0}  # each phase's own
+        self.cpu = {"sequences": [], "segmentation": [], "runs": []}  # each call's CPU seconds, where it ran
+        self.cpu0 = process_cpu_s(children=False)  # the executor's workers are children too: counted per call
 
     def _phase(self, fn, items, desc: str, unit: str, on_result=None, cost=None) -> list:
         if self.progress is not False and items:
@@ -157,7 +159,8 @@ class _Phases:
         t = time.perf_counter()
         try:
             return map_ordered(fn, items, (self.options,), self.jobs, self.scheduler, desc=desc,
-                               progress=self.progress, on_result=on_result, cost=cost, unit=unit)
+                               progress=self.progress, on_result=on_result, cost=cost, unit=unit,
+                               cpu=self.cpu[desc])
         except BaseException:
             remove_stale_temps(self.options, self.out)
             raise
@@ -191,12 +194,15 @@ class _Phases:
         return {s.run_id: r for s, r in zip(todo, done)}
 
     def timing(self) -> dict:
-        """Seconds of the sequences, of the segmentation, and of everything else up to now (the runs, with the
-        vocabulary and the kernels prepared for them)."""
+        """Wall seconds of the sequences, of the segmentation, and of everything else up to now (the runs, with the
+        vocabulary and the kernels prepared for them); beside each, the CPU seconds of its calls wherever they ran
+        (``*_cpu_s``: the workers' and ORB-SLAM3's processes), and this process's own (``study_process_cpu_s``:
+        scheduling, the vocabulary, the kernels, the tables; the serial executor's calls too)."""
         s = self.seconds
         rest = time.perf_counter() - self.t0 - s["sequences_s"] - s["segmentation_s"]
+        cpu = {f"{k}_cpu_s": round(sum(v), 2) for k, v in self.cpu.items()}
         return {"sequences_s": round(s["sequences_s"], 2), "segmentation_s": round(s["segmentation_s"], 2),
-                "runs_s": round(rest, 2)}
+                "runs_s": round(rest, 2), **cpu, "study_process_cpu_s": round(process_cpu_s(children=False) - self.cpu0, 2)}
 
 
 def _reusable(out: Path, specs, keys_by_id: dict, idents: dict) -> tuple[dict, dict]:

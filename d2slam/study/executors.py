@@ -20,6 +20,8 @@ the last to start are the shortest, so both cores stay busy to the end instead o
 
 from __future__ import annotations
 
+import os
+
 import signal
 from concurrent.futures import as_completed
 from typing import Callable, Sequence
@@ -45,11 +47,12 @@ def dispatch_order(costs: Sequence[float]) -> list[int]:
 def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, scheduler=None,
                 desc: str = "study", progress: bool | None = None,
                 on_result: Callable[[int, object], None] | None = None,
-                cost: Callable[[object], float] | None = None, unit: str = "run") -> list:
+                cost: Callable[[object], float] | None = None, unit: str = "run", cpu: list | None = None) -> list:
     """``[fn(item, *args) for item in items]`` on the chosen executor (see module docstring). ``on_result(i, result)``
     is called in this process as each result arrives (completion order), e.g. to save it at once. ``cost(item)``:
     the items start longest first (``dispatch_order``); the results stay in the order of ``items``. ``progress``:
-    False shows nothing; otherwise ``desc: k/N units`` on stderr (:func:`d2slam.progress.progress`)."""
+    False shows nothing; otherwise ``desc: k/N units`` on stderr (:func:`d2slam.progress.progress`). ``cpu``: a list
+    that gets each call's CPU seconds, wherever it ran (:class:`CpuTimed`)."""
 
     items = list(items)
     if not items:
@@ -57,17 +60,40 @@ def map_ordered(fn: Callable, items: Sequence, args: tuple = (), jobs: int = 1, 
     costs = [float(cost(it)) for it in items] if cost is not None else [1.0] * len(items)
     order = dispatch_order(costs)
     run = {"serial": _serial, "joblib": _joblib, "dask": _dask}[executor_name(jobs, scheduler)]
-    results = run(fn, items, order, args, jobs if scheduler is None else scheduler)
+    results = run(CpuTimed(fn), items, order, args, jobs if scheduler is None else scheduler)
     out = [None] * len(items)
     try:
-        for i, res in follow(results, total=len(items), desc=desc, unit=unit, enabled=progress is not False,
-                             weight=lambda r: costs[r[0]], total_weight=sum(costs)):
+        for i, (res, seconds) in follow(results, total=len(items), desc=desc, unit=unit,
+                                        enabled=progress is not False, weight=lambda r: costs[r[0]],
+                                        total_weight=sum(costs)):
             out[i] = res
+            if cpu is not None:
+                cpu.append(seconds)
             if on_result is not None:
                 on_result(i, res)
     finally:
         results.close()  # an error here (or Ctrl-C) stops the executor's workers
     return out
+
+
+class CpuTimed:
+    """``fn`` returning ``(its result, the CPU seconds of the call)``: user and system time of the process it runs in
+    and of the child processes it waited for (the real ORB-SLAM3's worker). Picklable, for any executor; on a Dask
+    worker of more than one thread the process's time holds its other threads' too."""
+
+    def __init__(self, fn: Callable):
+        self.fn = fn
+
+    def __call__(self, *args):
+        t0 = process_cpu_s()
+        res = self.fn(*args)
+        return res, process_cpu_s() - t0
+
+
+def process_cpu_s(children: bool = True) -> float:
+    """User + system seconds of this process and (``children``) of the child processes it waited for."""
+    t = os.times()
+    return t.user + t.system + ((t.children_user + t.children_system) if children else 0.0)
 
 
 def _serial(fn, items, order, args, _jobs):
