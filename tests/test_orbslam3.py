@@ -329,7 +329,7 @@ def test_bench_prints_the_per_run_split_and_takes_a_config(tmp_path, built_vocab
 
     ensure_sequence("sitting_static", 101, 40, False)  # the study's cached test sequence
     (tmp_path / "c.yaml").write_text("baseline: {orbslam3_frame_store_mb: 0}\n")
-    argv = ["bench", "orbslam3", "--scenarios", "sitting_static", "--seeds", "101", "--frames", "40", "--variants",
+    argv = ["bench", "orbslam3_vs_engine", "--scenarios", "sitting_static", "--seeds", "101", "--frames", "40", "--variants",
             "dynamic", "--methods", "orbslam3", "--repeats", "2", "--vocab", str(built_vocab)]
     assert main(argv + ["--out", str(tmp_path / "a")]) == 0
     out = capsys.readouterr().out
