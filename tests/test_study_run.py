@@ -74,13 +74,45 @@ def test_joblib_and_dask_reproduce_serial(serial, tmp_path):
         assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
         dk = run_study(tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False, plots=False, **GRID)
     _same(dk.runs, serial.runs)
-    assert dk.manifest["executor"]["executor"] == "dask"
+    assert dk.manifest["executor"]["executor"] == "dask" and dk.manifest["executor"]["workers"] == 1
     assert _tables(tmp_path / "dask") == _tables(serial.out)
 
 
 def _tables(out) -> list[str]:
     """tables.md without its provenance line (the git commit moves while others commit)."""
     return [ln for ln in (out / "tables.md").read_text().splitlines() if not ln.startswith("Config hash")]
+
+
+def _fails_here():
+    raise ModuleNotFoundError("No module named 'd2slam'")
+
+
+def test_dask_workers_are_checked_before_the_study(tmp_path):
+    from distributed import LocalCluster
+
+    from d2slam.errors import D2SlamError
+    from d2slam.study.core import check_dask_workers
+    from d2slam.study.executors import on_dask_workers
+    from d2slam.study.keys import worker_fingerprint
+
+    here = worker_fingerprint()
+    kw = dict(threads_per_worker=1, processes=False, protocol="tcp://", host="127.0.0.1", dashboard_address=":0")
+    with LocalCluster(n_workers=0, **kw) as empty:  # nothing to run on: said at once, not a study waiting forever
+        with pytest.raises(D2SlamError, match="has no worker: start them first"):
+            check_dask_workers(empty.scheduler_address, here)
+    with LocalCluster(n_workers=1, **kw) as cluster:
+        address = cluster.scheduler_address
+        assert check_dask_workers(address, here) == 1
+        # a worker on another checkout (other code, another numpy) would give other numbers under this one's keys
+        other = {**here, "code": {**here["code"], "none": "0" * 16},
+                 "packages": {**here["packages"], "numpy": "1.0"}}
+        with pytest.raises(D2SlamError, match=r"1 of the 1 Dask workers .* differs in the code of none; "
+                                              r"numpy .* \(here 1.0\)") as err:
+            check_dask_workers(address, other)
+        assert "environment.txt" in str(err.value)
+        # what a worker raises (one without d2slam cannot unpickle the probe) is its answer, not the caller's error
+        got = on_dask_workers(address, _fails_here)
+        assert [type(v) for v in got.values()] == [ModuleNotFoundError]
 
 
 def test_failed_runs_are_recorded(tmp_path):
@@ -252,7 +284,7 @@ def test_phase_plans_count_what_is_to_do_and_estimate_it(tmp_path):
     what, seconds = phase_plans(options, 2)["runs"](specs)
     assert what == "runs: 3 on 2 workers"
     assert seconds == pytest.approx(sum(run_cost(s, options) for s in specs) / 2e3)
-    assert phase_plans(options, None)["runs"](specs) == ("runs: 3", None)  # a Dask cluster: workers unknown
+    assert phase_plans(options, None)["runs"](specs) == ("runs: 3", None)  # workers unknown: no estimate
 
 
 def test_map_ordered_reports_each_result(tmp_path):

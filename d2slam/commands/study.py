@@ -48,8 +48,9 @@ def register(sub) -> None:
                    help="local worker processes (joblib/loky, single-threaded BLAS and OpenCV each; 1 = serial in "
                    "this process; default min(2, cores)). The numbers do not depend on it")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", default=None,
-                   help="run the grid on a dask.distributed cluster instead (workers need d2slam installed and the "
-                   "same cache, or they generate the sequences themselves)")
+                   help="run the grid on a dask.distributed cluster instead: every worker with this checkout and "
+                   "environment (checked before the first phase) and the same cache folder ($D2SLAM_CACHE on a "
+                   "shared filesystem); docs/study.md, 'The study on a Dask cluster'")
     p.add_argument("--orbslam3-repeats", type=int, default=None, help="ORB-SLAM3 runs per sequence (not "
                    "deterministic: median and spread reported; default: config baseline.orbslam3_repeats, 3)")
     p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
@@ -126,12 +127,18 @@ def run(args) -> int:
         print(f"  {name}: {path}")
     if res.manifest["grid"].get("reused_runs"):
         print(f"  {len(res.manifest['grid']['reused_runs'])} runs reused from {out / 'runs'} (--resume)")
-    print(f"  {res.manifest['timing'].get('total_s', 0):.0f} s ({res.manifest['executor']['executor']}, "
-          f"jobs {args.jobs})")
+    print(f"  {res.manifest['timing'].get('total_s', 0):.0f} s ({_where(res.manifest['executor'], args.jobs)})")
     if n_ok == 0:
         print("d2slam: error: no run succeeded (see the 'error' column of runs.csv)", file=sys.stderr)
         return 1
     return 0
+
+
+def _where(executor: dict, jobs: int) -> str:
+    """The executor the study ran on, in words: ``serial, jobs 1``, ``dask, 2 workers at tcp://HOST:PORT``."""
+    n = executor.get("workers")
+    return (f"{executor['executor']}, " + (f"{n} worker{'s' if n > 1 else ''} at {executor['scheduler']}" if n
+                                           else f"jobs {jobs}"))
 
 
 def _downloaded(tum_root, scenarios: list[str]) -> list[str]:

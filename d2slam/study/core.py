@@ -39,9 +39,10 @@ from d2slam.paths import cache_dir
 from d2slam.progress import PROGRESS, announce
 from d2slam.run.warmup import warm_up
 from d2slam.study import grid as G, plots as P, sequences, tables as T
-from d2slam.study.executors import executor_name, map_ordered, process_cpu_s
+from d2slam.study.executors import executor_name, map_ordered, on_dask_workers, process_cpu_s
 from d2slam.study.grid import RunSpec, expand_grid
-from d2slam.study.keys import code_info, key_parts, run_ident, why_changed
+from d2slam.study.keys import (code_info, fingerprint_differences, key_parts, run_ident, why_changed,
+                               worker_fingerprint)
 from d2slam.study.manifest import build_manifest, git_info
 from d2slam.study.runner import (RunOptions, execute_run, failed_row, features_dir, onnx_sequence_keys,
                                  prepare_sequence, run_options, segment_sequence)
@@ -105,7 +106,8 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
     out.mkdir(parents=True, exist_ok=True)
     options = run_options(config, cache_root=cache_root, tum_root=tum_root, masks=masks,
                           orbslam3_repeats=orbslam3_repeats, orbslam3_timeout=orbslam3_timeout)
-    study = _Phases(out, options, jobs, scheduler, progress)
+    workers = None if scheduler is None else check_dask_workers(scheduler, worker_fingerprint(code))
+    study = _Phases(out, options, jobs, scheduler, progress, workers)
     prep_error = study.sequences(specs)
     if any(s.method in G.REPEATED or (s.loop_closing and config.engine.loop_closing) for s in specs):
         _prepare_vocabulary(progress is not False)
@@ -141,14 +143,17 @@ class _Phases:
     segmentation, the runs; each announced before it starts (``phase_plans``) and timed. An interrupted phase leaves
     nothing its killed workers were writing."""
 
-    def __init__(self, out: Path, options: RunOptions, jobs: int, scheduler, progress: bool | None):
+    def __init__(self, out: Path, options: RunOptions, jobs: int, scheduler, progress: bool | None,
+                 workers: int | None = None):
         self.out, self.options, self.jobs, self.scheduler, self.progress = out, options, jobs, scheduler, progress
         self.executor = {"executor": executor_name(jobs, scheduler), "jobs": int(jobs),
                          "scheduler": scheduler if isinstance(scheduler, str) else (None if scheduler is None
                                                                                    else "in-process")}
+        if scheduler is not None:  # a Dask cluster: its workers, not --jobs, set how many calls run at once
+            self.executor.update(jobs=None, workers=workers)
         remove_stale_temps(options, out)
         self.t0 = time.perf_counter()
-        self.plans = phase_plans(options, None if scheduler is not None else int(jobs))
+        self.plans = phase_plans(options, int(jobs) if scheduler is None else workers)
         self.seconds = {"sequences_s": 0.0, "segmentation_s": 0.0, "runs_s": 0.0}  # each phase's own
         self.cpu = {"sequences": [], "segmentation": [], "runs": []}  # each call's CPU seconds, where it ran
         self.cpu0 = process_cpu_s(children=False)  # the executor's workers are children too: counted per call
@@ -203,6 +208,29 @@ class _Phases:
         cpu = {f"{k}_cpu_s": round(sum(v), 2) for k, v in self.cpu.items()}
         return {"sequences_s": round(s["sequences_s"], 2), "segmentation_s": round(s["segmentation_s"], 2),
                 "runs_s": round(rest, 2), **cpu, "study_process_cpu_s": round(process_cpu_s(children=False) - self.cpu0, 2)}
+
+
+def check_dask_workers(scheduler, expected: dict) -> int:
+    """The number of workers connected to the Dask ``scheduler``, each checked to compute what this process keys the
+    runs by: its :func:`d2slam.study.keys.worker_fingerprint` (the methods' source, the numeric packages, the sequence
+    generator) must be ``expected`` (this process's). A cluster with no worker, a worker that cannot import d2slam
+    and a worker with other code or packages are refused in one line: its runs would carry this checkout's key and
+    another's numbers. Workers that join later are not checked."""
+    found = on_dask_workers(scheduler, worker_fingerprint)
+    if not found:
+        raise D2SlamError(f"the Dask scheduler at {scheduler} has no worker: start them first (`dask worker "
+                          f"{scheduler if isinstance(scheduler, str) else 'tcp://HOST:PORT'} --nthreads 1`)")
+    bad = []
+    for name, got in sorted(found.items()):
+        if isinstance(got, BaseException):
+            bad.append(f"{name} cannot run d2slam ({type(got).__name__}: {got})")
+        elif fingerprint_differences(expected, got):
+            bad.append(f"{name} differs in {'; '.join(fingerprint_differences(expected, got))}")
+    if bad:
+        raise D2SlamError(f"{len(bad)} of the {len(found)} Dask workers would not compute what this checkout keys "
+                          f"its runs by: {'; '.join(bad)}. Every worker needs this d2slam checkout and environment "
+                          "(environment.txt), and a restart after either changes")
+    return len(found)
 
 
 def _reusable(out: Path, specs, keys_by_id: dict, idents: dict) -> tuple[dict, dict]:
@@ -263,7 +291,7 @@ def run_cost(spec: RunSpec, options: RunOptions) -> float:
 def phase_plans(options: RunOptions, workers: int | None) -> dict:
     """For each phase of the study (``sequences``, ``segmentation``, ``runs``), a function of its items giving what
     to announce before it starts: (what it will do, estimated seconds on ``workers`` processes, or None when the
-    number of workers is not known: a Dask cluster). Estimates: ``ProgressConfig.synth_setup_s`` + frames x
+    number of workers is not known). Estimates: ``ProgressConfig.synth_setup_s`` + frames x
     ``synth_frame_s`` per sequence to generate, frames x ``segment_frame_s`` to segment (an upper bound: masks
     already in the cache are read), :func:`run_cost` per run."""
     on = "" if workers is None else f" on {workers} worker{'s' if workers > 1 else ''}"

@@ -9,7 +9,8 @@
   (no tracebacks from the workers, nothing left running);
 * ``dask``: a ``dask.distributed`` cluster (``scheduler="tcp://HOST:PORT"``, or a ``Client`` / ``LocalCluster``
   given directly). Start its workers with ``OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1`` and ``--nthreads 1``
-  (one run per core; the numbers do not depend on it, the speed does).
+  (one run per core; the numbers do not depend on it, the speed does). ``on_dask_workers`` asks each worker
+  something first (the study: what code it runs, ``d2slam.study.core.check_dask_workers``).
 
 The function must be importable (a module-level function) and its arguments picklable. Results are placed by
 index, so the output order never depends on which worker finished first. Progress
@@ -144,25 +145,44 @@ def _indexed(i, fn, item, args):
     return i, fn(item, *args)
 
 
-def _dask(fn, items, order, args, scheduler):
-    """(index, result) in completion order from a Dask cluster (the client closed at the end if made here)."""
+def dask_client(scheduler):
+    """``(client, own)``: a ``distributed.Client`` of ``scheduler`` (an address ``tcp://HOST:PORT``, a ``Client``, or a
+    cluster object such as a ``LocalCluster``), and whether it was made here (then the caller closes it)."""
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError as exc:  # pragma: no cover - dask/distributed are in environment.txt
         raise D2SlamError(f"--scheduler needs dask.distributed: {exc}") from None
-    own = False
     if isinstance(scheduler, Client):
-        client = scheduler
-    elif hasattr(scheduler, "scheduler_address"):  # a LocalCluster / any cluster object
-        client, own = Client(scheduler), True
-    else:
-        address = str(scheduler)
-        if "://" not in address:
-            raise D2SlamError(f"--scheduler must be an address like tcp://HOST:PORT, got {address!r}")
-        try:
-            client, own = Client(address, timeout="10s"), True
-        except (OSError, TimeoutError) as exc:
-            raise D2SlamError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
+        return scheduler, False
+    if hasattr(scheduler, "scheduler_address"):  # a LocalCluster / any cluster object
+        return Client(scheduler), True
+    address = str(scheduler)
+    if "://" not in address:
+        raise D2SlamError(f"--scheduler must be an address like tcp://HOST:PORT, got {address!r}")
+    try:
+        return Client(address, timeout="10s"), True
+    except (OSError, TimeoutError) as exc:
+        raise D2SlamError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
+
+
+def on_dask_workers(scheduler, fn: Callable) -> dict:
+    """``fn()`` on every worker connected to the Dask scheduler now: worker (its name, else its address) -> what
+    it returned, or the exception it raised there (one that cannot import ``fn``'s module too)."""
+    client, own = dask_client(scheduler)
+    try:
+        names = {a: w.get("name", a) for a, w in client.scheduler_info(n_workers=-1)["workers"].items()}
+        got = client.run(fn, on_error="return") if names else {}
+        return {str(names.get(a, a)): r for a, r in got.items()}
+    finally:
+        if own:
+            client.close()
+
+
+def _dask(fn, items, order, args, scheduler):
+    """(index, result) in completion order from a Dask cluster (the client closed at the end if made here)."""
+    from distributed import as_completed
+
+    client, own = dask_client(scheduler)
     try:
         # Dask runs the highest priority first
         futures = [client.submit(_indexed, i, fn, items[i], args, pure=False, priority=len(order) - rank)

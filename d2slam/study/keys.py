@@ -32,6 +32,28 @@ def code_info() -> dict:
     return out
 
 
+def worker_fingerprint(code: dict | None = None) -> dict:
+    """What a process computes the runs with, as their keys record it: the source digests of the methods
+    (:func:`code_info`, or ``code`` when already taken), the numeric packages' versions and the sequence generator's
+    version. A Dask worker must have this process's (:func:`d2slam.study.core.check_dask_workers`)."""
+    return {"code": code_info() if code is None else code, "packages": _packages(), "generator": generator_version()}
+
+
+def fingerprint_differences(mine: dict, theirs: dict) -> list[str]:
+    """What differs between two :func:`worker_fingerprint` (``theirs`` against ``mine``), in words; [] when equal."""
+    out = []
+    code_a, code_b = mine.get("code") or {}, theirs.get("code") or {}
+    changed = [m for m in sorted(set(code_a) | set(code_b)) if code_a.get(m) != code_b.get(m)]
+    if changed:
+        out.append(f"the code of {', '.join(changed)}")
+    pk_a, pk_b = mine.get("packages") or {}, theirs.get("packages") or {}
+    out += [f"{n} {pk_b.get(n)} (here {pk_a.get(n)})" for n in sorted(set(pk_a) | set(pk_b))
+            if pk_a.get(n) != pk_b.get(n)]
+    if mine.get("generator") != theirs.get("generator"):
+        out.append("the sequence generator")
+    return out
+
+
 def run_ident(spec: RunSpec, options: RunOptions) -> dict:
     """What a run's numbers depend on, and nothing else: the run, the config values its method reads and the source
     of the code it runs (:func:`d2slam.run.methods.run_reads`), its masks, the generator version of a synthetic
