@@ -13,7 +13,6 @@ A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and `
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
@@ -23,6 +22,7 @@ from d2slam.dynamics import classifier
 from d2slam.dynamics.config import FLOW_FIELDS, OIM_FIELDS, fields_read
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
+from d2slam.ranges import flat_fields
 from d2slam.segmentation.config import NOT_IN_KEY
 from d2slam.eval.keypoints import OracleFilter
 from d2slam.run.orbslam3_runs import run_orbslam3
@@ -48,7 +48,7 @@ ORBSLAM3_CODE = ("baselines", "data", "eval", "run/orbslam3_runs.py", "run/recor
 
 def sections_read(*names: str) -> Callable[[Config], dict]:
     """``reads`` of a method that reads whole config sections."""
-    return lambda config: {n: dataclasses.asdict(getattr(config, n)) for n in names}
+    return lambda config: {n: flat_fields(getattr(config, n)) for n in names}
 
 
 @dataclass(frozen=True)
@@ -89,7 +89,7 @@ def run_reads(method: Method, config: Config, masks: str | None) -> tuple[dict, 
     dyn = reads.get("dynamics", {})
     code = code + (OIM_CODE if OIM_FIELDS[0] in dyn else ()) + (FLOW_CODE if FLOW_FIELDS[0] in dyn else ())
     if masks == "onnx":
-        seg = {k: v for k, v in dataclasses.asdict(config.segmentation).items() if k not in NOT_IN_KEY}
+        seg = {k: v for k, v in flat_fields(config.segmentation).items() if k not in NOT_IN_KEY}
         reads = {**reads, "segmentation": seg}
         code = code + MASK_CODE
     return reads, code
@@ -109,6 +109,14 @@ def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | N
     if requested is None and method.needs_masks:
         return DEFAULT_MASKS
     return requested
+
+
+def masks_read(method: Method, requested: str | None, synthetic: bool) -> str | None:
+    """The masks a run of ``method`` reads when ``requested`` are asked for (as the study asks for its masks): the
+    method's own kind when it has one, else :func:`mask_kind`'s; None when the method needs none."""
+    if not method.needs_masks:
+        return None
+    return mask_kind(method, None if method.masks else requested, synthetic)
 
 
 def methods() -> list[str]:

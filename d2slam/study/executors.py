@@ -22,7 +22,6 @@ the last to start are the shortest, so both cores stay busy to the end instead o
 from __future__ import annotations
 
 import os
-
 import signal
 from concurrent.futures import as_completed
 from typing import Callable, Sequence

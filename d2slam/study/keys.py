@@ -12,7 +12,7 @@ from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.cachefiles import sha256_file
 from d2slam.config import DEFAULT
 from d2slam.digests import digest, source_digest
-from d2slam.run.methods import get_method, mask_kind, methods, run_reads
+from d2slam.run.methods import get_method, masks_read, methods, run_reads
 from d2slam.study.grid import REPEATED, RunSpec
 from d2slam.study.runner import RunOptions
 from d2slam.synth.version import generator_version
@@ -27,8 +27,7 @@ def code_info() -> dict:
     out = {}
     for name in methods():
         m = get_method(name)
-        masks = mask_kind(m, None, synthetic=True) if m.needs_masks else None
-        out[name] = source_digest(run_reads(m, DEFAULT, masks)[1])
+        out[name] = source_digest(run_reads(m, DEFAULT, masks_read(m, None, synthetic=True))[1])
     return out
 
 
@@ -62,8 +61,7 @@ def run_ident(spec: RunSpec, options: RunOptions) -> dict:
     if spec.method not in methods():
         return {"spec": spec.to_dict()}  # an unknown method's run fails with its own message
     method = get_method(spec.method)
-    masks = (mask_kind(method, None if method.masks else options.masks, synthetic=spec.source in ("synth", "composite"))
-             if method.needs_masks else None)
+    masks = masks_read(method, options.masks, synthetic=spec.source in ("synth", "composite"))
     reads, code = run_reads(method, options.config, masks)
     ident = {"spec": spec.to_dict(), "config": reads, "code": source_digest(code), "masks": masks,
              "tum_root": options.tum_root, "packages": _packages()}
@@ -111,22 +109,10 @@ _MISSING = object()
 
 
 def _flat(reads: dict) -> dict:
-    """{section.field: value} of a run's config reads (a value as JSON, comparable after a round trip)."""
-    out = {}
-    for sec, fields in reads.items():
-        for k, v in (flat_dict(fields) if isinstance(fields, dict) else {"": fields}).items():
-            out[f"{sec}.{k}" if k else sec] = json.loads(json.dumps(v, default=str))
-    return out
-
-
-def flat_dict(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(flat_dict(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
+    """{section.field: value} of a run's config reads (each section's fields already dotted: ``flat_fields``; a value
+    as JSON, comparable after a round trip)."""
+    return {f"{sec}.{k}": json.loads(json.dumps(v, default=str)) for sec, fields in reads.items()
+            for k, v in fields.items()}
 
 
 def _file_sha(path: str):

@@ -25,7 +25,7 @@ from d2slam.data import open_sequence
 from d2slam.digests import digest, source_digest
 from d2slam.errors import D2SlamError
 from d2slam.paths import cache_dir
-from d2slam.run.methods import get_method, mask_kind, methods
+from d2slam.run.methods import get_method, mask_kind, masks_read, methods
 from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.run.record import RunRecord
 from d2slam.run.runner import run_config, run_method
@@ -79,8 +79,7 @@ def onnx_sequence_keys(specs, options: RunOptions) -> list[tuple]:
         if s.method not in methods():
             continue  # an unknown method's run records its own error
         method = get_method(s.method)
-        if method.needs_masks and mask_kind(method, None if method.masks else options.masks,
-                                            synthetic=_has_truth(s)) == "onnx":
+        if masks_read(method, options.masks, synthetic=_has_truth(s)) == "onnx":
             keys.append(s.sequence_key)
     return list(dict.fromkeys(keys))
 
