@@ -22,7 +22,7 @@ from d2slam.synth import generate
 from d2slam.synth.scene import Scene
 from d2slam.synth.twin import read_recording
 
-FIRST, FRAMES, SEED = 30, 30, 2  # seed 2: both people walk in view in half of these frames
+FIRST, FRAMES, SEED = 30, 30, 2  # seed 2: people in view in most of these frames
 
 
 def _fast() -> SynthConfig:

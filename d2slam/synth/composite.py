@@ -33,7 +33,7 @@ import numpy as np
 from d2slam.data.tum import TumSequence
 from d2slam.errors import D2SlamError
 from d2slam.synth import realroom
-from d2slam.synth.actors import Planner, Route, unit
+from d2slam.synth.actors import ActorState, Planner, Route, unit
 from d2slam.synth.rigid import pose_rows
 
 
@@ -151,6 +151,50 @@ class RoomPlanner(Planner):
             raise D2SlamError("no free floor of the recording is ever in view: no person could be seen there")
         self.exits = self._exit_cells()
         self.route_smooth = composite.route_smooth_m
+        s = room.space  # the floor's connected parts: a person draws targets and exits on their own part
+        _, self.part = cv2.connectedComponents(s.standable.astype(np.uint8), connectivity=8)
+        self.target_part = self._part_of(vis.xy[self.targets])
+        self.exit_part = self._part_of(self.exits)
+        self._moves: dict = {}
+        self._within = None  # the part the next draw keeps to (None: the current person's)
+
+    def _part_of(self, xy) -> np.ndarray:
+        ix, iy, inside = self.room.space.cells(np.asarray(xy, float).reshape(-1, 2))
+        return np.where(inside, self.part[ix, iy], 0)
+
+    def _here(self) -> int | None:
+        """The floor part the draws keep to: ``_within``, else that of where the current person's plan ends (None
+        before it starts)."""
+        if self._within is not None:
+            return self._within
+        p = self._current
+        if p is None or not p.timeline.legs:
+            return None
+        return int(self._part_of(p.timeline.end_state().xy)[0])
+
+    def plan(self, people, moves=None) -> None:
+        self._moves = dict(moves or {})
+        super().plan(people, moves)
+
+    def _start(self, tl, side: float = 0.0) -> None:
+        """The first leg: standing at a free point in view or out of view (``p_start_exit``); whoever moves an object
+        starts on the floor part where it rests."""
+        c = self.cfg
+        obj = self._moves.get(self._current.pid) if self._current is not None else None
+        self._within = int(self._part_of(obj.pose(0.0)[:2, 3])[0]) if obj is not None else None
+        try:
+            for _ in range(4 * c.tries):
+                out = self.rng.random() < c.p_start_exit
+                xy = self.exit_point() if out else self.in_view_point()
+                st = ActorState(np.asarray(xy, float), float(self.rng.uniform(-np.pi, np.pi)), 0.0, 0.0, 0.0, None,
+                                0.0)
+                leg = self._stand(st, -c.check_dt, c.check_dt)
+                if self._static_free(st.xy[None]) and self._clear_of_people([leg], strict=True):
+                    tl.add(leg)
+                    return
+        finally:
+            self._within = None
+        raise D2SlamError("no free floor in view to start a person on")
 
     def _exit_cells(self) -> np.ndarray:
         """Standable cells out of view within ``exit_reach_m`` of a target and connected to it (floor points); the
@@ -173,13 +217,23 @@ class RoomPlanner(Planner):
         return p.timeline.t_end if p is not None and p.timeline.legs else 0.0
 
     def in_view_point(self) -> np.ndarray:
+        """A point in view, drawn by how often it is seen, on the current person's floor part when that holds any."""
         vis = self.room.visibility
-        w = self.seen_share[self.targets] ** self.cc.vis_weight_power
+        here = self._here()
+        keep = self.target_part == here if here is not None else np.ones(len(self.targets), bool)
+        keep = keep if keep.any() else np.ones(len(self.targets), bool)
+        w = np.where(keep, self.seen_share[self.targets], 0.0) ** self.cc.vis_weight_power
         k = self.targets[int(self.rng.choice(len(self.targets), p=w / w.sum()))]
         return vis.xy[k] + self.rng.uniform(-0.5, 0.5, 2) * self.cc.vis_cell_m
 
     def exit_point(self) -> np.ndarray:
-        return self.exits[int(self.rng.integers(len(self.exits)))].copy()
+        """A point out of view on the current person's floor part; where that part has none (the legroom between
+        desks), a point in view."""
+        here = self._here()
+        cand = np.flatnonzero(self.exit_part == here) if here is not None else np.arange(len(self.exits))
+        if not len(cand):
+            return self.in_view_point()
+        return self.exits[int(cand[self.rng.integers(len(cand))])].copy()
 
     def move_target(self, side: float) -> np.ndarray:
         return self.in_view_point()
@@ -212,15 +266,16 @@ class RoomPlanner(Planner):
 
 
 def box_rest(rng, planner: RoomPlanner, cfg) -> tuple[np.ndarray, float]:
-    """(xy, heading) where the carried box rests at the start: a target cell where both the box and the carrier
-    standing behind it to take it (``box_offset`` behind, along the box's heading) are on standable cells."""
+    """(xy, heading) where the carried box rests at the start: a point in view where the box, the carrier standing
+    behind it to take it (``box_offset`` behind, along the box's heading) and the step up to it (``take_approach_m``
+    further) are on standable cells (the first of 16 headings from a random one that allows it)."""
     a = cfg.actors
+    reach = a.holding.box_offset[1] + a.holding.take_approach_m  # the carrier stands behind it, and steps up from further back
     for _ in range(a.tries * 5):
         xy = planner.in_view_point()
-        h = float(rng.uniform(-np.pi, np.pi))
-        carrier = xy - (a.holding.box_offset[1] + a.holding.take_approach_m) * unit(h)
-        if planner.room.space.free(np.stack([xy, carrier])):
-            return xy, h
+        for h in rng.uniform(-np.pi, np.pi) + np.arange(16) * (np.pi / 8):  # every direction the room allows
+            if planner.room.space.free(xy - np.linspace(0.0, reach, 6)[:, None] * unit(float(h))):
+                return xy, float(h)
     raise D2SlamError("no free floor in view holds the carried box and its carrier")
 
 
