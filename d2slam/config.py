@@ -88,6 +88,12 @@ class OnlineConfig(Checked):
     # with masks 3 frames late and hurt with masks 5 frames late (docs/online.md).
     mask_motion: bool = flag(False)
     mask_match_px: float = within(80.0, 0.0, 10000.0)
+    # Ours, off: with mask_tracks a mask of an earlier frame k is moved, person by person, by the median image motion
+    # from frame k to the current frame of the keypoints that lay inside it at frame k (followed through the filter's
+    # frame-to-frame matches, as eq 8 follows them); a person with fewer than mask_tracks_min such keypoints stays.
+    # Measured: docs/online.md.
+    mask_tracks: bool = flag(False)
+    mask_tracks_min: int = within(5, 1, 100_000)
     # onnxruntime's intra-op threads of the segmenter's thread (the tracker has the other core).
     segmenter_threads: int = within(1, 1, 64)
 

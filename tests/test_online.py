@@ -15,7 +15,7 @@ import pytest
 from d2slam.config import DEFAULT
 from d2slam.data.live import arrival_times, newest_arrived
 from d2slam.errors import D2SlamError
-from d2slam.run.online import Schedule, pick_mask, replay, run_online
+from d2slam.run.online import Schedule, TrackedMasks, moved_by_tracks, pick_mask, replay, run_online, track_back
 from d2slam.segmentation.base import PersonInstance
 
 FRAMES = 30
@@ -55,6 +55,53 @@ def test_a_stale_mask_moves_on_with_its_person():
     assert np.array_equal(pick_mask((3, now, 0, prev), 6, arrival, DEFAULT)[1], now)  # off by default
     far = dataclasses.replace(moving, online=dataclasses.replace(moving.online, mask_match_px=2.0))
     assert np.array_equal(pick_mask((3, now, 0, prev), 6, arrival, far)[1], now)  # no match: stays
+
+
+def test_keypoints_are_followed_back_to_the_masks_frame():
+    p5 = np.array([[10.0, 10.0], [20.0, 20.0], [30.0, 30.0]])
+    p6 = p5[::-1] + 2.0  # the same points listed the other way round
+    p7 = np.vstack([p5 + 4.0, [[99.0, 99.0]]])  # and one new keypoint
+    hist = [(5, p5, np.zeros((0, 2), np.int64)), (6, p6, np.array([[0, 2], [1, 1], [2, 0]])),
+            (7, p7, np.array([[0, 2], [1, 1], [2, 0]]))]
+    now, then = track_back(hist, 5)
+    assert np.array_equal(now, p7[:3]) and np.array_equal(then, p5)  # the new keypoint has no past
+    assert np.array_equal(track_back(hist, 6)[1], p6[::-1])
+    assert track_back(hist, 4) is None  # the history does not reach back to frame 4
+    masks = np.zeros((2, 50, 60), bool)
+    masks[0, 8:13, 8:13] = True  # holds the first keypoint at frame 5
+    masks[1, 40:45, 40:45] = True  # holds none: stays
+    moved = moved_by_tracks(masks, now, then, min_tracks=1)
+    assert np.array_equal(np.argwhere(moved[0]).min(axis=0), [12, 12]) and np.array_equal(moved[1], masks[1])
+    assert np.array_equal(moved_by_tracks(masks, now, then, min_tracks=2), masks)  # too few tracks: stays
+
+
+def test_a_late_mask_moved_by_its_tracks_replays_byte_for_byte(online_run, head):
+    run, cfg = online_run
+    tracks = dataclasses.replace(cfg, online=dataclasses.replace(cfg.online, mask_tracks=True))
+    a = replay(head, run.schedule, "d2slam", tracks, progress=False)
+    b = replay(head, run.schedule, "d2slam", tracks, progress=False)
+    assert a.trajectory.poses.tobytes() == b.trajectory.poses.tobytes()
+    off = replay(head, run.schedule, "d2slam", cfg, progress=False)  # the option is read
+    assert off.trajectory.poses.tobytes() == run.trajectory.poses.tobytes()
+
+
+def test_the_tracked_masks_filter_is_the_filter_it_wraps():
+    calls = []
+
+    class Inner:
+        last = "diagnostics"
+
+        def __call__(self, inp):
+            calls.append(inp.masks)
+            return np.zeros(len(inp.kps))
+
+        def reset(self):
+            calls.append("reset")
+
+    t = TrackedMasks(Inner(), min_tracks=1, depth=4)
+    assert t.last == "diagnostics"
+    t.reset()
+    assert calls == ["reset"] and t.history == []
 
 
 class _BoxSegmenter:

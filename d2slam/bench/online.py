@@ -113,12 +113,14 @@ def _line(name: str, r: dict, ref_ate, orb_ate) -> str:
 
 def latency(args) -> int:
     """What stale masks cost d2slam in accuracy, without a clock (``--latency``)."""
-    still = overridden(DEFAULT, {"online": {"mask_motion": False}})
-    moving = overridden(DEFAULT, {"online": {"mask_motion": True}})
+    variants = (("moved", overridden(DEFAULT, {"online": {"mask_motion": True}})),
+                ("tracks", overridden(DEFAULT, {"online": {"mask_tracks": True}})),
+                ("still", overridden(DEFAULT, {"online": {"mask_motion": False}})))
     print("d2slam bench online --latency: d2slam on every frame, the segmenter's masks L frames late (a mask every L "
-          "frames), moved on with their people (online.mask_motion) or not; ATE (m) and its ratio to offline (L 0)")
-    print(f"{'sequence':44} {'offline':>8} " + " ".join(f"{f'L{n} moved':>13} {f'L{n} still':>13}"
-                                                        for n in args.latency))
+          "frames), moved on with their people's centroids (online.mask_motion), by their keypoints' tracks "
+          "(online.mask_tracks) or not; ATE (m) and its ratio to offline (L 0)")
+    print(f"{'sequence':44} {'offline':>8} " + " ".join(f"{f'L{n} {name}':>13}" for n in args.latency
+                                                        for name, _ in variants))
     rows = []
     for seq_dir in _sequences(args):
         seq = open_sequence(seq_dir)
@@ -131,7 +133,7 @@ def latency(args) -> int:
         row = {"sequence": str(seq_dir), "offline": ref}
         cells = []
         for n in args.latency:
-            for name, cfg in (("moved", moving), ("still", still)):
+            for name, cfg in variants:
                 a = ate(simulated_schedule(seq, n, cfg), cfg)
                 row[f"L{n} {name}"] = a
                 cells.append(f"{a:7.4f} {a / ref:4.2f}x")

@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -258,10 +258,95 @@ def extrapolate_masks(masks: np.ndarray, prev: np.ndarray, ratio: float, match_p
         q = int(np.argmin(d))
         if d[q] > match_px:
             continue
-        du, dv = ratio * (c[j] - cp[q])
-        shift = np.float32([[1, 0, du], [0, 1, dv]])
-        out[j] = cv2.warpAffine(masks[j].astype(np.uint8), shift, (w, h), flags=cv2.INTER_NEAREST) > 0
+        out[j] = _shifted(masks[j], *(ratio * (c[j] - cp[q])))
     return out
+
+
+def _shifted(mask: np.ndarray, du: float, dv: float) -> np.ndarray:
+    """(H, W) bool ``mask`` moved by (du, dv) pixels (nearest pixel; what moves out of the image is lost)."""
+    h, w = mask.shape
+    shift = np.float32([[1, 0, du], [0, 1, dv]])
+    return cv2.warpAffine(mask.astype(np.uint8), shift, (w, h), flags=cv2.INTER_NEAREST) > 0
+
+
+def track_back(history: list, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the newest frame's keypoints were at frame ``k``: ``history`` holds ``(frame index, keypoint pixels
+    (N, 2), matches (K, 2) to the frame before it in the list)`` of the frames processed in order, the newest last.
+    Returns (pixels now (M, 2), pixels at frame ``k`` (M, 2)) of the keypoints followed back through every match to
+    ``k``, or None when the list does not reach back to ``k``."""
+    idx = np.arange(len(history[-1][1]))
+    for j in range(len(history) - 1, 0, -1):
+        f, px, m = history[j]
+        if f <= k:
+            break
+        back = np.full(len(px), -1, dtype=np.int64)
+        if len(m):
+            back[m[:, 0]] = m[:, 1]
+        idx = np.where(idx >= 0, back[np.maximum(idx, 0)], -1)
+        if history[j - 1][0] == k:
+            keep = idx >= 0
+            return history[-1][1][keep], history[j - 1][1][idx[keep]]
+    return None
+
+
+def moved_by_tracks(masks: np.ndarray, now: np.ndarray, then: np.ndarray, min_tracks: int) -> np.ndarray:
+    """Each person of ``masks`` (of an earlier frame) moved by the median image motion ``now - then`` of the
+    keypoints that lay inside it then (:func:`track_back`); one with fewer than ``min_tracks`` of them stays. Ours
+    (``OnlineConfig.mask_tracks``): the motion of a person's own keypoints since the mask's frame carries both the
+    person's and the camera's."""
+    out = masks.copy()
+    h, w = masks.shape[1:]
+    u = np.clip(np.rint(then[:, 0]).astype(np.int64), 0, w - 1)
+    v = np.clip(np.rint(then[:, 1]).astype(np.int64), 0, h - 1)
+    for j in range(len(masks)):
+        inside = masks[j][v, u]
+        if int(inside.sum()) >= min_tracks:
+            out[j] = _shifted(masks[j], *np.median(now[inside] - then[inside], axis=0))
+    return out
+
+
+class TrackedMasks:
+    """A keypoint filter whose late masks are moved to the current frame by their people's keypoint tracks
+    (:func:`moved_by_tracks`) before the filter reads them. ``mask_frame``: the frame the next call's masks were
+    segmented on (set before each ``Engine.process``; -1: none). Keeps the last ``depth`` frames' keypoints and
+    matches (the oldest mask a frame may read, ``mask_max_age_s``, at the rate)."""
+
+    def __init__(self, inner, min_tracks: int, depth: int):
+        self.inner, self.min_tracks, self.depth = inner, int(min_tracks), int(depth)
+        self.mask_frame = -1
+        self.history: list = []
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def reset(self) -> None:
+        self.history = []
+        self.inner.reset()
+
+    def __call__(self, inp):
+        px = np.asarray(inp.pixels()[0], dtype=np.float64).reshape(-1, 2)
+        if self.history and len(self.history[-1][1]) != len(inp.prev_kps):  # not the frame before: start again
+            self.history = []
+        self.history = (self.history + [(inp.frame_index, px, np.asarray(inp.matches, np.int64).reshape(-1, 2))])[
+            -self.depth:]
+        k = self.mask_frame
+        if inp.masks is not None and len(inp.masks) and 0 <= k < inp.frame_index:
+            tracks = track_back(self.history, k)
+            if tracks is not None and len(tracks[0]):
+                inp = replace(inp, masks=moved_by_tracks(inp.masks, *tracks, self.min_tracks))
+        return self.inner(inp)
+
+
+def online_engine(camera, method: str, config: Config) -> tuple[Engine, TrackedMasks | None]:
+    """The engine of an online run (or its replay) with ``method``'s filter, wrapped in :class:`TrackedMasks` with
+    ``OnlineConfig.mask_tracks`` (then returned too: set its ``mask_frame`` before each frame)."""
+    filt = get_method(method).factory(config)
+    tracked = None
+    if config.online.mask_tracks and filt is not None:
+        o = config.online
+        depth = int(np.ceil(o.mask_max_age_s * (o.rate_hz if o.rate_hz > 0 else 30.0))) + 2
+        filt = tracked = TrackedMasks(filt, o.mask_tracks_min, depth)
+    return Engine(camera, config, filt), tracked
 
 
 class OnlineSLAM:
@@ -276,7 +361,7 @@ class OnlineSLAM:
             raise D2SlamError(f"--method {method} cannot run online: it is not a keypoint filter of the engine that "
                               "reads a segmenter's masks (online runs: none and the dynamics methods)")
         self.config, self.method = config, method
-        self.engine = Engine(camera, config, m.factory(config))
+        self.engine, self.tracked = online_engine(camera, method, config)
         self._clock = time.perf_counter
         self._t0: float | None = None
         self._ts0: float | None = None
@@ -323,6 +408,8 @@ class OnlineSLAM:
     def step(self, i: int, gray, depth, timestamp: float, arrival: np.ndarray):
         """Track frame ``i`` now with the masks it reads (:func:`pick_mask`) and record it in the schedule."""
         k, masks = pick_mask(self.masks.latest() if self.masks else None, i, arrival, self.config)
+        if self.tracked is not None:
+            self.tracked.mask_frame = k
         start = self._now()
         res = self.engine.process(gray, depth, i, timestamp, masks=masks)
         s = self.schedule
@@ -450,12 +537,14 @@ def replay(seq, schedule: Schedule, method: str = "d2slam", config: Config = DEF
     if schedule.meta.get("sequence") not in (None, "", getattr(seq, "name", "")):
         raise D2SlamError(f"the online schedule is of sequence {schedule.meta['sequence']!r}, not "
                           f"{getattr(seq, 'name', '')!r}", path=getattr(seq, "root", None))
-    engine = Engine(seq.camera, config, get_method(method).factory(config))
+    engine, tracked = online_engine(seq.camera, method, config)
     states = []
     t0 = time.perf_counter()
     for i, k in tqdm(list(zip(schedule.processed, schedule.mask_of)), desc=f"replay {getattr(seq, 'name', '')}",
                      unit="frame", disable=None if progress is None else not progress):
         f = seq[i]
+        if tracked is not None:
+            tracked.mask_frame = k
         res = engine.process(f.gray, f.depth, i, float(f.timestamp), masks=schedule.masks[i] if k >= 0 else None)
         states.append(res.state)
     wall = time.perf_counter() - t0
