@@ -366,9 +366,10 @@ def test_real_masks_are_segmented_once_per_sequence_before_the_runs(serial):
     assert onnx_sequence_keys(specs, run_options()) == [dyn.sequence_key, twin.sequence_key,
                                                         ("synth", "walking_xyz", 102, FRAMES, False)]
     assert onnx_sequence_keys(specs, run_options(masks="sim")) == []
-    # the study segmented its sequence before the runs: every frame is in the mask cache
+    # the study segmented its sequence before the runs (a phase of its own, timed; nothing to do when an earlier
+    # test run left the masks in the shared mask cache): every frame is in the mask cache
     timing = json.loads((serial.out / "manifest.json").read_text())["timing"]
-    assert timing["segmentation_s"] > 0 and timing["segmentation_cpu_s"] > 0 and timing["runs_cpu_s"] > 0
+    assert timing["segmentation_s"] >= 0 and timing["segmentation_cpu_s"] >= 0 and timing["runs_cpu_s"] > 0
     seq = open_sequence(ensure_sequence("sitting_static", 101, FRAMES, False))
     folder = cache_dir("masks", sequence_key(seq), segmenter_key(get_segmenter("onnx", config=DEFAULT)))
     assert len(read_store(folder / STORE_NAME)[1]) == FRAMES
