@@ -40,7 +40,7 @@ $(STAMP): environment.txt pyproject.toml
 # after the assets, since the warm-up's engine closes loops with the vocabulary built from the real TUM frames.
 assets: $(STAMP)
 	$(VENV)/bin/d2slam assets fetch
-	@test -f $(WARM) || { $(PY) -m d2slam.warmup && touch $(WARM); }
+	@test -f $(WARM) || { $(PY) -m d2slam.run.warmup && touch $(WARM); }
 
 demo: assets
 	$(VENV)/bin/d2slam demo

@@ -37,8 +37,14 @@ from importlib import resources
 from pathlib import Path
 from typing import Callable, Iterator
 
+from d2slam.data.download import CONNECT_TIMEOUT, download_urls, sha256_file
+from d2slam.data.intrinsics import camera_from_folder
+from d2slam.data.tum import TumSequence, read_depth, read_file_list, read_rgb
+from d2slam.dequantize import dequantize_file
 from d2slam.errors import D2SlamError
+from d2slam.outputs import remove_stale_temps, replace_dir, stale_temp, temp_name
 from d2slam.paths import cache_dir, shared_dir
+from d2slam.progress import progress
 
 _log = logging.getLogger(__name__)
 MIRROR_ENV = "D2SLAM_ASSETS_MIRROR"
@@ -134,8 +140,6 @@ def upstream_url(asset: Download) -> str:
 
 def _install(tmp: Path, dest: Path, sha256: str, source: str) -> None:
     """Check ``tmp``'s sha256 and move it to ``dest``; a mismatch deletes it and raises."""
-    from d2slam.data.download import sha256_file
-
     digest = sha256_file(tmp)
     if digest != sha256:
         tmp.unlink()
@@ -148,8 +152,6 @@ def fetch_assets(timeout: float | None = None, echo=_log.info) -> list[Path]:
     """Download every missing file of :data:`DOWNLOADS` into the cache, verify it, derive the missing float
     models of :data:`DERIVED`, and fetch the real head when it is missing (:func:`fetch_real_head`). Returns the
     files and folders written (empty when everything was found)."""
-    from d2slam.data.download import CONNECT_TIMEOUT, download_urls
-
     written: list[Path] = []
     root = assets_cache()
     for asset in DOWNLOADS:
@@ -168,7 +170,6 @@ def fetch_assets(timeout: float | None = None, echo=_log.info) -> list[Path]:
     for model in DERIVED:
         if find(model.path) is not None:
             continue
-        from d2slam.dequantize import dequantize_file
 
         dest = root / model.path
         dest.parent.mkdir(parents=True, exist_ok=True)
@@ -213,8 +214,6 @@ def real_head_rel() -> str:
 
 
 def _sha256_is(path: Path, sha256: str) -> bool:
-    from d2slam.data.download import sha256_file
-
     return path.is_file() and sha256_file(path) == sha256
 
 
@@ -260,8 +259,6 @@ def real_full_dir() -> Path:
 
 def _listed(folder: Path) -> list[str]:
     """The images ``folder``'s rgb.txt and depth.txt name (relative paths), in list order."""
-    from d2slam.data.tum import read_file_list
-
     return [name for lst in LISTS[:2] for name in read_file_list(folder / lst)[1]]
 
 
@@ -315,8 +312,6 @@ def _resumable_dir(dest: Path) -> Iterator[Path]:
     """A folder to fetch ``dest`` into: this process's temporary folder beside it (:func:`d2slam.outputs.temp_name`),
     taking over the one an interrupted fetch left (its process gone) with the files it had checked. Renamed to
     ``dest`` when the block ends; kept when it raises, for the next fetch to resume."""
-    from d2slam.outputs import remove_stale_temps, replace_dir, stale_temp, temp_name
-
     dest.parent.mkdir(parents=True, exist_ok=True)
     work = temp_name(dest)
     pattern = glob.escape(dest.name) + ".tmp-*"
@@ -335,8 +330,6 @@ def _fetch_checked(rel: str, dest: Path, check: Callable[[Path], None], timeout:
     """Download ``rel`` of the pinned copy into ``dest`` through ``dest.part`` (resumed when a part is there), run
     ``check(part)`` (raises ``D2SlamError``; the part is then deleted) and rename it to ``dest``. Nothing is done
     when ``dest`` is there (it was checked before it got its name)."""
-    from d2slam.data.download import CONNECT_TIMEOUT, download_urls
-
     if dest.is_file():
         return
     dest.parent.mkdir(parents=True, exist_ok=True)
@@ -355,8 +348,6 @@ def _fetch_checked(rel: str, dest: Path, check: Callable[[Path], None], timeout:
 
 
 def _sha256_check(sha256: str, rel: str) -> Callable[[Path], None]:
-    from d2slam.data.download import sha256_file
-
     def check(path: Path) -> None:
         digest = sha256_file(path)
         if digest != sha256:
@@ -376,8 +367,6 @@ def fetch_real_head(timeout: float | None = None, echo=_log.info) -> Path | None
     """Fetch the first 120 frames of TUM fr1/rpy into the assets cache unless :func:`find_real_head` finds them: the
     whole sequence's lists (sha256 checked), cut by :func:`cut_head` (the cut lists' sha256 checked), and the
     images they name (each one's sha256 checked). Returns the folder written, or None when nothing was fetched."""
-    from d2slam.progress import progress
-
     if find_real_head() is not None:
         return None
     pins = real_pins()
@@ -411,7 +400,6 @@ def fetch_real_head(timeout: float | None = None, echo=_log.info) -> Path | None
 def _decode_check(rel: str, shape: tuple[int, int], depth_factor: float) -> Callable[[Path], None]:
     """A check that the image ``rel`` (``rgb/...`` or ``depth/...``) decodes as the sequence's 8-bit colour or 16-bit
     depth PNG of ``shape`` (height, width)."""
-    from d2slam.data.tum import read_depth, read_rgb
 
     def check(path: Path) -> None:
         try:
@@ -429,10 +417,6 @@ def fetch_real_full(timeout: float | None = None, echo=_log.info) -> Path | None
     """Fetch the whole TUM fr1/rpy sequence into :func:`real_full_dir` unless :func:`real_full` finds it: its lists
     (sha256 checked) and every image they name (no per-image checksum is known: each must decode as the camera's
     640x480 colour or 16-bit depth PNG). Returns the folder written, or None when nothing was fetched."""
-    from d2slam.data.intrinsics import camera_from_folder
-    from d2slam.data.tum import TumSequence
-    from d2slam.progress import progress
-
     if real_full() is not None:
         return None
     dest = real_full_dir()

@@ -24,9 +24,28 @@ from __future__ import annotations
 import hashlib
 import json
 import sys
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from d2slam.errors import D2SlamError
+from d2slam.ranges import Checked, within
+
+
+@dataclass(frozen=True)
+class CacheConfig(Checked):
+    """How far the caches' cheap checks trust a file's recorded size and time (a section of
+    ``d2slam.config.CliConfig``); nothing here changes a run's numbers."""
+
+    # The caches' cheap checks (the mask cache's image digest, a cached folder's manifest) trust a file's size and
+    # modification time only when it was last modified at least this long before they were recorded: a change made
+    # within a file system's timestamp resolution (FAT: 2 s; ext4, tmpfs: 1 ns) could keep the recorded time.
+    cache_mtime_window_s: float = within(2.0, 0.0, 3600.0)
+
+
+CACHE = CacheConfig()
 
 _REPORTED: set[str] = set()
 
@@ -67,8 +86,6 @@ def sha256_file(path: str | Path) -> str:
 def load_npz(path: str | Path, names: tuple[str, ...] | None = None) -> dict:
     """Every array of the ``.npz`` at ``path`` (or the arrays ``names``, which must all be there), read in full;
     :class:`Damaged` when it cannot be, whatever the reason (a missing file is ``FileNotFoundError``)."""
-    import numpy as np
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(path)
@@ -160,6 +177,4 @@ def read_json(path: str | Path) -> dict:
 def mtime_settled(mtime_ns: int, window_s: float, now_ns: int | None = None) -> bool:
     """Whether a file modified at ``mtime_ns`` was last modified at least ``window_s`` before ``now_ns`` (default:
     now): a later change within the file system's timestamp resolution then shows as a new time."""
-    import time
-
     return (time.time_ns() if now_ns is None else now_ns) - mtime_ns >= window_s * 1e9

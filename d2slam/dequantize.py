@@ -40,20 +40,42 @@ def anchor_grid(height: int, width: int, strides=HEAD_STRIDES) -> tuple[np.ndarr
 def dequantize(model, height: int, width: int):
     """A float copy of the dynamic-int8 YOLOv8-seg ``model`` (``onnx.ModelProto``) with input ``1x3xHxW``."""
     import onnx
-    from onnx import helper, numpy_helper
+    from onnx import numpy_helper
 
     if height % max(HEAD_STRIDES) or width % max(HEAD_STRIDES):
         raise ValueError(f"input {height}x{width} is not a multiple of {max(HEAD_STRIDES)}")
     out = onnx.ModelProto()
     out.CopyFrom(model)
     graph = out.graph
+    replace, drop, drop_inits, new_inits = _float_convolutions(graph)
+    if not replace:
+        raise ValueError("no ConvInteger node: not a dynamic-int8 model")
+    nodes = [replace.get(k, n) for k, n in enumerate(graph.node) if k not in drop]
+    del graph.node[:]
+    graph.node.extend(nodes)
+    kept = [t for t in graph.initializer if t.name not in drop_inits]
+    anchors, strides = anchor_grid(height, width)
+    fixed = {_DFL_SHAPE: np.array([1, 4, 16, -1], np.int64), _DFL_SHAPE_1: np.array([1, 4, -1], np.int64),
+             _STRIDES: strides, **{name: anchors for name in _ANCHORS}}
+    kept = [numpy_helper.from_array(fixed[t.name], t.name) if t.name in fixed else t for t in kept]
+    del graph.initializer[:]
+    graph.initializer.extend(kept + new_inits)
+    _set_input_size(out, height, width)
+    return out
+
+
+def _float_convolutions(graph) -> tuple[dict, set, set, list]:
+    """Each dynamic-int8 convolution chain of ``graph`` (DynamicQuantizeLinear -> ConvInteger -> Cast -> Mul) as one
+    float Conv with dequantized weights: (node index -> its Conv, the chain's other node indices to drop, the int8
+    initializers to drop, the float weights to add)."""
+    from onnx import helper, numpy_helper
+
     inits = {t.name: t for t in graph.initializer}
     producers = {o: n for n in graph.node for o in n.output}
     consumers: dict[str, list] = {}
     for n in graph.node:
         for i in n.input:
             consumers.setdefault(i, []).append(n)
-
     idx = {id(n): k for k, n in enumerate(graph.node)}
     drop: set[int] = set()
     replace: dict[int, object] = {}
@@ -81,20 +103,12 @@ def dequantize(model, height: int, width: int):
         node.attribute.extend(conv.attribute)
         replace[idx[id(conv)]] = node
         drop.update(idx[id(n)] for n in (quantizer, cast, scaled, scale_mul))
+    return replace, drop, drop_inits, new_inits
 
-    if not replace:
-        raise ValueError("no ConvInteger node: not a dynamic-int8 model")
-    nodes = [replace.get(k, n) for k, n in enumerate(graph.node) if k not in drop]
-    del graph.node[:]
-    graph.node.extend(nodes)
-    kept = [t for t in graph.initializer if t.name not in drop_inits]
-    anchors, strides = anchor_grid(height, width)
-    fixed = {_DFL_SHAPE: np.array([1, 4, 16, -1], np.int64), _DFL_SHAPE_1: np.array([1, 4, -1], np.int64),
-             _STRIDES: strides, **{name: anchors for name in _ANCHORS}}
-    kept = [numpy_helper.from_array(fixed[t.name], t.name) if t.name in fixed else t for t in kept]
-    del graph.initializer[:]
-    graph.initializer.extend(kept + new_inits)
 
+def _set_input_size(out, height: int, width: int) -> None:
+    """The model's input ``1x3xHxW``, its outputs' sizes left to inference, its metadata saying so."""
+    graph = out.graph
     dims = graph.input[0].type.tensor_type.shape.dim
     dims[2].dim_value, dims[3].dim_value = int(height), int(width)
     del graph.value_info[:]
@@ -108,7 +122,6 @@ def dequantize(model, height: int, width: int):
             p.value = DEQUANT_NOTE
         elif p.key == "imgsz":
             p.value = f"[{int(height)}, {int(width)}]"
-    return out
 
 
 def dequantize_file(src: str | Path, dst: str | Path, height: int, width: int) -> Path:

@@ -1,12 +1,11 @@
 """What a result depends on, as short digests: the code that computed it (:func:`source_digest`, comments and
-docstrings left out), the synthetic generator that made its sequence (:func:`generator_version`) and any canonical
+docstrings left out), the synthetic generator that made its sequence (``d2slam.synth.version``) and any canonical
 JSON description (:func:`digest`). The study keys its runs, sequences and feature files with them; the vocabulary
 builder keys its training frames with the generator version."""
 
 from __future__ import annotations
 
 import ast
-import dataclasses
 import hashlib
 import json
 from functools import lru_cache
@@ -47,20 +46,3 @@ def source_digest(parts: tuple) -> str:
 def digest(ident: dict) -> str:
     """16 hex digits of sha256 over the canonical JSON of ``ident``."""
     return hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-@lru_cache(maxsize=1)
-def generator_version() -> str:
-    """16 hex digits identifying what ``d2slam.synth`` would write: a digest of the synthetic format, the package
-    version, every ``SynthConfig`` value and the code of ``d2slam/synth/*.py`` (comments and docstrings left out)."""
-    import d2slam
-    from d2slam.config import SynthConfig
-    from d2slam.synth import FORMAT
-
-    h = hashlib.sha256()
-    h.update(f"{FORMAT}|{d2slam.__version__}|".encode())
-    h.update(json.dumps(dataclasses.asdict(SynthConfig()), sort_keys=True, default=str).encode())
-    for path in sorted((PACKAGE / "synth").glob("*.py")):
-        h.update(path.name.encode())
-        h.update(code_text(path.read_text()).encode())
-    return h.hexdigest()[:16]

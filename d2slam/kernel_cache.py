@@ -1,7 +1,7 @@
 """numba's on-disk cache of the compiled kernels, guarded: a damaged file is recompiled, never a crash.
 
 numba keeps each ``cache=True`` kernel in an index (``.nbi``: which data file holds which signature) and data files
-(``.nbc``: the pickled object code), beside the source or in ``$NUMBA_CACHE_DIR`` (``d2slam.warmup``). It trusts
+(``.nbc``: the pickled object code), beside the source or in ``$NUMBA_CACHE_DIR`` (``d2slam.run.warmup``). It trusts
 them: a truncated index or data file ends the process with an ``UnpicklingError`` traceback, and a flipped bit in the
 object code would run as machine code. :func:`install` (called by the modules that define kernels, before any is
 loaded) changes how numba's ``IndexDataCacheFile`` writes and reads them:
@@ -20,6 +20,12 @@ loaded) changes how numba's ``IndexDataCacheFile`` writes and reads them:
 from __future__ import annotations
 
 import hashlib
+import io
+import os
+import pickle
+from pathlib import Path
+
+from d2slam.cachefiles import Damaged, report_damaged, say_once
 
 TRAILER = b"D2SLAM-SHA256"
 _INSTALLED = False
@@ -32,10 +38,6 @@ def _seal(blob: bytes) -> bytes:
 def _unseal(blob: bytes) -> bytes | None:
     """The pickle of a sealed data file; None when the file is a whole pickle without a seal (written by numba
     alone). :class:`~d2slam.cachefiles.Damaged` otherwise (a seal that does not match, a truncated file)."""
-    import pickle
-
-    from d2slam.cachefiles import Damaged
-
     n = len(TRAILER) + 32
     if len(blob) < n or blob[-n:-32] != TRAILER:
         try:
@@ -54,11 +56,8 @@ def install() -> None:
     global _INSTALLED
     if _INSTALLED:
         return
-    import pickle
 
     from numba.core import caching
-
-    from d2slam.cachefiles import Damaged, report_damaged, say_once
 
     cls = caching.IndexDataCacheFile
     load_index = cls._load_index
@@ -116,9 +115,6 @@ def install() -> None:
 def cache_files() -> list:
     """The cache files of d2slam's kernels: beside the package's sources (``__pycache__``) and under
     ``$NUMBA_CACHE_DIR`` when set."""
-    import os
-    from pathlib import Path
-
     package = Path(__file__).resolve().parent
     roots = [package] + ([Path(os.environ["NUMBA_CACHE_DIR"])] if os.environ.get("NUMBA_CACHE_DIR") else [])
     return sorted(p for root in roots if root.is_dir() for ext in ("nbi", "nbc") for p in root.rglob(f"*.{ext}"))
@@ -127,11 +123,6 @@ def cache_files() -> list:
 def check_file(path) -> str | None:
     """What is wrong with one of numba's cache files (None: nothing): an index that does not unpickle, a data file
     whose seal does not match or that is cut short."""
-    import io
-    import pickle
-
-    from d2slam.cachefiles import Damaged
-
     try:
         with open(path, "rb") as f:
             blob = f.read()

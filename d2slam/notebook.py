@@ -13,13 +13,22 @@ module gets those inputs in two calls, so that a notebook explains, plots and me
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from d2slam.config import DEFAULT, Config
+from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
+from d2slam.eval.keypoints import keypoint_truth
+from d2slam.run.methods import get_filter
+from d2slam.run.sequence import ensure_vocabulary, run_sequence
+from d2slam.segmentation import masks_for, stack_masks
+from d2slam.slam.engine import Engine
+from d2slam.study.sequences import ensure_sequence
+from d2slam.synth import Scene
 
 
 @dataclass
@@ -56,18 +65,15 @@ class RecordedRun:
 
 
 def config_values(cfg, *names: str) -> str:
-    """Markdown naming fields of a config dataclass with their values ("`beta_min` = 0.05, ..."): prose that relies on
-    defaults states them from the config itself."""
-    return ", ".join(f"`{n}` = {getattr(cfg, n)}" for n in names)
+    """Markdown naming fields of a config dataclass with their values ("`beta_min` = 0.05, ..."; a dotted name reaches
+    into a section: "`ours.p_g_exceed` = 0.7"): prose that relies on defaults states them from the config itself."""
+    return ", ".join(f"`{n}` = {functools.reduce(getattr, n.split('.'), cfg)}" for n in names)
 
 
 def development_sequence(scenario: str, seed: int, frames: int, twin: bool = False, root=None):
     """The synthetic sequence (``SyntheticSequence``) of ``scenario``, ``seed`` and ``frames``, generated once into the
     study's sequence cache (``d2slam.study.sequences.ensure_sequence``, or ``root``) and read from there.
     Notebooks use development seeds (0-99): the study's seeds are never looked at while developing."""
-    from d2slam.data import open_sequence
-    from d2slam.study.sequences import ensure_sequence
-
     return open_sequence(ensure_sequence(scenario, seed, frames, twin=twin, root=root, progress=False))
 
 
@@ -80,8 +86,6 @@ def seed_showing(scenario: str, frames: int, what: str = "people", seeds=range(1
     ``SynthEvalConfig.showing_height_m`` above the floor under the pelvis) projects into the image; ``moving
     objects``, the frames x objects moving while their centre projects into it. A notebook picks its sequence by what
     it should show, whatever the scenes' timing. The lowest seed on a tie; a D2SlamError when no seed shows any."""
-    from d2slam.synth import Scene
-
     if what not in SHOWS:
         raise D2SlamError(f"seed_showing: what must be one of {', '.join(SHOWS)}, not {what!r}")
     scores = {}
@@ -94,7 +98,7 @@ def seed_showing(scenario: str, frames: int, what: str = "people", seeds=range(1
         else:
             tracks = [(np.array([o.pose(t)[:3, 3] for t in scene.t_rel]), np.array([o.moving(t) for t in scene.t_rel]))
                       for o in scene.objects]
-        scores[seed] = sum(int((_in_image(scene.cfg, world_camera, xyz) & shown).sum()) for xyz, shown in tracks)
+        scores[seed] = sum(int((_in_image(scene.intrinsics, world_camera, xyz) & shown).sum()) for xyz, shown in tracks)
     best = max(scores, key=lambda s: (scores[s], -s))
     if scores[best] == 0:
         raise D2SlamError(f"no seed of {sorted(scores)} shows {what} within {frames} frames of {scenario}: take more "
@@ -115,26 +119,21 @@ def _in_image(cam, world_camera: np.ndarray, xyz: np.ndarray) -> np.ndarray:
 def mask_provider(seq, kind: str = "sim", config: Config = DEFAULT) -> Callable[[int], np.ndarray]:
     """Frame index -> (n, H, W) bool person masks of ``seq`` (``d2slam.segmentation.masks_for``: ``sim``, ``gt``,
     ``truth`` or ``onnx``), as the engine hands them to its keypoint filter."""
-    from d2slam.segmentation import masks_for, stack_masks
-
     shape = (seq.camera.height, seq.camera.width)
     return lambda i: stack_masks(masks_for(seq, i, kind, config), shape)
 
 
 def recorded_run(seq, method: str = "d2slam", config: Config = DEFAULT, masks: str | None = "sim",
                  also: Callable | None = None, inputs: bool = True) -> RecordedRun:
-    """Run ``method`` (``d2slam.methods``) of the engine on ``seq`` (synthetic, or a real recording) with the ``masks`` of
-    :func:`mask_provider` (default the simulated segmenter's: the module notebooks study the modules, not the
-    network; None: no masks) and record every frame. ``also(index, keypoints, beliefs, diagnostics)`` is called
+    """Run ``method`` (``d2slam.run.methods``) of the engine on ``seq`` (synthetic, or a real recording) with the
+    ``masks`` of :func:`mask_provider` (default the simulated segmenter's: the module notebooks study the modules, not
+    the network; None: no masks) and record every frame. ``also(index, keypoints, beliefs, diagnostics)`` is called
     after each frame too (e.g. a ``d2slam.eval.keypoints.KeypointRecorder``). ``inputs=False`` keeps no hook input
     (``FrameRecord.inp`` None): the images it holds take a few MB per frame."""
-    from d2slam.eval.keypoints import keypoint_truth
-    from d2slam.methods import get_filter
-    from d2slam.pipeline import run_sequence
-    from d2slam.slam.engine import Engine
 
     truth = callable(getattr(seq, "dynamic_mask", None))
     kfilter = get_filter(method, config)
+    ensure_vocabulary(config)
     engine = Engine(seq.camera, config, kfilter)
     run = RecordedRun(method)
 

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Iterable, Iterator
 
 from d2slam.errors import D2SlamError
+from d2slam.paths import managed_cache_dirs, shared_dir
 
 
 def _probe(folder: Path, what: str) -> None:
@@ -317,7 +318,6 @@ def check_outputs(outputs: Iterable[tuple[str, str | Path | None]],
     an output inside an input folder, inside any sequence folder (:func:`is_sequence_dir`; an output folder that is
     one too, except ``own_sequence``: the sequence ``d2slam synth`` replaces), inside a folder of the cache that
     d2slam manages or inside the shared folder; two outputs that are the same file."""
-    from d2slam.paths import managed_cache_dirs, shared_dir
 
     outs = [(opt, Path(p).expanduser()) for opt, p in outputs if p is not None]
     ins = [(what, Path(p).expanduser()) for what, p in inputs if p is not None]

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from d2slam.errors import D2SlamError
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -27,8 +29,6 @@ def cache_dir(*parts: str) -> Path:
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        from d2slam.errors import D2SlamError
-
         raise D2SlamError(f"cannot create the cache folder ({exc.strerror or exc}); set $D2SLAM_CACHE to a writable "
                           "folder", path=path) from None
     return path

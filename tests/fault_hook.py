@@ -1,6 +1,6 @@
 """Run a d2slam command with a fault at a chosen point: ``python tests/fault_hook.py TARGET N ACTION [MATCH] -- ARGS``.
 
-``TARGET`` is ``module:attribute`` (``d2slam.synth.generate:_write``, ``d2slam.slam.engine:Engine.process``,
+``TARGET`` is ``module:attribute`` (``d2slam.synth.generate:write_image``, ``d2slam.slam.engine:Engine.process``,
 ``os:replace``); at its ``N``-th call whose arguments' text contains ``MATCH`` (any call without it) the process
 sends itself ``ACTION`` (``SIGKILL``: dies on the spot, as ``kill -9``; ``SIGINT``: Ctrl-C, handled as in a terminal)
 or, for ``sleep:S``, sleeps S seconds first (holding whatever it holds) and goes on. ``ARGS`` is the ``d2slam``

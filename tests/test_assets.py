@@ -14,10 +14,10 @@ from local_http import Server, asset_mirror, head_as_whole
 
 from d2slam import assets as A
 from d2slam.cli import main
+from d2slam.dequantize import dequantize_file
 from d2slam.errors import D2SlamError
 from d2slam.paths import shared_dir
 from d2slam.segmentation import get_segmenter
-from d2slam.dequantize import dequantize_file
 from d2slam.segmentation.onnx import OnnxSegmenter, read_rgb
 
 #: Mask agreement of the float conversion with the int8 model at the same input size (per frame, union of persons).

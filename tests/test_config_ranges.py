@@ -11,8 +11,9 @@ import typing
 import pytest
 
 from d2slam import config as C
-from d2slam.config import CLI, DEFAULT, CliConfig, Config, ConfigError, Range
+from d2slam.config import CLI, DEFAULT, CliConfig, Config, ConfigError, DepthCheckConfig, Range
 from d2slam.errors import D2SlamError
+from d2slam.ranges import build_section
 
 
 def _sections(cls=Config, prefix=""):
@@ -25,7 +26,7 @@ def _sections(cls=Config, prefix=""):
     return out
 
 
-SECTIONS = _sections() + [(CliConfig, "cli")]
+SECTIONS = _sections() + _sections(CliConfig, "cli.")
 FIELDS = [(cls, name, f) for cls, name in SECTIONS for f in dataclasses.fields(cls)
           if not f.metadata.get("section")]
 
@@ -97,9 +98,9 @@ def test_a_value_out_of_range_is_one_line_naming_field_value_and_range(section_c
     if tp is not bool and rng.text is None:
         assert values, f"{section}.{field.name}: no value outside {rng}"
     for bad in values:
-        if section_cls is CliConfig:
+        if section.startswith("cli."):
             with pytest.raises(ConfigError) as exc:
-                CliConfig(**{field.name: bad})
+                build_section(CliConfig, _path(section[4:], field.name, bad), "cli")
         else:
             with pytest.raises(ConfigError) as exc:
                 Config.from_dict(_path(section, field.name, bad))
@@ -138,8 +139,8 @@ def test_every_way_of_building_checks(build):
     ({"orb": {"n_features": 1_000_000_000}}, r"orb.n_features = 1000000000 is out of range: an integer in \[1, "
                                              r"100000\] \(the maximum is more than any frame yields"),
     ({"orb": {"n_features": 0}}, r"orb.n_features = 0 is out of range"),
-    ({"orb": {"n_features": 100}}, "orb.n_features = 100 must be at least engine.init_min_keypoints = 500: the "
-                                   "engine could never initialise"),
+    ({"orb": {"n_features": 100}}, "orb.n_features = 100 must be at least engine.tracking.init_min_keypoints = 500: "
+                                   "the engine could never initialise"),
     ({"engine": {"min_depth": 9.0}}, "engine.min_depth = 9.0 must be below engine.max_depth = 8.0"),
     ({"dynamics": {"alpha_min": 2.0}}, "dynamics.alpha_min = 2.0 must not exceed dynamics.alpha_max = 0.9"),
     ({"dynamics": {"beta_min": 0.5}}, "dynamics.beta_min = 0.5 must not exceed dynamics.beta_max = 0.25"),
@@ -147,8 +148,8 @@ def test_every_way_of_building_checks(build):
     ({"orb": {"scale_factor": 4.0}}, r"orb.scale_factor = 4.0 is out of range"),
     ({"orb": {"scale_factor": 2.0, "n_levels": 8}}, r"orb.scale_factor = 2.0 and orb.n_levels = 8: scale_factor\^"),
     ({"orb": {"fast_min_threshold": 30}}, "orb.fast_min_threshold = 30 must not exceed orb.fast_threshold = 20"),
-    ({"synth": {"depth_factor": 20000.0}}, "synth.depth_max = 4.5 times synth.depth_factor = 20000.0 must not "
-                                           "exceed 65535"),
+    ({"synth": {"depth_max": 20.0}}, "synth.depth_max = 20.0 times the synthetic camera's depth factor \\(5000\\) must "
+                                     "not exceed 65535"),
     ({"synth": {"actors": {"p_sit": 0.9}}}, "synth.actors.p_sit = 0.9, synth.actors.p_exit = 0.06 and "
                                             "synth.actors.p_stand = 0.15 are exclusive choices"),
     ({"synth": {"body": {"shape_low": [0.9, 0.7, 0, 0, 0, 0]}}}, "synth.body.shape_low = .* must not exceed "
@@ -186,5 +187,41 @@ def test_numpy_numbers_are_taken_as_pythons():
 
 def test_the_cli_section_is_checked_too():
     assert CLI == CliConfig()
-    with pytest.raises(ConfigError, match="cli.depth_min_baseline_m = 0.6 must be below cli.depth_max_baseline_m"):
-        CliConfig(depth_min_baseline_m=0.6)
+    with pytest.raises(ConfigError, match="cli.depth_check.depth_min_baseline_m = 0.6 must be below "
+                                          "cli.depth_check.depth_max_baseline_m"):
+        DepthCheckConfig(depth_min_baseline_m=0.6)
+
+
+@pytest.mark.parametrize("written,message", [
+    ({"engine": {"kf_max_frames": 40}}, "engine.kf_max_frames is now engine.keyframes.kf_max_frames: write it there"),
+    ({"dynamics": {"flow_window": 9}}, "dynamics.flow_window is now dynamics.flow.flow_window: write it there"),
+    ({"synth": {"body": {"gait_hip": 0.3}}}, "synth.body.gait_hip is now synth.body.motion.gait_hip: write it there"),
+    ({"dynamics": {"flow": True}}, "dynamics.flow is now dynamics.flow.enabled"),
+    ({"dynamics": {"depth_patch_radius": 2}}, "dynamics.depth_patch_radius is now orb.depth_patch_radius"),
+    ({"dynamics": {"depth_sigma_a": 0.002}}, "dynamics.depth_sigma_a is now the camera's depth noise"),
+    ({"synth": {"fx": 500.0}}, "synth.fx is now the synthetic camera"),
+    ({"engine": {"ransac_seed": 3}}, "engine.ransac_seed is now engine.seed"),
+    ({"engine": {"pnp_iterations": 100}}, "engine.pnp_iterations is now engine.relocalisation.relocalisation_pnp_"),
+    ({"baseline": {"orbslam3_th_depth": 30.0}}, "baseline.orbslam3_th_depth is now engine.th_depth"),
+])
+def test_a_config_file_of_the_old_layout_says_where_each_field_is_now(tmp_path, written, message):
+    """A field that moved into its part's section, or went away for one source per quantity: one line naming where
+    it is now."""
+    import yaml
+
+    path = tmp_path / "old.yaml"
+    path.write_text(yaml.safe_dump(written))
+    with pytest.raises(D2SlamError) as exc:
+        C.load_config_file(path)
+    assert str(exc.value).startswith(f"{path}: bad config file: {message}") and "\n" not in str(exc.value)
+
+
+def test_each_quantity_has_one_source():
+    """The quantities that lived under two names or values: the keypoint depth patch, the depth noise, the depth factor,
+    ThDepth, the camera, the octave scale of alpha, the RANSAC seeds and the PnP iterations."""
+    names = [p.rsplit(".", 1)[-1] for p in C._field_paths(Config) + C._field_paths(CliConfig, "cli.")]
+    for once in ("depth_patch_radius", "th_depth", "seed", "pnp_iterations", "scale_factor"):
+        assert names.count(once) == 1, once
+    for gone in ("depth_sigma_a", "depth_noise_a", "depth_factor", "bf", "fx", "width", "orbslam3_th_depth",
+                 "alpha_octave_scale", "ransac_seed", "f_ransac_seed", "depth_ransac_seed"):
+        assert gone not in names, gone

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from d2slam.cli import main
-from d2slam.config import CLI
+from d2slam.data.config import DepthCheckConfig
+
+CHECK = DepthCheckConfig()
 from d2slam.data import Trajectory
 from d2slam.data.depth_scale import candidate_pairs, depth_scale_warning, rigid_ransac, translation_ratios
 from d2slam.data.intrinsics import FREIBURG3
@@ -52,7 +54,7 @@ def read_as(root, scale: float) -> TumSequence:
 def test_a_moving_camera_measures_the_factor_against_the_ground_truth(moving):
     for scale in (1.0, 5.0, 0.2):
         ratios = translation_ratios(read_as(moving, scale))
-        assert len(ratios) == CLI.depth_pairs
+        assert len(ratios) == CHECK.depth_pairs
         assert np.allclose(ratios, scale, rtol=0.1), (scale, ratios)
     assert depth_scale_warning(read_as(moving, 1.0)) is None
     five = depth_scale_warning(read_as(moving, 5.0))  # millimetres written, read with factor 1000
@@ -80,7 +82,7 @@ def test_pairs_need_motion_and_overlap():
     poses = np.tile(np.eye(4), (40, 1, 1))
     poses[:, 0, 3] = np.arange(40) * 0.02  # 2 cm per frame along x
     pairs = candidate_pairs(poses)
-    assert pairs and all(CLI.depth_min_baseline_m <= 0.02 * (j - i) <= CLI.depth_max_baseline_m for i, j in pairs)
+    assert pairs and all(CHECK.depth_min_baseline_m <= 0.02 * (j - i) <= CHECK.depth_max_baseline_m for i, j in pairs)
     assert all(j == min(i + 25, 39) for i, j in pairs)  # the largest baseline within depth_max_baseline_m
     assert pairs[0][0] == 0 and pairs[-1][0] > 30  # spread over the sequence
     assert candidate_pairs(np.tile(np.eye(4), (40, 1, 1))) == []  # a still camera
@@ -124,7 +126,7 @@ def test_run_warns_once_with_the_factor_and_runs(moving, tmp_path, capsys):
 def test_orbslam3_runs_are_checked_too(moving, tmp_path, monkeypatch, capsys):
     """The real ORB-SLAM3 has its own runner; the depth is checked before it starts all the same."""
     import d2slam.commands.run as run_command
-    from d2slam import methods
+    from d2slam.run import methods
 
     ran = []
     for name in ("orbslam3", "orbslam3-masked"):

@@ -11,7 +11,8 @@ from d2slam.dynamics.switches import Switches
 from d2slam.dynamics.toy import two_view_scene
 from d2slam.errors import D2SlamError
 from d2slam.eval.keypoints import ModuleMetrics
-from d2slam.methods import DYNAMICS, get_filter, methods
+from d2slam.ranges import overridden
+from d2slam.run.methods import DYNAMICS, get_filter, methods
 from d2slam.slam.hook import FilterInput, KeypointFilter
 
 H, W = 48, 64
@@ -68,7 +69,7 @@ def test_geometric_mode_ignores_masks_and_uses_fixed_threshold():
     d = f.last
     np.testing.assert_array_equal(d.geo_dynamic, np.nan_to_num(d.err) > DynamicsConfig().fixed_alpha * d.widening[0])
     np.testing.assert_array_equal(bel[~d.observed], 0.5)
-    np.testing.assert_array_equal(bel[d.geo_dynamic], DynamicsConfig().p_g_exceed)
+    np.testing.assert_array_equal(bel[d.geo_dynamic], DynamicsConfig().ours.p_g_exceed)
 
 
 def test_no_bayes_belief_is_eq7_and_no_oim_has_no_oim():
@@ -120,7 +121,7 @@ def test_oim_flips_inert_object_next_to_person():
     """The box's keypoints (unmatched) are turned dynamic by d2slam, not by no-oim. The neighbours' P_g (ours, eq 7)
     is off here to see the OIM alone: the box's matched neighbours are the person's, so it would raise the box too."""
     inp, n, matched = _box_next_to_person()
-    cfg = DynamicsConfig(neighbour_p_g=False)
+    cfg = overridden(DynamicsConfig(), {"ours": {"neighbour_p_g": False}})
     f = get_filter("d2slam", cfg)
     bel = f(inp)
     d = f.last
@@ -128,7 +129,7 @@ def test_oim_flips_inert_object_next_to_person():
     assert not d.geo_dynamic[n:].any() and (d.belief_bayes[n:] <= 0.5).all()  # static before the OIM
     assert d.oim[n:].all() and (bel[n:] > 0.5).all()
     assert (get_filter("no-oim", cfg)(inp)[n:] <= 0.5).all()
-    with_nb = get_filter("d2slam", DynamicsConfig(neighbour_p_g=True))
+    with_nb = get_filter("d2slam", overridden(DynamicsConfig(), {"ours": {"neighbour_p_g": True}}))
     assert (with_nb(inp)[n:] > 0.5).all() and (with_nb.last.fused[n:] > 0.5).all()  # raised before the OIM
 
 
@@ -158,7 +159,7 @@ def test_oim_leaves_keypoints_whose_own_epipolar_test_passed():
     assert d.geo_dynamic[matched].all()
     assert d.observed[n:].all() and not d.geo_dynamic[n:].any() and np.nanmax(d.err[n:]) < 0.1
     assert not d.oim[n:].any() and (bel[n:] <= 0.5).all()
-    paper = get_filter("d2slam", DynamicsConfig(oim_skip_observed_static=False))
+    paper = get_filter("d2slam", overridden(DynamicsConfig(), {"ours": {"oim_skip_observed_static": False}}))
     assert (paper(inp)[n:] > 0.5).all() and paper.last.oim[n:].all()
 
 
@@ -268,7 +269,8 @@ def test_alpha_at_the_keypoint_detection_scale():
 
     np.testing.assert_allclose(dz.octave_factor(np.array([0, 1, 3]), 3), 1.2 ** np.array([0, 1, 3]))
     assert dz.octave_factor(None, 3) == 1.0
-    assert dz.octave_factor(np.array([2, 5]), 2, DynamicsConfig(alpha_octave_scale=1.0)) == 1.0
+    assert dz.octave_factor(np.array([2, 5]), 2, scale_factor=1.0) == 1.0
+    assert dz.octave_factor(np.array([2, 5]), 2, at_scale=False) == 1.0  # OursConfig.alpha_at_scale off
     with pytest.raises(D2SlamError, match="octave"):
         dz.octave_factor(np.zeros(2, int), 3)
     inp, _ = two_view_scene(3)

@@ -16,7 +16,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent / "data"))
 import make_dynamics_reference as R  # noqa: E402
 
-from d2slam.methods import DYNAMICS, get_filter  # noqa: E402
+from d2slam.run.methods import DYNAMICS, get_filter  # noqa: E402
 
 MODES = tuple(DYNAMICS)
 
@@ -25,6 +25,10 @@ MODES = tuple(DYNAMICS)
 # (1.2e-7 relative, with the SIMD paths of x86-64-v2 forced) and the beliefs computed from it by up to 4e-8 relative;
 # with AVX2 instead of AVX-512, 3e-16. A real change of the modules changes them by orders of magnitude more.
 RTOL, ATOL = 1e-6, 1e-9
+# The pose test's residuals are differences of nearly equal float32 depths (or positions) over their noise: one
+# float32 ulp of a 2 m depth moves a depth residual by about 2.4e-7 sigma on x86-64-v2 (measured), which is a large
+# relative change of a residual near 0. They are compared with this absolute tolerance, far below any threshold.
+RESIDUALS, RESIDUAL_ATOL = ("depth_err", "reproj_err"), 1e-5
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +55,8 @@ def test_outputs_equal_the_reference(mode, reference, current):
     for key, value in ref.items():
         assert now[key].dtype == value.dtype, key
         if np.issubdtype(value.dtype, np.floating):
-            np.testing.assert_allclose(now[key], value, rtol=RTOL, atol=ATOL, equal_nan=True, err_msg=key)
+            atol = RESIDUAL_ATOL if key.rsplit("/", 1)[-1] in RESIDUALS else ATOL
+            np.testing.assert_allclose(now[key], value, rtol=RTOL, atol=atol, equal_nan=True, err_msg=key)
         else:
             np.testing.assert_array_equal(now[key], value, err_msg=key)
 

@@ -7,14 +7,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from d2slam.config import DynamicsConfig
-from d2slam.methods import get_filter
+from d2slam.config import DynamicsConfig, FlowConfig
 from d2slam.dynamics.depth import keypoint_depth
 from d2slam.dynamics.flow import flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.geometric import geometric_module
 from d2slam.dynamics.semantic import signed_distances
 from d2slam.dynamics.toy import K_FR3
 from d2slam.errors import D2SlamError
+from d2slam.ranges import overridden
+from d2slam.run.methods import get_filter
 from d2slam.slam.hook import FilterInput
 
 H, W = 240, 320
@@ -72,7 +73,7 @@ def test_flow_starts_matched_keypoints_at_their_match_and_rejects_failures():
     kps = grid_keypoints()
     # a large camera-like jump is beyond a 3x3-window, no-pyramid search from the keypoint itself, but not from a
     # match that lies near the right place
-    cfg = DynamicsConfig(flow_window=5, flow_levels=0)
+    cfg = overridden(DynamicsConfig(), {"flow": {"flow_window": 5, "flow_levels": 0}})
     big = np.roll(prev, 9, axis=1)  # the previous image moved right by 9 px: p corresponds to (u - d + 9, v)
     pix = np.rint(kps).astype(int)
     true = np.stack([mx[pix[:, 1], pix[:, 0]] + (kps[:, 0] - pix[:, 0]) + 9.0, kps[:, 1]], 1)
@@ -130,8 +131,8 @@ def test_flow_matches_new_depth():
     np.testing.assert_array_equal(pz[:3], [1, 2, 3])
     np.testing.assert_array_equal(pz[3:], keypoint_depth(depth, q[2:], 1))
     assert np.all(pz[3:] > 0) and pz[3] == np.median(np.delete(depth[19:22, 29:32].ravel(), 4))
-    np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, cfg=DynamicsConfig(flow_new_depth=False))[1],
-                                  [1, 2, 3, 0, 0])
+    no_new_depth = overridden(DynamicsConfig(), {"flow": {"flow_new_depth": False}})
+    np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, cfg=no_new_depth)[1], [1, 2, 3, 0, 0])
     np.testing.assert_array_equal(flow_matches(*args)[1], [1, 2, 3, 0, 0])
     np.testing.assert_array_equal(flow_matches(*args, prev_depth=depth, shape=(H, W))[1], pz)
     # a previous depth image of another size than the grey images, or not 2-D: a clear error, not 0 depths
@@ -216,8 +217,9 @@ def test_d2slam_flow_observes_unmatched_keypoints_and_sharpens_eq5():
     assert dfl.geo_dynamic[static & dfl.observed].mean() < 0.05
     inner = in_box(inp.kps, margin=-12)
     assert dfl.geo_dynamic[inner & ~matched].mean() > 0.9  # unmatched moving keypoints caught by the flow
-    # the same with DynamicsConfig.flow in the d2slam mode
-    np.testing.assert_array_equal(get_filter("d2slam", DynamicsConfig(flow=True))(inp), flow(inp))
+    # the same with FlowConfig.enabled in the d2slam mode
+    with_flow = overridden(DynamicsConfig(), {"flow": {"enabled": True}})
+    np.testing.assert_array_equal(get_filter("d2slam", with_flow)(inp), flow(inp))
 
 
 def test_d2slam_flow_pose_test_on_new_matches():
@@ -230,7 +232,8 @@ def test_d2slam_flow_pose_test_on_new_matches():
     f = get_filter("d2slam-flow")
     f(with_depth)
     assert f.last.observed[new].mean() > 0.9 and np.isfinite(f.last.reproj_err[new & f.last.observed]).all()
-    for cfg, x in ((DynamicsConfig(), inp), (DynamicsConfig(flow_new_depth=False), with_depth)):
+    no_new_depth = overridden(DynamicsConfig(), {"flow": {"flow_new_depth": False}})
+    for cfg, x in ((DynamicsConfig(), inp), (no_new_depth, with_depth)):
         g = get_filter("d2slam-flow", cfg)
         g(x)
         assert g.last.observed[new].mean() > 0.9 and np.isnan(g.last.reproj_err[new]).all()
@@ -247,7 +250,7 @@ def test_d2slam_flow_without_images_runs_as_d2slam():
     inp2 = FilterInput(**{**flow_scene(1)[0].__dict__, "prev_gray": None})  # first frame: no previous image
     np.testing.assert_array_equal(get_filter("d2slam-flow")(inp2), get_filter("d2slam")(inp2))
     inp3 = FilterInput(**{**box_scene(1)[0].__dict__, "prev_gray": None})  # the same frame with the BOX mask
-    no_band = DynamicsConfig(flow_edge_band=0.0)
+    no_band = overridden(DynamicsConfig(), {"flow": {"flow_edge_band": 0.0}})
     np.testing.assert_array_equal(get_filter("d2slam-flow", no_band)(inp3), get_filter("d2slam")(inp3))
     f = get_filter("d2slam-flow")
     f(inp3)
@@ -269,11 +272,11 @@ def box_scene(seed: int = 2):
 
 
 def test_edge_band_flags_unobserved_keypoints_just_outside_the_mask():
-    """Ours (DynamicsConfig.flow_edge_band): an unobserved keypoint within the band outside the mask gets
+    """Ours (FlowConfig.flow_edge_band): an unobserved keypoint within the band outside the mask gets
     P = max(P, flow_edge_p) before eq 8; matched ones, farther ones and those inside keep eq 7's P; d2slam has no
     band."""
     inp, matched, outside = box_scene()
-    band = DynamicsConfig().flow_edge_band
+    band = DynamicsConfig().flow.flow_edge_band
     near = (outside > 0) & (outside < band)
     f = get_filter("d2slam-flow")
     f(inp)
@@ -285,14 +288,14 @@ def test_edge_band_flags_unobserved_keypoints_just_outside_the_mask():
     assert (d.fused[d.edge] >= 0.9).all() and (d.belief[d.edge] > 0.5).all()
     assert d.predictions()["edge"].sum() == d.edge.sum()
     # the same frame without the band: every other keypoint's P is unchanged, the band's ones were below 0.5
-    g = get_filter("d2slam-flow", DynamicsConfig(flow_edge_band=0.0))
+    g = get_filter("d2slam-flow", overridden(DynamicsConfig(), {"flow": {"flow_edge_band": 0.0}}))
     g(inp)
     assert not g.last.edge.any()
     np.testing.assert_array_equal(g.last.fused[~d.edge], d.fused[~d.edge])
     assert (g.last.fused[d.edge] < 0.5).all()
     # a wider band reaches the next ring of keypoints, 12 px further out, beyond the uncertainty zone: there the flow
     # observes nearly all of them, so they are not flagged
-    w = get_filter("d2slam-flow", DynamicsConfig(flow_edge_band=20.0))
+    w = get_filter("d2slam-flow", overridden(DynamicsConfig(), {"flow": {"flow_edge_band": 20.0}}))
     w(inp)
     ring = (outside >= band) & (outside < 20)
     np.testing.assert_array_equal(w.last.edge, (outside > 0) & (outside < 20) & ~w.last.observed)
@@ -304,10 +307,10 @@ def test_edge_band_flags_unobserved_keypoints_just_outside_the_mask():
 
 def test_edge_band_bad_settings_are_clear_errors():
     """Refused when the config is built (its range), used by a filter or not."""
-    for kwargs, what in (({"flow_edge_p": 1.5}, r"dynamics.flow_edge_p = 1.5 .*\[0, 1\]"),
-                         ({"flow_edge_band": float("nan")}, r"dynamics.flow_edge_band = nan .*finite")):
+    for kwargs, what in (({"flow_edge_p": 1.5}, r"dynamics.flow.flow_edge_p = 1.5 .*\[0, 1\]"),
+                         ({"flow_edge_band": float("nan")}, r"dynamics.flow.flow_edge_band = nan .*finite")):
         with pytest.raises(D2SlamError, match=what):
-            DynamicsConfig(**kwargs)
+            FlowConfig(**kwargs)
 
 
 def test_flow_area_option():
@@ -316,7 +319,7 @@ def test_flow_area_option():
     inp, matched, _ = box_scene(2)
     obs = {}
     for area in ("all", "matched", "outside"):
-        f = get_filter("d2slam-flow", DynamicsConfig(flow_area=area))
+        f = get_filter("d2slam-flow", overridden(DynamicsConfig(), {"flow": {"flow_area": area}}))
         f(inp)
         obs[area] = f.last.observed
         area_kp = f.last.in_area
@@ -354,11 +357,11 @@ def test_property_flow_mode_on_random_images(seed, n, k, same, flat):
     # a margin), their P raised to at least flow_edge_p
     d_max = signed_distances(inp.masks, kps).max(axis=1) if n else np.zeros(0)
     with np.errstate(invalid="ignore"):
-        want = ~f.last.observed & (d_max < 0) & (d_max > -f.cfg.flow_edge_band)
+        want = ~f.last.observed & (d_max < 0) & (d_max > -f.cfg.flow.flow_edge_band)
     np.testing.assert_array_equal(f.last.edge, want)
-    assert (f.last.fused[want] >= f.cfg.flow_edge_p).all() and ((f.last.fused >= 0) & (f.last.fused <= 1)).all()
+    assert (f.last.fused[want] >= f.cfg.flow.flow_edge_p).all() and ((f.last.fused >= 0) & (f.last.fused <= 1)).all()
 
 
 def test_unknown_flow_area_is_a_clear_error():
-    with pytest.raises(D2SlamError, match="dynamics.flow_area = 'inside' .*'all', 'matched', 'outside'"):
-        DynamicsConfig(flow_area="inside")  # refused when the config is built, used by a filter or not
+    with pytest.raises(D2SlamError, match="dynamics.flow.flow_area = 'inside' .*'all', 'matched', 'outside'"):
+        FlowConfig(flow_area="inside")  # refused when the config is built, used by a filter or not

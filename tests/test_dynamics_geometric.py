@@ -7,9 +7,10 @@ from hypothesis import strategies as st
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import depth_sigma
-from d2slam.dynamics.geometric import (epipolar_error, fundamental_matrix, geometric_module,
+from d2slam.dynamics.geometric import (PoseInputs, epipolar_error, fundamental_matrix, geometric_module,
                                        geometric_probability)
 from d2slam.errors import D2SlamError
+from d2slam.ranges import overridden
 
 CFG = DynamicsConfig()
 # Pure translation along x with K = I: F = [t]_x, epipolar lines are horizontal (y = v of the previous point).
@@ -67,9 +68,9 @@ def test_one_exceedance_does_not_erase_a_static_history():
 
     prior = np.array([0.05, 0.5])
     assert (bayes_update(prior, np.array([0.7, 0.7]), CFG) > 0.5).tolist() == [False, True]
-    paper = DynamicsConfig(p_g_exceed=1.0)
+    paper = overridden(DynamicsConfig(), {"ours": {"p_g_exceed": 1.0}})
     assert (bayes_update(prior, np.array([1.0, 1.0]), paper) > 0.5).tolist() == [True, True]
-    assert CFG.p_g_exceed == 0.7
+    assert CFG.ours.p_g_exceed == 0.7
 
 
 def test_fewer_than_8_matches_gives_no_F():
@@ -89,12 +90,13 @@ def test_no_F_gives_nan_pose_fields_when_the_pose_test_is_asked_for():
     z = np.full(10, 2.0)
     few = np.column_stack([np.arange(7), np.arange(7)])
     for matches in (few, np.zeros((0, 2), int)):  # fewer than 8 matches, no match at all
-        res = geometric_module(kps, kps, matches, np.full(10, 0.5), np.full(10, 0.7), CFG, kp_depth=z,
-                               prev_kp_depth=z, K=K_TEST)
+        res = geometric_module(kps, kps, matches, np.full(10, 0.5), np.full(10, 0.7), CFG,
+                               pose=PoseInputs(z, z, K_TEST))
         assert res.F is None and res.reproj_err.shape == res.depth_err.shape == res.pose_dynamic.shape == (10,)
         assert np.isnan(res.reproj_err).all() and np.isnan(res.depth_err).all() and not res.pose_dynamic.any()
     # not asked for (no K or no depths): the fields stay None
-    res = geometric_module(kps, kps, few, np.full(10, 0.5), np.full(10, 0.7), CFG, kp_depth=z, prev_kp_depth=z)
+    # depths without intrinsics: no pose test
+    res = geometric_module(kps, kps, few, np.full(10, 0.5), np.full(10, 0.7), CFG)
     assert res.reproj_err is None and res.pose_dynamic is None
 
 
@@ -123,7 +125,7 @@ def test_two_view_moving_object_high_P_g_static_low():
     res = geometric_module(p, prev, matches, np.full(len(prev), 0.5), np.full(len(p), 0.7), CFG)
     assert res.F is not None and res.observed.all()
     assert res.dynamic[truth].mean() >= 0.95
-    assert (res.p_g[truth] >= CFG.p_g_exceed).mean() >= 0.95
+    assert (res.p_g[truth] >= CFG.ours.p_g_exceed).mean() >= 0.95
     assert res.dynamic[~truth].mean() <= 0.10  # 0.2 px noise in both views, F from RANSAC
     assert np.median(res.p_g[~truth]) < 0.1
 
@@ -142,7 +144,7 @@ def test_noise_widening_keeps_the_static_false_alarms_low_whatever_the_noise():
         b = np.full(len(prev), 0.5)
         res = geometric_module(p, prev, matches, b, np.full(len(p), 0.7), CFG)
         paper = geometric_module(p, prev, matches, b, np.full(len(p), 0.7),
-                                 dataclasses.replace(CFG, noise_widening=False))
+                                 overridden(CFG, {"ours": {"noise_widening": False}}))
         assert paper.widening == (1.0, 1.0, 1.0)
         assert res.dynamic[~truth].mean() <= 0.12, noise_px
         if noise_px <= 0.6:
@@ -181,9 +183,9 @@ def test_eq6_sigma_at_the_detection_scale():
     assert below.sum() > 200
     np.testing.assert_allclose(res.p_g[below], -np.expm1(-(res.err[below] / scale[below]) ** 2 / (2 * CFG.sigma ** 2)))
     assert res.p_g[below].max() <= -np.expm1(-0.9 ** 2 / (2 * CFG.sigma ** 2)) + 1e-12  # 0.333 < 0.5
-    assert (res.p_g[res.dynamic] == CFG.p_g_exceed).all()
+    assert (res.p_g[res.dynamic] == CFG.ours.p_g_exceed).all()
     # the paper's unscaled sigma: the same errors, larger P_g at coarse levels (where a 1.5 px error passes)
-    paper = geometric_module(p, prev, matches, b, a * scale, dataclasses.replace(CFG, sigma_at_scale=False),
+    paper = geometric_module(p, prev, matches, b, a * scale, overridden(CFG, {"ours": {"sigma_at_scale": False}}),
                              scale=scale)
     np.testing.assert_array_equal(paper.dynamic, res.dynamic)
     np.testing.assert_allclose(paper.p_g[below], -np.expm1(-res.err[below] ** 2 / (2 * CFG.sigma ** 2)))
@@ -258,7 +260,7 @@ def _two_view_rgbd(rng, n_static=300, n_obj=40):
     X_now[label == 2] *= (1.0 + 0.15 / X_now[label == 2, 2])[:, None]
 
     def noisy_depth(z):
-        return z + 0.5 * depth_sigma(z, CFG) * rng.normal(size=len(z))
+        return z + 0.5 * depth_sigma(z) * rng.normal(size=len(z))
 
     q, p = _project(X) + rng.normal(0, 0.2, (len(X), 2)), _project(X_now) + rng.normal(0, 0.2, (len(X), 2))
     perm = rng.permutation(len(X))
@@ -276,7 +278,7 @@ def test_pose_test_sees_motion_along_the_epipolar_line_and_along_the_ray():
     a = np.full(len(p), 0.7)
     b = np.full(len(prev), 0.5)
     eq5 = geometric_module(p, prev, matches, b, a, CFG)  # no depths given: eq 5 alone
-    res = geometric_module(p, prev, matches, b, a, CFG, kp_depth=z, prev_kp_depth=z_prev, K=K_TEST)
+    res = geometric_module(p, prev, matches, b, a, CFG, pose=PoseInputs(z, z_prev, K_TEST))
     # eq 5 barely sees either object: A slides 25 px along its lines, B stays on its pixels
     assert eq5.pose_dynamic is None
     assert np.median(eq5.err[label == 1]) < 2.0 and np.median(eq5.err[label == 2]) < 0.7
@@ -285,22 +287,22 @@ def test_pose_test_sees_motion_along_the_epipolar_line_and_along_the_ray():
     assert np.median(res.reproj_err[label == 1]) > 20 and np.median(res.reproj_err[label == 2]) < 1.0
     assert np.median(np.abs(res.depth_err[label == 2])) > 10
     assert res.pose_dynamic[label == 0].mean() <= 0.03 and np.median(res.reproj_err[label == 0]) < 0.5
-    assert (res.p_g[res.pose_dynamic] >= CFG.p_pose_exceed).all() and np.array_equal(
+    assert (res.p_g[res.pose_dynamic] >= CFG.pose_test.p_pose_exceed).all() and np.array_equal(
         res.dynamic, eq5.dynamic | res.pose_dynamic)
     # each half of the test alone
-    only_reproj = geometric_module(p, prev, matches, b, a, dataclasses.replace(CFG, pose_depth_sigmas=0.0),
-                                   kp_depth=z, prev_kp_depth=z_prev, K=K_TEST)
-    only_depth = geometric_module(p, prev, matches, b, a, dataclasses.replace(CFG, pose_reproj_px=0.0),
-                                  kp_depth=z, prev_kp_depth=z_prev, K=K_TEST)
+    only_reproj = geometric_module(p, prev, matches, b, a, overridden(CFG, {"pose_test": {"pose_depth_sigmas": 0.0}}),
+                                   pose=PoseInputs(z, z_prev, K_TEST))
+    only_depth = geometric_module(p, prev, matches, b, a, overridden(CFG, {"pose_test": {"pose_reproj_px": 0.0}}),
+                                  pose=PoseInputs(z, z_prev, K_TEST))
     assert only_reproj.pose_dynamic[label == 1].mean() >= 0.95 and only_reproj.pose_dynamic[label == 2].mean() <= 0.1
     assert only_depth.pose_dynamic[label == 2].mean() >= 0.95
     # the reprojection threshold is at each keypoint's detection scale: x 8 (32 px) lets object A's 25 px pass
-    coarse = geometric_module(p, prev, matches, b, a, dataclasses.replace(CFG, pose_depth_sigmas=0.0),
-                              kp_depth=z, prev_kp_depth=z_prev, K=K_TEST, scale=np.full(len(p), 8.0))
+    coarse = geometric_module(p, prev, matches, b, a, overridden(CFG, {"pose_test": {"pose_depth_sigmas": 0.0}}),
+                              pose=PoseInputs(z, z_prev, K_TEST), scale=np.full(len(p), 8.0))
     assert coarse.pose_dynamic[label == 1].mean() <= 0.05
     # off in the config: eq 5 alone again
-    off = geometric_module(p, prev, matches, b, a, dataclasses.replace(CFG, pose_test=False), kp_depth=z,
-                           prev_kp_depth=z_prev, K=K_TEST)
+    off = geometric_module(p, prev, matches, b, a, overridden(CFG, {"pose_test": {"enabled": False}}),
+                           pose=PoseInputs(z, z_prev, K_TEST))
     assert off.pose_dynamic is None and np.array_equal(off.dynamic, eq5.dynamic)
 
 
@@ -325,7 +327,7 @@ def test_relative_pose_recovers_the_motion_despite_outliers_and_is_deterministic
     np.testing.assert_array_equal(pose[1], again[1])
     # non-finite rows are dropped; fewer than pnp_min_matches usable points: no pose
     Xn = X.copy()
-    Xn[: 200 - CFG.pnp_min_matches + 1] = np.nan
+    Xn[: 200 - CFG.pose_test.pnp_min_matches + 1] = np.nan
     assert relative_pose(Xn, p, K_TEST, CFG) is None
     assert relative_pose(X[:5], p[:5], K_TEST, CFG) is None
     np.testing.assert_allclose(back_project(p[:1], np.array([2.0]), K_TEST)[0, 2], 2.0)
@@ -337,17 +339,17 @@ def test_pose_test_without_usable_depth_leaves_eq5_alone_and_checks_sizes():
     a, b = np.full(len(p), 0.7), np.full(len(prev), 0.5)
     eq5 = geometric_module(p, prev, matches, b, a, CFG)
     bad = np.where(np.arange(len(z_prev)) % 2 == 0, 0.0, np.nan)  # every previous depth invalid (0 or NaN)
-    res = geometric_module(p, prev, matches, b, a, CFG, kp_depth=z, prev_kp_depth=bad, K=K_TEST)
+    res = geometric_module(p, prev, matches, b, a, CFG, pose=PoseInputs(z, bad, K_TEST))
     assert np.isnan(res.reproj_err).all() and np.isnan(res.depth_err).all() and not res.pose_dynamic.any()
     np.testing.assert_array_equal(res.dynamic, eq5.dynamic)
     np.testing.assert_array_equal(res.p_g, eq5.p_g)
     # invalid current depths: the reprojection half still runs, the depth half is NaN there
     z_bad = z.copy()
     z_bad[label == 2] = np.inf
-    res = geometric_module(p, prev, matches, b, a, CFG, kp_depth=z_bad, prev_kp_depth=z_prev, K=K_TEST)
+    res = geometric_module(p, prev, matches, b, a, CFG, pose=PoseInputs(z_bad, z_prev, K_TEST))
     assert np.isnan(res.depth_err[label == 2]).all() and res.pose_dynamic[label == 1].mean() >= 0.95
     with pytest.raises(D2SlamError, match="keypoint depths"):
-        geometric_module(p, prev, matches, b, a, CFG, kp_depth=z[:-1], prev_kp_depth=z_prev, K=K_TEST)
+        geometric_module(p, prev, matches, b, a, CFG, pose=PoseInputs(z[:-1], z_prev, K_TEST))
 
 
 @settings(max_examples=80, deadline=None, derandomize=True)
@@ -378,14 +380,13 @@ def test_property_pose_test_never_raises_and_stays_in_range(seed, n, outliers, b
 
     z_prev, z = corrupt(X[:, 2]), corrupt(Xc[:, 2])
     matches = np.column_stack([np.arange(n), np.arange(n)]).astype(np.int64).reshape(-1, 2)
-    res = geometric_module(p, q, matches, np.full(n, 0.2), np.full(n, 0.7), CFG, kp_depth=z, prev_kp_depth=z_prev,
-                           K=K)
+    res = geometric_module(p, q, matches, np.full(n, 0.2), np.full(n, 0.7), CFG, pose=PoseInputs(z, z_prev, K))
     finite = np.isfinite(res.p_g)
     assert ((res.p_g[finite] >= 0) & (res.p_g[finite] <= 1)).all()
     assert not (res.dynamic & ~res.observed).any()
     event(f"pose found: {res.reproj_err is not None and bool(np.isfinite(res.reproj_err).any())}")
     if res.pose_dynamic is not None:
         assert res.pose_dynamic.shape == (n,) and not (res.pose_dynamic & ~res.observed).any()
-        assert (res.p_g[res.pose_dynamic] >= CFG.p_pose_exceed).all()
+        assert (res.p_g[res.pose_dynamic] >= CFG.pose_test.p_pose_exceed).all()
         r = res.reproj_err[np.isfinite(res.reproj_err)]
         assert (r >= 0).all()

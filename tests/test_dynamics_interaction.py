@@ -1,14 +1,15 @@
 """Object Interaction Module (eq 9-10): neighbours, weighted centroid, zone, mask depth."""
 
-import dataclasses
 
 import numpy as np
 import pytest
 
 from d2slam.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps
-from d2slam.dynamics.interaction import (MatchedPoints, interaction_zone, mask_depths, neighbour_p_g,
+from d2slam.dynamics.interaction import (MatchedPoints, interaction_zone, mask_depths, moving_masks, neighbour_p_g,
                                          object_interaction, oim_candidates)
+from d2slam.dynamics.semantic import FrameMasks
+from d2slam.ranges import overridden
 
 CFG = DynamicsConfig()
 
@@ -83,7 +84,7 @@ def test_mask_depths_strided_median_close_to_full():
     masks = np.zeros((3, 120, 160), bool)
     masks[0, 10:100, 20:60] = True
     masks[1, 50, 70] = True  # single pixel: the stride-4 grid misses it -> every pixel
-    full = DynamicsConfig(zone_median_stride=1)
+    full = overridden(DynamicsConfig(), {"ours": {"zone_median_stride": 1}})
     z4, z1 = mask_depths(depth, masks), mask_depths(depth, masks, full)
     valid = depth[masks[0]][depth[masks[0]] > 0]
     assert z1[0] == pytest.approx(np.median(valid))
@@ -108,7 +109,7 @@ def test_neighbour_p_g_by_hand():
     assert np.isnan(got[[1, 2, 3, 4, 7]]).all()  # matched
     assert np.isnan(got[6])  # invalid depth
     assert got[5] == pytest.approx(0.8)  # the same two neighbours (4 is 44 px away)
-    few = neighbour_p_g(kps, DepthMaps(z, CFG), observed, p_g, dataclasses.replace(CFG, neighbour_min=3))
+    few = neighbour_p_g(kps, DepthMaps(z, CFG), observed, p_g, overridden(CFG, {"ours": {"neighbour_min": 3}}))
     assert np.isnan(few).all()
 
 
@@ -128,9 +129,9 @@ def test_neighbour_p_g_equals_a_plain_loop():
             continue
         d = np.hypot(*(kps - kps[i]).T)
         cand = np.flatnonzero(observed & (z > 0))
-        near = cand[np.argsort(d[cand], kind="stable")[:CFG.neighbour_k]]  # the k nearest matched keypoints
-        nb = near[(d[near] < maps.delta[i]) & (np.abs(z[near] - z[i]) < CFG.neighbour_depth)]
-        if len(nb) >= CFG.neighbour_min:
+        near = cand[np.argsort(d[cand], kind="stable")[:CFG.ours.neighbour_k]]  # the k nearest matched keypoints
+        nb = near[(d[near] < maps.delta[i]) & (np.abs(z[near] - z[i]) < CFG.ours.neighbour_depth)]
+        if len(nb) >= CFG.ours.neighbour_min:
             want[i] = p_g[nb].mean()
     np.testing.assert_allclose(got, want)
     assert 20 < np.isfinite(got).sum() < (~observed).sum()  # both outcomes are exercised
@@ -195,8 +196,8 @@ def test_oim_candidates_skip_neighbour_static_only_when_asked():
     p_nb = np.array([0.3, 0.7, np.nan, np.nan, 0.1])  # static neighbours, dynamic ones, too few
     base = oim_candidates(belief, observed, geo_dynamic, CFG, p_nb)
     np.testing.assert_array_equal(base, [True, True, True, False, False])  # the default ignores p_nb
-    strict = oim_candidates(belief, observed, geo_dynamic, dataclasses.replace(CFG, oim_skip_neighbour_static=True),
-                            p_nb)
+    skip = overridden(CFG, {"ours": {"oim_skip_neighbour_static": True}})
+    strict = oim_candidates(belief, observed, geo_dynamic, skip, p_nb)
     np.testing.assert_array_equal(strict, [False, True, True, False, False])
 
 
@@ -208,3 +209,28 @@ def test_mask_median_equals_numpy_median():
         for vals in (rng.uniform(0.5, 4.5, n).astype(np.float32), rng.uniform(0.5, 4.5, n),
                      rng.integers(30000, 65535, n).astype(np.uint16)):  # a uint16 sum of two would overflow
             assert _median(vals) == float(np.median(vals))
+
+
+def test_only_a_person_whose_keypoints_move_beyond_the_false_alarms_has_an_interaction_zone():
+    """moving_masks (OursConfig.oim_moving_test): a one-sided binomial test of the failed geometric tests on a
+    mask's matched keypoints against the thresholds' false-alarm rate (1 - noise_confidence)."""
+    h, w = 60, 80
+    masks = np.zeros((3, h, w), bool)
+    masks[0, 5:25, 5:25] = True  # walking: 8 of 20 matched keypoints fail
+    masks[1, 5:25, 40:60] = True  # seated: 1 of 20 fails, a false alarm
+    masks[2, 40:50, 40:50] = True  # 3 matched keypoints: too few to tell still
+    kps = np.concatenate([np.stack([np.arange(20) % 20 + 5, np.full(20, 10)], 1),
+                          np.stack([np.arange(20) % 20 + 40, np.full(20, 10)], 1),
+                          np.array([[42, 45], [44, 45], [46, 45]])]).astype(np.float64)
+    observed = np.ones(len(kps), bool)
+    dynamic = np.zeros(len(kps), bool)
+    dynamic[:8] = True
+    dynamic[20] = True
+    fm = FrameMasks(masks, kps, (h, w))
+    cfg = DynamicsConfig()
+    assert moving_masks(fm, observed, dynamic, cfg).tolist() == [True, False, True]
+    paper = overridden(cfg, {"ours": {"oim_moving_test": False}})
+    assert moving_masks(fm, observed, dynamic, paper).tolist() == [True, True, True]
+    unmatched = observed.copy()
+    unmatched[:20] = False  # nothing observed on the walking person this frame: it cannot be told still
+    assert moving_masks(fm, unmatched, dynamic, cfg).tolist() == [True, False, True]

@@ -71,7 +71,7 @@ class _ToySequence:
 def test_recorder_matches_direct_module_metrics_and_is_strict_json():
     import json
 
-    from d2slam.methods import get_filter
+    from d2slam.run.methods import get_filter
     from d2slam.eval.keypoints import KeypointRecorder
 
     seq = _ToySequence([0, 1, 2])
@@ -96,7 +96,7 @@ def test_recorder_matches_direct_module_metrics_and_is_strict_json():
 def test_recorder_stale_diagnostics_none_method_and_nan_to_null():
     import json
 
-    from d2slam.methods import get_filter
+    from d2slam.run.methods import get_filter
     from d2slam.eval.keypoints import KeypointRecorder
 
     seq = _ToySequence([3, 4])
@@ -162,8 +162,8 @@ def test_recorder_in_the_pipeline_on_a_synthetic_sequence(tmp_path):
     from d2slam.config import DEFAULT
     from d2slam.data import open_sequence
     from d2slam.eval.keypoints import keypoint_recorder
-    from d2slam.methods import get_filter, get_method
-    from d2slam.pipeline import run_sequence
+    from d2slam.run.methods import get_filter, get_method
+    from d2slam.run.sequence import run_sequence
 
     info, gt = _textured_synthetic(tmp_path / "walking_xyz_seed7")
     seq = open_sequence(info["root"])

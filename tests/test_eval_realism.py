@@ -10,6 +10,7 @@ import pytest
 from d2slam.config import DEFAULT
 from d2slam.errors import D2SlamError
 from d2slam.eval import realism as R
+from d2slam.run.observe import engine_log
 
 
 def _texture(seed=0, h=480, w=640):
@@ -121,13 +122,13 @@ def test_measure_and_compare_a_tiny_twin(tiny_twin):
     from d2slam.data import open_sequence
 
     seq = open_sequence(tiny_twin)
-    m = R.measure(seq, 3, stride=1)
+    m = R.measure(seq, engine_log(seq, 3), stride=1)
     assert m.frames == 3 and len(m.sampled) == 3 and len(m.corners) == 3 and np.all(m.hole_share > 0.15)
     assert len(m.matches.epi) > 50 and np.nanmedian(m.matches.epi) < 5 and np.isfinite(m.speed[1:]).all()
     rows = R.comparison(m, m)
     assert rows[0] == ("frames tracked (engine, no filter)", f"{m.tracked}/3", f"{m.tracked}/3")
     assert all(a == b for _, a, b in rows)
-    log = R.engine_log(seq, 3)
+    log = engine_log(seq, 3)
     tab, shift, readout = R.fit_time_offset(log, seq, np.array([-0.03, DEFAULT.synth.twin.rgb_time_shift, 0.03]),
                                             np.array([0.0]))
     assert tab.shape == (3, 1) and np.all(np.isfinite(tab))

@@ -117,9 +117,9 @@ def test_synthetic_rows_with_the_truth_as_segmenter():
             spurious[:4, :4] = True
             return out + [PersonInstance(spurious, 0.5, (0, 0, 4, 4))]
 
-    gen = importlib.import_module("d2slam.synth.generate")  # the package exports a function of the same name
+    rows = importlib.import_module("d2slam.eval.segmentation")  # renders with the generator's render_frame
     truth = Truth()
-    real = gen.render_frame
+    real = rows.render_frame
 
     def render(scene, renderer, i):
         truth.frame = real(scene, renderer, i)
@@ -127,7 +127,7 @@ def test_synthetic_rows_with_the_truth_as_segmenter():
         return truth.frame
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(gen, "render_frame", render)
+        mp.setattr(rows, "render_frame", render)
         people, frames = synthetic_rows([("walking_xyz", 0, 40, 20)], truth, DEFAULT)
     assert ids_seen == [0, 20] and [f["frame"] for f in frames] == [0, 20]
     assert all(f["false_pos"] == 1 and f["scenario"] == "walking_xyz" and f["seed"] == 0 for f in frames)

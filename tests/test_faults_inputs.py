@@ -56,7 +56,7 @@ def test_outputs_onto_the_runs_inputs_are_refused_before_any_work(world, user_se
     """The cases of the issue and their variants through links: the ground truth, rgb.txt, the metrics JSON onto
     the ground truth, --out and --metrics-json on one file, a link or a hard link to an input, a path through `..`
     or through a link to the sequence, another sequence's file, the cache's own folders, the config file."""
-    import d2slam.methods as M
+    import d2slam.commands.run as M  # run_method as the command calls it
 
     seq, _ = user_seq
     monkeypatch.setattr(M, "run_method", lambda *a, **k: pytest.fail("ran before the outputs were checked"))

@@ -44,7 +44,7 @@ def test_synth_killed_or_interrupted_then_rerun(fault_world, tmp_path):
     w = fault_world
     out = tmp_path / "seq"
     args = ["synth", w.SCENARIO, "--out", out, "--frames", w.FRAMES, "--seed", w.SEED, "--workers", 1]
-    killed = w.run(*args, hook=("d2slam.synth.generate:_write", 7, "SIGKILL"))
+    killed = w.run(*args, hook=("d2slam.synth.generate:write_image", 7, "SIGKILL"))
     _faulted(killed, "SIGKILL")
     assert not out.exists() and len(_temps(tmp_path)) == 1 and _temps(tmp_path)[0].name.startswith("seq.tmp-")
     interrupted = w.run(*args, hook=("d2slam.outputs:replace_dir", 1, "SIGINT"))
@@ -127,7 +127,7 @@ def test_vocabulary_training_render_killed_then_rerun(fault_world, tmp_path):
             "m = build_vocabulary(cfg=cfg, real=True, progress=True)\nprint(m['sha256'])\n")
     uninterrupted = w.start("--python", code, cache=tmp_path / "ref")
     cache = tmp_path / "cache"
-    killed = w.run("--python", code, cache=cache, hook=("d2slam.baselines.vocab:Progress.update", 2, "SIGKILL"))
+    killed = w.run("--python", code, cache=cache, hook=("d2slam.progress:Progress.update", 2, "SIGKILL"))
     _faulted(killed, "SIGKILL")
     ref = w.wait(uninterrupted)
     assert ref.returncode == 0, ref.stderr

@@ -13,8 +13,8 @@ from d2slam.cachefiles import Damaged
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
-from d2slam.methods import get_method
-from d2slam.pipeline import run_sequence
+from d2slam.run.methods import get_method
+from d2slam.run.sequence import run_sequence
 from d2slam.segmentation import masks_for, stack_masks
 from d2slam.slam.engine import Engine
 from d2slam.slam.features import CachedFeatures, FeatureRecorder
@@ -148,9 +148,9 @@ def test_sequence_without_depth_only_reader(seq, saved):
 
 def test_study_replaces_a_corrupt_cache_file(seq, tmp_path):
     from d2slam.slam.features import CachedFeatures as CF
-    from d2slam.study.runner import _features, features_path
+    from d2slam.study.runner import _features, features_path, run_options
 
-    options = {"cache_root": str(tmp_path)}
+    options = run_options(cache_root=tmp_path)
     target = features_path(seq, seq.root, DEFAULT, options)
     features, save_to = _features(seq, seq.root, DEFAULT, options)
     assert isinstance(features, FeatureRecorder) and save_to == target

@@ -2,7 +2,6 @@
 inverted file, ORB-SLAM's candidate rules and consistency, dynamics-aware words, the 3D-3D RANSAC, the pose graph,
 loops judged against the ground truth, the switch, and a loop closed by the engine in an analytic room."""
 
-import dataclasses
 import json
 
 import cv2
@@ -14,6 +13,7 @@ from d2slam.baselines.vocab import Vocabulary, build_tree
 from d2slam.config import DEFAULT, EvalConfig
 from d2slam.data.base import Camera, Trajectory
 from d2slam.eval.loops import classify_loops, closest_call, wrong_candidates
+from d2slam.ranges import overridden
 from d2slam.slam import lm
 from d2slam.slam.engine import Engine
 from d2slam.slam.fixture import BoxRoom
@@ -29,7 +29,8 @@ CAM = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240, bf=2
 
 
 def _cfg(**engine):
-    return dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, **engine))
+    """DEFAULT with these engine fields (nested sections as dicts: ``loops={"loop_consistency": 2}``)."""
+    return overridden(DEFAULT, {"engine": engine})
 
 
 @pytest.fixture(scope="module")
@@ -181,7 +182,7 @@ def test_loop_candidates_follow_orbslam_rules(voc):
 
 
 def test_candidates_must_be_consistent_over_consecutive_keyframes(voc):
-    cfg = _cfg(loop_consistency=2).engine
+    cfg = _cfg(loops={"loop_consistency": 2}).engine
     m, db = _place_map(voc, cfg)
     lc = LoopCloser.__new__(LoopCloser)
     lc.db, lc.cfg, lc.groups = db, cfg, []
@@ -255,7 +256,7 @@ def test_geometry_takes_no_dynamic_keypoint(voc):
     lc.db.add(cand)
     lc.db.add(cur)
     geo, n = lc.geometry(cur, cand)
-    assert geo is not None and n >= DEFAULT.engine.loop_min_matches
+    assert geo is not None and n >= DEFAULT.engine.loops.loop_min_matches
     assert not cur.dynamic[geo.kp].any() and len(geo.kp) > 0.6 * (~cur.dynamic).sum()
     assert np.abs(geo.Tcw - T_true).max() < 0.01
     m.points.belief[:] = 1.0  # the loop's points marked dynamic: none is usable
@@ -371,10 +372,10 @@ def box_loop(tmp_path_factory):
 
 def _box_run(box_loop, loop_closing):
     frames, poses, path = box_loop
-    cfg = dataclasses.replace(DEFAULT, orb=dataclasses.replace(DEFAULT.orb, n_features=500),
-                              engine=dataclasses.replace(DEFAULT.engine, loop_closing=loop_closing,
-                                                         vocabulary=str(path), init_min_keypoints=200,
-                                                         kf_max_frames=4, loop_consistency=0))
+    cfg = overridden(DEFAULT, {"orb": {"n_features": 500},
+                               "engine": {"loop_closing": loop_closing, "vocabulary": str(path),
+                                          "tracking": {"init_min_keypoints": 200}, "keyframes": {"kf_max_frames": 4},
+                                          "loops": {"loop_consistency": 0}}})
     eng = Engine(CAM, cfg)
     for i, (g, d) in enumerate(frames):
         assert eng.process(g, d, i, i / 30.0).tracked
@@ -490,14 +491,14 @@ def test_tables_have_a_loop_closing_section():
 def test_the_ablation_puts_dynamic_keypoints_back_into_words_and_matches(voc):
     d, dyn = _descriptors_with_dynamic()
     m = Map()
-    db = KeyFrameDatabase(voc, m, _cfg(loop_dynamic_keypoints=True).engine)
+    db = KeyFrameDatabase(voc, m, _cfg(loops={"loop_dynamic_keypoints": True}).engine)
     m.add_keyframe(_kf(0, d, dynamic=dyn))
     np.testing.assert_array_equal(db.add(m.keyframes[0]).words, voc.bow(d, 2)[0])
     mp, proj, (cand, cur), _, _ = _pair(outliers=0.0)
     cur.desc = cand.desc.copy()
     cur.dynamic = np.zeros(len(cur.kps), bool)
     cur.dynamic[::3] = True
-    cfg = _cfg(loop_dynamic_keypoints=True)
+    cfg = _cfg(loops={"loop_dynamic_keypoints": True})
     lc = LoopCloser(mp, proj, cfg, voc, LocalMapper(mp, proj, cfg))
     lc.db.add(cand)
     lc.db.add(cur)
@@ -526,9 +527,9 @@ def test_study_runs_record_loop_closing_and_its_loops():
 def test_relocalisation_takes_its_candidates_from_the_database(box_loop, monkeypatch, tmp_path):
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path))
     frames, poses, path = box_loop
-    cfg = dataclasses.replace(DEFAULT, orb=dataclasses.replace(DEFAULT.orb, n_features=500),
-                              engine=dataclasses.replace(DEFAULT.engine, vocabulary=str(path),
-                                                         init_min_keypoints=200, kf_max_frames=4))
+    cfg = overridden(DEFAULT, {"orb": {"n_features": 500},
+                               "engine": {"vocabulary": str(path), "tracking": {"init_min_keypoints": 200},
+                                          "keyframes": {"kf_max_frames": 4}}})
     eng = Engine(CAM, cfg)
     for i in range(30):
         assert eng.process(*frames[i], i, i / 30.0).tracked

@@ -12,11 +12,11 @@ from test_eval_keypoints import _textured_synthetic
 
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
-from d2slam.eval.keypoints import KeypointRecorder, keypoint_truth
 from d2slam.errors import D2SlamError
-from d2slam.methods import run_method
+from d2slam.eval.keypoints import KeypointRecorder, keypoint_truth
 from d2slam.notebook import (config_values, development_sequence, mask_provider, recorded_run,
                              seed_showing)
+from d2slam.run.runner import run_method
 from d2slam.study.sequences import MARKER, sequence_dir
 
 
@@ -66,7 +66,7 @@ class _Plan:
     """A scene plan (a stand-in for ``d2slam.synth.Scene``): a camera at the origin looking along +z, one frame per
     second; per seed, where a person stands and when and where an object moves."""
 
-    cfg = SimpleNamespace(fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
+    intrinsics = SimpleNamespace(fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
     IN, OUT = np.array([0.0, 0.0, 2.0]), np.array([0.0, 0.0, -2.0])  # in front of the camera, behind it
     PEOPLE = {0: [], 1: [(0, 9)], 2: [(0, 2), (1, 9)], 3: [(5, 9)], 4: [(0, 9)]}  # frames [a, b) in view
     OBJECTS = {0: [], 1: [(0, 9, 0, 1)], 2: [(0, 9, 0, 9)], 3: [(0, 2, 0, 9)], 4: [(0, 9, 3, 9)]}  # view, moving
@@ -90,7 +90,7 @@ class _Plan:
 
 
 def test_seed_showing(monkeypatch):
-    monkeypatch.setattr("d2slam.synth.Scene", _Plan)
+    monkeypatch.setattr("d2slam.notebook.Scene", _Plan)
     assert seed_showing("walking_xyz", 9, "people", seeds=[0, 1, 2, 3]) == 2  # 2 + 8 frames x people in view
     assert seed_showing("walking_xyz", 9, "people", seeds=[4, 1]) == 1  # a tie: the lowest seed
     assert seed_showing("walking_carry", 9, "moving objects", seeds=[1, 2, 3, 4]) == 2  # moving while in view

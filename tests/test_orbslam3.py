@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from d2slam.assets import tum_frames
 from d2slam.baselines import orbslam3 as O
 from d2slam.baselines import vocab as V
 from d2slam.cachefiles import sha256_file
@@ -17,7 +18,7 @@ from d2slam.config import DEFAULT
 from d2slam.data import open_sequence, read_tum_trajectory
 from d2slam.data.intrinsics import FREIBURG3
 from d2slam.errors import D2SlamError
-from d2slam.assets import tum_frames
+from d2slam.run.orbslam3_runs import run_orbslam3
 
 pytest.importorskip("pyorbslam3")
 
@@ -98,7 +99,7 @@ def test_map_segments_from_states():
 
 def test_built_vocabulary_loads_in_orbslam3_and_tracks(tmp_path, seq_dir, built_vocab):
     out = tmp_path / "traj.txt"
-    record = O.run_orbslam3(seq_dir, out, tmp_path / "run.json", vocab=built_vocab, progress=False)
+    record = run_orbslam3(seq_dir, out, tmp_path / "run.json", vocab=built_vocab, progress=False)
     run = record.orbslam3
     assert run["status"] == "ok", run["message"]
     # the record every method returns: ORB-SLAM3's outcome and figures, its trajectory, evaluated
@@ -129,7 +130,7 @@ def _stores() -> set:
 
 def test_repeats_report_median_and_spread(tmp_path, seq_dir, built_vocab):
     before = _stores()
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", repeats=2, vocab=built_vocab, max_frames=6, progress=False,
+    run = run_orbslam3(seq_dir, tmp_path / "t.txt", repeats=2, vocab=built_vocab, max_frames=6, progress=False,
                          evaluate=False).orbslam3
     assert len(run["runs"]) == 2 and run["statuses"] == ["ok", "ok"]
     assert run["tracked"] == 6 and run["tracked_spread"]["values"] == [6, 6]
@@ -143,14 +144,14 @@ def test_repeats_report_median_and_spread(tmp_path, seq_dir, built_vocab):
 
 
 def test_run_seconds_say_where_the_time_went(tmp_path, seq_dir, built_vocab):
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, progress=False).orbslam3
+    run = run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, progress=False).orbslam3
     sec = run["seconds"]
     assert set(sec) == {"track", "load", "decode", "loop", "save", "process", "evaluate"}
     assert sec["load"] > 0 and sec["decode"] > 0 and sec["evaluate"] > 0
     assert sec["track"] + sec["decode"] <= sec["loop"] <= run["wall_s"]
     assert abs(sec["process"] + sec["load"] + sec["loop"] + sec["save"] - run["wall_s"]) < 0.01
     assert run["cpu_s"] > 0 and "frame_store" not in run  # a single run decodes in its worker
-    from d2slam.bench.orbslam3 import overhead
+    from d2slam.bench.orbslam3_vs_engine import overhead
 
     o = overhead(run)
     assert o["overhead"] == pytest.approx(sum(o[k] for k in ("process", "load", "decode", "save", "evaluate")))
@@ -189,7 +190,7 @@ def test_corrupt_frame_with_repeats_is_recorded_as_without(tmp_path, seq_dir, bu
     shutil.copytree(seq_dir, broken)
     seq = open_sequence(broken)
     seq.rgb_files[5].write_bytes(b"not a png")
-    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False, repeats=2,
+    run = run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False, repeats=2,
                          evaluate=False).orbslam3
     assert run["statuses"] == ["failed", "failed"] and seq.rgb_files[5].name in run["message"]
     assert run["frames"] == 5 and run["tracked"] == 5
@@ -199,11 +200,11 @@ def test_corrupt_vocabulary_is_a_failed_run_not_a_crash(tmp_path, seq_dir):
     bad = tmp_path / "ORBvoc.txt"
     bad.write_text("10 6 0 0\n0 1 1 2 3")  # ORB-SLAM3's own loader would accept this and crash later
     (tmp_path / "t.txt").write_text("stale\n")
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", tmp_path / "r.json", vocab=bad, progress=False).orbslam3
+    run = run_orbslam3(seq_dir, tmp_path / "t.txt", tmp_path / "r.json", vocab=bad, progress=False).orbslam3
     assert run["status"] == "failed" and "vocabulary" in run["message"] and str(bad) in run["message"]
     assert json.loads((tmp_path / "r.json").read_text())["status"] == "failed"
     assert not (tmp_path / "t.txt").exists()
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=tmp_path / "missing.txt", progress=False).orbslam3
+    run = run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=tmp_path / "missing.txt", progress=False).orbslam3
     assert run["status"] == "failed" and "not found" in run["message"]
 
 
@@ -212,16 +213,16 @@ def test_settings_orbslam3_rejects_is_a_failed_run(tmp_path, seq_dir, built_voca
     cam = open_sequence(seq_dir).camera
     p = tmp_path / "kb.yaml"
     p.write_text(O.settings_yaml(cam).replace('"PinHole"', '"KannalaBrandt8"'))
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False).orbslam3
+    run = run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False).orbslam3
     assert run["status"] == "failed" and "aborting" in run["message"]
     assert Path(run["log"]).is_file()
     p.write_text(O.settings_yaml(cam).replace("ORBextractor.nFeatures: 1000\n", ""))
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False).orbslam3
+    run = run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, settings=p, progress=False).orbslam3
     assert run["status"] == "failed" and "nFeatures" in run["message"]
 
 
 def test_timeout_kills_the_child(tmp_path, seq_dir, built_vocab):
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, timeout=0.2, progress=False).orbslam3
+    run = run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, timeout=0.2, progress=False).orbslam3
     assert run["status"] == "timeout" and "limit" in run["message"]
     assert run["frames"] < 36
 
@@ -233,7 +234,7 @@ def test_corrupt_frame_mid_sequence_is_recorded(tmp_path, seq_dir, built_vocab):
     shutil.copytree(seq_dir, broken)
     seq = open_sequence(broken)
     seq.rgb_files[5].write_bytes(b"not a png")
-    run = O.run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False).orbslam3
+    run = run_orbslam3(broken, tmp_path / "t.txt", vocab=built_vocab, progress=False).orbslam3
     assert run["status"] == "failed" and seq.rgb_files[5].name in run["message"]
     assert run["frames"] == 5 and run["tracked"] == 5  # what ran before it is kept
     assert len(read_tum_trajectory(tmp_path / "t.txt")) == 5
@@ -241,9 +242,9 @@ def test_corrupt_frame_mid_sequence_is_recorded(tmp_path, seq_dir, built_vocab):
 
 def test_bad_arguments_raise(tmp_path, seq_dir):
     with pytest.raises(D2SlamError, match="repeats"):
-        O.run_orbslam3(seq_dir, tmp_path / "t.txt", repeats=0)
+        run_orbslam3(seq_dir, tmp_path / "t.txt", repeats=0)
     with pytest.raises(D2SlamError, match="not found"):
-        O.run_orbslam3(tmp_path / "nope", tmp_path / "t.txt")
+        run_orbslam3(tmp_path / "nope", tmp_path / "t.txt")
 
 
 def test_config_section_defaults():
@@ -253,9 +254,9 @@ def test_config_section_defaults():
 
 def test_bench_helpers_and_topic_registered(capsys):
     from d2slam import bench
-    from d2slam.bench import orbslam3 as B
+    from d2slam.bench import orbslam3_vs_engine as B
 
-    assert "orbslam3" in bench.topics()
+    assert "orbslam3_vs_engine" in bench.topics()
     assert B._ms_per_frame({"fps": 20.0}) == 50.0 and B._ms_per_frame({"ms_per_frame": 7}) == 7.0
     assert B._ms_per_frame({}) is None
     assert B._ms_per_frame({"method": "none", "fps": 5.0, "stage_ms": {"load": 30.0, "extract": 20.0,
@@ -280,7 +281,7 @@ def test_run_command_entry_prints_the_outcome(tmp_path, seq_dir, built_vocab, ca
     from argparse import Namespace
 
     from d2slam.commands.run import print_orbslam3
-    from d2slam.methods import get_method
+    from d2slam.run.methods import get_method
 
     args = Namespace(sequence=str(seq_dir), out=str(tmp_path / "t.txt"), metrics_json=str(tmp_path / "r.json"),
                      camera=None, quiet=True, vocab=str(built_vocab))
@@ -299,11 +300,11 @@ def test_a_camera_file_gives_orbslam3_its_th_depth(tmp_path, seq_dir, built_voca
     from d2slam.data.intrinsics import read_camera_file
 
     cam = tmp_path / "cam.yaml"
-    cam.write_text(O.settings_yaml(FREIBURG3).replace(f"Stereo.ThDepth: {DEFAULT.baseline.orbslam3_th_depth:.6f}",
+    cam.write_text(O.settings_yaml(FREIBURG3).replace(f"Stereo.ThDepth: {DEFAULT.engine.th_depth:.6f}",
                                                       "Stereo.ThDepth: 35.000000"))
     assert read_camera_file(cam).th_depth == 35.0
     out = tmp_path / "traj.txt"
-    run = O.run_orbslam3(seq_dir, out, vocab=built_vocab, camera=str(cam), max_frames=5, progress=False).orbslam3
+    run = run_orbslam3(seq_dir, out, vocab=built_vocab, camera=str(cam), max_frames=5, progress=False).orbslam3
     assert run["status"] in ("ok", "lost"), run["message"]
     written = read_camera_file(run["settings"])
     assert written.th_depth == 35.0 and written.camera.fx == FREIBURG3.fx
@@ -315,20 +316,20 @@ def test_the_worker_imports_this_d2slam_from_any_folder(tmp_path, seq_dir, built
     fake.mkdir(parents=True)
     (fake / "__init__.py").write_text("raise ImportError('the d2slam of the working folder')\n")
     monkeypatch.chdir(fake.parent)
-    run = O.run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, max_frames=3, progress=False,
+    run = run_orbslam3(seq_dir, tmp_path / "t.txt", vocab=built_vocab, max_frames=3, progress=False,
                          evaluate=False).orbslam3
     assert run["status"] == "ok", run["message"]
 
 
 def test_bench_prints_the_per_run_split_and_takes_a_config(tmp_path, built_vocab, capsys):
-    """`d2slam bench orbslam3` prints where each run's seconds went; `--config` reaches ORB-SLAM3's runs (here:
-    no frame store, every repeat decodes its frames)."""
+    """`d2slam bench orbslam3_vs_engine` prints where each run's seconds went; `--config` reaches ORB-SLAM3's runs
+    (here: no frame store, every repeat decodes its frames)."""
     from d2slam.cli import main
     from d2slam.study.sequences import ensure_sequence
 
     ensure_sequence("sitting_static", 101, 40, False)  # the study's cached test sequence
     (tmp_path / "c.yaml").write_text("baseline: {orbslam3_frame_store_mb: 0}\n")
-    argv = ["bench", "orbslam3", "--scenarios", "sitting_static", "--seeds", "101", "--frames", "40", "--variants",
+    argv = ["bench", "orbslam3_vs_engine", "--scenarios", "sitting_static", "--seeds", "101", "--frames", "40", "--variants",
             "dynamic", "--methods", "orbslam3", "--repeats", "2", "--vocab", str(built_vocab)]
     assert main(argv + ["--out", str(tmp_path / "a")]) == 0
     out = capsys.readouterr().out

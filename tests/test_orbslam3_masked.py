@@ -13,7 +13,7 @@ import pytest
 from d2slam.baselines import vocab as V
 from d2slam.cli import main
 from d2slam.config import DEFAULT
-from d2slam.methods import get_method, mask_kind, methods
+from d2slam.run.methods import get_method, mask_kind, methods
 from d2slam.study.sequences import ensure_sequence
 
 pytest.importorskip("pyorbslam3")
@@ -101,7 +101,7 @@ def test_repeats_share_frames_masked_once(seq, vocab, tmp_path):
     import numpy as np
 
     from d2slam.baselines import _orbslam3_worker as W
-    from d2slam.baselines.orbslam3 import run_orbslam3
+    from d2slam.run.orbslam3_runs import run_orbslam3
     from d2slam.data import open_sequence
     from d2slam.segmentation import masks_for
 

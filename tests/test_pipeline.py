@@ -5,12 +5,12 @@ import json
 import numpy as np
 import pytest
 
+import d2slam.run.methods as M
 from d2slam.cli import main
 from d2slam.data import open_sequence, read_tum_trajectory
 from d2slam.errors import D2SlamError
-import d2slam.methods as M
-from d2slam.methods import get_filter, get_method, methods, register
-from d2slam.pipeline import run_sequence
+from d2slam.run.methods import get_filter, get_method, methods, register
+from d2slam.run.sequence import run_sequence
 from d2slam.slam.fixture import write_room_sequence
 
 
@@ -98,7 +98,7 @@ def test_d2slam_flow_runs_the_flow_through_the_engine(synth_dir, tmp_path):
     """--method d2slam-flow: the engine hands the previous grey image to the hook, the flow runs on every frame after
     the first, and two runs give the same trajectory."""
     from d2slam.config import DEFAULT
-    from d2slam.methods import get_filter as dyn_filter
+    from d2slam.run.methods import get_filter as dyn_filter
     from d2slam.segmentation import masks_for, stack_masks
 
     seq = open_sequence(synth_dir)
@@ -216,7 +216,7 @@ def test_run_command_no_keypoint_truth_on_tum(room_dir, tmp_path):
 
 
 def test_run_command_onnx_masks_go_through_masks_for(room_dir, tmp_path, monkeypatch):
-    import d2slam.segmentation as seg
+    import d2slam.run.runner as seg  # masks_for as the run path calls it
 
     kinds = []
 
@@ -231,7 +231,7 @@ def test_run_command_onnx_masks_go_through_masks_for(room_dir, tmp_path, monkeyp
 
 
 def test_run_command_dispatches_orbslam3(room_dir, tmp_path, monkeypatch):
-    import d2slam.baselines.orbslam3 as orb
+    import d2slam.run.methods as orb  # run_orbslam3 as the registry's runner calls it
     import d2slam.commands.run as run_command
 
     seen = []
@@ -283,7 +283,7 @@ def test_pipelined_extraction_gives_the_same_bytes(synth_dir):
     output sets (refill): same trajectory and beliefs, byte for byte, as a run that does everything in order, and
     as a second pipelined run."""
     from d2slam.config import DEFAULT
-    from d2slam.methods import get_filter as dyn_filter
+    from d2slam.run.methods import get_filter as dyn_filter
 
     seq = open_sequence(synth_dir)
     runs = []

@@ -35,7 +35,7 @@ def saved(monkeypatch):
 
 
 def test_every_method_has_its_own_colour():
-    from d2slam.methods import methods
+    from d2slam.run.methods import methods
     from d2slam.study.grid import ORBSLAM3, ORBSLAM3_MASKED
 
     names = list(dict.fromkeys(methods() + [ORBSLAM3, ORBSLAM3_MASKED]))

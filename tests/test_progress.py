@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import io
 
-from d2slam.config import CLI
-from d2slam.progress import announce, duration, progress
+from d2slam.progress import PROGRESS, announce, duration, progress
 
 
 class Clock:
@@ -30,7 +29,7 @@ def test_log_lines_every_interval_when_not_a_terminal():
     assert len(lines) == 4  # at 3, 6 and 9 frames (every 6 s of the fake clock), then the end
     quiet = io.StringIO()
     assert list(progress(range(3), stream=quiet, enabled=False)) == [0, 1, 2] and quiet.getvalue() == ""
-    assert CLI.progress_log_s > 0
+    assert PROGRESS.progress_log_s > 0
 
 
 def test_time_left_follows_the_work_done_when_items_differ_in_cost():
@@ -67,7 +66,8 @@ def test_generation_is_announced_before_it_starts(tmp_path, monkeypatch, capsys)
     before the generator runs."""
     import importlib
 
-    import d2slam.synth as synth
+    import d2slam.commands.synth as synth_command
+    import d2slam.study.sequences as sequences
     from d2slam.study.sequences import ensure_sequence
 
     gen = importlib.import_module("d2slam.synth.generate")  # the module (the package exports its function)
@@ -81,8 +81,8 @@ def test_generation_is_announced_before_it_starts(tmp_path, monkeypatch, capsys)
         Path(out).mkdir(parents=True, exist_ok=True)
         raise KeyboardInterrupt  # stop here: only the announcement is under test
 
-    monkeypatch.setattr(gen, "generate", fake_generate)
-    monkeypatch.setattr(synth, "generate", fake_generate)
+    monkeypatch.setattr(synth_command, "generate", fake_generate)  # the generator as its two callers call it
+    monkeypatch.setattr(sequences, "generate", fake_generate)
     from d2slam.cli import main
 
     assert main(["synth", "walking_xyz", "--frames", "40", "--seed", "3", "--out", str(tmp_path / "s")]) == 130

@@ -16,7 +16,8 @@ import pytest
 from d2slam.assets import real_head
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
-from d2slam.methods import get_method, methods, run_method
+from d2slam.run.methods import get_method, methods
+from d2slam.run.runner import run_method
 
 FILTERS = [m for m in methods() if m != "none" and get_method(m).runner is None and get_method(m).masks is None]
 MAX_RATIO = 1.1

@@ -15,13 +15,14 @@ import cv2
 import numpy as np
 import pytest
 
-from d2slam.baselines.orbslam3 import run_orbslam3, settings_yaml
+from d2slam.baselines.orbslam3 import settings_yaml
 from d2slam.cli import main
 from d2slam.config import DEFAULT, load_config_file
 from d2slam.data import open_sequence
-from d2slam.data.intrinsics import FREIBURG1, FREIBURG3, read_camera_file
 from d2slam.data.depth_scale import depth_scale_warning
+from d2slam.data.intrinsics import FREIBURG1, FREIBURG3, read_camera_file
 from d2slam.errors import D2SlamError
+from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.slam.fixture import write_room_sequence
 
 # ORB-SLAM2 / ORB-SLAM3 0.x style (TUM3.yaml), with OpenCV's first line that PyYAML rejects.
@@ -82,7 +83,7 @@ def test_new_style_settings_file_round_trips(tmp_path):
     path = tmp_path / "fr1.yaml"
     path.write_text(settings_yaml(FREIBURG1))
     s = read_camera_file(path)
-    assert same_camera(s.camera, FREIBURG1, tol=1e-4) and s.th_depth == DEFAULT.baseline.orbslam3_th_depth
+    assert same_camera(s.camera, FREIBURG1, tol=1e-4) and s.th_depth == DEFAULT.engine.th_depth
 
 
 @pytest.mark.parametrize("text, match", [
@@ -160,7 +161,7 @@ def test_config_values_are_type_checked(room, tmp_path, capsys):
                         ("dynamics: {z_far: true}\n", "dynamics.z_far must be float, got True (bool)"),
                         ("orb: {n_features: 1.5}\n", "orb.n_features must be int, got 1.5 (float)"),
                         ("orb: {n_features: yes}\n", "orb.n_features must be int, got True (bool)"),
-                        ("dynamics: {flow: 1}\n", "dynamics.flow must be bool, got 1 (int)"),
+                        ("dynamics: {flow: {enabled: 1}}\n", "dynamics.flow.enabled must be bool, got 1 (int)"),
                         ("dynamics: {f_ransac_method: 3}\n", "dynamics.f_ransac_method must be str, got 3 (int)"),
                         ("engine: {optimizer: gtsam}\n", "engine.optimizer must be one of 'lm', 'g2o', got 'gtsam'"),
                         ("synth: {depth_time_offset: [0.1, 0.2, 0.3]}\n",

@@ -11,7 +11,7 @@ import pytest
 
 from d2slam.assets import asset_path
 from d2slam.cli import main
-from d2slam.methods import get_method, mask_kind
+from d2slam.run.methods import get_method, mask_kind
 from d2slam.slam.fixture import write_room_sequence
 
 MODEL = "yolov8n-seg_deq_384x512.onnx"
@@ -136,7 +136,7 @@ def test_a_run_over_a_fragment_says_so_and_exits_3(tmp_path, capsys):
 
 def test_the_fragment_rule():
     from d2slam.config import DEFAULT
-    from d2slam.record import fragment_fields, is_fragment, tracked_share
+    from d2slam.eval.fragment import fragment_fields, is_fragment, tracked_share
 
     assert DEFAULT.evaluation.min_tracked_share == 0.9
     assert is_fragment(tracked_share(3, 120)) and is_fragment(0.0) and is_fragment(tracked_share(107, 120))
@@ -154,16 +154,15 @@ def test_orbslam3_runs_go_through_the_same_rule(capsys):
     from argparse import Namespace
 
     from d2slam.commands.run import print_orbslam3
-    from d2slam.record import RunRecord
+    from d2slam.run.record import Orbslam3Run, RunRecord
 
     def record(status, tracked, frames=120):
         report = {"method": "orbslam3", "name": "seq", "status": status, "message": "m", "camera": "freiburg1",
                   "camera_source": "folder name", "frames_expected": frames, "trajectory": "t.txt",
                   **({"frames": frames, "tracked": tracked} if tracked is not None else {})}
-        return RunRecord(method="orbslam3", sequence="seq", trajectory=None,
-                         frames=frames if tracked is not None else None, tracked=tracked, lost=0, fps=None,
-                         ms_per_frame=None, config_hash="x", loop_closing=True, status=status, error="",
-                         evaluation=None, orbslam3=report)
+        run = Orbslam3Run(None, frames if tracked is not None else None, tracked, 0, None, None, report)
+        return RunRecord(method="orbslam3", sequence="seq", run=run, config_hash="x", status=status, error="",
+                         evaluation=None)
 
     args = Namespace(sequence="seq", camera=None, metrics_json=None, quiet=False)
     for status, tracked, code in (("ok", 120, 0), ("lost", 110, 1), ("lost", 3, 3), ("reset", 60, 3),

@@ -10,10 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
+from d2slam.assets import asset_path, tum_frames
 from d2slam.cli import main
 from d2slam.config import SegmentationConfig
 from d2slam.errors import D2SlamError
-from d2slam.assets import asset_path, tum_frames
 from d2slam.segmentation import get_segmenter, stack_masks
 from d2slam.segmentation.onnx import (
     KNOWN_MODELS,

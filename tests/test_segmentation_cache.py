@@ -13,10 +13,10 @@ import cv2
 import numpy as np
 import pytest
 
+from d2slam.assets import asset_path, tum_frames
 from d2slam.cli import main
 from d2slam.config import Config, SegmentationConfig
 from d2slam.errors import D2SlamError
-from d2slam.assets import asset_path, tum_frames
 from d2slam.segmentation import CachedSegmenter, get_segmenter, masks_for
 from d2slam.segmentation.base import PersonInstance
 from d2slam.segmentation.cache import (STORE_NAME, FrameRecord, MaskStore, RgbListSequence, read_store,

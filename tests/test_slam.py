@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from d2slam.config import DEFAULT, EngineConfig
 from d2slam.errors import D2SlamError
+from d2slam.ranges import overridden
 from d2slam.slam.engine import Engine
 from d2slam.slam.fixture import FR3, room_sequence
 from d2slam.slam.frame import OrbExtractor, bucket_select, level_quotas
@@ -178,7 +179,7 @@ def test_motion_only_ba_weighs_depth_as_orbslam3():
     stereo = ur >= 0
     ur[stereo] += rng.choice([-1, 1], stereo.sum()) * rng.uniform(1, 2, stereo.sum())
     cfg = EngineConfig()
-    assert cfg.pose_opt_coarse_rounds == cfg.pose_opt_rounds
+    assert cfg.tracking.pose_opt_coarse_rounds == cfg.tracking.pose_opt_rounds
     T0 = T.copy()
     T0[:3, 3] += [0.02, -0.01, 0.03]
     T_est, inl = pose_optimization(T0, X, uv, ur, np.ones(len(X)), K, BF, cfg)
@@ -188,7 +189,7 @@ def test_motion_only_ba_weighs_depth_as_orbslam3():
     np.testing.assert_array_equal(inl, inl_orb)
     assert inl.mean() > 0.9 and np.abs(T_est[:3, 3] - T[:3, 3]).max() < 0.01
     _, inl_fine = pose_optimization(T0, X, uv, ur, np.ones(len(X)), K, BF,
-                                    dataclasses.replace(cfg, pose_opt_coarse_rounds=1))
+                                    overridden(cfg, {"tracking": {"pose_opt_coarse_rounds": 1}}))
     assert inl_fine[stereo].mean() < 0.1
 
 @pytest.mark.parametrize("sigma_d", [0.0, 0.057])
@@ -246,7 +247,8 @@ def test_compiled_lm_matches_g2o(sigma_d):
     out = {}
     p = local_ba_problem(seed=1, n_cams=6, n_points=300)
     for name in ("lm", "g2o"):
-        cfg = dataclasses.replace(EngineConfig(), optimizer=name, disparity_sigma_px=sigma_d, pose_opt_coarse_rounds=1)
+        cfg = overridden(EngineConfig(), {"optimizer": name, "disparity_sigma_px": sigma_d,
+                                          "tracking": {"pose_opt_coarse_rounds": 1}})
         pose = pose_optimization(T0, X, uv, ur, s2, K, BF, cfg)
         ba = local_bundle_adjustment(p["start"], p["fixed"], p["X0"], p["cams"], p["pts"], p["uv"], p["ur"],
                                      np.ones(len(p["cams"])), p["K"], p["bf"], cfg)
@@ -299,14 +301,14 @@ def test_a_frame_whose_depth_disagrees_stays_tracked(room):
     the disparity model in motion-only BA's last rounds (pose_opt_coarse_rounds 1) the frame was lost."""
     frames, _, ts = room
     states = {}
-    for rounds in (DEFAULT.engine.pose_opt_rounds, 1):
-        cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, pose_opt_coarse_rounds=rounds))
+    for rounds in (DEFAULT.engine.tracking.pose_opt_rounds, 1):
+        cfg = overridden(DEFAULT, {"engine": {"tracking": {"pose_opt_coarse_rounds": rounds}}})
         eng = Engine(FR3, cfg)
         for i in range(7):
             gray, depth = frames[i]
             res = eng.process(gray, depth * np.float32(1.1) if i == 6 else depth, i, ts[i])
         states[rounds] = (res.state, res.how)
-    assert states[DEFAULT.engine.pose_opt_rounds] == ("ok", "motion")
+    assert states[DEFAULT.engine.tracking.pose_opt_rounds] == ("ok", "motion")
     assert states[1][0] == "lost"
 
 
@@ -531,8 +533,7 @@ def test_local_ba_drops_a_disagreeing_depth_but_keeps_the_image_observation(room
     the camera turned) but whose image residual fits stays as a monocular observation, the keyframe's u_R dropped and
     counted once (``lba_depth_outliers_mono``); ORB-SLAM3's rule (False) erases it."""
     frames, _, ts = room
-    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, lba_depth_outliers_mono=keep_image,
-                                                                  ba_when_idle=False))
+    cfg = overridden(DEFAULT, {"engine": {"mapping": {"lba_depth_outliers_mono": keep_image, "ba_when_idle": False}}})
     eng = Engine(FR3, cfg)
     for i in range(8):
         assert eng.process(*frames[i], i, ts[i]).tracked
@@ -584,12 +585,13 @@ def test_keyframe_points_from_depth_up_to_the_kinect_range(room, new_points_dept
     ORB-SLAM3) or kf_new_points_depth (4.5 m, ours) if larger; beyond, only until kf_new_points_min points (tracked
     ones included) are counted."""
     frames, _, ts = room
-    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, kf_new_points_depth=new_points_depth))
+    cfg = overridden(DEFAULT, {"engine": {"keyframes": {"kf_new_points_depth": new_points_depth}}})
     eng = Engine(FR3, cfg)
     for i in range(2):
         assert eng.process(*frames[i], i, ts[i]).tracked
     f = eng.last
-    assert ((f.mp >= 0) & (f.depth > 0)).sum() > cfg.engine.kf_new_points_min  # the count is past maxPoint already
+    # the count is past maxPoint already
+    assert ((f.mp >= 0) & (f.depth > 0)).sum() > cfg.engine.keyframes.kf_new_points_min
     free = np.flatnonzero(f.mp < 0)
     mid, far = free[::2], free[1::2]
     f.depth[mid], f.depth[far] = 3.5, 5.0  # between 2.99 m and 4.5 m / beyond both
@@ -604,14 +606,14 @@ def test_keyframe_points_from_depth_up_to_the_kinect_range(room, new_points_dept
 
 
 def test_the_warm_up_compiles_every_kernel_a_run_uses():
-    """After ``d2slam.warmup.warm_up`` a run of the engine with the d2slam filter on other frames compiles nothing
+    """After ``d2slam.run.warmup.warm_up`` a run of the engine with the d2slam filter on other frames compiles nothing
     (no kernel gets a new signature): what make install and the study rely on."""
     import importlib
 
     from numba.core.registry import CPUDispatcher
 
-    from d2slam.methods import get_filter
-    from d2slam.warmup import warm_up
+    from d2slam.run.methods import get_filter
+    from d2slam.run.warmup import warm_up
 
     def signatures():
         out = {}

@@ -249,8 +249,9 @@ def test_update_points_gives_medoid_descriptor_mean_ray_and_range_from_the_maker
 
 
 # ------------------------------------------------------------------ on the analytic room
-def _mapping_config(**engine):
-    return dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, **engine))
+def _mapping_config(**mapping):
+    engine = dataclasses.replace(DEFAULT.engine, mapping=dataclasses.replace(DEFAULT.engine.mapping, **mapping))
+    return dataclasses.replace(DEFAULT, engine=engine)
 
 
 @pytest.fixture(scope="module")

@@ -74,13 +74,45 @@ def test_joblib_and_dask_reproduce_serial(serial, tmp_path):
         assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
         dk = run_study(tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False, plots=False, **GRID)
     _same(dk.runs, serial.runs)
-    assert dk.manifest["executor"]["executor"] == "dask"
+    assert dk.manifest["executor"]["executor"] == "dask" and dk.manifest["executor"]["workers"] == 1
     assert _tables(tmp_path / "dask") == _tables(serial.out)
 
 
 def _tables(out) -> list[str]:
     """tables.md without its provenance line (the git commit moves while others commit)."""
     return [ln for ln in (out / "tables.md").read_text().splitlines() if not ln.startswith("Config hash")]
+
+
+def _fails_here():
+    raise ModuleNotFoundError("No module named 'd2slam'")
+
+
+def test_dask_workers_are_checked_before_the_study(tmp_path):
+    from distributed import LocalCluster
+
+    from d2slam.errors import D2SlamError
+    from d2slam.study.core import check_dask_workers
+    from d2slam.study.executors import on_dask_workers
+    from d2slam.study.keys import worker_fingerprint
+
+    here = worker_fingerprint()
+    kw = dict(threads_per_worker=1, processes=False, protocol="tcp://", host="127.0.0.1", dashboard_address=":0")
+    with LocalCluster(n_workers=0, **kw) as empty:  # nothing to run on: said at once, not a study waiting forever
+        with pytest.raises(D2SlamError, match="has no worker: start them first"):
+            check_dask_workers(empty.scheduler_address, here)
+    with LocalCluster(n_workers=1, **kw) as cluster:
+        address = cluster.scheduler_address
+        assert check_dask_workers(address, here) == 1
+        # a worker on another checkout (other code, another numpy) would give other numbers under this one's keys
+        other = {**here, "code": {**here["code"], "none": "0" * 16},
+                 "packages": {**here["packages"], "numpy": "1.0"}}
+        with pytest.raises(D2SlamError, match=r"1 of the 1 Dask workers .* differs in the code of none; "
+                                              r"numpy .* \(here 1.0\)") as err:
+            check_dask_workers(address, other)
+        assert "environment.txt" in str(err.value)
+        # what a worker raises (one without d2slam cannot unpickle the probe) is its answer, not the caller's error
+        got = on_dask_workers(address, _fails_here)
+        assert [type(v) for v in got.values()] == [ModuleNotFoundError]
 
 
 def test_failed_runs_are_recorded(tmp_path):
@@ -146,9 +178,8 @@ def test_runspec_roundtrip():
 def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     import d2slam.study.core as core
     import d2slam.study.manifest as manifest
-    from d2slam.digests import source_digest
     from d2slam.study.core import load_run
-    from d2slam.study.keys import ENGINE_CODE, ORBSLAM3_CODE, run_key
+    from d2slam.study.keys import code_info, run_key
     from d2slam.study.runner import run_options
 
     out = tmp_path / "resumed"
@@ -157,7 +188,7 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     started = []
     real_load = core.load_run
     monkeypatch.setattr(core, "load_run", lambda *a: started.append(1) or real_load(*a))
-    monkeypatch.setattr(manifest, "git_info",
+    monkeypatch.setattr(core, "git_info",
                         lambda: {"commit": ("b" if started else "a") * 40, "dirty": bool(started)})
     res = run_study(out, progress=False, plots=False, resume=True, **GRID)
     assert started
@@ -165,8 +196,7 @@ def test_resume_reuses_matching_runs_only(serial, tmp_path, monkeypatch):
     # the manifest records the checkout and the run keys' code digests as they were when the study started
     m = json.loads((out / "manifest.json").read_text())
     assert m["git"] == {"commit": "a" * 40, "dirty": False}
-    assert m["code"] == {"engine": source_digest(ENGINE_CODE), "orbslam3": source_digest(ORBSLAM3_CODE),
-                         "orbslam3-masked": source_digest(ORBSLAM3_CODE + ("segmentation",))}
+    assert m["code"] == code_info() and m["code"]["none"] != m["code"]["d2slam"] != m["code"]["orbslam3"]
     pd.testing.assert_frame_equal(res.runs, serial.runs, check_exact=True)  # timings too: nothing re-ran
     spec = RunSpec("sitting_static", "none", 101, FRAMES)
     key = run_key(spec, run_options())
@@ -212,7 +242,7 @@ def test_study_phases_say_what_they_do_on_stderr_without_a_terminal(serial, tmp_
 
     import d2slam.progress
 
-    monkeypatch.setattr(d2slam.progress, "CLI", dataclasses.replace(d2slam.progress.CLI, progress_log_s=0.0))
+    monkeypatch.setattr(d2slam.progress, "PROGRESS", dataclasses.replace(d2slam.progress.PROGRESS, progress_log_s=0.0))
     capsys.readouterr()
     run_study(tmp_path / "out", jobs=1, plots=False, **GRID)
     cap = capsys.readouterr()
@@ -236,7 +266,7 @@ def test_study_phases_say_what_they_do_on_stderr_without_a_terminal(serial, tmp_
 
 
 def test_phase_plans_count_what_is_to_do_and_estimate_it(tmp_path):
-    from d2slam.config import CLI
+    from d2slam.progress import PROGRESS
     from d2slam.study.core import phase_plans, run_cost
     from d2slam.study.runner import run_options
     from d2slam.synth.generate import estimated_seconds
@@ -248,13 +278,13 @@ def test_phase_plans_count_what_is_to_do_and_estimate_it(tmp_path):
     assert what == "sequences: 2 to generate on 2 workers (600 frames), 0 cached, 1 real (TUM)"
     assert seconds == pytest.approx(estimated_seconds(300, 1))  # one each on the two workers
     what, seconds = phase_plans(options, 2)["segmentation"](keys[:2])
-    assert "2 sequences" in what and "600 frames" in what and seconds == pytest.approx(300 * CLI.segment_frame_s)
+    assert "2 sequences" in what and "600 frames" in what and seconds == pytest.approx(300 * PROGRESS.segment_frame_s)
     assert phase_plans(options, 2)["segmentation"](keys)[1] is None  # all frames of a real sequence: unknown
     specs = [RunSpec("walking_xyz", m, 101, 300) for m in ("none", "d2slam", "none")]
     what, seconds = phase_plans(options, 2)["runs"](specs)
     assert what == "runs: 3 on 2 workers"
     assert seconds == pytest.approx(sum(run_cost(s, options) for s in specs) / 2e3)
-    assert phase_plans(options, None)["runs"](specs) == ("runs: 3", None)  # a Dask cluster: workers unknown
+    assert phase_plans(options, None)["runs"](specs) == ("runs: 3", None)  # workers unknown: no estimate
 
 
 def test_map_ordered_reports_each_result(tmp_path):
@@ -336,8 +366,10 @@ def test_real_masks_are_segmented_once_per_sequence_before_the_runs(serial):
     assert onnx_sequence_keys(specs, run_options()) == [dyn.sequence_key, twin.sequence_key,
                                                         ("synth", "walking_xyz", 102, FRAMES, False)]
     assert onnx_sequence_keys(specs, run_options(masks="sim")) == []
-    # the study segmented its sequence before the runs: every frame is in the mask cache
-    assert json.loads((serial.out / "manifest.json").read_text())["timing"]["segmentation_s"] > 0
+    # the study segmented its sequence before the runs (a phase of its own, timed; nothing to do when an earlier
+    # test run left the masks in the shared mask cache): every frame is in the mask cache
+    timing = json.loads((serial.out / "manifest.json").read_text())["timing"]
+    assert timing["segmentation_s"] >= 0 and timing["segmentation_cpu_s"] >= 0 and timing["runs_cpu_s"] > 0
     seq = open_sequence(ensure_sequence("sitting_static", 101, FRAMES, False))
     folder = cache_dir("masks", sequence_key(seq), segmenter_key(get_segmenter("onnx", config=DEFAULT)))
     assert len(read_store(folder / STORE_NAME)[1]) == FRAMES

@@ -302,6 +302,22 @@ def test_sequence_cache_key_names_generator(tmp_path):
     assert not is_complete(p)
 
 
+def test_composite_cache_key_names_recording_and_generator(tmp_path):
+    """A composite is cached by its recording (name and a digest of its lists), scenario, seed, frames and the
+    generator version: another recording of the same name, or a changed list, is another composite."""
+    from d2slam.study.sequences import composite_dir, generator_version
+
+    rec = tmp_path / "rgbd_dataset_freiburg1_rpy"
+    rec.mkdir()
+    for n in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+        (rec / n).write_text(f"# {n}\n")
+    p = composite_dir("real_walking", 101, 0, rec, root=tmp_path)
+    assert p.name.startswith("real_walking_on_rgbd_dataset_freiburg1_rpy-") and p.name.endswith(
+        f"_s101_n0-{generator_version()}")
+    (rec / "rgb.txt").write_text("# changed\n")
+    assert composite_dir("real_walking", 101, 0, rec, root=tmp_path) != p
+
+
 def test_short_tracking_is_flagged():
     df = _runs()
     df.loc[(df["method"] == "d2slam") & (df["twin"] == 0), "frames_tracked"] = [30, 60, 20]  # median 50 %
@@ -359,15 +375,41 @@ def test_a_fragment_of_a_whole_sequence_is_flagged():
 
 
 def test_run_rows_carry_the_share_tracked_and_the_fragment_mark():
-    from d2slam.record import RunRecord
+    from d2slam.run.record import Orbslam3Run, RunRecord
     from d2slam.study.grid import RunSpec
     from d2slam.study.runner import run_row
 
     spec = RunSpec(scenario="fr1_rpy", seed=0, frames=0, method="orbslam3", source="tum", twin=False)
-    rec = RunRecord(method="orbslam3", sequence="fr1_rpy", trajectory=None, frames=120, tracked=3, lost=117,
-                    fps=30.0, ms_per_frame=33.0, config_hash="x", loop_closing=True, status="lost", error="lost",
-                    evaluation=None)
-    row = run_row(spec, rec, 1.0)
+    def record(tracked):
+        run = Orbslam3Run(None, 120, tracked, 120 - tracked, 30.0, 33.0, {})
+        return RunRecord(method="orbslam3", sequence="fr1_rpy", run=run, config_hash="x", status="lost", error="lost",
+                         evaluation=None)
+
+    row = run_row(spec, record(3), 1.0)
     assert row["tracked_share"] == pytest.approx(0.025) and row["fragment"] == 1
-    rec.tracked = 120
-    assert run_row(spec, rec, 1.0)["fragment"] == 0
+    assert run_row(spec, record(120), 1.0)["fragment"] == 0
+
+
+def test_real_background_grid_and_table():
+    """The composites into the real recording: every method on the composite of each seed, and the twins on the real
+    recording itself (``none``, ``d2slam``, ``oracle``: the occluded twin); the table holds `d2slam` to 1.2x the
+    same seed's occluded twin, run by run."""
+    specs = expand_grid(["real_walking"], ["none", "d2slam", "oracle", "orbslam3"], [101, 102], 300)
+    assert all(s.source == "composite" and s.frames == 0 for s in specs)
+    assert [s.run_id for s in specs if s.twin and s.seed == 101] == [
+        "real_walking_twin_s101_n0_none", "real_walking_twin_s101_n0_d2slam", "real_walking_twin_s101_n0_oracle"]
+    assert len([s for s in specs if not s.twin]) == 2 * 4
+    ate = {(0, "none"): [0.06, 0.08], (0, "d2slam"): [0.030, 0.040], (0, "oracle"): [0.028, 0.03],
+           (0, "orbslam3"): [0.1, 0.2], (1, "none"): [0.027, 0.028], (1, "d2slam"): [0.028, 0.029],
+           (1, "oracle"): [0.026, 0.030]}
+    rows = [{"scenario": "real_walking", "sequence": G.LABELS["real_walking"], "twin": twin, "method": m,
+             "seed": seed, "frames": 0, "source": "composite", "status": "ok", "ate_rmse_m": a, "rpe_trans_m": a,
+             "rpe_rot_deg": 1.0, "frames_tracked": 694, "tracked_share": 1.0, "fragment": 0}
+            for (twin, m), vals in ate.items() for seed, a in zip((101, 102), vals)]
+    df = T.runs_frame(rows)
+    md = T.real_background_markdown(df, ["none", "orbslam3", "d2slam", "oracle"])
+    assert "| real recording: `oracle` (occluded twin) | 100.0 | 0.0280 [0.0260, 0.0300] | 1.00 [1.00, 1.00] |" in md
+    assert "| `d2slam` | 100.0 | 0.0350 [0.0300, 0.0400] | 1.24 [1.15, 1.33] |" in md
+    assert "`d2slam` within 1.2x the occluded twin on 1 of 2 runs (1.15x, 1.33x): not met" in md
+    full = T.tables_markdown(df)
+    assert "## Real background: people composited into a real recording" in full

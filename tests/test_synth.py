@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
-from d2slam.config import SynthConfig
+from d2slam.config import SYNTH_CAMERA, SynthConfig
 from d2slam.errors import D2SlamError
 from d2slam.synth import SCENARIOS, Scene, generate
-from d2slam.synth.world import WorldRenderer
 from d2slam.synth.scene import DESK_CHAIR_IDS
+from d2slam.synth.world import WorldRenderer
 
 FRAMES = 16
 
@@ -128,7 +128,7 @@ def test_scene_json(seqs):
         for a, b in o["moving_intervals"]:
             assert scene["generator"]["start_time"] <= a < b
     assert scene["generator"]["depth_rendered_at"] == "rgb_timestamp"
-    assert scene["generator"]["config"]["depth_noise_b"] == 0.0019
+    assert scene["generator"]["depth_noise"]["b"] == 0.0019 and "depth_noise_corr_px" in scene["generator"]["config"]
 
 
 def test_reads_back_through_the_library_reader(seqs):
@@ -305,16 +305,16 @@ def test_png_writer_round_trips_through_opencv(tmp_path):
               rng.integers(0, 256, (4, 3), dtype=np.uint8), rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)]
     for k, img in enumerate(images):
         path = tmp_path / f"{k}.png"
-        G._write(path, img, SynthConfig().png_compression)
+        G.write_image(path, img, SynthConfig().png_compression)
         back = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         assert back.dtype == img.dtype and np.array_equal(back, img if img.ndim == 2 else img[:, :, ::-1])
         assert path.read_bytes() == G.png_bytes(img, SynthConfig().png_compression)  # deterministic
 
 
 def test_config_constants_drive_the_noise():
-    cfg = SynthConfig()
-    assert (cfg.depth_noise_a, cfg.depth_noise_b, cfg.depth_noise_c) == (0.0012, 0.0019, 0.4)
-    assert cfg.depth_factor == 5000.0 and cfg.fps == 30.0 and cfg.gt_rate == 100.0
+    cfg, noise = SynthConfig(), SYNTH_CAMERA.depth_noise
+    assert (noise.a, noise.b, noise.c) == (0.0012, 0.0019, 0.4)
+    assert SYNTH_CAMERA.depth_factor == 5000.0 and cfg.fps == 30.0 and cfg.gt_rate == 100.0
 
 
 def test_cli_synth_refuses_other_folders_before_any_work(tmp_path, monkeypatch, capsys):

@@ -4,14 +4,13 @@ trousers, and the config driving the clothes."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import cv2
 import numpy as np
 import pytest
 
 from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
+from d2slam.ranges import overridden
 from d2slam.segmentation.base import PersonInstance
 from d2slam.synth import realism
 from d2slam.synth.textures import make_texture
@@ -107,8 +106,10 @@ def test_people_textures_shirts_textured_trousers_plain():
 
 
 def test_clothes_follow_the_config():
-    plain = replace(SynthConfig(), cloth_plain_prob=1.0, cloth_print_prob=0.0, cloth_marks_per_m2=0.0)
-    busy = replace(SynthConfig(), cloth_plain_prob=0.0, cloth_marks_per_m2=800.0, cloth_contrast=120)
+    plain = overridden(SynthConfig(), {"cloth": {"cloth_plain_prob": 1.0, "cloth_print_prob": 0.0,
+                                                 "cloth_marks_per_m2": 0.0}})
+    busy = overridden(SynthConfig(), {"cloth": {"cloth_plain_prob": 0.0, "cloth_marks_per_m2": 800.0,
+                                                "cloth_contrast": 120}})
     d = {name: np.mean([_corner_density(make_texture(np.random.default_rng(s), "cloth", 210, 250, c, 420.0))
                         for s in range(6)]) for name, c in (("plain", plain), ("busy", busy))}
     assert d["plain"] < 0.2 * d["busy"]

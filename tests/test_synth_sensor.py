@@ -7,20 +7,21 @@ import numpy as np
 import pytest
 
 from d2slam.config import SynthConfig
+from d2slam.synth.config import SYNTH_CAMERA as CAM
 from d2slam.synth.render import Quad, QuadSet, Renderer, boxes
 from d2slam.synth.segsim import simulate_segmenter
-from d2slam.synth.sensor import depth_holes, depth_sigma, depth_to_png, motion_blur_kernel, rgb_sensor
+from d2slam.synth.sensor import depth_holes, depth_to_png, motion_blur_kernel, rgb_sensor
 from d2slam.synth.textures import make_texture
 
 CFG = SynthConfig()
-K = np.array([[CFG.fx, 0, CFG.cx], [0, CFG.fy, CFG.cy], [0, 0, 1.0]])
+K = CAM.K
 
 
 def _renderer(textures=None):
     if textures is None:
         textures = [make_texture(np.random.default_rng(0), "poster", 200, 150),
                     make_texture(np.random.default_rng(1), "cloth", 100, 100)]
-    return Renderer(K, CFG.width, CFG.height, textures, CFG.near_plane)
+    return Renderer(K, CAM.width, CAM.height, textures, CFG.near_plane)
 
 
 def _wall(z: float, half: float = 50.0, tex: int = 0, oid: int = 0) -> Quad:
@@ -46,7 +47,7 @@ def test_near_quad_occludes_far_one_and_backfaces_are_culled():
     assert not (ids == 4).any()
     # the near square spans 0.4 m at 1 m: about 0.4 * fx pixels wide
     width = (ids[H // 2 + 8] == 3).sum()
-    assert abs(width - 0.4 * CFG.fx) <= 2
+    assert abs(width - 0.4 * CAM.fx) <= 2
     np.testing.assert_allclose(1.0 / invz[ids == 3], 1.0, rtol=1e-5)
 
 
@@ -64,8 +65,8 @@ def test_quad_crossing_the_near_plane_is_clipped_not_dropped():
     rgb, invz, ids = r.render([floor], np.eye(4))
     assert (ids[-1] == 5).all() and not (ids[0] == 5).any()
     # depth on the floor row v: y = 1 => z = fy / (v - cy)
-    v = CFG.height - 1
-    np.testing.assert_allclose(1.0 / invz[v, CFG.width // 2], CFG.fy / (v - CFG.cy), rtol=1e-4)
+    v = CAM.height - 1
+    np.testing.assert_allclose(1.0 / invz[v, CAM.width // 2], CAM.fy / (v - CAM.cy), rtol=1e-4)
 
 
 @pytest.mark.parametrize("z", [0.8, 1.5, 2.5, 3.5, 4.4])
@@ -73,13 +74,13 @@ def test_depth_noise_matches_sigma_model(z):
     clean = np.full((480, 640), z, np.float32)
     png = depth_to_png(clean, np.random.default_rng(5), CFG, holes=False)
     assert png.dtype == np.uint16
-    metres = png.astype(np.float64) / CFG.depth_factor
-    sigma = float(depth_sigma(z, CFG))
+    metres = png.astype(np.float64) / CAM.depth_factor
+    sigma = float(CAM.depth_noise.sigma(z))
     # quantisation adds step^2 / 12 of variance (step = 0.2 mm)
-    expected = np.sqrt(sigma ** 2 + (1 / CFG.depth_factor) ** 2 / 12)
+    expected = np.sqrt(sigma ** 2 + (1 / CAM.depth_factor) ** 2 / 12)
     assert abs(metres.std() / expected - 1) < 0.02
     n_eff = metres.size / max(1.0, 4 * np.pi * CFG.depth_noise_corr_px ** 2)  # correlated pixels: fewer samples
-    assert abs(metres.mean() - z) < 5 * expected / np.sqrt(n_eff) + 0.5 / CFG.depth_factor
+    assert abs(metres.mean() - z) < 5 * expected / np.sqrt(n_eff) + 0.5 / CAM.depth_factor
 
 
 def test_depth_noise_is_correlated_between_neighbours_and_keeps_its_variance():
@@ -97,8 +98,8 @@ def test_depth_noise_is_correlated_between_neighbours_and_keeps_its_variance():
 
 
 def test_sigma_formula_and_quantisation_step():
-    assert depth_sigma(0.4, CFG) == pytest.approx(0.0012)
-    assert depth_sigma(1.4, CFG) == pytest.approx(0.0012 + 0.0019)
+    assert CAM.depth_noise.sigma(0.4) == pytest.approx(0.0012)
+    assert CAM.depth_noise.sigma(1.4) == pytest.approx(0.0012 + 0.0019)
     clean = np.full((200, 200), 0.5, np.float32)  # sigma 1.2 mm = 6 steps of 0.2 mm
     png = depth_to_png(clean, np.random.default_rng(0), CFG, holes=False)
     values = np.unique(png)
@@ -161,8 +162,8 @@ def _person_mask(z: float, x_centre: int = 320):
     import cv2
 
     ids = np.zeros((480, 640), np.uint8)
-    h, w = 1.75 * CFG.fy / z, 0.45 * CFG.fx / z
-    top = int(CFG.cy - 0.45 * h)
+    h, w = 1.75 * CAM.fy / z, 0.45 * CAM.fx / z
+    top = int(CAM.cy - 0.45 * h)
     cv2.rectangle(ids, (int(x_centre - w / 2), top + int(0.15 * h)), (int(x_centre + w / 2), top + int(0.6 * h)), 1, -1)
     cv2.circle(ids, (x_centre, top + int(0.08 * h)), int(0.07 * h), 1, -1)
     for s in (-1, 1):

@@ -200,13 +200,14 @@ def test_cli_build_bad_images_dir(tmp_path, capsys):
 
 
 def test_progress_logs_lines_without_a_terminal(capsys):
-    bar = V.Progress("stage", 3, enabled=True, interval=0.0)  # pytest's stderr is not a terminal
+    bar = V.Progress("vocabulary: stage", 3, "step", enabled=True, interval=0.0)  # pytest's stderr: no terminal
     for _ in range(3):
         bar.update()
     bar.close()
     lines = capsys.readouterr().err.strip().splitlines()
-    assert lines[0].startswith("vocabulary: stage 1/3") and lines[-1].startswith("vocabulary: stage 3/3")
-    quiet = V.Progress("stage", 3, enabled=False, interval=0.0)
+    assert lines[0].startswith("d2slam: vocabulary: stage: 1/3 steps") and \
+        lines[-1].startswith("d2slam: vocabulary: stage: 3/3 steps in")
+    quiet = V.Progress("vocabulary: stage", 3, "step", enabled=False, interval=0.0)
     quiet.update()
     quiet.close()
     assert capsys.readouterr().err == ""
@@ -249,7 +250,7 @@ def test_training_jobs_are_keyed_by_generator_and_need_training_seeds(tmp_path, 
     from dataclasses import replace
 
     from d2slam.config import DEFAULT
-    from d2slam.digests import generator_version
+    from d2slam.synth.version import generator_version
 
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path))
     cfg = replace(DEFAULT.baseline, vocab_train_seeds=(900,), vocab_train_scenarios=("walking_xyz",))

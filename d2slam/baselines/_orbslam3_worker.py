@@ -1,5 +1,5 @@
 """Child process that runs the real ORB-SLAM3 (pyorbslam3) on one sequence; started by
-:func:`d2slam.baselines.orbslam3.run_orbslam3`, never by users.
+:func:`d2slam.baselines.orbslam3.orbslam3_report`, never by users.
 
 ORB-SLAM3 calls ``exit(-1)`` on a bad settings file, accepts a garbage vocabulary and then crashes, and runs
 threads: it lives in this process so that the caller survives and can time it out. Each run gets a fresh process
@@ -30,9 +30,21 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from d2slam.baselines.config import MaskedFramesConfig
+from d2slam.baselines.masking import mask_frame
+from d2slam.data import open_sequence
+from d2slam.data.live import arrival_times, newest_arrived
+from d2slam.errors import D2SlamError
+from d2slam.ranges import build_section
+from d2slam.segmentation import masks_for, stack_masks
 
 T_START = time.perf_counter()  # the interpreter's own start-up precedes this; the parent measures the whole
 
@@ -41,9 +53,6 @@ def remove_people(seq, i: int, rgb, depth, kind: str, config):
     """Frame ``i``'s ``(rgb, depth)`` without its ``kind`` person masks (:func:`d2slam.segmentation.masks_for`,
     :func:`d2slam.baselines.masking.mask_frame` with ``config.masking``), seconds reading the masks, seconds removing
     them."""
-    from d2slam.baselines.masking import mask_frame
-    from d2slam.segmentation import masks_for, stack_masks
-
     t = time.perf_counter()
     masks = stack_masks(masks_for(seq, i, kind, config), rgb.shape[:2])
     t_mask = time.perf_counter()
@@ -55,8 +64,6 @@ def sequence_frame(seq, i: int, masks: str | None = None, config=None):
     """What ORB-SLAM3 is given for frame ``i``: ``(timestamp, rgb, depth, io_s, segment_s, mask_s)`` with the RGB
     image in RGB order (the settings say ``Camera.RGB: 1``) and the depth back in sensor units (ORB-SLAM3 divides by
     ``RGBD.DepthMapFactor``), the people removed when ``masks`` is given. Raises the reader's D2SlamError."""
-    import numpy as np
-
     t = time.perf_counter()
     frame = seq[i]
     depth = frame.depth * np.float32(seq.camera.depth_factor)
@@ -79,11 +86,6 @@ def write_frame_store(seq, n: int, root: Path, masks: str | None = None, config=
     :func:`sequence_frame` gives ORB-SLAM3. A frame that cannot be read ends the store there: ``frames`` counts the
     frames before it and ``error`` holds the reader's message (the worker tracks those, then fails with it, as it
     does when it decodes). Returns the meta dict (``io_s``, ``segment_s``, ``mask_s``, ``cpu_s``)."""
-    import numpy as np
-    from tqdm import tqdm
-
-    from d2slam.errors import D2SlamError
-
     cpu0 = time.process_time()
     root.mkdir(parents=True, exist_ok=True)
     h, w = int(seq.camera.height), int(seq.camera.width)
@@ -115,10 +117,6 @@ def write_frame_store(seq, n: int, root: Path, masks: str | None = None, config=
 def store_frames(root: Path):
     """The frames of a store (opened now), as :func:`sequence_frame` tuples (``io_s`` = mapping the arrays), then,
     if the store ended on an unreadable frame, its error as a D2SlamError."""
-    import numpy as np
-
-    from d2slam.errors import D2SlamError
-
     meta = json.loads((root / STORE_META).read_text())
     rgb = np.load(root / "rgb.npy", mmap_mode="r")
     depth = np.load(root / "depth.npy", mmap_mode="r")
@@ -135,32 +133,52 @@ def store_frames(root: Path):
     return frames()
 
 
+def online_frames(root: Path, rate_hz: float, log):
+    """The frames of a store (decoded before the clock starts, as a camera driver delivers them; memory-backed in
+    ``/dev/shm`` where it has room) as a live camera gives them (:mod:`d2slam.data.live`): each time the tracker asks, the
+    newest frame that has arrived (waiting for the next one when it has taken the newest), every older one dropped;
+    ``log`` gets ``index arrival_s taken_s done_s`` per frame given (seconds from the first arrival; done: when the
+    tracker asks again), then ``frames N``."""
+    meta = json.loads((root / STORE_META).read_text())
+    rgb = np.load(root / "rgb.npy", mmap_mode="r")
+    depth = np.load(root / "depth.npy", mmap_mode="r")
+    stamps = np.load(root / "timestamps.npy")[:meta["frames"]]
+    arrival = arrival_times(stamps, rate_hz)
+
+    def frames():
+        t0 = time.perf_counter()
+        nxt, given = 0, None
+        while nxt < len(stamps):
+            elapsed = time.perf_counter() - t0
+            if given is not None:  # the tracker asks for the next frame: the one given is done
+                log.write(f"{given[0]} {given[1]:.6f} {given[2]:.6f} {elapsed:.6f}\n")
+                given = None
+            i = newest_arrived(arrival, elapsed)
+            if i < nxt:
+                time.sleep(max(0.0, arrival[nxt] - elapsed))
+                continue
+            given = (i, arrival[i], time.perf_counter() - t0)
+            yield float(stamps[i]), np.ascontiguousarray(rgb[i]), np.ascontiguousarray(depth[i]), 0.0, 0.0, 0.0
+            nxt = i + 1
+        if given is not None:
+            log.write(f"{given[0]} {given[1]:.6f} {given[2]:.6f} {time.perf_counter() - t0:.6f}\n")
+        log.write(f"frames {len(stamps)}\n")
+
+    return frames()
+
+
 def _sequence_frames(args):
     """The frames of ``--sequence`` (opened now: a bad folder fails before ORB-SLAM3 starts), decoded one by one."""
-    from d2slam.data import open_sequence
-
     seq = open_sequence(args.sequence, camera=args.camera) if args.camera else open_sequence(args.sequence)
     config = None
     if args.masks:
-        from d2slam.config import Config
-
-        config = Config.from_dict(json.loads(Path(args.config).read_text()))
+        config = build_section(MaskedFramesConfig, json.loads(Path(args.config).read_text()), "config")
     n = len(seq) if args.max_frames <= 0 else min(len(seq), args.max_frames)
     return (sequence_frame(seq, i, args.masks, config) for i in range(n))
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser()
-    p.add_argument("--sequence", default=None)
-    p.add_argument("--frames", default=None, help="a frame store (write_frame_store) instead of --sequence")
-    p.add_argument("--camera", default=None)
-    p.add_argument("--vocab", required=True)
-    p.add_argument("--settings", required=True)
-    p.add_argument("--work", required=True)
-    p.add_argument("--max-frames", type=int, default=0)
-    p.add_argument("--masks", default=None, help="person masks to remove (d2slam.segmentation.masks_for kind)")
-    p.add_argument("--config", default=None, help="d2slam Config as JSON (with --masks)")
-    args = p.parse_args(argv)
+    args = _parser().parse_args(argv)
     work = Path(args.work)
     done = work / "done.json"
 
@@ -169,14 +187,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"d2slam worker: {message}", file=sys.stderr, flush=True)
         return code
 
-    import resource
-
-    import numpy as np
-
-    from d2slam.errors import D2SlamError
-
+    online_log = None
     try:
-        frames = store_frames(Path(args.frames)) if args.frames else _sequence_frames(args)
+        if args.online_rate is not None:
+            if not args.frames:
+                return fail("--online-rate needs --frames", 3)
+            online_log = open(work / "online.txt", "w")
+        else:
+            frames = store_frames(Path(args.frames)) if args.frames else _sequence_frames(args)
     except D2SlamError as exc:
         return fail(str(exc), 3)
     import pyorbslam3
@@ -189,30 +207,17 @@ def main(argv: list[str] | None = None) -> int:
         return fail(f"ORB-SLAM3 did not start: {exc}", 4)
     load_s = time.perf_counter() - t0
     (work / "loaded").write_text(f"{load_s:.3f}")
-    n = io_s = segment_s = mask_s = 0.0
+    if online_log is not None:  # the camera starts once ORB-SLAM3 is ready, as ours starts after its warm-up
+        frames = online_frames(Path(args.frames), args.online_rate, online_log)
     t_loop = time.perf_counter()
-    with open(work / "progress.txt", "w") as prog:
-        i = 0
-        while True:
-            try:
-                item = next(frames, None)
-            except D2SlamError as exc:
-                slam.shutdown()
-                return fail(str(exc), 3)
-            if item is None:
-                break
-            timestamp, rgb, depth, io_i, seg_i, mask_i = item
-            io_s, segment_s, mask_s = io_s + io_i, segment_s + seg_i, mask_s + mask_i
-            t = time.perf_counter()
-            res = slam.track_rgbd(rgb, depth, timestamp)
-            ms = (time.perf_counter() - t + mask_i) * 1000.0
-            pose = res.pose_wc
-            pose_txt = "-" if pose is None else " ".join(f"{v:.9g}" for v in np.asarray(pose).ravel())
-            prog.write(f"{i} {timestamp:.6f} {int(res.state)} {ms:.3f} {int(res.num_tracked_points)} {pose_txt}\n")
-            prog.flush()
-            i += 1
-        n = i
+    try:
+        n, io_s, segment_s, mask_s = _track(slam, frames, work / "progress.txt")
+    except D2SlamError as exc:
+        slam.shutdown()
+        return fail(str(exc), 3)
     loop_s = time.perf_counter() - t_loop
+    if online_log is not None:
+        online_log.close()
     t = time.perf_counter()
     slam.shutdown()
     shutdown_s = time.perf_counter() - t
@@ -232,6 +237,45 @@ def main(argv: list[str] | None = None) -> int:
     info.update(save_s=time.perf_counter() - t, cpu_s=usage.ru_utime + usage.ru_stime)
     done.write_text(json.dumps(info))
     return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser()
+    p.add_argument("--sequence", default=None)
+    p.add_argument("--frames", default=None, help="a frame store (write_frame_store) instead of --sequence")
+    p.add_argument("--camera", default=None)
+    p.add_argument("--vocab", required=True)
+    p.add_argument("--settings", required=True)
+    p.add_argument("--work", required=True)
+    p.add_argument("--max-frames", type=int, default=0)
+    p.add_argument("--masks", default=None, help="person masks to remove (d2slam.segmentation.masks_for kind)")
+    p.add_argument("--config", default=None,
+                   help="the masks' and the fill's settings (MaskedFramesConfig) as JSON (with --masks)")
+    p.add_argument("--online-rate", type=float, default=None,
+                   help="with --frames: replay the store as a live camera at this rate (0: its timestamps), "
+                   "dropping the frames that arrive while ORB-SLAM3 is busy (d2slam.data.live); online.txt")
+    return p
+
+
+def _track(slam, frames, progress: Path) -> tuple[int, float, float, float]:
+    """Every frame through ORB-SLAM3, one line each in ``progress`` (index, timestamp, state, milliseconds, tracked
+    points, the pose or -) as it is tracked; (frames, seconds reading, segmenting, removing the people). A frame
+    that cannot be read raises the reader's D2SlamError."""
+    n = io_s = segment_s = mask_s = 0.0
+    with open(progress, "w") as prog:
+        i = 0
+        for timestamp, rgb, depth, io_i, seg_i, mask_i in frames:
+            io_s, segment_s, mask_s = io_s + io_i, segment_s + seg_i, mask_s + mask_i
+            t = time.perf_counter()
+            res = slam.track_rgbd(rgb, depth, timestamp)
+            ms = (time.perf_counter() - t + mask_i) * 1000.0
+            pose = res.pose_wc
+            pose_txt = "-" if pose is None else " ".join(f"{v:.9g}" for v in np.asarray(pose).ravel())
+            prog.write(f"{i} {timestamp:.6f} {int(res.state)} {ms:.3f} {int(res.num_tracked_points)} {pose_txt}\n")
+            prog.flush()
+            i += 1
+        n = i
+    return n, io_s, segment_s, mask_s
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, MASK_FILLS, MaskingConfig
+from d2slam.baselines.config import MASK_FILLS, MaskingConfig
 from d2slam.errors import D2SlamError
 
 FILLS = MASK_FILLS  # MaskingConfig.fill
@@ -132,7 +132,7 @@ def _inpaint_fill(rgb: np.ndarray, region8: np.ndarray, flag: int, radius: float
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def fill_rgb(rgb: np.ndarray, region: np.ndarray, cfg: MaskingConfig = DEFAULT.masking) -> np.ndarray:
+def fill_rgb(rgb: np.ndarray, region: np.ndarray, cfg: MaskingConfig = MaskingConfig()) -> np.ndarray:
     """``rgb`` (H, W, 3) uint8 with the pixels of ``region`` (H, W) bool replaced by ``cfg.fill`` (module docstring);
     a new array, the other pixels unchanged."""
     region8 = np.ascontiguousarray(region).view(np.uint8)
@@ -165,7 +165,7 @@ def fill_rgb(rgb: np.ndarray, region: np.ndarray, cfg: MaskingConfig = DEFAULT.m
     return out
 
 
-def mask_frame(rgb: np.ndarray, depth: np.ndarray, masks: np.ndarray, cfg: MaskingConfig = DEFAULT.masking
+def mask_frame(rgb: np.ndarray, depth: np.ndarray, masks: np.ndarray, cfg: MaskingConfig = MaskingConfig()
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(rgb, depth, region)``: the frame with its people removed (module docstring). ``masks``: (n, H, W) bool
     instance masks (``d2slam.segmentation.stack_masks``) or one (H, W) mask; ``depth`` any dtype (0 = invalid).

@@ -1,6 +1,6 @@
 """The real ORB-SLAM3 (PyPI wheel ``pyorbslam3``, GPL-3.0) in RGB-D mode, as a baseline.
 
-``run_orbslam3(sequence_dir, out_traj, metrics_json=None, repeats=1, ...)``:
+``orbslam3_report(sequence_dir, out_traj, metrics_json=None, repeats=1, ...)``:
 
 1. resolves the vocabulary (argument, ``$PYORBSLAM3_VOCAB`` = e.g. the official ORBvoc.txt, or the one the project
    builds, :mod:`d2slam.baselines.vocab`) and checks its structure (ORB-SLAM3's loader accepts garbage and crashes
@@ -35,17 +35,30 @@ import dataclasses
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
-from d2slam.config import DEFAULT, Config
+from d2slam.baselines import child_env
+from d2slam.baselines._orbslam3_worker import STORE_META, write_frame_store
+from d2slam.baselines.config import BaselineConfig
+from d2slam.baselines.vocab import resolve_vocabulary
+from d2slam.data import SyntheticSequence, Trajectory, open_sequence, read_tum_trajectory, write_tum_trajectory
+from d2slam.data.intrinsics import is_camera_file, read_camera_file
 from d2slam.errors import D2SlamError
-from d2slam.record import RunRecord, fragment_fields
+from d2slam.eval.fragment import fragment_fields
+from d2slam.eval.trajectory import evaluate
+from d2slam.outputs import check_output_file, write_bytes
+from d2slam.ranges import AnyConfig, overridden, part_of
+from d2slam.segmentation import KINDS, masks_for, masks_origin
+from d2slam.slam.config import EngineConfig, OrbConfig
 
 METHOD = "orbslam3"
 MASKED_METHOD = "orbslam3-masked"
@@ -65,13 +78,15 @@ SETTINGS_REQUIRED = (
 # --------------------------------------------------------------------------------------------------
 # Settings
 # --------------------------------------------------------------------------------------------------
-def settings_yaml(camera, config: Config = DEFAULT) -> str:
-    """ORB-SLAM3 1.0 settings (``File.version: "1.0"``) for an RGB-D camera: intrinsics and distortion, the
-    virtual baseline ``Stereo.b = bf / fx`` (fr3: 40 / 535.4 = 0.0747 m), ``Stereo.ThDepth`` (ORB-SLAM3's TUM
-    value 40: close points within ThDepth * b), ``RGBD.DepthMapFactor``, the ORB extractor (1000 features, 1.2, 8
-    levels, FAST 20/7). Images are given in RGB order (``Camera.RGB: 1``). The Viewer keys are required by ORB-SLAM3
-    even without a viewer."""
-    orb = config.orb
+def settings_yaml(camera, config: AnyConfig | None = None) -> str:
+    """ORB-SLAM3 1.0 settings (``File.version: "1.0"``) for an RGB-D camera: intrinsics and distortion, the virtual
+    baseline ``Stereo.b = bf / fx`` (fr3: 40 / 535.4 = 0.0747 m), ``Stereo.ThDepth`` (ORB-SLAM3's TUM value 40: close
+    points within ThDepth * b), ``RGBD.DepthMapFactor``, the ORB extractor (1000 features, 1.2, 8 levels, FAST 20/7).
+    Images are given in RGB order (``Camera.RGB: 1``). The Viewer keys are required by ORB-SLAM3 even without a viewer.
+    ``config``: a whole config (its ``orb`` and ``baseline`` sections and ``engine.th_depth``: ORB-SLAM3's ThDepth is
+    the engine's), defaults when None."""
+    orb, baseline = part_of(config, "orb", OrbConfig), part_of(config, "baseline", BaselineConfig)
+    th_depth = part_of(config, "engine", EngineConfig).th_depth
     k1, k2, p1, p2, k3 = (float(c) for c in camera.dist)
     lines = [
         "%YAML:1.0",
@@ -89,9 +104,9 @@ def settings_yaml(camera, config: Config = DEFAULT) -> str:
         *([f"Camera1.k3: {k3:.9f}"] if k3 != 0.0 else []),
         f"Camera.width: {int(camera.width)}",
         f"Camera.height: {int(camera.height)}",
-        f"Camera.fps: {int(round(config.baseline.orbslam3_fps))}",
+        f"Camera.fps: {int(round(baseline.orbslam3_fps))}",
         "Camera.RGB: 1",
-        f"Stereo.ThDepth: {config.baseline.orbslam3_th_depth:.6f}",
+        f"Stereo.ThDepth: {th_depth:.6f}",
         f"Stereo.b: {camera.bf / camera.fx:.6f}",
         f"RGBD.DepthMapFactor: {camera.depth_factor:.6f}",
         f"ORBextractor.nFeatures: {orb.n_features}",
@@ -116,8 +131,6 @@ def settings_yaml(camera, config: Config = DEFAULT) -> str:
 def check_settings(path: str | Path) -> None:
     """Fail with a clear message where ORB-SLAM3 would ``exit(-1)`` (or silently misread): not an OpenCV YAML,
     not the 1.0 format, a required key missing or not a number."""
-    import cv2
-
     path = Path(path)
     if not path.is_file():
         raise D2SlamError("ORB-SLAM3 settings file not found", path=path)
@@ -184,25 +197,24 @@ def _log_tail(log: Path, n: int = 6) -> str:
 
 
 def _run_child(sequence_dir: Path, vocab_path: str, settings_path: Path, work: Path, camera: str | None,
-               max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
-               masks: str | None = None, store: Path | None = None) -> dict:
+               max_frames: int, n_frames: int, timeout: float | None, config: AnyConfig, progress: bool,
+               masks: str | None = None, store: Path | None = None, online_rate: float | None = None) -> dict:
     """Start the worker, follow its progress, enforce the time limits. Returns raw outcome fields."""
-    from tqdm import tqdm
 
     cfg = config.baseline
     log = work / "orbslam3.log"
     cmd = [sys.executable, "-m", "d2slam.baselines._orbslam3_worker", "--vocab", vocab_path, "--settings",
            str(settings_path), "--work", str(work)]
     if store is not None:  # frames decoded (and people removed) once by the caller
-        cmd += ["--frames", str(store)]
+        cmd += ["--frames", str(store)] + ([] if online_rate is None else ["--online-rate", f"{online_rate:g}"])
     else:
         cmd += ["--sequence", str(sequence_dir), "--max-frames", str(max_frames)] + (["--camera", camera] if camera
                                                                                      else [])
     if masks and store is None:
         config_path = work / "config.json"
-        config_path.write_text(json.dumps(config.to_dict(), default=list))
+        config_path.write_text(json.dumps({"segmentation": dataclasses.asdict(config.segmentation),
+                                           "masking": dataclasses.asdict(config.masking)}, default=list))
         cmd += ["--masks", masks, "--config", str(config_path)]
-    from d2slam.baselines import child_env
 
     env = child_env()
     env.pop("DISPLAY", None)  # headless: Pangolin is never started (use_viewer=False)
@@ -258,8 +270,6 @@ def _seconds(wall_s: float, done: dict, ms: np.ndarray) -> dict:
 
 def _kill(proc: subprocess.Popen) -> None:
     """End the worker we started (its own process group, by id) and reap it."""
-    import signal
-
     try:
         os.killpg(proc.pid, signal.SIGKILL)
     except (ProcessLookupError, PermissionError):
@@ -272,7 +282,7 @@ def _kill(proc: subprocess.Popen) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class Attempt:
-    """One ORB-SLAM3 run of a sequence (a repeat of :func:`run_orbslam3`), as its run JSON lists it (``runs``):
+    """One ORB-SLAM3 run of a sequence (a repeat of :func:`orbslam3_report`), as its run JSON lists it (``runs``):
     frames run and expected, tracked / lost / not initialised, the maps it started (``resets`` = maps - 1), its
     timings (per frame, the worker's load, wall, the split of ``_seconds``, CPU, per stage), the log kept (None:
     removed), its outcome (``status``, ``message``: see the module docstring) and the trajectory written."""
@@ -302,6 +312,7 @@ class Attempt:
     trajectory_poses: int
     repeat: int = 0
     evaluation: dict | None = None  # ``evaluate_trajectory``'s {"metrics": ...} or {"metrics_error": ...}
+    online: dict | None = None  # an online run's frames processed and dropped and its lag (:func:`_online_summary`)
 
     def to_dict(self) -> dict:
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "evaluation"}
@@ -309,14 +320,17 @@ class Attempt:
 
 
 def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Path, camera: str | None,
-              max_frames: int, n_frames: int, timeout: float | None, config: Config, progress: bool,
-              work: Path, masks: str | None = None, store: Path | None = None, repeat: int = 0) -> Attempt:
+              max_frames: int, n_frames: int, timeout: float | None, config: AnyConfig, progress: bool,
+              work: Path, masks: str | None = None, store: Path | None = None, repeat: int = 0,
+              online_rate: float | None = None) -> Attempt:
     work.mkdir(parents=True, exist_ok=True)
-    for name in ("progress.txt", "final.txt", "done.json", "loaded", "orbslam3.log"):
+    for name in ("progress.txt", "final.txt", "done.json", "loaded", "orbslam3.log", "online.txt"):
         (work / name).unlink(missing_ok=True)
     raw = _run_child(sequence_dir, vocab["path"], settings_path, work, camera, max_frames, n_frames, timeout,
-                     config, progress, masks, store)
+                     config, progress, masks, store, online_rate)
     rec = _read_progress(work / "progress.txt")
+    online = _online_summary(work / "online.txt", n_frames, online_rate) if online_rate is not None else None
+    expected = online["processed"] if online and online.get("complete") else n_frames  # dropped frames: not a crash
     done = {}
     if (work / "done.json").is_file():
         try:
@@ -325,8 +339,6 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
             done = {}
     stages = done  # per-frame stage times: the worker's, or the frame store's (decoded once, people removed once)
     if store is not None:
-        from d2slam.baselines._orbslam3_worker import STORE_META
-
         stages = json.loads((store / STORE_META).read_text())
         if len(rec["ms"]):  # the masking time of each frame joins its tracking time, as when the worker masks
             rec["ms"] = rec["ms"] + np.load(store / "mask_ms.npy")[rec["index"]]
@@ -339,7 +351,7 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
     maps = max(log.read_text(errors="replace").count("Creation of new map with id") if log.is_file() else 0,
                int(seg.max() + 1) if frames and seg.max() >= 0 else 0)
     tracked, lost, resets = int(ok.sum()), int(lost_state.sum()), maps - 1 if frames else 0
-    status, message = _outcome(raw, done, work, log, frames, n_frames, tracked, lost, resets)
+    status, message = _outcome(raw, done, work, log, frames, expected, tracked, lost, resets)
     traj, source = _trajectory(rec, ok, work / "final.txt", out_traj, sequence_dir)
     ms = rec["ms"]
     return Attempt(
@@ -351,7 +363,26 @@ def _run_once(sequence_dir: Path, out_traj: Path, vocab: dict, settings_path: Pa
         wall_s=raw["wall_s"], seconds=_seconds(raw["wall_s"], done, ms), cpu_s=done.get("cpu_s"),
         stage_ms=_stage_ms(stages, frames, ms, masks), log=str(log), status=status, message=message,
         trajectory=str(out_traj) if traj is not None else None, trajectory_source=source,
-        trajectory_poses=int(len(traj)) if traj is not None else 0, repeat=repeat)
+        trajectory_poses=int(len(traj)) if traj is not None else 0, repeat=repeat, online=online)
+
+
+def _online_summary(path: Path, n_frames: int, rate_hz: float) -> dict:
+    """An online run's account (the worker's ``online.txt``): frames processed and dropped, the lag from a frame's
+    arrival to ORB-SLAM3's pose (median, 95th percentile, ms), whether the run reached the last frame."""
+    rows, complete = [], False
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            parts = line.split()
+            if len(parts) == 4:
+                rows.append([float(x) for x in parts])
+            elif len(parts) == 2 and parts[0] == "frames":
+                complete = True
+    a = np.array(rows, dtype=np.float64).reshape(-1, 4)
+    lag = 1000.0 * (a[:, 3] - a[:, 1])
+    return {"rate_hz": rate_hz, "frames": int(n_frames), "processed": int(len(a)), "dropped": int(n_frames - len(a)),
+            "processed_share": round(len(a) / max(n_frames, 1), 4),
+            "lag_ms_median": round(float(np.median(lag)), 2) if len(lag) else None,
+            "lag_ms_p95": round(float(np.percentile(lag, 95)), 2) if len(lag) else None, "complete": complete}
 
 
 def _stage_ms(stages: dict, frames: int, ms: np.ndarray, masks: str | None) -> dict:
@@ -398,8 +429,6 @@ def _outcome(raw: dict, done: dict, work: Path, log: Path, frames: int, n_frames
 def _trajectory(rec: dict, ok: np.ndarray, final_path: Path, out_traj: Path, sequence_dir: Path):
     """Write the tracked frames' poses to ``out_traj`` (ORB-SLAM3's final poses where it saved them, else the
     online ones) and the online poses beside it (``.online.txt``); returns (the trajectory or None, its source)."""
-    from d2slam.data import Trajectory, read_tum_trajectory, write_tum_trajectory
-
     source, traj = None, None
     tracked_ts = rec["timestamp"][ok]
     if tracked_ts.size and final_path.is_file() and final_path.stat().st_size > 0:
@@ -431,13 +460,15 @@ def _trajectory(rec: dict, ok: np.ndarray, final_path: Path, out_traj: Path, seq
 # --------------------------------------------------------------------------------------------------
 # Public entry point
 # --------------------------------------------------------------------------------------------------
-def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: str | Path | None = None,
+def orbslam3_report(sequence_dir: str | Path, out_traj: str | Path, metrics_json: str | Path | None = None,
                  repeats: int = 1, vocab: str | Path | None = None, settings: str | Path | None = None,
                  camera: str | None = None, max_frames: int = 0, timeout: float | None = None,
-                 config: Config = DEFAULT, progress: bool = True, evaluate: bool = True,
-                 keep_work: bool = False, masks: str | None = None) -> RunRecord:
+                 config: AnyConfig = None, progress: bool = True, evaluate: bool = True,
+                 keep_work: bool = False, masks: str | None = None,
+                 online_rate: float | None = None) -> tuple[dict, object]:
     """Run the real ORB-SLAM3 RGB-D on ``sequence_dir`` ``repeats`` times; write ``out_traj`` (TUM) and the run
-    JSON (``metrics_json``); return the run (``RunRecord``, the JSON as its ``orbslam3``). Never raises for an
+    JSON (``metrics_json``); return the run JSON and the sequence read (``d2slam.run.orbslam3_runs.run_orbslam3`` makes
+    the run's ``RunRecord`` of them). Never raises for an
     ORB-SLAM3 failure: the record's ``status`` says what happened and ``error`` why (see the module docstring).
     Bad arguments (no sequence, repeats < 1) raise :class:`D2SlamError`.
 
@@ -446,56 +477,23 @@ def run_orbslam3(sequence_dir: str | Path, out_traj: str | Path, metrics_json: s
     the sequence's camera (``fr1``/``fr2``/``fr3``); ``max_frames``: first N frames only (0 = all); ``timeout``:
     seconds per repeat (default load + per-frame budget of :class:`~d2slam.config.BaselineConfig`); ``masks``: the
     person masks to remove from the frames (``orbslam3-masked``, module docstring; they must exist: a synthetic
-    sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`)."""
+    sequence's ``sim`` / ``gt`` / ``truth``, or an ONNX model for ``onnx``, else :class:`D2SlamError`); ``config``:
+    the run's whole config (``d2slam.config.Config``, required: its ``orb``, ``baseline``, ``masking``,
+    ``segmentation`` and ``evaluation`` sections, and its hash); ``online_rate``: replay the frames as a live camera
+    at this rate (0: their timestamps; ``d2slam.data.live``), dropping those that arrive while ORB-SLAM3 is busy (each
+    run's ``online``: frames processed, dropped, lag)."""
+    if config is None:
+        raise TypeError("orbslam3_report needs the run's config")
     out_traj = Path(out_traj).expanduser()
     report, seq = _report(sequence_dir, out_traj, metrics_json, repeats, vocab, settings, camera, max_frames, timeout,
-                          config, progress, evaluate, keep_work, masks)
-    return run_record(report, seq, evaluate)
-
-
-def run_record(report: dict, seq, evaluate: bool = True) -> RunRecord:
-    """The :class:`RunRecord` of an ORB-SLAM3 run JSON (``report``) on ``seq``: its trajectory (read back), ORB-SLAM3's
-    status (``unevaluated`` when it tracked but gave no metrics), the median ATE and RPE over the repeats with the
-    ATE's range, and the aligned positions of the trajectory written (with ``evaluate`` and ground truth)."""
-    from d2slam.data import read_tum_trajectory
-    from d2slam.eval.trajectory import Evaluation, TrajectoryMetrics, aligned_estimate
-
-    status = report.get("status", "failed")
-    metrics = report.get("metrics") or {}
-    spread = (report.get("metrics_spread") or {}).get("ate_rmse_m")
-    error = "" if status == "ok" else str(report.get("message") or report.get("metrics_error") or "")
-    if not metrics:
-        status = status if status in ("failed", "crashed", "timeout") else "unevaluated"
-        error = error or str(report.get("metrics_error") or "no metrics")
-    path = report.get("trajectory")
-    traj = read_tum_trajectory(path) if path and Path(path).is_file() else None
-    aligned = None
-    if evaluate and traj is not None and seq.groundtruth is not None:
-        try:
-            aligned = aligned_estimate(seq.groundtruth, traj)[:2]
-        except Exception:  # noqa: BLE001 - only the plot misses it
-            aligned = None
-    evaluation = Evaluation(TrajectoryMetrics(**metrics) if metrics else None, metrics.get("ate_rmse_m"),
-                            str(report.get("metrics_error") or ""), aligned)
-    ate = metrics.get("ate_rmse_m")
-    return RunRecord(
-        method=report["method"], sequence=report.get("name", ""), trajectory=traj, frames=report.get("frames"),
-        tracked=report.get("tracked"), lost=report.get("lost"), fps=report.get("fps"),
-        ms_per_frame=report.get("ms_per_frame"), config_hash=report["config_hash"], loop_closing=True, status=status,
-        error=error, evaluation=evaluation if metrics or aligned is not None else None, masks=report.get("masks"),
-        masks_origin=report.get("masks_origin"), repeats=int(report.get("repeats", 1)),
-        ate_range=(spread["min"], spread["max"]) if spread else (ate, ate) if metrics else None, orbslam3=report,
-        min_tracked_share=report.get("min_tracked_share", DEFAULT.evaluation.min_tracked_share))
+                          config, progress, evaluate, keep_work, masks, online_rate)
+    return report, seq
 
 
 def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, settings, camera, max_frames: int,
-            timeout, config: Config, progress: bool, evaluate: bool, keep_work: bool, masks) -> tuple[dict, object]:
-    """:func:`run_orbslam3`'s runs: (the run JSON, the sequence)."""
-    from d2slam.baselines.vocab import resolve_vocabulary
-    from d2slam.data import open_sequence
-    from d2slam.data.intrinsics import is_camera_file, read_camera_file
-    from d2slam.outputs import check_output_file
-
+            timeout, config: AnyConfig, progress: bool, evaluate: bool, keep_work: bool, masks,
+            online_rate: float | None = None) -> tuple[dict, object]:
+    """:func:`orbslam3_report`'s runs: (the run JSON, the sequence)."""
     sequence_dir = Path(sequence_dir).expanduser().resolve()
     if repeats < 1:
         raise D2SlamError(f"repeats must be >= 1, got {repeats}")
@@ -504,26 +502,8 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
         check_output_file(metrics_json, "metrics JSON")
     for stale in [out_traj, out_traj.with_name(out_traj.stem + ".online.txt")]:
         stale.unlink(missing_ok=True)  # a failed run must not leave an older trajectory behind
-    camera_file = read_camera_file(camera) if is_camera_file(camera) else None  # read once (the worker reads its own)
-    if camera_file is not None and camera_file.th_depth is not None:
-        # a settings YAML's own close-point threshold replaces the TUM value
-        config = dataclasses.replace(config, baseline=dataclasses.replace(config.baseline,
-                                                                          orbslam3_th_depth=camera_file.th_depth))
-    seq_camera = camera_file.camera if camera_file is not None else camera
-    seq = open_sequence(sequence_dir, camera=seq_camera) if seq_camera else open_sequence(sequence_dir)
-    n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
-    from d2slam.data import SyntheticSequence
-
-    camera_source = (str(Path(camera).expanduser().resolve()) if camera_file is not None else
-                     "scene.json" if isinstance(seq, SyntheticSequence) else camera or "folder name")
-    base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
-            "repeats": repeats,
-            "camera": seq.camera.name, "camera_source": camera_source,
-            "camera_settings": dataclasses.asdict(seq.camera), "config_hash": config.hash()}
-    if masks is not None:
-        origin = _prepare_masks(seq, masks, n_frames, config, progress)
-        base.update(method=MASKED_METHOD, masks=masks, masks_origin=origin,
-                    masking=dataclasses.asdict(config.masking))
+    config, seq, base = _open(sequence_dir, camera, max_frames, repeats, config, masks, progress)
+    n_frames = base["frames_expected"]
     work_root = Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_", dir=out_traj.parent))
     store = None
     try:
@@ -544,31 +524,15 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
             check_settings(settings_path)
         except D2SlamError as exc:
             return _finish(dict(base, status="failed", message=f"settings: {exc}"), metrics_json, config), seq
-        store = _frame_store_root(seq, n_frames, repeats, config, work_root)
+        store = _frame_store_root(seq, n_frames, repeats, config, work_root, force=online_rate is not None)
         if store is not None:
-            from d2slam.baselines._orbslam3_worker import write_frame_store
-
             t0 = time.perf_counter()
             meta = write_frame_store(seq, n_frames, store, masks, config, progress)
             base["frame_store"] = dict(meta, wall_s=round(time.perf_counter() - t0, 3),
                                        bytes=sum(f.stat().st_size for f in store.iterdir()))
-        runs = []
-        for r in range(repeats):
-            traj_r = out_traj if repeats == 1 else out_traj.with_name(f"{out_traj.stem}.rep{r}{out_traj.suffix}")
-            run = _run_once(sequence_dir, traj_r, vinfo, settings_path, camera, max_frames, n_frames, timeout,
-                            config, progress, work_root / f"rep{r}", masks, store, repeat=r)
-            kept = None  # the log is kept when asked to, or when the run did not end well
-            if keep_work or run.status not in ("ok", "lost"):
-                kept = str(out_traj.with_name(f"{out_traj.stem}.rep{r}.orbslam3.log"))
-                if Path(run.log).is_file():
-                    shutil.copyfile(run.log, kept)
-            run = dataclasses.replace(run, log=kept)
-            if evaluate and run.trajectory and seq.groundtruth is not None:
-                t0 = time.perf_counter()
-                evaluation = evaluate_trajectory(seq, run.trajectory)
-                run = dataclasses.replace(run, evaluation=evaluation,
-                                          seconds={**run.seconds, "evaluate": round(time.perf_counter() - t0, 3)})
-            runs.append(run.to_dict())
+        repeat = _Repeats(seq, sequence_dir, out_traj, vinfo, settings_path, camera, max_frames, n_frames, timeout,
+                          config, progress, work_root, masks, store, keep_work, evaluate, repeats, online_rate)
+        runs = [repeat(r) for r in range(repeats)]
         return _finish(_summarise(base, runs, out_traj), metrics_json, config), seq
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
@@ -576,13 +540,85 @@ def _report(sequence_dir, out_traj: Path, metrics_json, repeats: int, vocab, set
             shutil.rmtree(store.parent, ignore_errors=True)
 
 
-def _frame_store_root(seq, n_frames: int, repeats: int, config: Config, work_root: Path) -> Path | None:
+def _open(sequence_dir: Path, camera, max_frames: int, repeats: int, config: AnyConfig, masks,
+          progress: bool) -> tuple[AnyConfig, object, dict]:
+    """(the config, with a camera settings file's ThDepth; the sequence through its camera; the run JSON's common
+    fields: the sequence, the frames to run, the camera and where it came from, the masks removed and where they come
+    from, the config's hash)."""
+    camera_file = read_camera_file(camera) if is_camera_file(camera) else None  # read once (the worker reads its own)
+    if camera_file is not None and camera_file.th_depth is not None:
+        # a settings YAML's own close-point threshold replaces the TUM value (the engine's ThDepth is ORB-SLAM3's)
+        config = overridden(config, {"engine": {"th_depth": camera_file.th_depth}})
+    seq_camera = camera_file.camera if camera_file is not None else camera
+    seq = open_sequence(sequence_dir, camera=seq_camera) if seq_camera else open_sequence(sequence_dir)
+    n_frames = len(seq) if max_frames <= 0 else min(len(seq), max_frames)
+    camera_source = (str(Path(camera).expanduser().resolve()) if camera_file is not None else
+                     "scene.json" if isinstance(seq, SyntheticSequence) else camera or "folder name")
+    base = {"method": METHOD, "sequence": str(sequence_dir), "name": seq.name, "frames_expected": n_frames,
+            "repeats": repeats,
+            "camera": seq.camera.name, "camera_source": camera_source,
+            "camera_settings": dataclasses.asdict(seq.camera), "config_hash": config.hash()}
+    if masks is not None:
+        origin = _prepare_masks(seq, masks, n_frames, config, progress)
+        base.update(method=MASKED_METHOD, masks=masks, masks_origin=origin,
+                    masking=dataclasses.asdict(config.masking))
+    return config, seq, base
+
+
+@dataclasses.dataclass
+class _Repeats:
+    """What every repeat of a run shares; ``repeat(r)`` runs repeat ``r``."""
+
+    seq: object
+    sequence_dir: Path
+    out_traj: Path
+    vinfo: dict
+    settings_path: Path
+    camera: object
+    max_frames: int
+    n_frames: int
+    timeout: float | None
+    config: AnyConfig
+    progress: bool
+    work_root: Path
+    masks: str | None
+    store: Path | None
+    keep_work: bool
+    evaluate: bool
+    repeats: int
+    online_rate: float | None
+
+    def __call__(self, r: int) -> dict:
+        """Repeat ``r``'s run (its own trajectory file when there are several), its log kept when asked to or when
+        the run did not end well, evaluated against the ground truth when asked to; as the run JSON records it."""
+        out = self.out_traj
+        traj_r = out if self.repeats == 1 else out.with_name(f"{out.stem}.rep{r}{out.suffix}")
+        run = _run_once(self.sequence_dir, traj_r, self.vinfo, self.settings_path, self.camera, self.max_frames,
+                        self.n_frames, self.timeout, self.config, self.progress, self.work_root / f"rep{r}",
+                        self.masks, self.store, repeat=r, online_rate=self.online_rate)
+        kept = None
+        if self.keep_work or run.status not in ("ok", "lost"):
+            kept = str(out.with_name(f"{out.stem}.rep{r}.orbslam3.log"))
+            if Path(run.log).is_file():
+                shutil.copyfile(run.log, kept)
+        run = dataclasses.replace(run, log=kept)
+        if self.evaluate and run.trajectory and self.seq.groundtruth is not None:
+            t0 = time.perf_counter()
+            evaluation = evaluate_trajectory(self.seq, run.trajectory)
+            run = dataclasses.replace(run, evaluation=evaluation,
+                                      seconds={**run.seconds, "evaluate": round(time.perf_counter() - t0, 3)})
+        return run.to_dict()
+
+
+def _frame_store_root(seq, n_frames: int, repeats: int, config: AnyConfig, work_root: Path,
+                      force: bool = False) -> Path | None:
     """Where the frames of a repeated run are decoded once (:func:`~d2slam.baselines._orbslam3_worker.
     write_frame_store`): a new folder in ``BaselineConfig.orbslam3_frame_store_dir`` (memory-backed ``/dev/shm``)
     when it has room, else in the run's work folder; None (every worker decodes its frames) for a single run or when
-    the frames would exceed ``orbslam3_frame_store_mb``."""
+    the frames would exceed ``orbslam3_frame_store_mb``. ``force`` (an online run: its frames are decoded before the
+    camera starts): always a store."""
     size = n_frames * int(seq.camera.height) * int(seq.camera.width) * (3 + 4)  # RGB uint8 + depth float32
-    if repeats < 2 or size > config.baseline.orbslam3_frame_store_mb * 2**20:
+    if not force and (repeats < 2 or size > config.baseline.orbslam3_frame_store_mb * 2**20):
         return None
     parent = Path(config.baseline.orbslam3_frame_store_dir)
     try:
@@ -593,14 +629,12 @@ def _frame_store_root(seq, n_frames: int, repeats: int, config: Config, work_roo
     return Path(tempfile.mkdtemp(prefix="d2slam_orbslam3_frames_", dir=parent)) / "frames"
 
 
-def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool) -> str:
+def _prepare_masks(seq, kind: str, n_frames: int, config: AnyConfig, progress: bool) -> str:
     """Check that the ``kind`` masks of the first ``n_frames`` frames can be had before ORB-SLAM3 starts (a clear
     :class:`D2SlamError` otherwise: no ``mask_sim/`` on a real sequence, no ONNX model; the fill and dilation are
     checked by ``MaskingConfig``'s ranges); the
     ``onnx`` ones are segmented into the mask cache here (announced, :func:`d2slam.segmentation.masks_origin`), so
     the worker only reads them. Returns where the masks come from."""
-    from d2slam.segmentation import KINDS, masks_for, masks_origin
-
     if kind not in KINDS:
         raise D2SlamError(f"unknown masks {kind!r}; choose one of {', '.join(KINDS)}")
     if kind != "onnx" and n_frames:
@@ -611,9 +645,6 @@ def _prepare_masks(seq, kind: str, n_frames: int, config: Config, progress: bool
 def evaluate_trajectory(seq, traj_path: str) -> dict:
     """``{"metrics": {ate_rmse_m, rpe_trans_m, rpe_rot_deg, ...}}`` with :mod:`d2slam.eval.trajectory` (evo), as in
     the engine's run JSON; ``{"metrics_error": ...}`` when the trajectory cannot be evaluated."""
-    from d2slam.data import read_tum_trajectory
-    from d2slam.eval.trajectory import evaluate
-
     try:
         return {"metrics": evaluate(seq.groundtruth, read_tum_trajectory(traj_path)).to_dict()}
     except D2SlamError as exc:
@@ -664,6 +695,8 @@ def _summarise(base: dict, runs: list[dict], out_traj: Path) -> dict:
         shutil.copyfile(pick["trajectory"], out_traj)
         out["trajectory"] = str(out_traj)
         out["trajectory_repeat"] = pick["repeat"]
+        if pick.get("online"):  # an online run: the account of the repeat whose trajectory is kept
+            out["online"] = pick["online"]
     else:
         out["trajectory"] = None
     worst = ("failed", "timeout", "crashed", "reset", "lost", "ok")
@@ -673,8 +706,8 @@ def _summarise(base: dict, runs: list[dict], out_traj: Path) -> dict:
     return out
 
 
-def _finish(result: dict, metrics_json, config: Config) -> dict:
-    """The run JSON as written: its status, the share of frames tracked (``d2slam.record.fragment_fields``: whether
+def _finish(result: dict, metrics_json, config: AnyConfig) -> dict:
+    """The run JSON as written: its status, the share of frames tracked (``d2slam.run.record.fragment_fields``: whether
     the run is a fragment by ``EvalConfig.min_tracked_share``; a run that failed before its frames has none) and
     when it was made."""
     result.setdefault("status", "ok")
@@ -682,8 +715,6 @@ def _finish(result: dict, metrics_json, config: Config) -> dict:
         result.update(fragment_fields(result["tracked"], result.get("frames"), config.evaluation.min_tracked_share))
     result["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     if metrics_json:
-        from d2slam.outputs import write_bytes
-
         path = Path(metrics_json)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_bytes(path, json.dumps(result, indent=2, default=_json_default))

@@ -25,25 +25,40 @@ single-child chain down to that depth (DBoW2 itself can produce them; we never d
 
 from __future__ import annotations
 
+import glob
 import hashlib
-import io
 import json
+import os
+import subprocess
+import sys
 import time
-import warnings
-from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
+from scipy import sparse
 
+from d2slam import __version__
+from d2slam.assets import tum_frames
+from d2slam.baselines import child_env
+from d2slam.baselines.config import BaselineConfig
 from d2slam.cachefiles import Damaged, folder_manifest, folder_problems, read_json, report_damaged, sha256_file
-from d2slam.config import DEFAULT, BaselineConfig, OrbConfig
-from d2slam.errors import D2SlamError, read_text
+from d2slam.data import open_sequence
+from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps, staged_dir, write_bytes
+from d2slam.paths import cache_dir
+from d2slam.progress import Progress
+from d2slam.slam.config import OrbConfig
+from d2slam.slam.dbow2 import DESCRIPTOR_BYTES, Vocabulary
 from d2slam.slam.matching import hamming
+from d2slam.slam.orb_vocabulary import default_vocabulary_path as default_vocab_path
+from d2slam.synth.config import SynthConfig
+from d2slam.synth.generate import write_image, render_frame, stamp
+from d2slam.synth.scene import Scene
+from d2slam.synth.version import generator_version
+from d2slam.synth.world import WorldRenderer
 
-DESCRIPTOR_BYTES = 32
 FORMAT = "d2slam-dbow2-vocab/1"
-_BIG = np.uint16(60000)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -57,7 +72,6 @@ def _majority(desc: np.ndarray, keys: np.ndarray, n_keys: int, bits: np.ndarray 
     The per-key bit counts are one sparse product (key membership x unpacked bits): exact (integers below 2^24 in
     float32), and 15-25x faster than a segment reduction over sorted keys. ``bits``: ``desc`` unpacked to (n, 256)
     float32 by the caller, when it asks several times."""
-    from scipy import sparse
 
     keys = np.asarray(keys, np.int64)
     counts = np.bincount(keys, minlength=n_keys)
@@ -115,143 +129,6 @@ def _kmajority(desc: np.ndarray, starts: np.ndarray, sizes: np.ndarray, k: int, 
 # --------------------------------------------------------------------------------------------------
 # The tree
 # --------------------------------------------------------------------------------------------------
-@dataclass
-class Vocabulary:
-    """A DBoW2 vocabulary tree. Node 0 is the root; nodes are in breadth-first order."""
-
-    k: int
-    L: int
-    parent: np.ndarray  # (n_nodes,) int64, -1 for the root
-    descriptors: np.ndarray  # (n_nodes, 32) uint8 (root: zeros)
-    is_leaf: np.ndarray  # (n_nodes,) bool
-    weight: np.ndarray  # (n_nodes,) float64, idf on leaves, 0 elsewhere
-    scoring: int = 0  # L1 norm
-    weighting: int = 0  # TF-IDF
-    meta: dict = field(default_factory=dict)
-
-    @property
-    def n_nodes(self) -> int:
-        return len(self.parent)
-
-    @property
-    def n_words(self) -> int:
-        return int(self.is_leaf.sum())
-
-    def depth(self) -> np.ndarray:
-        d = np.zeros(self.n_nodes, np.int64)
-        for i in range(1, self.L + 1):  # parents precede children (BFS): L passes settle every depth
-            d[1:] = d[self.parent[1:]] + 1
-        return d
-
-    def children_table(self) -> np.ndarray:
-        """(n_nodes, k) child ids in file order, -1 padded."""
-        table = np.full((self.n_nodes, self.k), -1, np.int64)
-        child = np.arange(1, self.n_nodes)
-        par = self.parent[1:]
-        # rank of each child among its siblings (children of a node are contiguous in BFS order)
-        first = np.searchsorted(par, par, side="left")
-        table[par, child - 1 - first] = child
-        return table
-
-    def transform(self, desc: np.ndarray) -> np.ndarray:
-        """Leaf node id of each descriptor by DBoW2's descent (nearest child at each level, first on ties)."""
-        table = self.children_table()
-        cur = np.zeros(len(desc), np.int64)
-        for _ in range(self.L + 1):
-            active = ~self.is_leaf[cur]
-            if not active.any():
-                break
-            ch = table[cur[active]]
-            d = hamming(desc[active][:, None, :], self.descriptors[np.maximum(ch, 0)])
-            d = np.where(ch >= 0, d, _BIG)
-            cur[active] = ch[np.arange(len(ch)), np.argmin(d, axis=1)]
-        return cur
-
-    # -- text file --------------------------------------------------------------------------------
-    def to_text(self) -> bytes:
-        header = f"{self.k} {self.L} {self.scoring} {self.weighting}"
-        rows = np.column_stack([self.parent[1:], self.is_leaf[1:].astype(np.int64),
-                                self.descriptors[1:].astype(np.int64)])
-        buf = io.StringIO()
-        buf.write(header + "\n")
-        fmt = " ".join(["%d"] * rows.shape[1])
-        body = io.StringIO()
-        np.savetxt(body, rows, fmt=fmt)
-        lines = body.getvalue().split("\n")[:-1]
-        weights = [f"{w:.6g}" for w in self.weight[1:].tolist()]
-        buf.write("\n".join(f"{a} {b}" for a, b in zip(lines, weights)))  # no trailing newline
-        return buf.getvalue().encode()
-
-    def save(self, path: str | Path) -> str:
-        """Write the text file (atomically) and return its sha256."""
-        from d2slam.outputs import write_bytes
-
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        data = self.to_text()
-        write_bytes(path, data)
-        return hashlib.sha256(data).hexdigest()
-
-    @classmethod
-    def load(cls, path: str | Path) -> "Vocabulary":
-        """Read a DBoW2 text vocabulary with the checks ORB-SLAM3's loader skips (it crashes or exits instead)."""
-        path = Path(path)
-        text = read_text(path, "vocabulary")
-        nl = text.find("\n")
-        header, body = (text, "") if nl < 0 else (text[:nl], text[nl + 1:])
-        try:
-            k, L, scoring, weighting = (int(v) for v in header.split())
-        except ValueError:
-            raise D2SlamError("vocabulary header must be 'k L scoring weighting' (e.g. '10 6 0 0')",
-                              path=path, line=1) from None
-        if not (2 <= k <= 20 and 1 <= L <= 10 and 0 <= scoring <= 5 and 0 <= weighting <= 3):
-            raise D2SlamError(f"vocabulary header out of ORB-SLAM3's range: {header!r}", path=path, line=1)
-        n_lines = body.count("\n") + 1 if body else 0
-        if text.endswith("\n"):
-            raise D2SlamError("vocabulary ends with a newline (ORB-SLAM3 would read an extra empty node)",
-                              path=path, line=n_lines + 1)
-        if n_lines == 0:
-            raise D2SlamError("vocabulary has no nodes", path=path, line=1)
-        n_fields = 3 + DESCRIPTOR_BYTES
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # a bad token ends the parse early: caught by the count below
-            values = np.fromstring(body, dtype=np.float64, sep=" ")
-        if values.size != n_lines * n_fields or not np.isfinite(values).all():
-            for i, row in enumerate(body.split("\n")):
-                toks = row.split()
-                try:
-                    ok = len(toks) == n_fields and all(np.isfinite(float(t)) for t in toks)
-                except ValueError:
-                    ok = False
-                if not ok:
-                    raise D2SlamError(f"vocabulary node line must be {n_fields} numbers "
-                                      "(parentId isLeaf b0..b31 weight)", path=path, line=i + 2)
-            raise D2SlamError("vocabulary node lines are malformed", path=path, line=2)  # pragma: no cover
-        rows = values.reshape(n_lines, n_fields)
-        bytes_ = rows[:, 2:-1]
-        bad_byte = np.flatnonzero(((bytes_ < 0) | (bytes_ > 255) | (bytes_ != np.round(bytes_))).any(axis=1))
-        if len(bad_byte):
-            raise D2SlamError("descriptor values must be integers 0-255", path=path, line=int(bad_byte[0]) + 2)
-        parent = np.concatenate([[-1], rows[:, 0].astype(np.int64)])
-        ids = np.arange(1, len(parent))
-        bad = np.flatnonzero((parent[1:] < 0) | (parent[1:] >= ids))
-        if len(bad):
-            raise D2SlamError(f"node {bad[0] + 1} has parent {parent[bad[0] + 1]} not defined before it",
-                              path=path, line=int(bad[0]) + 2)
-        desc = np.concatenate([np.zeros((1, DESCRIPTOR_BYTES)), rows[:, 2:-1]]).astype(np.uint8)
-        is_leaf = np.concatenate([[False], rows[:, 1] > 0])
-        weight = np.concatenate([[0.0], rows[:, -1]])
-        has_child = np.zeros(len(parent), bool)
-        has_child[parent[1:]] = True
-        inconsistent = np.flatnonzero(is_leaf == has_child)
-        if len(inconsistent):
-            i = int(inconsistent[0])
-            raise D2SlamError(f"node {i} is {'a leaf with children' if is_leaf[i] else 'an inner node without children'}",
-                              path=path, line=i + 1 if i else 1)
-        return cls(k=k, L=L, parent=parent, descriptors=desc, is_leaf=is_leaf, weight=weight, scoring=scoring,
-                   weighting=weighting)
-
-
 def build_tree(desc: np.ndarray, image_ids: np.ndarray, k: int = 10, L: int = 6, levelsup: int = 4,
                seed: int = 0, max_iter: int = 10, on_level=None) -> Vocabulary:
     """Hierarchical k-majority (DBoW2 ``create``) over ORB descriptors ``desc`` (n, 32) uint8 taken from the
@@ -304,15 +181,20 @@ def build_tree(desc: np.ndarray, image_ids: np.ndarray, k: int = 10, L: int = 6,
     vocab = Vocabulary(k=k, L=L, parent=parent, descriptors=descriptors, is_leaf=~has_child,
                        weight=np.zeros(n_nodes))
     vocab.is_leaf[0] = False
-    # idf: N training images, n_word = images with at least one descriptor falling in the word (DBoW2 descent)
+    vocab.weight = _idf(vocab, desc, image_ids)
+    return vocab
+
+
+def _idf(vocab: Vocabulary, desc: np.ndarray, image_ids: np.ndarray) -> np.ndarray:
+    """Each node's weight: a word's idf ``ln(N / n_word)`` (N training images, n_word the images with at least one
+    descriptor falling in the word by DBoW2's descent), 0 for inner nodes."""
     leaf = vocab.transform(desc)
     n_images = int(len(np.unique(image_ids)))
     pairs = np.unique(np.stack([leaf, np.asarray(image_ids, np.int64)], axis=1), axis=0)
-    n_word = np.bincount(pairs[:, 0], minlength=n_nodes)
+    n_word = np.bincount(pairs[:, 0], minlength=len(vocab.parent))
     # a word no training descriptor reaches by descent (possible with k-majority) counts as seen once (rarest)
     idf = np.log(n_images / np.maximum(n_word, 1))
-    vocab.weight = np.where(vocab.is_leaf, idf, 0.0)
-    return vocab
+    return np.where(vocab.is_leaf, idf, 0.0)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -321,18 +203,14 @@ def build_tree(desc: np.ndarray, image_ids: np.ndarray, k: int = 10, L: int = 6,
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm")
 
 
-def orb_extractor(orb: OrbConfig = DEFAULT.orb):
+def orb_extractor(orb: OrbConfig = OrbConfig()):
     """OpenCV ORB with ORB-SLAM3's settings (features, scale factor, levels, FAST threshold, patch)."""
-    import cv2
-
     return cv2.ORB_create(nfeatures=orb.n_features, scaleFactor=orb.scale_factor, nlevels=orb.n_levels,
                           edgeThreshold=orb.edge_threshold, patchSize=orb.patch_size,
                           fastThreshold=orb.fast_threshold)
 
 
 def _read_gray(path: Path) -> np.ndarray:
-    import cv2
-
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise D2SlamError("cannot read image (missing, corrupt or not an image)", path=path)
@@ -351,20 +229,18 @@ def images_of_dir(directory: str | Path) -> list[Path]:
 
 def images_of_sequence(root: str | Path, stride: int = 1) -> list[Path]:
     """RGB files of a TUM-layout sequence (every ``stride``-th associated frame)."""
-    from d2slam.data import open_sequence
-
     seq = open_sequence(root)
     idx = np.arange(0, len(seq), max(1, stride))
     paths = [seq.rgb_files[i] if hasattr(seq, "rgb_files") else seq[i].rgb_path for i in idx]
     return [Path(p) for p in paths]
 
 
-def extract_descriptors(images: list[Path], orb: OrbConfig = DEFAULT.orb, progress: bool = True,
-                        interval: float = DEFAULT.baseline.vocab_log_interval_s):
+def extract_descriptors(images: list[Path], orb: OrbConfig = OrbConfig(), progress: bool = True,
+                        interval: float = BaselineConfig().vocab_log_interval_s):
     """ORB descriptors of every image: ((n, 32) uint8, (n,) image index)."""
     extractor = orb_extractor(orb)
     descs, ids = [], []
-    bar = Progress("ORB descriptors of images", len(images), progress, interval)
+    bar = Progress("vocabulary: ORB descriptors of images", len(images), "image", progress, interval=interval)
     for i, path in enumerate(images):
         _, d = extractor.detectAndCompute(_read_gray(path), None)
         if d is not None and len(d):
@@ -377,15 +253,13 @@ def extract_descriptors(images: list[Path], orb: OrbConfig = DEFAULT.orb, progre
     return np.concatenate(descs), np.concatenate(ids)
 
 
-def training_jobs(cfg: BaselineConfig = DEFAULT.baseline) -> list[dict]:
+def training_jobs(cfg: BaselineConfig = BaselineConfig()) -> list[dict]:
     """The synthetic training images, one job per (scenario, seed) of ``vocab_train_scenarios`` x
     ``vocab_train_seeds`` (seeds 900-999, never used by the benchmarks): every ``vocab_train_stride``-th frame of the
     ``vocab_train_frames``-frame sequence, i.e. the generator's own frames (:func:`d2slam.synth.generate.
     render_frame`, written as ``d2slam synth`` writes them, so the files are those of the full sequence) without the
     frames in between. Each job's ``out`` folder is in the cache under the generator version; ``done`` says whether
     it is already rendered (:func:`render_training_frames`)."""
-    from d2slam.digests import generator_version
-
     seeds = tuple(cfg.vocab_train_seeds)
     bad = [s for s in seeds if not 900 <= s <= 999]
     if bad:
@@ -434,18 +308,15 @@ def _n_rendered(jobs: list[dict]) -> int:
 MARKER = ".complete"
 
 
-def render_training_frames(jobs: list[dict], cfg: BaselineConfig = DEFAULT.baseline, progress: bool = True) -> None:
+def render_training_frames(jobs: list[dict], cfg: BaselineConfig = BaselineConfig(), progress: bool = True) -> None:
     """Render the training frames of ``jobs`` (``scenario, seed, frames, stride, out``) in one child process (its
     OpenGL context and the generator's state stay out of this one), following its progress."""
-    import subprocess
-    import sys
-
     total = _n_rendered(jobs)
     for job in jobs:  # what a killed build left half-rendered
         remove_stale_temps(Path(job["out"]).parent, f"{Path(job['out']).name}.tmp-*")
     cmd = [sys.executable, "-m", "d2slam.baselines.vocab", "render", json.dumps(jobs)]
-    bar = Progress("render training frames", total, progress, cfg.vocab_log_interval_s)
-    from d2slam.baselines import child_env
+    bar = Progress("vocabulary: render training frames", total, "frame", progress,
+                   interval=cfg.vocab_log_interval_s)
 
     with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=child_env()) as proc:
         for line in proc.stdout:
@@ -461,15 +332,6 @@ def render_training_frames(jobs: list[dict], cfg: BaselineConfig = DEFAULT.basel
 
 def _render_main(jobs: list[dict]) -> None:
     """The child of :func:`render_training_frames`: one ``frame`` line on stdout per frame written."""
-    import os
-
-    import cv2
-
-    from d2slam.config import SynthConfig
-    from d2slam.synth.generate import _write, render_frame, stamp
-    from d2slam.synth.scene import Scene
-    from d2slam.synth.world import WorldRenderer
-
     cv2.setNumThreads(1)
     synth = SynthConfig()
     parent = os.getppid()
@@ -484,7 +346,7 @@ def _render_main(jobs: list[dict]) -> None:
                         raise SystemExit(1)
                     rgb = render_frame(scene, renderer, i)["rgb"]
                     name = stamp(scene.t0 + scene.t_rel[i]) + ".png"
-                    _write(tmp / name, rgb, synth.png_compression)
+                    write_image(tmp / name, rgb, synth.png_compression)
                     print("frame", flush=True)
             finally:
                 renderer.close()
@@ -492,51 +354,8 @@ def _render_main(jobs: list[dict]) -> None:
             (tmp / MARKER).write_text(json.dumps({**done, "files": folder_manifest(tmp)}))
 
 
-class Progress:
-    """Progress of one stage of the build: a tqdm bar on a terminal, else a line on stderr at most every
-    ``interval`` seconds and one at the end (logs and notebooks see it too); nothing when not ``enabled``."""
-
-    def __init__(self, desc: str, total: int, enabled: bool = True, interval: float = 5.0):
-        import sys
-
-        from tqdm import tqdm
-
-        self.desc, self.total, self.n, self.interval = desc, int(total), 0, interval
-        self.enabled = enabled
-        self.t0 = self.last = time.monotonic()
-        self.bar = tqdm(total=total, desc=desc, unit="") if enabled and sys.stderr.isatty() else None
-
-    def update(self, n: int = 1) -> None:
-        self.n += n
-        if self.bar is not None:
-            self.bar.update(n)
-        elif self.enabled and time.monotonic() - self.last >= self.interval:
-            self._line()
-
-    def _line(self) -> None:
-        import sys
-
-        self.last = time.monotonic()
-        print(f"vocabulary: {self.desc} {self.n}/{self.total} ({self.last - self.t0:.0f} s)", file=sys.stderr,
-              flush=True)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-        elif self.enabled:
-            self._line()
-
-
 def cache_training_root() -> Path:
-    from d2slam.paths import cache_dir
-
     return cache_dir("vocab", "train")
-
-
-def default_vocab_path() -> Path:
-    from d2slam.paths import cache_dir
-
-    return cache_dir("vocab") / "d2slam_orbvoc.txt"
 
 
 def manifest_path(vocab_path: str | Path) -> Path:
@@ -546,7 +365,7 @@ def manifest_path(vocab_path: str | Path) -> Path:
 
 def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path] = (),
                      sequences: list[str | Path] = (), synthetic: bool = True, real: bool = True,
-                     cfg: BaselineConfig = DEFAULT.baseline, orb: OrbConfig = DEFAULT.orb, force: bool = False,
+                     cfg: BaselineConfig = BaselineConfig(), orb: OrbConfig = OrbConfig(), force: bool = False,
                      progress: bool = True) -> dict:
     """Build (or reuse from the cache) a DBoW2 text vocabulary; returns its manifest.
 
@@ -557,27 +376,15 @@ def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path
     announced on stderr with its estimated duration (always: it happens once, often inside a longer command), and
     each stage shows its progress when ``progress`` (:class:`Progress`). Two processes asking for the same file
     build it once: the second waits for the first (a lock file beside it) and reuses its result."""
-    import sys
-
-    from d2slam.assets import tum_frames
 
     out = Path(out) if out else default_vocab_path()
-    groups: list[tuple[str, Path, list[Path]]] = []
-    if real:
-        frames = tum_frames()
-        groups.append(("real", frames[0].parent, frames))
-    for d in images_dirs:
-        groups.append(("images", Path(d), images_of_dir(d)))
-    for s in sequences:
-        groups.append(("sequence", Path(s), images_of_sequence(s, cfg.vocab_train_stride)))
+    groups = _image_groups(images_dirs, sequences, real, cfg)
     jobs = training_jobs(cfg) if synthetic else []
     if not groups and not jobs:
         raise D2SlamError("no training images: give --images-dir or --sequences, or allow the default sources")
     out.parent.mkdir(parents=True, exist_ok=True)
     with file_lock(out.with_name(out.name + ".lock"),
                    waiting=f"vocabulary: another process is building {out}; waiting for it"):
-        import glob
-
         remove_stale_temps(out.parent, f"{glob.escape(out.name)}*.tmp-*")  # what a killed build was writing
         if synthetic and not all(j["done"] for j in jobs):
             jobs = training_jobs(cfg)  # another process may have rendered them while this one waited
@@ -612,6 +419,19 @@ def build_vocabulary(out: str | Path | None = None, images_dirs: list[str | Path
         return manifest
 
 
+def _image_groups(images_dirs, sequences, real: bool, cfg: BaselineConfig) -> list[tuple[str, Path, list[Path]]]:
+    """The training images other than the synthetic ones, by source: (kind, folder, images)."""
+    groups: list[tuple[str, Path, list[Path]]] = []
+    if real:
+        frames = tum_frames()
+        groups.append(("real", frames[0].parent, frames))
+    for d in images_dirs:
+        groups.append(("images", Path(d), images_of_dir(d)))
+    for s in sequences:
+        groups.append(("sequence", Path(s), images_of_sequence(s, cfg.vocab_train_stride)))
+    return groups
+
+
 def _request(groups: list, jobs: list[dict], cfg: BaselineConfig, orb: OrbConfig) -> tuple[list, dict, str]:
     """The build request: its sources (kind, path, images, sha256 of names and contents), parameters and key."""
     sources = []
@@ -633,13 +453,12 @@ def _request(groups: list, jobs: list[dict], cfg: BaselineConfig, orb: OrbConfig
 
 def _build(out: Path, groups: list, sources: list, params: dict, key: str, cfg: BaselineConfig, orb: OrbConfig,
            progress: bool) -> dict:
-    from d2slam import __version__
-
     t0 = time.perf_counter()
     images = [f for _, _, files in groups for f in files]
     desc, image_ids = extract_descriptors(images, orb, progress=progress, interval=cfg.vocab_log_interval_s)
     t1 = time.perf_counter()
-    bar = Progress("k-majority tree levels", cfg.vocab_levels, progress, cfg.vocab_log_interval_s)
+    bar = Progress("vocabulary: k-majority tree levels", cfg.vocab_levels, "level", progress,
+                   interval=cfg.vocab_log_interval_s)
     vocab = build_tree(desc, image_ids, k=cfg.vocab_k, L=cfg.vocab_levels, levelsup=cfg.vocab_levelsup,
                        seed=cfg.vocab_seed, max_iter=cfg.vocab_max_iter, on_level=bar.update)
     bar.close()
@@ -693,7 +512,6 @@ def resolve_vocabulary(path: str | Path | None = None, build: bool = True, progr
     Returns ``{"path", "sha256", "kind": "built" | "official" | "external", "source"}`` after checking the file's
     structure (ORB-SLAM3's own loader accepts garbage and crashes later): once per file content and process, and
     not at all for the file a build wrote (its manifest holds its sha256)."""
-    import os
 
     if path is not None:
         chosen, source = Path(path), "argument"
@@ -743,7 +561,6 @@ def check_vocabulary_file(path: str | Path) -> None:
 
 
 if __name__ == "__main__":  # the child of render_training_frames: python -m d2slam.baselines.vocab render JOBS
-    import sys
 
     if sys.argv[1:2] == ["render"] and len(sys.argv) == 3:
         _render_main(json.loads(sys.argv[2]))

@@ -6,6 +6,15 @@ Reads ``RESULTS/runs/*.npz`` (matched ground-truth and estimated positions of ev
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
+import numpy as np
+from evo.core.geometry import umeyama_alignment
+
+from d2slam.errors import D2SlamError
+from d2slam.eval.belongs import residual_check
+
 DESCRIPTION = "eval's residual rule on a study's runs: refused against their own ground truth and against the others'"
 
 
@@ -14,14 +23,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    import re
-    from pathlib import Path
-
-    import numpy as np
-    from evo.core.geometry import umeyama_alignment
-
-    from d2slam.errors import D2SlamError
-    from d2slam.eval.belongs import residual_check
 
     files = sorted(Path(args.results).glob("runs/*.npz"))
     if not files:

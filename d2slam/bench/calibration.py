@@ -9,13 +9,18 @@ default: the study's seeds are never used to tune the benchmark."""
 
 from __future__ import annotations
 
+import time
+
+from d2slam.paths import cache_dir
+from d2slam.study import run_study
+from d2slam.study.calibration import METHODS, calibration_checks, calibration_markdown, calibration_table
+from d2slam.study.grid import FR3_SCENARIOS, ORBSLAM3
+from d2slam.synth.scene import frames_arg
+
 DESCRIPTION = "the fr3 scenarios' baselines (raw and masked ORB-SLAM3, masks-only) against the published TUM record"
 
 
 def add_arguments(parser) -> None:
-    from d2slam.study.grid import FR3_SCENARIOS
-    from d2slam.synth.scene import frames_arg
-
     parser.add_argument("--scenario", action="append", choices=FR3_SCENARIOS,
                         help="fr3 scenario (repeatable; default: all five)")
     parser.add_argument("--seed", action="append", type=int, help="seed (repeatable; default 0 1 2, development)")
@@ -27,13 +32,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    import time
-
-    from d2slam.paths import cache_dir
-    from d2slam.study import run_study
-    from d2slam.study.calibration import METHODS, calibration_checks, calibration_markdown, calibration_table
-    from d2slam.study.grid import FR3_SCENARIOS, ORBSLAM3
-
     t0 = time.perf_counter()
     scenarios = args.scenario or list(FR3_SCENARIOS)
     seeds = args.seed or [0, 1, 2]

@@ -8,7 +8,12 @@ indoor-depth fallback then decides), whether ``d2slam run`` would warn, and the 
 
 from __future__ import annotations
 
+import dataclasses
 import time
+
+from d2slam.data import open_sequence
+from d2slam.data.depth_scale import depth_scale_warning, translation_ratios
+from d2slam.data.tum import TumSequence
 
 DESCRIPTION = "depth-scale check on sequences read right, x5 and x0.2: ratio to the ground truth, verdict, time"
 
@@ -18,12 +23,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    import dataclasses
-
-    from d2slam.data import open_sequence
-    from d2slam.data.depth_scale import depth_scale_warning, translation_ratios
-    from d2slam.data.tum import TumSequence
-
     print(f"  {'sequence':<44} {'scale':>5}  {'ratios':<24} {'warns':<5} {'time':>6}")
     wrong = 0
     for path in args.sequences:

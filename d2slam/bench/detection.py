@@ -15,13 +15,16 @@ import time
 
 import numpy as np
 
+from d2slam.config import DEFAULT
+from d2slam.eval.segmentation import boundary_table, depth_bin_table, synthetic_rows
+from d2slam.segmentation.onnx import OnnxSegmenter
+from d2slam.synth.scene import SCENARIOS
+
 DESCRIPTION = ("real segmenter on synthetic people: detection rate (people >= 3 % of the image), IoU and boundary "
                "error by depth")
 
 
 def add_arguments(parser) -> None:
-    from d2slam.synth.scene import SCENARIOS
-
     parser.add_argument("--seed", type=int, action="append", help="synthetic seed (repeatable; default 0 and 1)")
     parser.add_argument("--frames", type=int, default=300, help="synthetic sequence length (default 300)")
     parser.add_argument("--stride", type=int, default=10, help="segment every n-th frame (default 10)")
@@ -30,11 +33,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from d2slam.config import DEFAULT
-    from d2slam.eval.segmentation import boundary_table, depth_bin_table, synthetic_rows
-    from d2slam.segmentation.onnx import OnnxSegmenter
-    from d2slam.synth.scene import SCENARIOS
-
     cfg = DEFAULT.synth_eval
     seeds = args.seed or [0, 1]
     seg = OnnxSegmenter(args.model, DEFAULT.segmentation)

@@ -23,6 +23,17 @@ import time
 import cv2
 import numpy as np
 
+from d2slam.config import DEFAULT
+from d2slam.data import SyntheticSequence, open_sequence
+from d2slam.dynamics.config import DynamicsConfig
+from d2slam.dynamics.toy import two_view_scene
+from d2slam.errors import D2SlamError
+from d2slam.run.methods import DYNAMICS, get_filter, get_method, mask_kind
+from d2slam.run.sequence import ensure_vocabulary
+from d2slam.segmentation import masks_for, stack_masks
+from d2slam.slam.depth import keypoint_depth
+from d2slam.slam.engine import Engine
+
 DESCRIPTION = "time the dynamics modules per frame (1000 keypoints, ~800 matches, two masks, 640x480)"
 TARGET_STAGE_MS = 5.0  # the engine's whole filter stage on a walking sequence (--sequence)
 
@@ -50,9 +61,6 @@ def _stats(values: list[float]) -> tuple[float, float, float]:
 
 
 def _run_mode(mode: str, scenes, args) -> dict[str, list[float]]:
-    from d2slam.config import DynamicsConfig
-    from d2slam.methods import get_filter
-
     flt = get_filter(mode, DynamicsConfig())
     out: dict[str, list[float]] = {}
     for i in range(args.warmup + args.frames):
@@ -93,15 +101,10 @@ def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dic
     mask cache). ``stage`` (a dict) receives the engine's filter stage of those frames, milliseconds per frame:
     ``wall``, ``cpu`` (thread CPU time) of the whole hook (frame-to-frame matches, the inputs, the classifier) and
     ``filter_cpu`` of the classifier alone."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import SyntheticSequence, open_sequence
-    from d2slam.methods import get_filter, get_method, mask_kind
-    from d2slam.segmentation import masks_for, stack_masks
-    from d2slam.slam.engine import Engine
-
     seq = open_sequence(path)
     kind = mask_kind(get_method("d2slam"), masks, synthetic=isinstance(seq, SyntheticSequence))
     shape = (seq.camera.height, seq.camera.width)
+    ensure_vocabulary(DEFAULT)
     engine = Engine(seq.camera, DEFAULT, get_filter("d2slam", DEFAULT))
     engine.hook.filter = flt = _Timed(engine.hook.filter)
     engine.hook = hook = _Timed(engine.hook)
@@ -117,18 +120,47 @@ def recorded_inputs(path: str, frames: int, masks: str | None = None, stage: dic
 
 
 def run(args) -> int:
-    from d2slam.config import DEFAULT
-    from d2slam.methods import DYNAMICS, get_filter
-    from d2slam.slam.depth import keypoint_depth
-    from d2slam.dynamics.toy import two_view_scene
-
     cv2.setNumThreads(args.threads)
     stage: dict = {}
+    scenes = _scenes(args, stage)
+    kd = []
+    for i in range(args.frames):
+        inp = scenes[i % len(scenes)]
+        t0 = time.perf_counter()
+        keypoint_depth(inp.depth, inp.kps, DEFAULT.orb.depth_patch_radius)
+        kd.append((time.perf_counter() - t0) * 1e3)
+    modes = list(DYNAMICS) if args.method == "all" else [args.method]
+    if args.method not in DYNAMICS and args.method != "all":
+        raise D2SlamError(f"unknown method {args.method!r}; choose one of all, {', '.join(DYNAMICS)}")
+    for mode in modes:
+        if getattr(get_filter(mode), "use_flow", False) and not args.sequence:
+            # the toy scenes have no images: the flow would be skipped and the figure would be d2slam's
+            print(f"\nmethod {mode}: needs grey images (LK flow), timed with --sequence only")
+            if args.method == "all":
+                continue
+            return 2
+        _print_mode(mode, _run_mode(mode, scenes, args))
+    print(f"load average (1, 5, 15 min): {' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs "
+          "(wall-clock figures are only meaningful on an idle machine; CPU time is steadier)")
+    mean, med, p95 = _stats(kd)
+    print(f"\nengine side: keypoint_depth (3x3 median) {mean:.3f} / {med:.3f} / {p95:.3f} ms (mean/median/p95)")
+    if stage:
+        (wm, wmed, _), (cm, cmed, _), (fm, fmed, _) = (_stats(stage[k]) for k in ("wall", "cpu", "filter_cpu"))
+        rest = np.asarray(stage["cpu"]) - np.asarray(stage["filter_cpu"])
+        print(f"engine's filter stage (the hook: frame-to-frame matches, inputs, d2slam classifier) while recording "
+              f"{len(stage['cpu'])} frames, ms per frame mean / median: thread CPU time {cm:.3f} / {cmed:.3f} "
+              f"(classifier {fm:.3f} / {fmed:.3f}, matches and inputs {rest.mean():.3f} / {np.median(rest):.3f}), "
+              f"wall {wm:.3f} / {wmed:.3f}; target <= {TARGET_STAGE_MS:g} ms: "
+              f"{'met' if cmed <= TARGET_STAGE_MS else 'NOT met'} (CPU time)")
+    return 0
+
+
+def _scenes(args, stage: dict) -> list:
+    """The hook inputs timed: a recorded sequence's (``--sequence``; ``stage`` gets the engine's filter stage
+    timings while recording) or toy two-view scenes; what they are is printed."""
     if args.sequence:
         scenes = recorded_inputs(args.sequence, args.sequence_frames, args.masks_kind, stage)
         if not scenes:
-            from d2slam.errors import D2SlamError
-
             raise D2SlamError("--sequence needs at least 2 frames", path=args.sequence)
         n_masks = [0 if inp.masks is None else len(inp.masks) for inp in scenes]
         n_kps, n_matches = np.mean([len(inp.kps) for inp in scenes]), np.mean([len(inp.matches) for inp in scenes])
@@ -145,50 +177,25 @@ def run(args) -> int:
         print(f"dynamics bench: {args.keypoints} keypoints, {args.matches} matches, {args.masks} masks "
               f"(mean {n_person_px:.0f} px each), 640x480, {args.scenes} scenes, {args.frames} timed frames "
               f"after {args.warmup} warm-up, cv2 threads {args.threads}")
-    kd = []
-    for i in range(args.frames):
-        inp = scenes[i % len(scenes)]
-        t0 = time.perf_counter()
-        keypoint_depth(inp.depth, inp.kps, DEFAULT.orb.depth_patch_radius)
-        kd.append((time.perf_counter() - t0) * 1e3)
-    modes = list(DYNAMICS) if args.method == "all" else [args.method]
-    if args.method not in DYNAMICS and args.method != "all":
-        from d2slam.errors import D2SlamError
+    return scenes
 
-        raise D2SlamError(f"unknown method {args.method!r}; choose one of all, {', '.join(DYNAMICS)}")
-    for mode in modes:
-        if getattr(get_filter(mode), "use_flow", False) and not args.sequence:
-            # the toy scenes have no images: the flow would be skipped and the figure would be d2slam's
-            print(f"\nmethod {mode}: needs grey images (LK flow), timed with --sequence only")
-            if args.method == "all":
-                continue
-            return 2
-        res = _run_mode(mode, scenes, args)
-        print(f"\nmethod {mode}                 mean    median     p95   (ms per frame)")
-        for k, v in res.items():
-            mean, med, p95 = _stats(v)
-            print(f"  {k:<22s} {mean:7.3f} {med:9.3f} {p95:7.3f}")
-        mean, med, _ = _stats(res["total"])
-        cmean, cmed, _ = _stats(res["cpu time (call)"])
-        verdict = "meets" if med <= 3.0 else "MISSES"
-        cverdict = "meets" if cmed <= 3.0 else "MISSES"
-        print(f"  -> total (wall) median {med:.3f} ms, mean {mean:.3f} ms: {verdict} the 3 ms target; "
-              f"process CPU time median {cmed:.3f} ms, mean {cmean:.3f} ms: {cverdict} it")
-        if "flow" in res:  # the flow is ours, beside the paper's modules (d2slam.dynamics.flow)
-            rest = np.asarray(res["total"]) - np.asarray(res["flow"])
-            fmean, fmed, _ = _stats(res["flow"])
-            print(f"  -> of which the LK flow median {fmed:.3f} ms (mean {fmean:.3f}); the paper's modules without it "
-                  f"median {np.median(rest):.3f} ms: {'meets' if np.median(rest) <= 3.0 else 'MISSES'} the 3 ms target")
-    print(f"load average (1, 5, 15 min): {' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs "
-          "(wall-clock figures are only meaningful on an idle machine; CPU time is steadier)")
-    mean, med, p95 = _stats(kd)
-    print(f"\nengine side: keypoint_depth (3x3 median) {mean:.3f} / {med:.3f} / {p95:.3f} ms (mean/median/p95)")
-    if stage:
-        (wm, wmed, _), (cm, cmed, _), (fm, fmed, _) = (_stats(stage[k]) for k in ("wall", "cpu", "filter_cpu"))
-        rest = np.asarray(stage["cpu"]) - np.asarray(stage["filter_cpu"])
-        print(f"engine's filter stage (the hook: frame-to-frame matches, inputs, d2slam classifier) while recording "
-              f"{len(stage['cpu'])} frames, ms per frame mean / median: thread CPU time {cm:.3f} / {cmed:.3f} "
-              f"(classifier {fm:.3f} / {fmed:.3f}, matches and inputs {rest.mean():.3f} / {np.median(rest):.3f}), "
-              f"wall {wm:.3f} / {wmed:.3f}; target <= {TARGET_STAGE_MS:g} ms: "
-              f"{'met' if cmed <= TARGET_STAGE_MS else 'NOT met'} (CPU time)")
-    return 0
+
+def _print_mode(mode: str, res: dict) -> None:
+    """A method's timings per stage (mean, median, p95) and the verdicts against the 3 ms target."""
+    print(f"\nmethod {mode}                 mean    median     p95   (ms per frame)")
+    for k, v in res.items():
+        mean, med, p95 = _stats(v)
+        print(f"  {k:<22s} {mean:7.3f} {med:9.3f} {p95:7.3f}")
+    mean, med, _ = _stats(res["total"])
+    cmean, cmed, _ = _stats(res["cpu time (call)"])
+    verdict = "meets" if med <= 3.0 else "MISSES"
+    cverdict = "meets" if cmed <= 3.0 else "MISSES"
+    print(f"  -> total (wall) median {med:.3f} ms, mean {mean:.3f} ms: {verdict} the 3 ms target; "
+          f"process CPU time median {cmed:.3f} ms, mean {cmean:.3f} ms: {cverdict} it")
+    if "flow" in res:  # the flow is ours, beside the paper's modules (d2slam.dynamics.flow)
+        rest = np.asarray(res["total"]) - np.asarray(res["flow"])
+        fmean, fmed, _ = _stats(res["flow"])
+        print(f"  -> of which the LK flow median {fmed:.3f} ms (mean {fmean:.3f}); the paper's modules without it "
+              f"median {np.median(rest):.3f} ms: {'meets' if np.median(rest) <= 3.0 else 'MISSES'} the 3 ms target")
+
+

@@ -6,11 +6,33 @@ the same local-BA problem."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
+from d2slam.bench import online
+from d2slam.bench.online import engine_run, loadavg
+from d2slam.config import DEFAULT
+from d2slam.data import open_sequence
+from d2slam.errors import D2SlamError
+from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candidates
+from d2slam.eval.trajectory import evaluate
+from d2slam.outputs import check_output_file
+from d2slam.run.orbslam3_runs import run_orbslam3
+from d2slam.run.runner import run_method
+from d2slam.run.sequence import run_sequence
+from d2slam.slam import optimizer as opt_mod
+from d2slam.slam.config import EngineConfig
+from d2slam.slam.fixture import FR3
+from d2slam.study.grid import DEFAULT_FRAMES
+from d2slam.study.sequences import ensure_sequence
+from d2slam.synth.scene import default_frames
 
 DESCRIPTION = ("SLAM engine: ATE/RPE on static twins and walking sequences (--method none), fps and ms per stage, "
                "loop detection per keyframe; --loops: loop closing on office_loop; --compare-optimisers: g2o vs gtsam "
@@ -41,16 +63,14 @@ def add_arguments(parser) -> None:
                         "`none` <= 2x its twin target); default: the cached twin when SEQ is the default")
     parser.add_argument("--methods", nargs="+", default=["none", "d2slam"], help="--against: our methods to run")
     parser.add_argument("--repeats", type=int, default=3, help="--against: ORB-SLAM3 runs (median [min, max])")
+    parser.add_argument("--online", action="store_true", help="online at --rate: `d2slam bench online` (its options: "
+                        "SEQ, --seeds, --frames)")
+    parser.add_argument("--rate", type=float, default=30.0, help="--online: frames arrive at this rate (Hz)")
+    parser.add_argument("--no-real", action="store_true", help="--online: without the real fr1/rpy")
 
 
 # ---------------------------------------------------------------------------------------------- accuracy / speed
 def _run_one(scenario: str, seed: int, frames: int, twin: bool) -> dict:
-    from d2slam.data import open_sequence
-    from d2slam.errors import D2SlamError
-    from d2slam.eval.trajectory import evaluate
-    from d2slam.pipeline import run_sequence
-    from d2slam.study.sequences import ensure_sequence
-
     path = ensure_sequence(scenario, seed, frames, twin)
     seq = open_sequence(path)
     c0 = time.process_time()
@@ -80,6 +100,10 @@ def _fmt(row: dict) -> str:
 
 
 def run(args) -> int:
+    if args.online:
+        return online.run(argparse.Namespace(sequences=[args.sequence] if args.sequence else [],
+                                             seeds=args.seeds or [args.seed], frames=args.frames or DEFAULT_FRAMES,
+                                             rate=args.rate, no_real=args.no_real, json=args.json, latency=None))
     if args.compare_optimisers:
         return compare_optimisers(args)
     if args.loops:
@@ -87,8 +111,6 @@ def run(args) -> int:
     args.frames = args.frames or 300
     if args.against:
         return against_orbslam3(args)
-    from d2slam.config import DEFAULT
-    from d2slam.outputs import check_output_file
 
     if args.json:
         check_output_file(args.json, "--json")
@@ -139,15 +161,6 @@ def loops(args) -> int:
     tracking on average (their total over the frames) against one frame's budget; with loop closing on, the wrong
     place-recognition candidates (ground-truth views apart) by the stage they reached and the closest call
     (``d2slam.eval.loops``)."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
-    from d2slam.eval.loops import STAGES, classify_loops, closest_call, wrong_candidates
-    from d2slam.eval.trajectory import evaluate
-    from d2slam.methods import run_method
-    from d2slam.outputs import check_output_file
-    from d2slam.study.sequences import ensure_sequence
-    from d2slam.synth.scene import default_frames
-
     if args.json:
         check_output_file(args.json, "--json")
     frames = args.frames or default_frames(LOOP_SCENARIO)
@@ -160,34 +173,47 @@ def loops(args) -> int:
     for seed in seeds:
         seq = open_sequence(ensure_sequence(LOOP_SCENARIO, seed, frames, False))
         budget_ms = 1000.0 * float(np.median(np.diff(seq.timestamps)))
-        for method in args.methods:
-            for on in (True, False):
-                cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, loop_closing=on))
-                res = run_method(seq, method, cfg, synthetic=True, progress=False).engine
-                lp = classify_loops(res.loops, seq.timestamps, seq.groundtruth, cfg.evaluation)
-                lp["closest"] = closest_call(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
-                wrong = wrong_candidates(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
-                lp["wrong_by_stage"] = {st: int(sum(w and c.stage == st for c, w in zip(res.loop_candidates, wrong)))
-                                        for st in STAGES}
-                corr = [x["seconds"] for x in res.loops]
-                row = {"seed": seed, "method": method, "loop_closing": on, "frames": res.frames,
-                       "tracked": res.tracked, "keyframes": res.keyframes, "fps": res.fps,
-                       "ate_rmse_m": evaluate(seq.groundtruth, res.trajectory).ate_rmse_m, **lp,
-                       "detect_ms": res.loop_detect_ms, "detect_cpu_ms": res.loop_detect_cpu_ms, "correct_s": corr,
-                       "stall_ms_per_frame": 1000.0 * sum(corr) / res.frames, "budget_ms": budget_ms}
-                rows.append(row)
-                det = f"{np.median(res.loop_detect_ms):9.2f}" if res.loop_detect_ms else f"{'-':>9}"
-                cs = " ".join(f"{c:.2f}" for c in corr) or "-"
-                print(f"{seed:>4} {method:<8} {'on' if on else 'off':<5} {res.tracked:>4}/{res.frames:<4} "
-                      f"{res.keyframes:>4} {row['ate_rmse_m']:8.4f} {len(lp['loops']):>5} "
-                      f"{len(lp.get('loops_true', [])):>4} {len(lp.get('loops_false', [])):>5} {det} {cs:>14} "
-                      f"{row['stall_ms_per_frame']:14.2f} {res.fps:5.1f}", flush=True)
-                if on:
-                    cc = lp["closest"]
-                    print(f"{'':>19}wrong candidates by the stage they reached: " + ", ".join(
-                        f"{k} {v}" for k, v in lp["wrong_by_stage"].items()) + "; closest call: " + (
-                        f"frames {cc['frames'][0]} -> {cc['frames'][1]}, {cc['stage']}, score {cc['ratio']:.2f} x "
-                        f"the minimum, {cc['inliers']} matches/inliers" if cc else "none"), flush=True)
+        rows += [_loop_run(seq, seed, method, on, budget_ms) for method in args.methods for on in (True, False)]
+    _loop_summary(rows, args.methods)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=1, default=float)
+    return 0
+
+
+def _loop_run(seq, seed: int, method: str, on: bool, budget_ms: float) -> dict:
+    """One run of ``--loops`` (loop closing ``on`` or off): its row, printed."""
+    cfg = dataclasses.replace(DEFAULT, engine=dataclasses.replace(DEFAULT.engine, loop_closing=on))
+    res = run_method(seq, method, cfg, synthetic=True, progress=False).engine
+    lp = classify_loops(res.loops, seq.timestamps, seq.groundtruth, cfg.evaluation)
+    lp["closest"] = closest_call(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
+    wrong = wrong_candidates(res.loop_candidates, seq.timestamps, seq.groundtruth, cfg.evaluation)
+    lp["wrong_by_stage"] = {st: int(sum(w and c.stage == st for c, w in zip(res.loop_candidates, wrong)))
+                            for st in STAGES}
+    corr = [x["seconds"] for x in res.loops]
+    row = {"seed": seed, "method": method, "loop_closing": on, "frames": res.frames,
+           "tracked": res.tracked, "keyframes": res.keyframes, "fps": res.fps,
+           "ate_rmse_m": evaluate(seq.groundtruth, res.trajectory).ate_rmse_m, **lp,
+           "detect_ms": res.loop_detect_ms, "detect_cpu_ms": res.loop_detect_cpu_ms, "correct_s": corr,
+           "stall_ms_per_frame": 1000.0 * sum(corr) / res.frames, "budget_ms": budget_ms}
+    det = f"{np.median(res.loop_detect_ms):9.2f}" if res.loop_detect_ms else f"{'-':>9}"
+    cs = " ".join(f"{c:.2f}" for c in corr) or "-"
+    print(f"{seed:>4} {method:<8} {'on' if on else 'off':<5} {res.tracked:>4}/{res.frames:<4} "
+          f"{res.keyframes:>4} {row['ate_rmse_m']:8.4f} {len(lp['loops']):>5} "
+          f"{len(lp.get('loops_true', [])):>4} {len(lp.get('loops_false', [])):>5} {det} {cs:>14} "
+          f"{row['stall_ms_per_frame']:14.2f} {res.fps:5.1f}", flush=True)
+    if on:
+        cc = lp["closest"]
+        print(f"{'':>19}wrong candidates by the stage they reached: " + ", ".join(
+            f"{k} {v}" for k, v in lp["wrong_by_stage"].items()) + "; closest call: " + (
+            f"frames {cc['frames'][0]} -> {cc['frames'][1]}, {cc['stage']}, score {cc['ratio']:.2f} x "
+            f"the minimum, {cc['inliers']} matches/inliers" if cc else "none"), flush=True)
+    return row
+
+
+def _loop_summary(rows: list[dict], methods: list[str]) -> None:
+    """``--loops``' verdicts: the detection time per keyframe, the corrections' stall, each method's ATE with over
+    without loop closing and its false loops."""
     on_rows = [r for r in rows if r["loop_closing"]]
     detect = np.concatenate([r["detect_ms"] for r in on_rows] + [np.zeros(0)])
     cpu = np.concatenate([r["detect_cpu_ms"] for r in on_rows] + [np.zeros(0)])
@@ -200,18 +226,14 @@ def loops(args) -> int:
         print(f"corrections: {sum(len(r['correct_s']) for r in on_rows)}, stall per frame on average "
               f"{np.mean(stall):.2f}"
               f" ms (max over runs {np.max(stall):.2f}); target <= one frame's budget, {rows[0]['budget_ms']:.1f} ms")
-    for method in args.methods:
+    for method in methods:
         on = {r["seed"]: r["ate_rmse_m"] for r in on_rows if r["method"] == method}
         off = {r["seed"]: r["ate_rmse_m"] for r in rows if r["method"] == method and not r["loop_closing"]}
         ratio = [on[s] / off[s] for s in on if s in off and off[s] > 0]
         false = sum(len(r.get("loops_false", [])) for r in on_rows if r["method"] == method)
         print(f"{method}: ATE with / without loop closing, median over seeds {np.median(ratio):.2f} "
               f"(per seed {', '.join(f'{x:.2f}' for x in ratio)}); false loops {false}")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}")
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(rows, fh, indent=1, default=float)
-    return 0
+    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}")
 
 
 # ---------------------------------------------------------------------------------------------- optimisers
@@ -219,10 +241,6 @@ def local_ba_problem(seed: int = 0, n_cams: int = 10, n_points: int = 800, noise
     """A local-BA problem with known truth: cameras on an arc looking at a textured room's points (1-5 m), every
     point seen by the cameras that see it in the image, pixel noise, perturbed starting values; the first two
     cameras fixed (as ORB-SLAM's fixed keyframes)."""
-    from scipy.spatial.transform import Rotation
-
-    from d2slam.slam.fixture import FR3
-
     rng = np.random.default_rng(seed)
     K, bf = FR3.K, FR3.bf
     Twc = np.tile(np.eye(4), (n_cams, 1, 1))
@@ -257,9 +275,6 @@ def local_ba_problem(seed: int = 0, n_cams: int = 10, n_points: int = 800, noise
 def solve_g2o(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, float, float]:
     import g2opy as g2o
 
-    from d2slam.config import EngineConfig
-    from d2slam.slam import optimizer as opt_mod
-
     # ORB-SLAM's isotropic stereo information, as the gtsam side (the problem's u_R noise is a stereo match's)
     cfg = dataclasses.replace(EngineConfig(), disparity_sigma_px=0.0)
     t0 = time.perf_counter()
@@ -280,8 +295,6 @@ def solve_g2o(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, fl
 def solve_gtsam(p: dict, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, float, float]:
     import gtsam
     from gtsam.symbol_shorthand import L, P
-
-    from d2slam.config import EngineConfig
 
     cfg = EngineConfig()
     K = p["K"]
@@ -347,20 +360,7 @@ def compare_optimisers(args) -> int:
 # ---------------------------------------------------------------------------------------------- against ORB-SLAM3
 def _engine_run(seq, method: str, out) -> dict:
     """``d2slam run SEQ --method METHOD`` in a child process (as a user runs it); its run JSON."""
-    import subprocess
-    import sys
-
-    traj, js = out / f"{method}.txt", out / f"{method}.json"
-    js.unlink(missing_ok=True)
-    proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", method, "--out", str(traj),
-                           "--metrics-json", str(js), "--quiet"], capture_output=True, text=True)
-    from d2slam.commands.run import EXIT_FRAGMENT
-
-    if proc.returncode not in (0, EXIT_FRAGMENT) or not js.is_file():
-        tail = " | ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
-        return {"method": method, "status": "failed", "message": tail}
-    run = json.loads(js.read_text())
-    return {**run, "status": "fragment" if run.get("fragment") else "ok"}  # a fragment ran: its timings count
+    return engine_run(seq, method, out)
 
 
 def engine_ms_per_frame(run: dict) -> float:
@@ -371,13 +371,6 @@ def engine_ms_per_frame(run: dict) -> float:
 
 def against_orbslam3(args) -> int:
     """The real ORB-SLAM3 and our engine one after the other on the same sequence (and ``none`` on its twin)."""
-    import tempfile
-    from pathlib import Path
-
-    from d2slam.baselines.orbslam3 import run_orbslam3
-    from d2slam.errors import D2SlamError
-    from d2slam.study.sequences import ensure_sequence
-
     if args.sequence:
         seq = Path(args.sequence)
         if not seq.is_dir():
@@ -428,11 +421,5 @@ def against_orbslam3(args) -> int:
               f"{str(r.get('map_points', '-')):>7} {ate_s} {ms_s} {ratio}  {stages}")
     if none_ms and twin_ms:
         print(f"none on the sequence / none on its static twin: {none_ms / twin_ms:.2f}x")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in _loadavg())}; runs and trajectories in {out}")
+    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}; runs and trajectories in {out}")
     return 0
-
-
-def _loadavg() -> tuple:
-    import os
-
-    return os.getloadavg()

@@ -16,9 +16,21 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import tempfile
 import time
+from pathlib import Path
 
+import cv2
 import numpy as np
+
+from d2slam.baselines.masking import FILLS, boundary_band, keypoints_in, mask_frame
+from d2slam.config import DEFAULT
+from d2slam.data import open_sequence
+from d2slam.errors import D2SlamError
+from d2slam.run.orbslam3_runs import run_orbslam3
+from d2slam.segmentation import masks_for, stack_masks
+from d2slam.slam.frame import OrbExtractor
+from d2slam.study.sequences import ensure_sequence
 
 DESCRIPTION = ("orbslam3-masked's fills and dilations on development sequences: ms per frame, ORB keypoints at the "
                "mask boundary, optionally ORB-SLAM3's ATE (--slam)")
@@ -26,8 +38,6 @@ SCENARIOS = ("walking_xyz", "walking_static", "sitting_static")
 
 
 def add_arguments(parser) -> None:
-    from d2slam.baselines.masking import FILLS
-
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), metavar="SCENARIO")
     parser.add_argument("--seeds", nargs="+", type=int, default=[3], metavar="SEED",
                         help="development seeds (0-99; default 3)")
@@ -46,8 +56,6 @@ def add_arguments(parser) -> None:
 
 
 def _options(args):
-    from d2slam.config import DEFAULT
-
     return [dataclasses.replace(DEFAULT.masking, fill=f, dilate_px=d) for d in args.dilate for f in args.fills]
 
 
@@ -59,10 +67,6 @@ def measure_frame(rgb, depth, masks, options, extractor, repeats: int, persons=N
     """Per option: ``ms`` (median of ``repeats`` calls), ``ms_min``, ``band`` / ``inside`` keypoint counts, ``left``:
     keypoints on the ``persons`` (H, W) truth outside the region (what the masks and dilation missed), the region's
     band (for the twin's count)."""
-    import cv2
-
-    from d2slam.baselines.masking import boundary_band, keypoints_in, mask_frame
-
     rows = []
     for cfg in options:
         times = []
@@ -80,15 +84,6 @@ def measure_frame(rgb, depth, masks, options, extractor, repeats: int, persons=N
 
 
 def run(args) -> int:
-    import cv2
-
-    from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
-    from d2slam.errors import D2SlamError
-    from d2slam.segmentation import masks_for, stack_masks
-    from d2slam.slam.frame import OrbExtractor
-    from d2slam.study.sequences import ensure_sequence
-
     bad = [s for s in args.seeds if not 0 <= s <= 99]
     if bad:
         raise D2SlamError(f"seeds {bad}: choices are tuned on development seeds 0-99 only")
@@ -117,7 +112,6 @@ def run(args) -> int:
                     tf = twin[i]
                     twin_kps = extractor(cv2.cvtColor(tf.rgb, cv2.COLOR_RGB2GRAY), tf.depth).kps_raw
                 n_frames += 1
-                from d2slam.baselines.masking import keypoints_in
 
                 for cfg, row in zip(options, rows):
                     s = stats[_label(cfg)]
@@ -147,13 +141,6 @@ def run(args) -> int:
 
 def _slam(args, options) -> None:
     """ORB-SLAM3 on each masked sequence per option: ATE median [min, max] over ``--repeats``, tracked frames."""
-    import tempfile
-    from pathlib import Path
-
-    from d2slam.baselines.orbslam3 import run_orbslam3
-    from d2slam.config import DEFAULT
-    from d2slam.study.sequences import ensure_sequence
-
     seqs = [(sc, sd) for sc in args.scenarios for sd in args.seeds]
     print(f"\nORB-SLAM3 on the masked sequences ({args.masks} masks, {args.repeats} repeats): ATE mm median "
           "[min, max], tracked frames (median)")

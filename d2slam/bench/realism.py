@@ -19,7 +19,15 @@ model"):
 - ``--calibrate SEQ``: the sensor measurements of a real recording that ``SynthConfig.twin`` holds (exposure, time
   offset and rolling shutter, depth border, RGB-depth offsets, image noise);
 - ``--anchor SEQ``: where the recording goes in the room (``TwinConfig.anchor_xy``, ``anchor_heading_deg``): the
-  twin's depth percentiles against the real ones over a grid of placements."""
+  twin's depth percentiles against the real ones over a grid of placements.
+
+People composited into a real recording (``d2slam.eval.people_realism``; docs/real_people.md):
+
+- ``--composite SEQ`` (repeatable; ``d2slam synth real_walking --on TUM_DIR``): the real segmenter's detection rate
+  of the composited people covering at least ``seg_eval_min_area`` of the image (target ``seg_eval_target``) and
+  their IoU by depth against the synthetic office's people (walking scenarios, development seeds, rendered in
+  memory) at matched distance and coverage (target: within ``COMPOSITE_IOU_TOLERANCE`` per depth bin); the same by
+  the camera's roll, and with every frame turned upright."""
 
 from __future__ import annotations
 
@@ -27,17 +35,33 @@ import time
 
 import numpy as np
 
+from d2slam.assets import tum_frames
+from d2slam.config import DEFAULT
+from d2slam.data import open_sequence
+from d2slam.data.tum import interpolate_poses
+from d2slam.errors import D2SlamError
+from d2slam.eval.people_realism import column, composite_coverage, composite_rows, matched, office_rows
+from d2slam.eval.realism import (anchor_scan, comparison, depth_border, depth_consistency, edge_hole_runs, fit_exposure,
+                                 fit_time_offset, frame_blur, hole_kinds, measure, noise_sigma, pct, within)
+from d2slam.eval.segmentation import depth_bin_table
+from d2slam.run.observe import engine_log
+from d2slam.segmentation.onnx import OnnxSegmenter
+from d2slam.synth.realism import extractor, real_stats, summary, synthetic_stats
+from d2slam.synth.scene import SCENARIOS
+from d2slam.synth.twin import read_recording
+
 DESCRIPTION = ("synthetic vs real TUM people: person area, ORB keypoints on people, their ratio; the sensor, real "
                "against its synthetic twin (--real/--twin, --calibrate, --anchor)")
 TWIN_TOLERANCE = 0.25  # the twin's epipolar p50 and p90 within this fraction of the real recording's
 TARGET_AREA_MEAN = (0.2, 0.3)
 TARGET_AREA_PEAK = 0.55
 TARGET_RATIO = (0.4, 0.7)
+COMPOSITE_IOU_TOLERANCE = 0.1  # a composite's mean IoU per depth bin within this of the synthetic office's
+OFFICE_SCENARIOS = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy")
+ROLL_BINS = (15.0, 30.0, 45.0)  # |roll| (degrees) bins of the detection rates
 
 
 def add_arguments(parser) -> None:
-    from d2slam.synth.scene import SCENARIOS
-
     parser.add_argument("--seed", type=int, default=0, help="synthetic seed (default 0, a development seed)")
     parser.add_argument("--frames", type=int, default=None,
                         help="synthetic sequence length (default 300); with --real/--twin/--calibrate the frames "
@@ -51,11 +75,17 @@ def add_arguments(parser) -> None:
     parser.add_argument("--calibrate", metavar="SEQ", help="measure a real recording's sensor (SynthConfig.twin)")
     parser.add_argument("--anchor", metavar="SEQ", help="scan the twin's placement in the room against a real "
                         "recording's depths (its first 120 frames, every 10th)")
+    parser.add_argument("--composite", metavar="SEQ", action="append",
+                        help="a composite (d2slam synth real_walking --on TUM_DIR; repeatable): the real segmenter on "
+                        "its people against the synthetic office's at matched depth and coverage (the office's walking "
+                        "scenarios with --seed, default 0 and 1, --frames 300, every --stride-th frame; the "
+                        "composites every --composite-stride-th)")
+    parser.add_argument("--composite-stride", type=int, default=5, help="segment every n-th composite frame "
+                        "(default 5)")
+    parser.add_argument("--model", default=None, help="--composite: the ONNX model (default: the study's)")
 
 
 def _row(name: str, area, kp, ratio, n_kp, textured=None, corners=None) -> str:
-    from d2slam.synth.realism import summary
-
     cells = []
     for v in (area, kp, ratio):
         m, lo, hi = summary(v)
@@ -69,6 +99,8 @@ def _row(name: str, area, kp, ratio, n_kp, textured=None, corners=None) -> str:
 
 
 def run(args) -> int:
+    if args.composite:
+        return run_composite(args)
     if args.real or args.twin:
         return run_compare(args)
     if args.calibrate:
@@ -79,17 +111,13 @@ def run(args) -> int:
 
 
 def run_compare(args) -> int:
-    from d2slam.data import open_sequence
-    from d2slam.errors import D2SlamError
-    from d2slam.eval.realism import comparison, measure, pct, within
-
     if not (args.real and args.twin):
         raise D2SlamError("--real and --twin go together: a real recording and its synthetic twin")
     t0 = time.perf_counter()
     frames = args.frames or 200
     real, twin = open_sequence(args.real), open_sequence(args.twin)
-    r = measure(real, frames, progress=True)
-    s = measure(twin, frames, progress=True)
+    r = measure(real, engine_log(real, frames, progress=True))
+    s = measure(twin, engine_log(twin, frames, progress=True))
     rows = comparison(r, s)
     w = max(len(a) for a, _, _ in rows) + 2
     w2 = max([len(a) for _, a, _ in rows] + [len(r.name) + 6]) + 2
@@ -109,17 +137,9 @@ def run_compare(args) -> int:
 
 def run_calibrate(args) -> int:
     """The real recording's sensor, as ``SynthConfig.twin`` holds it (docs/real_data.md)."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
-    from d2slam.data.tum import interpolate_poses
-    from d2slam.errors import D2SlamError
-    from d2slam.eval.realism import (depth_border, depth_consistency, edge_hole_runs, engine_log, fit_exposure,
-                                     fit_time_offset, frame_blur, hole_kinds, noise_sigma, pct)
-
     t0 = time.perf_counter()
     seq = open_sequence(args.calibrate)
-    gt = seq.groundtruth
-    if gt is None:
+    if seq.groundtruth is None:
         raise D2SlamError("the recording has no ground truth: the calibration measures against it", path=seq.root)
     n = min(len(seq), args.frames or 200)
     tw = DEFAULT.synth.twin
@@ -128,6 +148,17 @@ def run_calibrate(args) -> int:
     off = 1e3 * (dts - ts)
     print(f"  depth timestamp - RGB timestamp (ms): median |.| {np.median(np.abs(off)):.1f}, min {off.min():.1f}, "
           f"max {off.max():.1f} [depth rendered at its own timestamp: {tw.depth_at_depth_time}]")
+    best_o = _calibrate_rgb_time(seq, n, tw)
+    _calibrate_depth_time(seq, n, tw)
+    depths, noise = _calibrate_blur(seq, n, best_o, tw)
+    _calibrate_holes(depths, noise, tw)
+    print(f"({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def _calibrate_rgb_time(seq, n: int, tw) -> float:
+    """The RGB images' time shift and row readout by the epipolar error against the ground truth's motion, printed
+    as a table; the best shift."""
     log = engine_log(seq, n, progress=True)
     offsets = np.round(np.arange(-0.012, 0.0121, 0.002), 4)
     readouts = np.round(np.arange(0.0, 8.1e-5, 2e-5), 7)
@@ -140,7 +171,12 @@ def run_calibrate(args) -> int:
     print(f"  best: RGB time shift {1e3 * best_o:+.1f} ms [{1e3 * tw.rgb_time_shift:+.1f}], readout "
           f"{1e6 * best_r:.0f} us/row [{1e6 * tw.row_readout:.0f}]; the readout's gain over a global shutter: "
           f"{table[list(offsets).index(best_o), 0] - table.min():.3f} px")
+    return best_o
 
+
+def _calibrate_depth_time(seq, n: int, tw) -> None:
+    """The depth images' time shift and row readout by the agreement of one frame's depth moved into the next,
+    printed as a table."""
     shifts = np.round(np.arange(-0.03, -0.0149, 0.0025), 4)
     dreadouts = np.round(np.arange(0.0, 1.01e-4, 2.5e-5), 7)
     cons = np.array([[float(np.nanmean(depth_consistency(seq, np.arange(1, n), float(o), readout=float(r))))
@@ -154,6 +190,12 @@ def run_calibrate(args) -> int:
     print(f"  best: depth time shift {1e3 * shifts[i]:+.1f} ms [{1e3 * tw.depth_time_shift:+.1f}], readout "
           f"{1e6 * dreadouts[j]:.0f} us/row [{1e6 * tw.depth_row_readout:.0f}]; the readout's gain over a global "
           f"shutter: {cons[:, 0].min() - cons.min():.3f}")
+
+
+def _calibrate_blur(seq, n: int, best_o: float, tw) -> tuple[list, list]:
+    """The exposure from the motion blur's extent against the image speed (every second frame), printed; (those
+    frames' depth images, their image noise)."""
+    gt = seq.groundtruth
 
     def poses_at(t):
         return interpolate_poses(gt.timestamps, gt.poses, np.clip(np.asarray(t) + best_o, gt.timestamps[0],
@@ -175,6 +217,11 @@ def run_calibrate(args) -> int:
         print(f"    {lo:5d}-{hi:<5d} {int(sel.sum()):5d} patches  {np.median(ext[sel]) if sel.any() else np.nan:5.1f}")
     print(f"  exposure (Theil-Sen slope over {used} patches): {1e3 * e:.1f} ms [{1e3 * tw.exposure:.1f}], intercept "
           f"{b:.1f} px")
+    return depths, noise
+
+
+def _calibrate_holes(depths: list, noise: list, tw) -> None:
+    """The depth border, the holes at depth edges and elsewhere, the image noise, printed."""
     border = depth_border(depths)
     print(f"  depth border (top, bottom, left, right px, holes in >= half): {border} [{tw.depth_border}]")
     t_, b_, l_, r_ = border
@@ -192,17 +239,10 @@ def run_calibrate(args) -> int:
           f"[shadow_px {tw.shadow_px}], on the left {np.median(left) if left.size else np.nan:.0f} px ({left.size})")
     print(f"  image noise (grey levels) p10/p50/p90: {'/'.join(f'{v:.2f}' for v in pct(noise, (10, 50, 90)))} "
           f"[the twin's rgb_noise_sigma {tw.rgb_noise_sigma}: reads 0.49 on its images]")
-    print(f"({time.perf_counter() - t0:.1f} s)")
-    return 0
 
 
 def run_anchor(args) -> int:
     """The twin's placement: its depth percentiles against the recording's over a grid of anchors."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
-    from d2slam.eval.realism import anchor_scan
-    from d2slam.synth.twin import read_recording
-
     t0 = time.perf_counter()
     rec, seq = read_recording(args.anchor), open_sequence(args.anchor)
     idx = np.arange(0, min(len(rec), 120), 10)
@@ -220,10 +260,6 @@ def run_anchor(args) -> int:
 
 
 def run_people(args) -> int:
-    from d2slam.assets import tum_frames
-    from d2slam.synth.realism import extractor, real_stats, summary, synthetic_stats
-    from d2slam.synth.scene import SCENARIOS
-
     t0 = time.perf_counter()
     ext = extractor()
     head = (f"  {'source':<34} {'n':>3}  {'area mean [min-max]':<19}  {'kp on mask':<19}  {'kp/area ratio':<19}"
@@ -254,3 +290,121 @@ def run_people(args) -> int:
               + ", ".join(f"{n} {'met' if ok else 'NOT met'}" for n, ok in verdicts))
     print(f"({frames} frames, every {args.stride}th; {time.perf_counter() - t0:.1f} s)")
     return 0
+
+
+def run_composite(args) -> int:
+    """The real segmenter on composited people against the synthetic office's (module docstring)."""
+    t0 = time.perf_counter()
+    ev = DEFAULT.synth_eval
+    seqs, seg, comp, office, office_seeds = _composite_rows(args)
+    lo, thr = ev.seg_eval_min_area, ev.seg_eval_iou
+    print(f"The real segmenter ({seg.model_path.name}) on people composited into a real recording against the "
+          f"synthetic office's; people covering >= {100 * lo:g} % of the image, detected at IoU >= {thr:g}")
+    print(f"  composites: {', '.join(q.root.name for q in seqs)}, every {args.composite_stride}th frame; office: "
+          f"{', '.join(args.scenario or OFFICE_SCENARIOS)}, seeds {office_seeds}, {args.frames or 300} frames, every "
+          f"{args.stride}th")
+    _print_people_in_view(seqs, comp, office)
+    verdicts = [_print_detection(seqs, comp, office, lo, thr, ev.seg_eval_target)]
+    _print_by_roll(comp, office, lo, thr)
+    ok_all = _print_iou_by_depth(comp, office, lo, ev.seg_eval_depth_bins)
+    for key, what in (("iou", "as recorded"), ("iou_upright", "upright"), ("iou_isolated", "isolated")):
+        m = matched(comp, office, ev.seg_eval_depth_bins, key, lo, thr)
+        print(f"  matched distance and coverage ({what}): {m['people']} composited people ({m['unmatched']} in cells "
+              f"the office lacks): detection {m['composite_rate']:.3f} against the office's {m['office_rate']:.3f}, "
+              f"mean IoU {m['composite_mean']:.3f} against {m['office_mean']:.3f}")
+    verdicts.append(f"IoU by depth within {COMPOSITE_IOU_TOLERANCE:g} of the office's: {'met' if ok_all else 'NOT met'}")
+    print("targets: " + "; ".join(verdicts))
+    print(f"({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def _composite_rows(args) -> tuple:
+    """(the composites, the segmenter, its rows on the composites, its rows on the synthetic office, the office's
+    seeds): the people of every ``--composite-stride``-th composite frame and of the office's frames, segmented."""
+    seqs = [open_sequence(p) for p in args.composite]
+    for q in seqs:
+        if not (q.root / "mask_depth").is_dir():
+            raise D2SlamError("not a composite (no mask_depth/): make one with d2slam synth real_walking --on "
+                              "TUM_DIR", path=q.root)
+    seg = OnnxSegmenter(args.model, DEFAULT.segmentation)
+    segment = seg.segment
+    comp = []
+    for q in seqs:
+        comp += [dict(r, sequence=q.root.name) for r in composite_rows(q, segment, args.composite_stride)]
+    office_seeds = [args.seed] if args.seed else [0, 1]
+    office = office_rows(args.scenario or OFFICE_SCENARIOS, office_seeds, args.frames or 300, args.stride, segment,
+                         DEFAULT)
+    return seqs, seg, comp, office, office_seeds
+
+
+def _detection_rate(rows, lo: float, thr: float, key: str = "iou", sel=None) -> tuple[int, float]:
+    """(people covering at least ``lo`` of the image among ``rows`` (and ``sel``), the share of them detected: IoU
+    ``key`` at least ``thr``)."""
+    a, v = column(rows, "area"), column(rows, key)
+    keep = (a >= lo) & (np.ones(len(a), bool) if sel is None else sel)
+    return int(keep.sum()), (float((v[keep] >= thr).mean()) if keep.any() else float("nan"))
+
+
+def _print_people_in_view(seqs, comp, office) -> None:
+    print("  people in view (composites, every frame): frames with somebody covering >= 3 % of the image; the "
+          "people's image share per frame with anybody, p10/p50/p90; each visible person's median depth (m), "
+          "p10/p50/p90")
+    for q in seqs:
+        c = composite_coverage(q)
+        print(f"    {q.root.name:<22} {100 * c['in_view']:5.1f} % of {c['frames']} frames; share "
+              f"{'/'.join(f'{v:.3f}' for v in c['share'])}; depth {'/'.join(f'{v:.2f}' for v in c['depth'])}")
+    print("  each visible person of the segmented frames: image share p10/p50/p90, median depth (m) p10/p50/p90")
+    for name, rows in (("composites", comp), ("synthetic office", office)):
+        a, z = column(rows, "area"), column(rows, "depth")
+        print(f"    {name:<22} {'/'.join(f'{v:.3f}' for v in np.percentile(a, (10, 50, 90)))}; "
+              f"{'/'.join(f'{v:.2f}' for v in np.nanpercentile(z, (10, 50, 90)))} ({len(rows)} people)")
+
+
+def _print_detection(seqs, comp, office, lo: float, thr: float, target: float) -> str:
+    """The detection rates as recorded, upright and isolated, per composite, over all and on the office; the
+    verdict of all the composites against ``target``."""
+    print("  detection rate of the people: as recorded, upright (the camera's roll undone), isolated (upright, the "
+          "background grey)")
+    print(f"  {'':<24} {'people':>6} {'detected':>9} {'upright':>9} {'isolated':>9}")
+    verdict = ""
+    for name, rows in [(q.root.name, [r for r in comp if r["sequence"] == q.root.name]) for q in seqs] + \
+            [("all composites", comp), ("synthetic office", office)]:
+        n, r0 = _detection_rate(rows, lo, thr)
+        _, r1 = _detection_rate(rows, lo, thr, "iou_upright")
+        _, r2 = _detection_rate(rows, lo, thr, "iou_isolated")
+        print(f"  {name:<24} {n:>6} {r0:9.3f} {r1:9.3f} {r2:9.3f}")
+        if name == "all composites":
+            verdict = (f"detection >= {target:g}: {r0:.3f} {'met' if r0 >= target else 'NOT met'}"
+                       f" (upright {r1:.3f} {'met' if r1 >= target else 'NOT met'})")
+    return verdict
+
+
+def _print_by_roll(comp, office, lo: float, thr: float) -> None:
+    print("  detection rate by the camera's |roll| (deg), composites / office [people]:")
+    edges = (0.0,) + ROLL_BINS + (np.inf,)
+    cr, orr = np.abs(column(comp, "roll")), np.abs(column(office, "roll"))
+    for a, b in zip(edges[:-1], edges[1:]):
+        nc, rc = _detection_rate(comp, lo, thr, sel=(cr >= a) & (cr < b))
+        no, ro = _detection_rate(office, lo, thr, sel=(orr >= a) & (orr < b))
+        label = f"{a:.0f}-{b:.0f}" if np.isfinite(b) else f">= {a:.0f}"
+        print(f"    {label:<8} {rc:6.3f} [{nc:>4}]  {ro:6.3f} [{no:>4}]")
+
+
+def _print_iou_by_depth(comp, office, lo: float, bins) -> bool:
+    """The mean IoU by depth bin, composites against the office; whether every bin both fill is within
+    ``COMPOSITE_IOU_TOLERANCE`` as recorded."""
+    print("  mean IoU by the person's median depth (people >= the area threshold): composites, office, difference")
+    ok_all = True
+    for key, what in (("iou", "as recorded"), ("iou_upright", "upright"), ("iou_isolated", "isolated")):
+        big_c, big_o = column(comp, "area") >= lo, column(office, "area") >= lo
+        tc = depth_bin_table(column(comp, "depth")[big_c], column(comp, key)[big_c], bins)
+        to = depth_bin_table(column(office, "depth")[big_o], column(office, key)[big_o], bins)
+        print(f"    {what}:")
+        for (label, nc, mc, _), (_, no, mo, _) in zip(tc, to):
+            d = mc - mo
+            within = not (np.isfinite(d) and abs(d) > COMPOSITE_IOU_TOLERANCE)
+            if key == "iou" and nc and no:
+                ok_all &= within
+            print(f"      {label:<12} {mc:6.3f} [{nc:>4}]  {mo:6.3f} [{no:>4}]  {d:+6.3f}"
+                  + ("" if not (nc and no) else ("" if within else "  (beyond 0.1)")))
+    return ok_all

@@ -9,8 +9,8 @@ first frame needs, the first frame), the whole run's wall time and its frames pe
 1. *empty cache*: a fresh install without the warm-up of ``make install``; numba compiles each kernel on its first
    use, during the run;
 2. *warm cache*: the same again, with the kernels the first run compiled (every later run, and a study's workers);
-3. *after the warm-up*: ``python -m d2slam.warmup`` (``make install`` runs it) into another empty cache, then the run:
-   the first run of a fresh install. Target: startup at most 10 s.
+3. *after the warm-up*: ``python -m d2slam.run.warmup`` (``make install`` runs it) into another empty cache, then
+   the run: the first run of a fresh install. Target: startup at most 10 s.
 
 The run's ``onnx`` masks are segmented into the mask cache before the three cases.
 """
@@ -24,6 +24,13 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from d2slam.data import SyntheticSequence, open_sequence
+from d2slam.errors import D2SlamError
+from d2slam.run.methods import get_method, mask_kind
+from d2slam.run.record import EXIT_FRAGMENT
+from d2slam.segmentation import cached_segmenter
+from d2slam.study.sequences import ensure_sequence
 
 DESCRIPTION = ("time to the first frame of a new `d2slam run` with an empty kernel cache, a warm one, and after "
                "the warm-up of `make install`")
@@ -46,18 +53,13 @@ def _run(cmd: list[str], env: dict) -> tuple[float, subprocess.CompletedProcess]
 
 
 def run(args) -> int:
-    from d2slam.errors import D2SlamError
-
     if args.sequence:
         seq = Path(args.sequence)
         if not seq.is_dir():
             raise D2SlamError("no sequence folder", path=seq)
     else:
-        from d2slam.study.sequences import ensure_sequence
-
         seq = ensure_sequence("walking_xyz", 0, args.frames, False)
     _segment_first(seq, args.method, args.masks)
-    from d2slam.commands.run import EXIT_FRAGMENT
 
     with tempfile.TemporaryDirectory(prefix="d2slam_bench_startup_") as tmp:
         tmp = Path(tmp)
@@ -71,13 +73,13 @@ def run(args) -> int:
         print(f"{'case':<34} {'startup s':>9} {'run s':>7} {'fps':>6}  target")
         rows = []
         for label, cache, warm in (("empty kernel cache", "a", False), ("warm kernel cache", "a", False),
-                                   ("after python -m d2slam.warmup", "b", True)):
+                                   ("after python -m d2slam.run.warmup", "b", True)):
             env = {**base, "NUMBA_CACHE_DIR": str(tmp / cache)}
             if warm:
-                wall, proc = _run([sys.executable, "-m", "d2slam.warmup"], env)
+                wall, proc = _run([sys.executable, "-m", "d2slam.run.warmup"], env)
                 if proc.returncode != 0:
                     raise D2SlamError(f"the warm-up failed: {(proc.stderr or proc.stdout).strip()[-300:]}")
-                print(f"{'  (python -m d2slam.warmup)':<34} {'':>9} {wall:7.1f}")
+                print(f"{'  (python -m d2slam.run.warmup)':<34} {'':>9} {wall:7.1f}")
             (tmp / "run.json").unlink(missing_ok=True)
             wall, proc = _run(run_cmd, env)
             if proc.returncode not in (0, EXIT_FRAGMENT) or not (tmp / "run.json").is_file():  # a fragment starts too
@@ -95,10 +97,6 @@ def run(args) -> int:
 def _segment_first(path: Path, method: str, masks: str | None) -> None:
     """Fill the mask cache of the run's ``onnx`` masks beforehand, so that the cases time the start, not the
     segmentation."""
-    from d2slam.data import SyntheticSequence, open_sequence
-    from d2slam.methods import get_method, mask_kind
-    from d2slam.segmentation import cached_segmenter
-
     seq = open_sequence(path)
     if mask_kind(get_method(method), masks, synthetic=isinstance(seq, SyntheticSequence)) == "onnx":
         cached_segmenter(seq, "onnx").fill(progress=True, recheck=False)

@@ -18,12 +18,15 @@ import time
 
 import numpy as np
 
+from d2slam.study.grid import DEFAULT_FRAMES, SCENARIOS, TWIN_METHODS, RunSpec, default_methods
+from d2slam.study.runner import execute_run, run_options
+from d2slam.study.sequences import ensure_sequence, is_complete, sequence_dir
+from d2slam.synth import generate
+
 DESCRIPTION = "cost of one study run per method and projected time of the default study grid"
 
 
 def add_arguments(parser) -> None:
-    from d2slam.study.grid import DEFAULT_FRAMES, SCENARIOS
-
     parser.add_argument("--scenario", choices=SCENARIOS, default="walking_xyz")
     parser.add_argument("--seed", type=int, default=101)
     parser.add_argument("--frames", type=int, default=100, help="frames of the measured sequence (default 100)")
@@ -38,10 +41,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from d2slam.study.grid import TWIN_METHODS, RunSpec, default_methods
-    from d2slam.study.runner import execute_run, run_options
-    from d2slam.study.sequences import ensure_sequence, is_complete, sequence_dir
-
     methods = args.methods or default_methods()
     ensure_sequence(args.scenario, args.seed, args.frames, False, progress=True)
     options = run_options(orbslam3_repeats=args.orbslam3_repeats)
@@ -58,8 +57,6 @@ def run(args) -> int:
               + f"   -> {1000 * per_frame[m]:.0f} ms/frame (status {status})")
     gen_s_per_frame = None
     if args.gen_frames > 0:
-        from d2slam.synth import generate
-
         with tempfile.TemporaryDirectory(prefix="d2slam-bench-study-") as tmp:
             t = time.perf_counter()
             generate(args.scenario, tmp, frames=args.gen_frames, seed=args.seed, workers=1, progress=False)
@@ -72,7 +69,6 @@ def run(args) -> int:
     run_s += sum(per_frame[m] * args.grid_frames * n_seq_dyn for m in twin_methods)
     n_runs = n_seq_dyn * (len(methods) + len(twin_methods))
     n_seqs = n_seq_dyn * (2 if twin_methods else 1)
-    from d2slam.study.grid import SCENARIOS
 
     cached = sum(is_complete(sequence_dir(s, seed, args.grid_frames, tw)) for s in SCENARIOS[:args.grid_scenarios]
                  for seed in (101, 102, 103)[:args.grid_seeds] for tw in ((False, True) if twin_methods else (False,)))

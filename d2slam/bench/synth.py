@@ -16,13 +16,14 @@ import tempfile
 
 import numpy as np
 
+from d2slam.synth.generate import generate
+from d2slam.synth.scene import SCENARIOS
+
 DESCRIPTION = "synthetic sequence generation speed (frames/s including PNG writing; ms per stage)"
 TARGET_FPS = 10.0
 
 
 def add_arguments(parser) -> None:
-    from d2slam.synth.scene import SCENARIOS
-
     parser.add_argument("--scenario", choices=SCENARIOS, default="walking_xyz")
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--seed", type=int, default=0)
@@ -37,8 +38,6 @@ def cpu_seconds() -> float:
 
 
 def run(args) -> int:
-    from d2slam.synth.generate import generate
-
     cpu0 = cpu_seconds()
     with tempfile.TemporaryDirectory(prefix="d2slam-bench-synth-") as tmp:
         r = generate(args.scenario, tmp, frames=args.frames, seed=args.seed, static_twin=args.static_twin,

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+from d2slam import assets as A
+from d2slam.errors import D2SlamError
+
 
 def register(sub) -> None:
-    from d2slam import assets as A
-
     parser = sub.add_parser(
         "assets", help="fetch (or list) the segmentation models and the real TUM frames",
         description="The YOLOv8n-seg models, five TUM fr3 frames and the first 120 frames of TUM fr1/rpy (real/"
@@ -26,9 +27,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from d2slam import assets as A
-    from d2slam.errors import D2SlamError
-
     if args.action == "list":
         if args.full_real:
             raise D2SlamError("--full-real goes with `fetch`")

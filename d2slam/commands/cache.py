@@ -9,8 +9,23 @@ would remake what is damaged (saying so); ``--fix`` removes it now, with what ki
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
 from pathlib import Path
+
+from d2slam.assets import DERIVED, DOWNLOADS, assets_cache, find
+from d2slam.baselines.vocab import check_vocabulary_file, default_vocab_path, manifest_path, training_problems
+from d2slam.cachefiles import Damaged, load_npz, read_json, sha256_file, unsealed
+from d2slam.data.download import load_records, record_path
+from d2slam.errors import D2SlamError
+from d2slam.kernel_cache import cache_files, check_file
+from d2slam.outputs import _probe, stale_temp
+from d2slam.paths import cache_root
+from d2slam.segmentation.cache import STORE_NAME, read_store
+from d2slam.slam.features import CachedFeatures
+from d2slam.slam.orb_vocabulary import read_bow
+from d2slam.study.sequences import sequence_problems
 
 
 def register(sub) -> None:
@@ -57,10 +72,6 @@ class Findings:
 
 
 def run(args) -> int:
-    from d2slam.outputs import _probe
-    from d2slam.errors import D2SlamError
-    from d2slam.paths import cache_root
-
     root = cache_root()
     found = Findings(args.fix)
     if root.exists() and not root.is_dir():
@@ -87,17 +98,12 @@ def run(args) -> int:
 
 
 def _stale_temps(root: Path, found: Findings, full: bool) -> None:
-    from d2slam.outputs import stale_temp
-
     for p in sorted(root.rglob("*.tmp-*")) + sorted(root.rglob(".tmp-*")):
         if stale_temp(p.name):
             found.bad("temporary file", p, "left by a process that was killed")
 
 
 def _masks(root: Path, found: Findings, full: bool) -> None:
-    from d2slam.cachefiles import Damaged, read_json
-    from d2slam.segmentation.cache import STORE_NAME, read_store
-
     for path in sorted((root / "masks").glob(f"*/*/{STORE_NAME}")):
         try:
             read_store(path)
@@ -113,12 +119,6 @@ def _masks(root: Path, found: Findings, full: bool) -> None:
 
 
 def _vocabulary(root: Path, found: Findings, full: bool) -> None:
-    import os
-
-    from d2slam.baselines.vocab import check_vocabulary_file, default_vocab_path, manifest_path
-    from d2slam.cachefiles import Damaged, read_json, sha256_file
-    from d2slam.slam.orb_vocabulary import read_bow
-
     voc = default_vocab_path()
     if voc.is_file():
         try:
@@ -148,8 +148,6 @@ def _vocabulary(root: Path, found: Findings, full: bool) -> None:
 
 
 def _training(root: Path, found: Findings, full: bool) -> None:
-    from d2slam.baselines.vocab import training_problems
-
     for folder in sorted((root / "vocab" / "train").glob("*/*")):
         if folder.is_dir() and ".tmp-" not in folder.name:
             problems = training_problems(folder, full=full, report=False, adopt=False)
@@ -160,8 +158,6 @@ def _training(root: Path, found: Findings, full: bool) -> None:
 
 
 def _sequences(root: Path, found: Findings, full: bool) -> None:
-    from d2slam.study.sequences import sequence_problems
-
     for folder in sorted((root / "study" / "sequences").glob("*")):
         if folder.is_dir() and ".tmp-" not in folder.name:
             problems = sequence_problems(folder, full=full, adopt=False)
@@ -172,9 +168,6 @@ def _sequences(root: Path, found: Findings, full: bool) -> None:
 
 
 def _features(root: Path, found: Findings, full: bool) -> None:
-    from d2slam.cachefiles import Damaged
-    from d2slam.slam.features import CachedFeatures
-
     for path in sorted((root / "study" / "features").glob("*.npz")):
         if ".tmp-" in path.name:
             continue
@@ -186,8 +179,6 @@ def _features(root: Path, found: Findings, full: bool) -> None:
 
 
 def _kernels(root: Path, found: Findings, full: bool) -> None:
-    from d2slam.kernel_cache import cache_files, check_file
-
     for path in cache_files():
         problem = check_file(path)
         if problem:
@@ -197,9 +188,6 @@ def _kernels(root: Path, found: Findings, full: bool) -> None:
 
 
 def _assets(root: Path, found: Findings, full: bool) -> None:
-    from d2slam.assets import DERIVED, DOWNLOADS, assets_cache, find
-    from d2slam.cachefiles import sha256_file
-
     for asset in DOWNLOADS + DERIVED:
         path = find(asset.path)
         if path is None:
@@ -213,9 +201,6 @@ def _assets(root: Path, found: Findings, full: bool) -> None:
 
 
 def _download_records(root: Path, found: Findings, full: bool) -> None:
-    from d2slam.data.download import load_records, record_path
-    from d2slam.errors import D2SlamError
-
     if record_path().is_file():
         try:
             load_records()
@@ -225,10 +210,6 @@ def _download_records(root: Path, found: Findings, full: bool) -> None:
 
 
 def _study(out: Path, found: Findings) -> None:
-    import json
-
-    from d2slam.cachefiles import Damaged, load_npz, read_json, sha256_file, unsealed
-
     runs = out / "runs"
     if not runs.is_dir():
         found.bad("study", out, "no runs/ folder: not a study's output", removable=False)

@@ -11,6 +11,13 @@
 
 from __future__ import annotations
 
+import pandas as pd
+
+from d2slam.data import open_sequence
+from d2slam.paths import cache_dir
+from d2slam.study import run_study
+from d2slam.study.sequences import ensure_sequence
+
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="the main job on a short synthetic sequence: generate, run none vs d2slam, "
@@ -31,12 +38,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import pandas as pd
-
-    from d2slam.data import open_sequence
-    from d2slam.paths import cache_dir
-    from d2slam.study import run_study
-    from d2slam.study.sequences import ensure_sequence
 
     root = cache_dir("demo")
     print(f"d2slam demo: sequences into {cache_dir('study', 'sequences')}, results into {root / 'study'}")

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+from d2slam.errors import D2SlamError
+from d2slam.outputs import check_output_file
+from d2slam.paths import checkout_root
+from d2slam.study.docs import write_docs
+
 
 def register(sub) -> None:
     p = sub.add_parser("docs", help="generate docs/results.md and the README's headline table from results/",
@@ -19,11 +24,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from d2slam.errors import D2SlamError
-    from d2slam.outputs import check_output_file
-    from d2slam.paths import checkout_root
-    from d2slam.study.docs import write_docs
-
     if None in (args.results, args.docs, args.readme if not args.no_readme else ""):
         root = checkout_root()
         if root is None:

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
+from d2slam.data import download as dl
 from d2slam.errors import D2SlamError
 
 
 def register(sub) -> None:
-    from d2slam.data import download as dl
-
     parser = sub.add_parser(
         "download", help="download, verify and extract a TUM RGB-D sequence",
         description="Download an official TUM RGB-D archive (resumable), verify it (HTTP length, gzip/tar "
@@ -31,8 +30,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from d2slam.data import download as dl
-
     if args.list:
         print(dl.format_list())
         return 0

@@ -2,6 +2,16 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
+from d2slam.data import read_tum_trajectory
+from d2slam.errors import D2SlamError
+from d2slam.eval.belongs import check_belongs, header_lines
+from d2slam.eval.plots import plot_trajectory
+from d2slam.eval.trajectory import evaluate
+from d2slam.outputs import check_output_file, check_outputs
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -21,13 +31,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import json
-    from pathlib import Path
-
-    from d2slam.data import read_tum_trajectory
-    from d2slam.eval.trajectory import evaluate
-    from d2slam.outputs import check_output_file, check_outputs
-
     if args.plot:
         check_output_file(args.plot, "--plot")
         check_outputs([("--plot", args.plot)], [("ground truth", args.groundtruth), ("trajectory", args.trajectory)])
@@ -37,12 +40,8 @@ def run(args) -> int:
     gt.meta["path"], est.meta["path"] = str(gt_path), str(args.trajectory)
     m = evaluate(gt, est).to_dict()
     if not args.force:
-        from d2slam.eval.belongs import check_belongs
-
         check_belongs(gt, est, gt_path, gt_folder, Path(args.trajectory))
     if args.plot:
-        from d2slam.eval.plots import plot_trajectory
-
         plot_trajectory(gt, est, args.plot, title=Path(args.trajectory).name, metrics=m)
     if args.json:
         print(json.dumps(m))
@@ -56,9 +55,6 @@ def run(args) -> int:
 def ground_truth_file(gt, traj) -> tuple:
     """(ground-truth file, its sequence folder or None) from the two arguments, with a one-line error saying what is
     wrong when they are missing, of the wrong kind, or given in the wrong order."""
-    from d2slam.errors import D2SlamError
-    from d2slam.eval.belongs import header_lines
-
     order = "the order is `d2slam eval GROUNDTRUTH TRAJ.txt`"
     if not gt.exists():
         raise D2SlamError("ground truth not found (a TUM trajectory file or a sequence folder)", path=gt)

@@ -2,15 +2,31 @@
 
 from __future__ import annotations
 
-# The exit status of a run that tracked less than EvalConfig.min_tracked_share of its frames (a fragment); 2 is bad
-# input (d2slam.cli), 1 ORB-SLAM3 losing track.
-EXIT_FRAGMENT = 3
+import glob
+import json
+import os
+import sys
+from pathlib import Path
+
+import psutil
+
+from d2slam.config import DEFAULT, load_config_file
+from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
+from d2slam.data.depth_scale import depth_scale_warning
+from d2slam.data.intrinsics import is_camera_file, read_camera_file
+from d2slam.errors import D2SlamError
+from d2slam.eval.fragment import is_fragment, tracked_share
+from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
+from d2slam.ranges import overridden
+from d2slam.run.methods import get_method, methods
+from d2slam.run.metrics import RunSource, run_json
+from d2slam.run.online import Schedule, online_line, online_report, replay, run_online
+from d2slam.run.record import EXIT_FRAGMENT
+from d2slam.run.runner import run_config, run_method
+from d2slam.slam.orb_vocabulary import load_vocabulary
 
 
 def register(sub) -> None:
-    from d2slam.config import DEFAULT
-    from d2slam.methods import methods
-
     min_share = DEFAULT.evaluation.min_tracked_share
 
     p = sub.add_parser(
@@ -41,7 +57,8 @@ def register(sub) -> None:
                    "truth: its dynamic truth (persons and moving objects), what --method oracle always uses")
     p.add_argument("--masks-from", metavar="SEQUENCE_DIR", default=None,
                    help="read the masks from this sequence instead (same frames and timestamps), e.g. --method "
-                   "oracle on a static twin with its dynamic sequence: the occluded twin of the study")
+                   "oracle on a static twin with its dynamic sequence, or on a real recording with a composite made "
+                   "of it (d2slam synth real_walking --on): the occluded twin of the study")
     p.add_argument("--camera", metavar="fr1|fr2|fr3|FILE.yaml", default=None,
                    help="camera of a TUM-layout folder: fr1/fr2/fr3, or an ORB-SLAM3 RGB-D settings YAML (Camera.fx, "
                    "..., DepthMapFactor, ThDepth; old Camera.* or new Camera1.* keys) for any other RGB-D camera "
@@ -55,160 +72,194 @@ def register(sub) -> None:
                    "relocalisation then searches the recent keyframes)")
     p.add_argument("--repeats", type=int, default=1, help="--method orbslam3 and orbslam3-masked only: runs of "
                    "ORB-SLAM3 (default 1)")
+    p.add_argument("--online", action="store_true",
+                   help="run as on a live camera (d2slam.run.online): frames arrive at their timestamps (or --rate), "
+                   "the "
+                   "segmenter runs in its own thread on the newest frame, tracking never waits for it and takes the "
+                   "newest frame when free, dropping the rest. Depends on timing: see --online-log")
+    p.add_argument("--rate", type=float, default=None, metavar="HZ",
+                   help="--online: frames arrive at HZ instead of their timestamps (online.rate_hz)")
+    p.add_argument("--online-log", metavar="LOG.npz", default=None,
+                   help="--online: write the run's schedule (frames tracked, the masks each read) for --deterministic")
+    p.add_argument("--deterministic", metavar="LOG.npz", default=None,
+                   help="replay an online run's schedule (--online-log) without a clock: the same frames with the same "
+                   "masks, the same trajectory byte for byte")
     p.add_argument("--quiet", action="store_true", help="no progress, no summary")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    import dataclasses
-    import glob
-    import json
-    from pathlib import Path
-
-    from d2slam.config import DEFAULT, load_config_file
-    from d2slam.data import SyntheticSequence, open_sequence, write_tum_trajectory
-    from d2slam.data.intrinsics import is_camera_file, read_camera_file
-    from d2slam.errors import D2SlamError
-    from d2slam.methods import get_method, run_method
-    from d2slam.outputs import check_output_file, check_outputs, remove_stale_temps, write_bytes
-    from d2slam.pipeline import STAGES
-    from d2slam.record import fragment_fields
-
     method = get_method(args.method)
+    _check_online_args(args, method)
+    out = _check_outputs(args, method)
+    camera, camera_source, th_depth = _camera(args)
+    if method.runner is not None:  # not a keypoint filter of our engine (orbslam3[-masked]): its own command
+        return _run_orbslam3(args, method, camera)
+    config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
+    config = run_config(config, args.seed, not args.no_loop_closing, th_depth)
+    seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
+    _warn_depth_scale(seq, config)
+    if args.online or args.deterministic:
+        return run_online_command(args, seq, config, out)
+    mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
+    # the truth masks of --masks-from a synthetic sequence serve a real one too (a composite's recording: the
+    # occluded twin)
+    synthetic = isinstance(seq, SyntheticSequence) or isinstance(mask_seq, SyntheticSequence)
+    record = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
+                        progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
+    write_tum_trajectory(out, record.trajectory, header=(f"d2slam run {args.method}: no frame tracked" if
+                                                         record.tracked == 0 else
+                                                         f"d2slam run --method {args.method} {seq.root}"))
+    vocabulary = None
+    if record.loop_closing:
+        voc = load_vocabulary(config.engine.vocabulary or None)
+        vocabulary = {"path": voc.path, "sha256": voc.sha256}
+    source = RunSource(seq, args.seed, camera_source or ("scene.json" if synthetic else args.camera or "folder name"),
+                       out, mask_seq, args.config, overrides, config if args.config else None, vocabulary)
+    js = run_json(record, source, record.engine.first_frame_at - process_start())
+    if args.metrics_json:
+        write_bytes(Path(args.metrics_json).expanduser(), json.dumps(js, indent=2) + "\n")
+    if not args.quiet:
+        _print_run(record, js, args, seq, out)
+    return EXIT_FRAGMENT if record.fragment else 0
+
+
+def _check_outputs(args, method) -> Path:
+    """``--out``, checked with ``--metrics-json`` against each other and the run's inputs, before any work; what a
+    killed run was writing there is removed."""
     out = check_output_file(args.out, "--out")
     if args.metrics_json:
         check_output_file(args.metrics_json, "--metrics-json")
     check_outputs(run_outputs(args, method), run_inputs(args))
-    for path in filter(None, [out, args.metrics_json]):  # what a killed run was writing
+    for path in filter(None, [out, args.metrics_json]):
         path = Path(path).expanduser()
         remove_stale_temps(path.parent, f"{glob.escape(path.name)}.tmp-*")
-    camera, camera_source, th_depth = args.camera, None, None
-    if is_camera_file(args.camera):
-        settings = read_camera_file(args.camera)
-        camera, camera_source, th_depth = settings.camera, str(Path(args.camera).expanduser().resolve()), \
-            settings.th_depth
-    if method.runner is not None:  # not a keypoint filter of our engine (orbslam3[-masked]): its own command
-        if args.masks_from is not None:
-            raise D2SlamError(f"--masks-from does not apply to --method {args.method}")
-        if args.masks is not None and not method.needs_masks:
-            raise D2SlamError(f"--masks does not apply to --method {args.method}")
-        if args.config is not None:
-            raise D2SlamError(f"--config does not apply to --method {args.method}")
-        if args.no_loop_closing:
-            raise D2SlamError(f"--no-loop-closing does not apply to --method {args.method} (the real ORB-SLAM3)")
-        _warn_depth_scale(open_sequence(args.sequence, **({"camera": camera} if camera else {})), DEFAULT)
-        return print_orbslam3(method.runner(args), args)
+    return out
 
-    config, overrides = load_config_file(args.config) if args.config else (DEFAULT, None)
-    if th_depth is not None:
-        config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, th_depth=th_depth))
-    config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, ransac_seed=args.seed))
+
+def _camera(args) -> tuple[object, str | None, float | None]:
+    """(``--camera``: a name, or the camera of a settings file; where it came from when a file; the file's ThDepth)."""
+    if not is_camera_file(args.camera):
+        return args.camera, None, None
+    settings = read_camera_file(args.camera)
+    return settings.camera, str(Path(args.camera).expanduser().resolve()), settings.th_depth
+
+
+def _run_orbslam3(args, method, camera) -> int:
+    """``d2slam run --method orbslam3[-masked]``: the arguments that apply to our engine only are refused; the
+    depth-scale check, then ORB-SLAM3's own run."""
+    for given, what in ((args.masks_from is not None, "--masks-from"),
+                        (args.masks is not None and not method.needs_masks, "--masks"),
+                        (args.config is not None, "--config")):
+        if given:
+            raise D2SlamError(f"{what} does not apply to --method {args.method}")
     if args.no_loop_closing:
-        config = dataclasses.replace(config, engine=dataclasses.replace(config.engine, loop_closing=False))
-    seq = open_sequence(args.sequence, **({"camera": camera} if camera else {}))
-    synthetic = isinstance(seq, SyntheticSequence)
-    _warn_depth_scale(seq, config)
-    mask_seq = open_sequence(args.masks_from) if args.masks_from is not None else None
-    run = run_method(seq, args.method, config, masks=args.masks, mask_seq=mask_seq, synthetic=synthetic,
-                     progress=False if args.quiet else None, desc=f"{args.method} {seq.name}")
-    engine, masks_kind, ev = run.engine, run.masks, run.evaluation
-    if run.tracked == 0:
-        write_tum_trajectory(out, run.trajectory, header=f"d2slam run {args.method}: no frame tracked")
-    else:
-        write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} {seq.root}")
-    record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "masks": masks_kind,
-              **({"masks_from": str(mask_seq.root)} if mask_seq is not None else {}),
-              **({"masks_origin": run.masks_origin} if run.masks_origin else {}),
-              "seed": args.seed, "config_hash": run.config_hash,
-              "camera": {**dataclasses.asdict(seq.camera),
-                         "source": camera_source or ("scene.json" if synthetic else args.camera or "folder name")},
-              **({"config_file": str(Path(args.config).resolve()), "config_overrides": overrides,
-                  "config": config.to_dict()} if args.config else {}),
-              **engine.summary(), "trajectory": str(out)}
-    if run.keypoints is not None:
-        record["keypoints"] = run.keypoints
-    record.update(run.loops)
-    if run.loop_closing:
-        from d2slam.slam.orb_vocabulary import load_vocabulary
+        raise D2SlamError(f"--no-loop-closing does not apply to --method {args.method} (the real ORB-SLAM3)")
+    _warn_depth_scale(open_sequence(args.sequence, **({"camera": camera} if camera else {})), DEFAULT)
+    return print_orbslam3(method.runner(args), args)
 
-        voc = load_vocabulary(config.engine.vocabulary or None)
-        record["vocabulary"] = {"path": voc.path, "sha256": voc.sha256}
-    ate_only = None
-    if ev is None:
-        record["metrics_error"] = "no ATE/RPE: the sequence has no groundtruth.txt"
-    elif run.tracked < 3:
-        record["metrics_error"] = f"no ATE/RPE: only {run.tracked} frames tracked (at least 3 are needed)"
-    elif ev.metrics is not None:
-        record["metrics"] = ev.metrics.to_dict()
-    elif ev.ate_rmse_m is not None:  # too short for 1-second pairs: the ATE alone
-        ate_only = ev.ate_rmse_m
-        record["metrics"] = {"ate_rmse_m": ate_only}
-        record["metrics_error"] = f"no RPE: {ev.error}"
+
+def _print_run(record, js: dict, args, seq, out: Path) -> None:
+    """What ``d2slam run`` prints of an engine run: its figures, the frames not run, the loops, RPE (or why there is
+    none), and the summary line."""
+    print(f"{seq.name}: {record.lost} lost, {record.keyframes} keyframes, {record.fps:.1f} fps; ms/frame: "
+          + ", ".join(f"{k} {v:.1f}" for k, v in record.stage_ms.items()))
+    if "frames_note" in js:
+        print(js["frames_note"])
+    if record.loop_closing:
+        judged = record.evaluation is not None
+        judged_text = f" ({len(js['loops_true'])} true, {len(js['loops_false'])} false)" if judged else ""
+        print(f"loops: {len(js['loops'])}" + judged_text + "".join(f"; frames {a} -> {b}" for a, b in js["loops"]))
+    if "metrics_error" in js:
+        print(js["metrics_error"])
     else:
-        record["metrics_error"] = f"no ATE/RPE: {ev.error}"
-    listed = getattr(seq, "n_rgb", run.frames)
-    if run.frames < listed:
-        record["frames_note"] = (f"{run.frames} of the {listed} frames of rgb.txt were run: the others have no "
-                                 f"depth image within {seq.max_dt:g} s (depth.txt lists {seq.n_depth})")
-    record.update(fragment_fields(run.tracked, run.frames, run.min_tracked_share))
-    for k in STAGES:
-        if k in run.stage_ms:
-            record[f"{k}_ms"] = round(run.stage_ms[k], 3)
-    record["startup_s"] = round(engine.first_frame_at - process_start(), 3)
+        m = js["metrics"]
+        print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
+    masks = f"{record.masks} ({record.masks_origin})" if record.masks else "none"
+    ate = js["metrics"]["ate_rmse_m"] if "metrics" in js else None
+    print(summary_line(args.method, masks, camera_text(seq.camera.name, js["camera"]["source"], args.camera),
+                       record.tracked, record.frames, ate, [out, args.metrics_json],
+                       ate_note=" (no RPE)" if "metrics" in js and "metrics_error" in js else "",
+                       min_share=record.min_tracked_share))
+
+
+def run_online_command(args, seq, config, out) -> int:
+    """``d2slam run --online`` and ``--deterministic``: run, write ``--out``, ``--metrics-json`` and ``--online-log``,
+    print the online line and the summary line; the exit status (3: a fragment of the processed frames)."""
+    if args.rate is not None:
+        config = overridden(config, {"online": {"rate_hz": float(args.rate)}})
+    quiet = getattr(args, "quiet", False)
+    if args.deterministic:
+        run = replay(seq, Schedule.load(args.deterministic), args.method, config, progress=False if quiet else None)
+    else:
+        run = run_online(seq, args.method, config, progress=False if quiet else None)
+        if args.online_log:
+            run.schedule.save(args.online_log)
+    report = online_report(run, seq, config, replayed=bool(args.deterministic))
+    write_tum_trajectory(out, run.trajectory, header=f"d2slam run --method {args.method} --online {seq.root}")
+    record = {"sequence": str(seq.root), "name": seq.name, "method": args.method, "config_hash": config.hash(),
+              "frames": run.schedule.frames, "tracked": run.tracked, "keyframes": run.keyframes,
+              "map_points": run.map_points, **report, "trajectory": str(out)}
     if args.metrics_json:
         write_bytes(Path(args.metrics_json).expanduser(), json.dumps(record, indent=2) + "\n")
-    if not args.quiet:
-        print(f"{seq.name}: {run.lost} lost, {run.keyframes} keyframes, {run.fps:.1f} fps; ms/frame: "
-              + ", ".join(f"{k} {v:.1f}" for k, v in run.stage_ms.items()))
-        if "frames_note" in record:
-            print(record["frames_note"])
-        if run.loop_closing:
-            print(f"loops: {len(record['loops'])}" + (f" ({len(record['loops_true'])} true, "
-                                                     f"{len(record['loops_false'])} false)" if ev is not None else "")
-                  + "".join(f"; frames {a} -> {b}" for a, b in record["loops"]))
-        if "metrics_error" in record:
-            print(record["metrics_error"])
-        else:
-            m = record["metrics"]
-            print(f"rpe_trans_m {m['rpe_trans_m']:.4f}  rpe_rot_deg {m['rpe_rot_deg']:.3f}")
-        masks = f"{masks_kind} ({run.masks_origin})" if masks_kind else "none"
-        ate = record["metrics"]["ate_rmse_m"] if "metrics" in record else None
-        print(summary_line(args.method, masks, camera_text(seq.camera.name, record["camera"]["source"], args.camera),
-                           run.tracked, run.frames, ate, [out, args.metrics_json],
-                           ate_note=" (no RPE)" if ate_only is not None else "", min_share=run.min_tracked_share))
-    return EXIT_FRAGMENT if run.fragment else 0
+    if not quiet:
+        print(online_line(report))
+        ate = report.get("metrics", {}).get("ate_rmse_m")
+        masks = ("none" if not report["online"]["with_mask"] and not run.schedule.segmented else
+                 "onnx (the schedule's)" if args.deterministic else "onnx (the segmenter's thread)")
+        print(summary_line(args.method, masks, camera_text(seq.camera.name, args.camera or "folder name",
+                                                           args.camera),
+                           run.tracked, len(run.schedule.processed), ate,
+                           [out, args.metrics_json, None if args.deterministic else args.online_log],
+                           ate_note=" over the processed frames", min_share=config.evaluation.min_tracked_share))
+    return EXIT_FRAGMENT if report["fragment"] else 0
+
+
+def _check_online_args(args, method) -> None:
+    """The online options together: one clear error for a combination that cannot run."""
+    online = getattr(args, "online", False)
+    replaying = getattr(args, "deterministic", None)
+    if online and replaying:
+        raise D2SlamError("--online and --deterministic exclude each other: --deterministic replays an online run")
+    if not online and (args.rate is not None or args.online_log):
+        raise D2SlamError("--rate and --online-log need --online")
+    if replaying and args.rate is not None:
+        raise D2SlamError("--deterministic replays the schedule it reads: --rate does not apply")
+    orbslam3 = method.name == "orbslam3" and online
+    if (online or replaying) and not orbslam3 and (method.runner is not None or method.masks is not None
+                                                   or args.masks_from or args.masks not in (None, "onnx")):
+        raise D2SlamError(f"--online runs none, the dynamics methods (with the real segmenter) and orbslam3, not "
+                          f"--method {args.method}" + (" with other masks" if args.masks or args.masks_from else ""))
+    if orbslam3 and args.online_log:
+        raise D2SlamError("--online-log: ORB-SLAM3's online run has no schedule to replay (its threads are its own)")
+    if args.rate is not None and not 0 < args.rate <= 1000:
+        raise D2SlamError(f"--rate {args.rate:g}: must be in (0, 1000] Hz")
 
 
 def run_outputs(args, method) -> list[tuple[str, object]]:
     """What ``d2slam run`` writes: ``--out``, ``--metrics-json``, and for the real ORB-SLAM3 the files it keeps
     beside the trajectory (its settings and online poses)."""
-    from pathlib import Path
-
     out = Path(args.out).expanduser()
     extra = [] if method.runner is None else [
         ("--out's ORB-SLAM3 settings", out.with_name(out.stem + ".orbslam3.yaml")),
         ("--out's online poses", out.with_name(out.stem + ".online.txt"))]
-    return [("--out", out), ("--metrics-json", args.metrics_json)] + extra
+    return [("--out", out), ("--metrics-json", args.metrics_json),
+            ("--online-log", getattr(args, "online_log", None))] + extra
 
 
 def run_inputs(args) -> list[tuple[str, object]]:
     """What ``d2slam run`` reads: the sequence folder, ``--masks-from``, ``--camera FILE``, ``--config``, the
     vocabulary (``$PYORBSLAM3_VOCAB``)."""
-    import os
-
-    from d2slam.data.intrinsics import is_camera_file
-
     return [("sequence", args.sequence), ("--masks-from sequence", args.masks_from),
             ("--camera file", args.camera if is_camera_file(args.camera) else None), ("--config file", args.config),
-            ("vocabulary ($PYORBSLAM3_VOCAB)", os.environ.get("PYORBSLAM3_VOCAB") or None)]
+            ("vocabulary ($PYORBSLAM3_VOCAB)", os.environ.get("PYORBSLAM3_VOCAB") or None),
+            ("--deterministic schedule", getattr(args, "deterministic", None))]
 
 
 def print_orbslam3(run, args) -> int:
     """What ``d2slam run --method orbslam3[-masked]`` prints of ORB-SLAM3's run (``RunRecord``) and its exit status:
     0 when ORB-SLAM3 tracked, 1 when it ran but lost / reset, 2 when it failed, :data:`EXIT_FRAGMENT` when it ran
     but tracked less than ``EvalConfig.min_tracked_share`` of the frames (``RunRecord.fragment``)."""
-    import sys
-
     report = run.orbslam3
     stream = sys.stdout if report["status"] in ("ok", "lost") else sys.stderr
     v = report.get("vocabulary") or {}
@@ -219,6 +270,11 @@ def print_orbslam3(run, args) -> int:
         print(f"  vocabulary: {v['kind']} {v['path']} (sha256 {v['sha256'][:16]})", file=stream)
     if isinstance(report.get("ms_per_frame"), (int, float)):
         print(f"  {report['ms_per_frame']:.1f} ms/frame", file=stream)
+    if report.get("online"):
+        o = report["online"]
+        rate = f"{o['rate_hz']:g} Hz" if o["rate_hz"] > 0 else "the frames' timestamps"
+        print(f"  online at {rate}: processed {o['processed']}/{o['frames']} frames ({o['dropped']} dropped), lag "
+              f"median {o['lag_ms_median']} ms, p95 {o['lag_ms_p95']} ms (depends on timing)", file=stream)
     if not getattr(args, "quiet", False):
         repeats = int(report.get("repeats", 1) or 1)
         many = " (median of {repeats} runs)".format(repeats=repeats) if repeats > 1 else ""
@@ -237,12 +293,9 @@ def print_orbslam3(run, args) -> int:
 
 
 def _warn_depth_scale(seq, config) -> None:
-    """The depth-scale check (:mod:`d2slam.data.depth_scale`): a warning on stderr naming the factor to set."""
-    import sys
-
-    from d2slam.data.depth_scale import depth_scale_warning
-
-    warning = depth_scale_warning(seq, config)
+    """The depth-scale check (:mod:`d2slam.data.depth_scale`, seeded with the run's seed): a warning on stderr naming
+    the factor to set."""
+    warning = depth_scale_warning(seq, config, seed=config.engine.seed)
     if warning:
         print(f"d2slam: warning: {warning}", file=sys.stderr)
 
@@ -250,8 +303,6 @@ def _warn_depth_scale(seq, config) -> None:
 def camera_text(name: str, source: str, camera_arg: str | None) -> str:
     """The camera of a run and where it came from (the run JSON's ``camera.source``: a settings file, the synthetic
     sequence's ``scene.json``, the TUM folder name, or ``--camera NAME``), for the summary line."""
-    from d2slam.data.intrinsics import is_camera_file
-
     named = camera_arg and source == camera_arg and not is_camera_file(camera_arg)
     return f"{name} ({'--camera ' + source if named else source})"
 
@@ -260,9 +311,8 @@ def summary_line(method: str, masks: str, camera: str, tracked: float, frames: f
                  outputs, ate_note: str = "", min_share: float | None = None) -> str:
     """The one line ``d2slam run`` ends with (the engine's methods and the real ORB-SLAM3 alike), easy to grep:
     ``d2slam run: method M; masks KIND (ORIGIN); camera NAME (ORIGIN); tracked T/N frames; ATE X m; wrote FILES``.
-    A fragment (less than ``min_share`` of the frames tracked, ``d2slam.record.is_fragment``; None: not judged) says
+    A fragment (less than ``min_share`` of the frames tracked, ``d2slam.run.record.is_fragment``; None: not judged) says
     so: ``tracked T/N frames (S %): a fragment, below M %; ATE X m over the tracked fragment only``."""
-    from d2slam.record import is_fragment, tracked_share
 
     share = tracked_share(tracked, frames)
     fragment = min_share is not None and is_fragment(share, min_share)
@@ -277,6 +327,4 @@ def summary_line(method: str, masks: str, camera: str, tracked: float, frames: f
 def process_start() -> float:
     """When this process started (epoch seconds): ``startup_s`` of the run JSON is the time from there to the end
     of the first frame (imports, opening the sequence, loading or compiling kernels, the first frame)."""
-    import psutil
-
     return psutil.Process().create_time()

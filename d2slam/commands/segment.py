@@ -2,8 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
+
+import cv2
+
+from d2slam.config import DEFAULT
+from d2slam.errors import D2SlamError
+from d2slam.outputs import check_output_dir, check_outputs, write_bytes
+from d2slam.segmentation import CachedSegmenter, get_segmenter
+from d2slam.segmentation.cache import RgbListSequence
+from d2slam.segmentation.draw import overlay
+from d2slam.segmentation.onnx import read_rgb
 
 
 def register(sub) -> None:
@@ -25,18 +36,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import dataclasses
-
-    from d2slam.config import DEFAULT
-    from d2slam.errors import D2SlamError
-    from d2slam.segmentation import CachedSegmenter, get_segmenter
-
     cfg = DEFAULT.segmentation
     if args.score is not None:
         if not 0.0 < args.score < 1.0:
             raise D2SlamError(f"--score must be in (0, 1), got {args.score}")
         cfg = dataclasses.replace(cfg, score_threshold=args.score)
-    from d2slam.outputs import check_output_dir, check_outputs, write_bytes
 
     paths = [Path(p) for p in args.inputs]
     dirs = [p for p in paths if p.is_dir()]
@@ -53,8 +57,6 @@ def run(args) -> int:
                               allow_unknown_model=True if args.allow_unknown_model else None)
 
     if dirs:
-        from d2slam.segmentation.cache import RgbListSequence
-
         seq = RgbListSequence(dirs[0])
         cached = CachedSegmenter(segmenter, seq)
         hits, misses = cached.fill()
@@ -66,8 +68,6 @@ def run(args) -> int:
               + f"\ncache: {cached.dir}")
         return 0
 
-    from d2slam.segmentation.onnx import read_rgb
-
     out_dir = Path(args.overlay) if args.overlay else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -76,10 +76,6 @@ def run(args) -> int:
         persons = segmenter.segment(rgb, path=path)
         H, W = rgb.shape[:2]
         if out_dir is not None:
-            import cv2
-
-            from d2slam.segmentation.draw import overlay
-
             target = overlay_path(out_dir, path)
             ok, png = cv2.imencode(".png", cv2.cvtColor(overlay(rgb, persons), cv2.COLOR_RGB2BGR))
             if not ok:

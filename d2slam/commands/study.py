@@ -4,14 +4,22 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
+
+from d2slam.config import load_config_file
+from d2slam.errors import D2SlamError
+from d2slam.outputs import check_output_dir, check_outputs
+from d2slam.run.methods import methods as registered
+from d2slam.study import grid as G, run_study
+from d2slam.study.core import composite_cached, rebuild_tables
+from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS, SCENARIOS, TUM_FOLDERS, TWIN_METHODS
+from d2slam.study.sequences import is_complete, sequence_dir
+from d2slam.synth.scene import frames_arg
 
 ENV_TUM = "D2SLAM_TUM_ROOT"
 
 
 def register(sub) -> None:
-    from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS, SCENARIOS, TWIN_METHODS
-    from d2slam.synth.scene import frames_arg
-
     p = sub.add_parser(
         "study", help="run the study grid and write runs.csv, summary.csv, tables.md, plots, manifest.json",
         description="Run every (scenario, method, seed) of the grid on synthetic TUM-like sequences (generated once "
@@ -40,8 +48,9 @@ def register(sub) -> None:
                    help="local worker processes (joblib/loky, single-threaded BLAS and OpenCV each; 1 = serial in "
                    "this process; default min(2, cores)). The numbers do not depend on it")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", default=None,
-                   help="run the grid on a dask.distributed cluster instead (workers need d2slam installed and the "
-                   "same cache, or they generate the sequences themselves)")
+                   help="run the grid on a dask.distributed cluster instead: every worker with this checkout and "
+                   "environment (checked before the first phase) and the same cache folder ($D2SLAM_CACHE on a "
+                   "shared filesystem); docs/study.md, 'The study on a Dask cluster'")
     p.add_argument("--orbslam3-repeats", type=int, default=None, help="ORB-SLAM3 runs per sequence (not "
                    "deterministic: median and spread reported; default: config baseline.orbslam3_repeats, 3)")
     p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
@@ -58,22 +67,16 @@ def register(sub) -> None:
     p.add_argument("--tables-only", action="store_true",
                    help="re-render OUT/tables.md and OUT/summary.csv from an existing OUT/runs.csv; run nothing")
     p.add_argument("--dry-run", action="store_true", help="print the grid and which sequences are cached; run nothing")
+    p.add_argument("--config", metavar="FILE.yaml", default=None,
+                   help="override config fields for every run, as `d2slam run --config` does (a YAML of `section: "
+                   "{field: value}`); with --resume only the runs that read a changed field run again")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from pathlib import Path
-
-    from d2slam.errors import D2SlamError
-    from d2slam.study import grid as G
-
-    from d2slam.outputs import check_output_dir, check_outputs
-
     out = Path(args.out)
     if args.tables_only:
-        from d2slam.study.core import rebuild_tables
-
         if not (out / "runs.csv").is_file():
             raise D2SlamError("no runs.csv to build tables from", path=out / "runs.csv")
         print(f"wrote {rebuild_tables(out)}")
@@ -84,7 +87,7 @@ def run(args) -> int:
         if not tum_root:
             raise D2SlamError(f"--tum needs ${ENV_TUM} pointing at a TUM RGB-D copy")
     check_output_dir(out, "--out")
-    check_outputs([("--out", out)], [("TUM root", tum_root)], folders=True)
+    check_outputs([("--out", out)], [("TUM root", tum_root), ("--config", args.config)], folders=True)
     scenarios = args.scenarios
     if scenarios is None:
         scenarios = G.default_scenarios()
@@ -98,7 +101,6 @@ def run(args) -> int:
             raise D2SlamError(f"{', '.join(ours)} is ours, not a TUM sequence: give fr3 scenarios with --tum-root")
         scenarios = _downloaded(tum_root, [s for s in scenarios if s in G.FR3_SCENARIOS])
     methods = args.methods or G.default_methods("tum" if tum_root else "synth")
-    from d2slam.methods import methods as registered
 
     unknown = [m for m in methods if m not in registered() and m != G.ORBSLAM3]
     if unknown:
@@ -112,9 +114,9 @@ def run(args) -> int:
                           source="tum" if tum_root else "synth")
     if args.dry_run:
         return _dry_run(specs)
-    from d2slam.study import run_study
 
-    res = run_study(out, specs=specs, jobs=args.jobs, scheduler=args.scheduler, tum_root=tum_root,
+    config = load_config_file(args.config)[0] if args.config else None
+    res = run_study(out, specs=specs, jobs=args.jobs, scheduler=args.scheduler, tum_root=tum_root, config=config,
                     masks=args.masks, orbslam3_repeats=args.orbslam3_repeats, plots=not args.no_plots,
                     progress=False if args.quiet else None, resume=args.resume)
     df = res.runs
@@ -125,22 +127,23 @@ def run(args) -> int:
         print(f"  {name}: {path}")
     if res.manifest["grid"].get("reused_runs"):
         print(f"  {len(res.manifest['grid']['reused_runs'])} runs reused from {out / 'runs'} (--resume)")
-    print(f"  {res.manifest['timing'].get('total_s', 0):.0f} s ({res.manifest['executor']['executor']}, "
-          f"jobs {args.jobs})")
+    print(f"  {res.manifest['timing'].get('total_s', 0):.0f} s ({_where(res.manifest['executor'], args.jobs)})")
     if n_ok == 0:
         print("d2slam: error: no run succeeded (see the 'error' column of runs.csv)", file=sys.stderr)
         return 1
     return 0
 
 
+def _where(executor: dict, jobs: int) -> str:
+    """The executor the study ran on, in words: ``serial, jobs 1``, ``dask, 2 workers at tcp://HOST:PORT``."""
+    n = executor.get("workers")
+    return (f"{executor['executor']}, " + (f"{n} worker{'s' if n > 1 else ''} at {executor['scheduler']}" if n
+                                           else f"jobs {jobs}"))
+
+
 def _downloaded(tum_root, scenarios: list[str]) -> list[str]:
     """The scenarios whose fr3 folder is under ``tum_root``; the others are listed as skipped (not downloaded).
     A missing root, or one holding none of them, is an error."""
-    from pathlib import Path
-
-    from d2slam.errors import D2SlamError
-    from d2slam.study.grid import TUM_FOLDERS
-
     root = Path(tum_root).expanduser()
     if not root.is_dir():
         raise D2SlamError("--tum-root: folder not found", path=root)
@@ -155,11 +158,12 @@ def _downloaded(tum_root, scenarios: list[str]) -> list[str]:
 
 
 def _dry_run(specs) -> int:
-    from d2slam.study.sequences import is_complete, sequence_dir
-
     keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    cached = [k for k in keys if k[0] == "synth" and is_complete(sequence_dir(*k[1:]))]
-    print(f"{len(specs)} runs on {len(keys)} sequences ({len(cached)} already cached)")
+    cached = [k for k in keys if (k[0] == "synth" and is_complete(sequence_dir(*k[1:])))
+              or (k[0] == "composite" and not k[4] and composite_cached(k))]
+    real = [k for k in keys if k[0] in ("tum", "real") or (k[0] == "composite" and k[4])]
+    print(f"{len(specs)} runs on {len(keys)} sequences ({len(cached)} already cached"
+          + (f"; {len(real)} of them real recordings" if real else "") + ")")
     for s in specs:
         print(f"  {s.run_id}")
     return 0

@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import glob
+import json
+import os
 from pathlib import Path
 
 import numpy as np
 
-from d2slam.synth.scene import ALL_SCENARIOS, frames_arg
+from d2slam.cachefiles import Damaged, read_json
+from d2slam.errors import D2SlamError
+from d2slam.outputs import check_output_dir, check_outputs, remove_stale_temps, staged_dir
+from d2slam.progress import announce
+from d2slam.synth.generate import estimated_seconds, generate, worker_count
+from d2slam.synth.scene import ALL_SCENARIOS, Scene, frames_arg, resolve_frames
+from d2slam.synth.twin import read_recording
 
 
 def register(sub) -> None:
@@ -18,7 +26,10 @@ def register(sub) -> None:
         "sequences of the same name; 30 Hz frames, ground truth at 100 Hz. Same scenario, frames and seed give "
         "byte-identical files. fr1_rpy_twin is the static synthetic twin of a real recording: the office along its "
         "ground truth, at its frame times, through its camera (lens distortion) with the sensor calibrated against "
-        "fr1/rpy (--on-trajectory).")
+        "fr1/rpy (--on-trajectory). real_walking (two people walk in and out of view) and real_carry (one of them "
+        "carries a box) composite the people into a real recording's own colour and depth images (--on TUM_DIR): "
+        "its ground truth, camera and times, its floor and free space measured from its depth, a z-test against "
+        "its depth; mask_depth/ holds what its depth images show of them.")
     p.add_argument("scenario", choices=ALL_SCENARIOS)
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder (created; a folder holding nothing but a sequence d2slam synth wrote is "
@@ -31,9 +42,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the room, people, paths and noise (default 0)")
     p.add_argument("--static-twin", action="store_true",
                    help="same camera path and room, no people and no moved objects (all masks 0)")
-    p.add_argument("--on-trajectory", metavar="TUM_DIR", default=None,
-                   help="fr1_rpy_twin: the real TUM recording (rgb.txt, depth.txt, groundtruth.txt) whose ground "
-                   "truth, frame and depth times and camera the twin takes")
+    p.add_argument("--on-trajectory", "--on", metavar="TUM_DIR", default=None, dest="on_trajectory",
+                   help="the scenarios on a real recording: the real TUM folder (rgb.txt, depth.txt, groundtruth.txt) "
+                   "whose ground truth, frame and depth times and camera fr1_rpy_twin takes; real_walking and "
+                   "real_carry composite the people into its own images (docs/real_people.md)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes rendering frames (default: min(2, cores)); the files do not depend on it")
     p.set_defaults(func=run)
@@ -75,8 +87,6 @@ LAYOUT_DIRS = ("rgb", "depth", "mask_gt", "mask_sim")
 
 def _entries(folder: Path) -> tuple[list[str], list[str]]:
     """(files, folders) under ``folder``, relative, links not followed (a link counts as a file)."""
-    import os
-
     files, dirs = [], []
     for top, subdirs, names in os.walk(folder, followlinks=False):
         rel = Path(top).relative_to(folder)
@@ -94,8 +104,6 @@ def foreign_entries(folder: Path) -> list[str]:
     """What replacing ``folder`` would delete that ``d2slam synth`` did not write: everything not listed in its
     marker (:data:`OWNER`); without a readable marker, everything outside the synthetic layout when it holds
     ``scene.json`` (a sequence of an earlier version), else everything."""
-    from d2slam.cachefiles import Damaged, read_json
-
     files, dirs = _entries(folder)
     try:
         listed = read_json(folder / OWNER).get("files")
@@ -117,9 +125,6 @@ def check_sequence_out(path) -> Path:
     """``--out`` before any work: a folder that is missing, empty, or holds nothing but a sequence ``d2slam synth``
     wrote (then replaced: :func:`foreign_entries` is empty); anything else is refused, naming what would be deleted.
     Not inside another sequence, the cache's own folders or the shared folder (:func:`d2slam.outputs.check_outputs`)."""
-    from d2slam.errors import D2SlamError
-    from d2slam.outputs import check_output_dir, check_outputs
-
     path = check_output_dir(path, "--out")
     if path.is_symlink():  # write where the link points, not over the link
         path = path.resolve()
@@ -135,24 +140,15 @@ def check_sequence_out(path) -> Path:
 
 def write_owner(folder: Path, result: dict) -> None:
     """The marker of a sequence just generated into ``folder``: every file there, and what was generated."""
-    import json
-
     files, _ = _entries(folder)
     what = {k: result[k] for k in ("scenario", "seed", "frames", "static_twin") if k in result}
     (folder / OWNER).write_text(json.dumps({"format": OWNER_FORMAT, **what, "files": files}, indent=1) + "\n")
 
 
 def run(args) -> int:
-    from d2slam.outputs import remove_stale_temps, staged_dir
-    from d2slam.synth.generate import generate
-    from d2slam.synth.scene import Scene, resolve_frames
-    from d2slam.synth.twin import read_recording
-
-    from d2slam.progress import announce
-    from d2slam.synth.generate import estimated_seconds, worker_count
-
     out = check_sequence_out(args.out)
     Scene.check_recording(args.scenario, args.on_trajectory)
+    Scene.check_static_twin(args.scenario, args.static_twin)
     recording = read_recording(args.on_trajectory) if args.on_trajectory is not None else None
     frames = resolve_frames(args.scenario, args.frames, recorded=len(recording) if recording is not None else None)
     remove_stale_temps(out.parent, f"{glob.escape(out.name)}.tmp-*")  # an earlier run killed before it cleaned up
@@ -161,7 +157,7 @@ def run(args) -> int:
     announce(f"generating {frames} frames of {args.scenario}{on} (seed {args.seed}"
              f"{', static twin' if args.static_twin else ''}) into {out} with {workers} "
              f"worker{'s' if workers > 1 else ''}",
-             estimated_seconds(frames, args.workers, twin=recording is not None))
+             estimated_seconds(frames, args.workers, twin=recording is not None, scenario=args.scenario))
     with staged_dir(out) as tmp:
         result = generate(args.scenario, tmp, frames=frames, seed=args.seed, static_twin=args.static_twin,
                           workers=args.workers, recording=recording)

@@ -5,6 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
+from d2slam.baselines.vocab import Vocabulary, build_vocabulary, default_vocab_path, manifest_path, resolve_vocabulary
+from d2slam.cachefiles import Damaged, read_json
+from d2slam.outputs import check_output_file, check_outputs
+from d2slam.slam.orb_vocabulary import bow_path, read_bow
+
 
 def register(sub) -> None:
     parser = sub.add_parser("vocab", help="build / check the ORB vocabulary for the real ORB-SLAM3 baseline",
@@ -32,9 +39,6 @@ def register(sub) -> None:
 
 
 def _build(args) -> int:
-    from d2slam.baselines.vocab import build_vocabulary, default_vocab_path, manifest_path
-    from d2slam.outputs import check_output_file, check_outputs
-
     sequences = [s for group in args.sequences for s in group]
     if args.out and Path(args.out).expanduser().resolve() != default_vocab_path().resolve():  # the default is ours
         out = check_output_file(args.out, "--out")
@@ -53,14 +57,8 @@ def _build(args) -> int:
 
 
 def _check(args) -> int:
-    from d2slam.baselines.vocab import Vocabulary, default_vocab_path, manifest_path, resolve_vocabulary
-
     info = resolve_vocabulary(args.path, build=False)
     v = Vocabulary.load(info["path"])
-    import numpy as np
-
-    from d2slam.cachefiles import Damaged, read_json
-    from d2slam.slam.orb_vocabulary import _npz_path, read_bow
 
     if Path(info["path"]) == default_vocab_path().resolve():  # the cache's: it must be the file its build wrote
         try:
@@ -74,7 +72,7 @@ def _check(args) -> int:
 
     counts = np.bincount(v.depth()[v.is_leaf])
     depths = {d: int(c) for d, c in enumerate(counts) if c}
-    npz = _npz_path(info["path"], info["sha256"])  # what the engine reads instead of the text
+    npz = bow_path(info["path"], info["sha256"])  # what the engine reads instead of the text
     try:
         derived = f"; derived for the engine: {npz}" if read_bow(npz) else ""
     except FileNotFoundError:

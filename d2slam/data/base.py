@@ -10,13 +10,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Protocol, runtime_checkable
 
+import cv2
 import numpy as np
+
+from d2slam.data.config import DepthNoise
 
 
 @dataclass(frozen=True)
 class Camera:
     """Pinhole RGB-D camera. ``dist`` are OpenCV coefficients (k1, k2, p1, p2, k3); ``bf`` is the virtual baseline
-    times fx used for the RGB-D "virtual stereo" coordinate ``u_R = u - bf / z`` (ORB-SLAM convention)."""
+    times fx used for the RGB-D "virtual stereo" coordinate ``u_R = u - bf / z`` (ORB-SLAM convention);
+    ``depth_noise`` its depth sensor's noise model (a Kinect's by default)."""
 
     fx: float
     fy: float
@@ -28,6 +32,7 @@ class Camera:
     depth_factor: float = 5000.0
     bf: float = 40.0
     name: str = "custom"
+    depth_noise: DepthNoise = DepthNoise()
 
     @property
     def K(self) -> np.ndarray:
@@ -52,8 +57,6 @@ class RGBDFrame:
 
     @property
     def gray(self) -> np.ndarray:
-        import cv2
-
         return cv2.cvtColor(self.rgb, cv2.COLOR_RGB2GRAY)
 
 
@@ -78,11 +81,8 @@ class Sequence(Protocol):
     root: Path
     camera: Camera
     timestamps: np.ndarray  # RGB timestamps of the associated frames, increasing
-
     def __len__(self) -> int: ...
-
     def __getitem__(self, index: int) -> RGBDFrame: ...
-
     def __iter__(self) -> Iterator[RGBDFrame]: ...
 
     @property

@@ -44,13 +44,15 @@ from tqdm import tqdm
 
 from d2slam import __version__
 from d2slam.cachefiles import sha256_file
-from d2slam.config import DEFAULT
+from d2slam.data.config import DataConfig
+from d2slam.data.tum import TumSequence
 from d2slam.errors import D2SlamError
+from d2slam.outputs import write_bytes
 from d2slam.paths import cache_dir
 
 #: Seconds to wait for a connection (and for each read) before calling the server unreachable / stalled
 #: (``DataConfig.download_timeout``).
-CONNECT_TIMEOUT = DEFAULT.data.download_timeout
+CONNECT_TIMEOUT = DataConfig().download_timeout
 #: Automatic resumed retries of a transfer that breaks off after data started to flow.
 TRANSFER_RETRIES = 3
 CHUNK = 1 << 20
@@ -160,7 +162,6 @@ def _save_record(archive: str, sha256: str, size: int, url: str) -> None:
     records = load_records()
     records[archive] = {"sha256": sha256, "size": size, "url": url,
                         "recorded": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    from d2slam.outputs import write_bytes
 
     write_bytes(record_path(), json.dumps(records, indent=1, sort_keys=True) + "\n")
 
@@ -391,7 +392,6 @@ def download_sequence(name: str, dest: str | Path, base_url: str | None = None, 
 def _download_into(info: SequenceInfo, dest: Path, base_url, archive, keep_archive: bool, force: bool,
                    timeout: float, log) -> Path:
     """:func:`download_sequence` once ``dest`` exists."""
-    from d2slam.data.tum import TumSequence
 
     target = dest / info.folder
     if target.exists() and not force:

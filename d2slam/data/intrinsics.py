@@ -16,6 +16,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import yaml
+
 from d2slam.data.base import Camera
 from d2slam.errors import D2SlamError, read_text
 
@@ -87,8 +89,6 @@ _KEYS = {
 
 
 def _yaml_loader():
-    import yaml
-
     class Loader(yaml.SafeLoader):
         """SafeLoader that reads OpenCV's tagged values (``!!opencv-matrix``) as plain mappings."""
 
@@ -102,8 +102,6 @@ def read_camera_file(path: str | Path) -> CameraSettings:
     ``k1 k2 p1 p2 [k3]``, ``Camera.width/height``, ``Camera.bf``, ``DepthMapFactor`` and ``ThDepth`` (ORB-SLAM2 and
     ORB-SLAM3 0.x), or ``Camera1.*``, ``Stereo.b`` (bf = b fx), ``RGBD.DepthMapFactor`` and ``Stereo.ThDepth``
     (ORB-SLAM3 1.0). The ``%YAML:1.0`` first line of OpenCV files is accepted. Only pinhole cameras."""
-    import yaml
-
     path = Path(path).expanduser()
     text = read_text(path, "camera settings")
     text = re.sub(r"\A\s*%YAML[: ]\s*\d+\.\d+[^\n]*\n", "", text)  # OpenCV's directive; PyYAML wants "%YAML 1.1"

@@ -79,12 +79,33 @@ class SyntheticSequence(TumSequence):
         self.seed = scene.get("seed")
         self.static_twin = bool(scene.get("static_twin", False))
         self._scene_camera = self._camera_from_scene(scene["camera"])
+        objects, intervals = self._objects(scene["objects"])
+        persons = sorted(oid for oid, o in objects.items() if o["kind"] == "person")
+        moved = sorted(oid for oid, o in objects.items() if o["kind"] == "object" and o.get("moved"))
+        if sorted(scene["person_ids"]) != persons:
+            raise self._scene_error(f"person_ids {scene['person_ids']} disagree with the objects of kind "
+                                    f"'person' {persons}")
+        if sorted(scene["moved_object_ids"]) != moved:
+            raise self._scene_error(f"moved_object_ids {scene['moved_object_ids']} disagree with the objects "
+                                    f"of kind 'object' with moved=true {moved}")
+        self.objects = objects
+        self.moving_intervals = intervals
+        self.person_ids = np.asarray(persons, dtype=np.int64)
+        self.moved_object_ids = np.asarray(moved, dtype=np.int64)
+        self._known_lut = np.zeros(256, dtype=bool)
+        self._known_lut[0] = True
+        self._known_lut[list(objects)] = True
+        self._person_lut = np.zeros(256, dtype=bool)
+        self._person_lut[self.person_ids] = True
 
+    def _objects(self, listed) -> tuple[dict[int, dict], dict[int, np.ndarray]]:
+        """``scene.json``'s objects by id (each checked: an id in 1..255 listed once, a kind, finite moving intervals)
+        and each one's moving intervals (K, 2)."""
         objects: dict[int, dict] = {}
         intervals: dict[int, np.ndarray] = {}
-        if not isinstance(scene["objects"], list):
+        if not isinstance(listed, list):
             raise self._scene_error("'objects' must be a list")
-        for k, obj in enumerate(scene["objects"]):
+        for k, obj in enumerate(listed):
             if not isinstance(obj, dict) or "id" not in obj or "kind" not in obj:
                 raise self._scene_error(f"objects[{k}] must be an object with 'id' and 'kind'")
             oid = obj["id"]
@@ -103,23 +124,7 @@ class SyntheticSequence(TumSequence):
                 raise self._scene_error(f"objects[{k}] moving_intervals must be finite with t0 <= t1")
             objects[oid] = obj
             intervals[oid] = arr
-        persons = sorted(oid for oid, o in objects.items() if o["kind"] == "person")
-        moved = sorted(oid for oid, o in objects.items() if o["kind"] == "object" and o.get("moved"))
-        if sorted(scene["person_ids"]) != persons:
-            raise self._scene_error(f"person_ids {scene['person_ids']} disagree with the objects of kind "
-                                    f"'person' {persons}")
-        if sorted(scene["moved_object_ids"]) != moved:
-            raise self._scene_error(f"moved_object_ids {scene['moved_object_ids']} disagree with the objects "
-                                    f"of kind 'object' with moved=true {moved}")
-        self.objects = objects
-        self.moving_intervals = intervals
-        self.person_ids = np.asarray(persons, dtype=np.int64)
-        self.moved_object_ids = np.asarray(moved, dtype=np.int64)
-        self._known_lut = np.zeros(256, dtype=bool)
-        self._known_lut[0] = True
-        self._known_lut[list(objects)] = True
-        self._person_lut = np.zeros(256, dtype=bool)
-        self._person_lut[self.person_ids] = True
+        return objects, intervals
 
     def _camera_from_scene(self, cam) -> Camera:
         if not isinstance(cam, dict):

@@ -37,20 +37,21 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from d2slam.data.base import Camera, RGBDFrame, Trajectory
+from d2slam.data.config import DataConfig
 from d2slam.data.intrinsics import resolve_camera
-from d2slam.config import DEFAULT
 from d2slam.errors import D2SlamError
+from d2slam.outputs import write_bytes
 
 # The constants live in ``d2slam.config.DataConfig``; these names are their defaults here.
 #: RGB/depth association tolerance of TUM's associate.py (seconds).
-DEFAULT_MAX_DT = DEFAULT.data.max_dt
+DEFAULT_MAX_DT = DataConfig().max_dt
 #: Ground-truth interpolation refuses to bridge gaps between samples longer than this (seconds); TUM ground truth
 #: is 100 Hz, so 0.1 s is ten missing samples.
-DEFAULT_GT_MAX_GAP = DEFAULT.data.gt_max_gap
+DEFAULT_GT_MAX_GAP = DataConfig().gt_max_gap
 #: A quaternion whose norm is further than this from 1 is an error (TUM files are unit to ~1e-4).
-QUATERNION_NORM_TOLERANCE = DEFAULT.data.quaternion_norm_tolerance
+QUATERNION_NORM_TOLERANCE = DataConfig().quaternion_norm_tolerance
 #: A rotation block with ``|R^T R - I| > tol`` or ``det(R) <= 0`` is rejected by the trajectory writer.
-ROTATION_TOLERANCE = DEFAULT.data.rotation_tolerance
+ROTATION_TOLERANCE = DataConfig().rotation_tolerance
 
 _TRAJECTORY_HEADER = "# timestamp tx ty tz qx qy qz qw"
 
@@ -209,7 +210,6 @@ def write_tum_trajectory(path: str | Path, traj: Trajectory, header: str | None 
         lines += [f"{r[0]:.6f} " + " ".join(f"{v:.9f}" for v in r[1:]) for r in table]
     if not path.parent.is_dir():
         raise D2SlamError("output folder does not exist", path=path.parent)
-    from d2slam.outputs import write_bytes
 
     return write_bytes(path, "\n".join(lines) + "\n")  # whole or not at all; a failed write is one line
 

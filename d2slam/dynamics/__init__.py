@@ -9,21 +9,7 @@ behind the engine's keypoint-filter hook.
 - ``flow``: ours, sub-pixel correspondences for eq 4-6 by LK flow (the ``d2slam-flow`` method)
 - ``switches``: the ablations' switches (depth, Bayes, OIM, flow)
 - ``classifier``: ``D2SlamFilter`` (with its switches), ``SemanticFilter`` and ``EpipolarFilter``, which the
-  run-method registry (``d2slam.methods``) builds under the study's method names
-
-The classifier (numpy, scipy, OpenCV) is imported on first use of one of its names here (PEP 562): the command
-line lists the method names without paying for those imports (measured: docs/deviations.md, "Measurements behind
-implementation choices").
+  run-method registry (``d2slam.run.methods``) builds under the study's method names
 """
 
 from __future__ import annotations
-
-_LAZY = ("D2SlamFilter", "SemanticFilter", "EpipolarFilter", "FrameDiagnostics")
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        from d2slam.dynamics import classifier
-
-        return getattr(classifier, name)
-    raise AttributeError(f"module 'd2slam.dynamics' has no attribute {name!r}")

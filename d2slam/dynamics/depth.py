@@ -16,7 +16,8 @@ midpoint of its range for an invalid depth (beta 0.15, alpha 0.7, delta 29.5, ga
 ``use_depth=False`` (the "no-depth" ablation). All functions are vectorised over arrays of any shape.
 
 Deviation (see ``octave_factor``): the epipolar threshold used by the geometric module is
-alpha(z) * 1.2^octave, alpha at the keypoint's detection scale, in every mode that has an epipolar threshold.
+alpha(z) * 1.2^octave (1.2: the engine's pyramid scale), alpha at the keypoint's detection scale, in every mode that
+has an epipolar threshold.
 """
 
 from __future__ import annotations
@@ -25,11 +26,15 @@ from functools import lru_cache
 
 import numpy as np
 
-from d2slam.config import DynamicsConfig
+from d2slam.data.config import DepthNoise
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.errors import D2SlamError
+from d2slam.slam.config import OrbConfig
 from d2slam.slam.depth import keypoint_depth, keypoint_depth_range, valid_depth  # noqa: F401 - the engine's, shared
 
 _DEFAULT = DynamicsConfig()
+_ORB = OrbConfig()  # the engine's defaults; a run's come with the hook's input (FilterInput)
+_NOISE = DepthNoise()  # a Kinect's; a run's is its camera's (FilterInput.camera)
 
 
 def normalised_depth(z: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
@@ -61,22 +66,25 @@ def alpha(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarr
     return _linear(z, cfg.alpha_max, cfg.alpha_min, cfg, use_depth)
 
 
-def octave_factor(octave, n: int, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray | float:
-    """eq 5 (ours, a deviation): the factor ``alpha_octave_scale ** octave`` that expresses the epipolar
-    threshold at each keypoint's detection scale (ORB-SLAM's per-level sigma, ``scale_factor ** level``).
+def octave_factor(octave, n: int, scale_factor: float = _ORB.scale_factor, at_scale: bool = True
+                  ) -> np.ndarray | float:
+    """eq 5 (ours, a deviation): the factor ``scale_factor ** octave`` that expresses the epipolar threshold at each
+    keypoint's detection scale (ORB-SLAM's per-level sigma; ``scale_factor``: the engine's pyramid scale,
+    ``FilterInput.scale_factor``).
 
     Why: an ORB keypoint detected at pyramid level k is localised on a grid ``1.2^k`` px wide at level 0, so the
     epipolar error of correct static matches grows with the level; with alpha(z) * 1.2^k the share of them above the
-    threshold is about the same at every level (measured: docs/deviations.md, ``DynamicsConfig.alpha_octave_scale``).
-    ``octave`` None (the engine gives no levels) or ``alpha_octave_scale`` 1 -> 1.0 (the paper as printed). Octaves
-    are clipped to [0, 31] (NaN -> 0); an array whose length is not ``n`` (the keypoint count) is a D2SlamError."""
-    if octave is None or cfg.alpha_octave_scale == 1.0:
+    threshold is about the same at every level (measured: docs/deviations.md, ``OursConfig.alpha_at_scale``).
+    ``octave`` None (the engine gives no levels), ``at_scale`` False or a scale of 1 -> 1.0 (the paper as printed).
+    Octaves are clipped to [0, 31] (NaN -> 0); an array whose length is not ``n`` (the keypoint count) is a
+    D2SlamError."""
+    if octave is None or not at_scale or scale_factor == 1.0:
         return 1.0
     o = np.asarray(octave).reshape(-1)
     if len(o) != n:
         raise D2SlamError(f"octave has {len(o)} entries for {n} keypoints")
     o = np.clip(np.nan_to_num(o.astype(np.float64), nan=0.0), 0, 31)
-    return cfg.alpha_octave_scale ** o
+    return float(scale_factor) ** o
 
 
 def gamma(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarray:
@@ -96,21 +104,20 @@ def delta(z, cfg: DynamicsConfig = _DEFAULT, use_depth: bool = True) -> np.ndarr
     return np.where(ok, d, mid)
 
 
-def depth_sigma(z, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
-    """sigma(z) = depth_sigma_a + depth_sigma_b (z - depth_sigma_c)^2 metres: the Kinect's axial depth noise (Nguyen et
-    al. 2012), the scale of the pose test's depth residual (ours, see ``geometric.pose_residuals``).
-    NaN where the depth is invalid."""
-    z = np.asarray(z, dtype=np.float64)
-    return np.where(valid_depth(z), cfg.depth_sigma_a + cfg.depth_sigma_b * (z - cfg.depth_sigma_c) ** 2, np.nan)
+def depth_sigma(z, noise: DepthNoise = _NOISE) -> np.ndarray:
+    """sigma(z) of the camera's depth noise (``Camera.depth_noise``: a Kinect's, Nguyen et al. 2012), the scale of the
+    pose test's depth residual (ours, see ``geometric.pose_residuals``). NaN where the depth is invalid."""
+    return noise.sigma(z)
 
 
-def depth_edge(depth: np.ndarray, px: np.ndarray, z: np.ndarray, cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
-    """(N,) bool: the keypoint's depth patch (the engine's, ``depth_patch_radius``) spans more than the noise can: its
-    range exceeds the ``noise_confidence`` quantile of the range of that many samples of sigma(z) (the studentized
-    range). ``px`` where the keypoints are in the depth image, ``z`` their robust depths."""
-    q = range_quantile(cfg.noise_confidence, (2 * int(cfg.depth_patch_radius) + 1) ** 2)
+def depth_edge(depth: np.ndarray, px: np.ndarray, z: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
+               radius: int = _ORB.depth_patch_radius, noise: DepthNoise = _NOISE) -> np.ndarray:
+    """(N,) bool: the keypoint's depth patch (the engine's, of ``radius``: ``FilterInput.depth_patch_radius``) spans
+    more than the noise can: its range exceeds the ``noise_confidence`` quantile of the range of that many samples of
+    sigma(z) (the studentized range). ``px`` where the keypoints are in the depth image, ``z`` their robust depths."""
+    q = range_quantile(cfg.ours.noise_confidence, (2 * int(radius) + 1) ** 2)
     with np.errstate(invalid="ignore"):
-        return keypoint_depth_range(depth, px, cfg.depth_patch_radius) > q * depth_sigma(z, cfg)
+        return keypoint_depth_range(depth, px, radius) > q * depth_sigma(z, noise)
 
 
 @lru_cache(maxsize=None)

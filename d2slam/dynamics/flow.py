@@ -1,4 +1,4 @@
-"""Sub-pixel correspondences for eq 4-6 by pyramidal Lucas-Kanade flow (ours; ``DynamicsConfig.flow``).
+"""Sub-pixel correspondences for eq 4-6 by pyramidal Lucas-Kanade flow (ours; ``FlowConfig.enabled``).
 
     q_i = LK(I_t -> I_{t-1}) of keypoint p_i, started at its match q_j (or at p_i when unmatched)
     q_i kept when LK(I_{t-1} -> I_t) of q_i, started at q_i + p_i - q_j, returns within flow_fb_px of p_i
@@ -10,15 +10,15 @@ Eq 5 measures the distance of p to the epipolar line of its correspondence q. Wi
 corners at integer positions of their pyramid levels, so even a correct static match is off by about a pixel, which is
 alpha's own size. The tracked position is sub-pixel: far fewer correct static matches exceed alpha, while dynamic ones
 still do. LK also finds a correspondence for many keypoints the descriptor matching missed, which is where most of the
-missed dynamic keypoints are (measured: docs/deviations.md, ``DynamicsConfig.flow``). Notebook 03 shows the default
+missed dynamic keypoints are (measured: docs/deviations.md, ``FlowConfig.enabled``). Notebook 03 shows the default
 settings (11 x 11 window, 10 iterations) on a short sequence.
 
 Without a depth a new match has eq 5 alone, which cannot see an object carried along its epipolar lines; with the
 previous depth image's robust depth at q_i (``flow_new_depth``) the RGB-D pose test runs on it too (measured:
-docs/deviations.md, ``DynamicsConfig.flow_new_depth``).
+docs/deviations.md, ``FlowConfig.flow_new_depth``).
 
 The cost is the flow itself (``d2slam bench dynamics --sequence DIR --method d2slam-flow`` prints it apart; figures
-in docs/deviations.md, ``DynamicsConfig.flow``). It tracks only the keypoints ``flow_area`` uses (LK tracks each
+in docs/deviations.md, ``FlowConfig.enabled``). It tracks only the keypoints ``flow_area`` uses (LK tracks each
 point on its own, so the others' tracks do not change). So it is an extension beside the paper's modules, outside
 their 3 ms budget.
 """
@@ -28,12 +28,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from d2slam.config import DynamicsConfig
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.depth import keypoint_depth
 from d2slam.errors import D2SlamError
+from d2slam.slam.config import OrbConfig
 
 _DEFAULT = DynamicsConfig()
-FLOW_AREAS = ("all", "matched", "outside")  # DynamicsConfig.flow_area
+FLOW_AREAS = ("all", "matched", "outside")  # FlowConfig.flow_area
 
 
 def check_flow_area(area: str) -> str:
@@ -43,7 +44,7 @@ def check_flow_area(area: str) -> str:
 
 
 def flow_keypoints(in_area: np.ndarray, matches: np.ndarray, area: str) -> np.ndarray:
-    """(N,) bool: the keypoints the flow tracks under ``DynamicsConfig.flow_area``; the others keep their ORB match.
+    """(N,) bool: the keypoints the flow tracks under ``FlowConfig.flow_area``; the others keep their ORB match.
     "all" tracks every keypoint; "matched" skips the unmatched keypoints in a mask area (``in_area``, eq 7's inside
     or uncertain); "outside" skips every keypoint in a mask area."""
     track = ~np.asarray(in_area, dtype=bool)
@@ -84,26 +85,28 @@ def flow_correspondences(gray: np.ndarray, prev_gray: np.ndarray, kps: np.ndarra
     start[bad_start] = kps[bad_start]
     idx = np.flatnonzero(use)
     p0 = kps[idx].reshape(-1, 1, 2)
-    win = (int(cfg.flow_window), int(cfg.flow_window))
-    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, int(cfg.flow_iterations), float(cfg.flow_epsilon))
+    fc = cfg.flow
+    win = (int(fc.flow_window), int(fc.flow_window))
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, int(fc.flow_iterations), float(fc.flow_epsilon))
     q1, s1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, start[idx].reshape(-1, 1, 2).copy(), winSize=win,
-                                         maxLevel=int(cfg.flow_levels), criteria=crit,
+                                         maxLevel=int(fc.flow_levels), criteria=crit,
                                          flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     # backward, started at the forward track moved back by the start's offset (the match's motion, reversed)
     back = (q1.reshape(-1, 2) + (kps[idx] - start[idx])).reshape(-1, 1, 2)
-    p1, s2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, q1, back, winSize=win, maxLevel=int(cfg.flow_levels),
+    p1, s2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, q1, back, winSize=win, maxLevel=int(fc.flow_levels),
                                          criteria=crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     q1, p1 = q1.reshape(-1, 2), p1.reshape(-1, 2)
     ok = (s1.reshape(-1) == 1) & (s2.reshape(-1) == 1) & np.isfinite(q1).all(axis=1)
     with np.errstate(invalid="ignore"):
-        ok &= np.hypot(*(p1 - kps[idx]).T) <= cfg.flow_fb_px
+        ok &= np.hypot(*(p1 - kps[idx]).T) <= fc.flow_fb_px
     q[idx[ok]] = q1[ok]
     return q
 
 
 def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray, prev_belief: np.ndarray,
                  matches: np.ndarray, prev_depth: np.ndarray | None = None, cfg: DynamicsConfig = _DEFAULT,
-                 shape: tuple[int, int] | None = None, q_px: np.ndarray | None = None
+                 shape: tuple[int, int] | None = None, q_px: np.ndarray | None = None,
+                 radius: int = OrbConfig().depth_patch_radius
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The geometric module's inputs with the flow's correspondences ``q`` (N, 2) (``flow_correspondences``) and the
     validated ``matches`` (K, 2) (``geometric.check_matches``).
@@ -111,8 +114,9 @@ def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray,
     A matched keypoint that tracked takes its tracked position in place of its match's (the previous keypoint keeps
     its belief and depth). An unmatched keypoint that tracked becomes a match to a new previous point at its tracked
     position, with no belief (NaN) and not used to fit F (``fit`` False). Its depth is the robust depth of the
-    previous depth image ``prev_depth`` (H, W) at the tracked position (``depth.keypoint_depth``), so the pose test
-    runs on it, when ``cfg.flow_new_depth`` is on and the image is given; 0 (no pose test) otherwise. ``shape`` is
+    previous depth image ``prev_depth`` (H, W) at the tracked position (``depth.keypoint_depth`` over the engine's patch
+    ``radius``, ``FilterInput.depth_patch_radius``), so the pose test
+    runs on it, when ``cfg.flow.flow_new_depth`` is on and the image is given; 0 (no pose test) otherwise. ``shape`` is
     the grey images' (H, W): a ``prev_depth`` of another size (or not 2-D) is a clear error, not silent 0 depths.
     ``q_px``: the tracked positions in the image, where the depth is read, when ``q`` holds them undistorted (a
     camera with lens distortion; default ``q``). Returns (prev_kps, prev_kp_depth, prev_belief, matches, fit (K',) bool, tracked (N,) bool)."""
@@ -132,8 +136,8 @@ def flow_matches(q: np.ndarray, prev_kps: np.ndarray, prev_kp_depth: np.ndarray,
     new = np.flatnonzero(tracked & ~is_matched)
     n_prev = len(prev_kps)
     q_px = q if q_px is None else np.asarray(q_px, dtype=np.float64).reshape(-1, 2)
-    new_z = keypoint_depth(prev_depth, q_px[new], cfg.depth_patch_radius) \
-        if prev_depth is not None and cfg.flow_new_depth else np.zeros(len(new))
+    new_z = keypoint_depth(prev_depth, q_px[new], radius) \
+        if prev_depth is not None and cfg.flow.flow_new_depth else np.zeros(len(new))
     prev_kps = np.concatenate([prev_kps, q[new]])
     prev_depth_kp = np.concatenate([np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1), new_z])
     prev_belief = np.concatenate([np.asarray(prev_belief, dtype=np.float64).reshape(-1), np.full(len(new), np.nan)])

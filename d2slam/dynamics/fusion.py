@@ -14,11 +14,11 @@ Eq 8, binary state (dynamic / static), prior bel(q) of the keypoint's predecesso
 
 bel > 0.5 -> dynamic.
 
-Ours (``DynamicsConfig.neighbour_p_g``; measured: docs/deviations.md): a keypoint that is not matched takes
+Ours (``OursConfig.neighbour_p_g``; measured: docs/deviations.md): a keypoint that is not matched takes
 max(P, P_nb), P_nb the mean P_g of its matched neighbours at the same depth (``interaction.neighbour_p_g``), where it
 has enough of them.
 
-Ours (``DynamicsConfig.flow_edge_band``, with the flow only; measured: docs/deviations.md): a keypoint nothing
+Ours (``FlowConfig.flow_edge_band``, with the flow only; measured: docs/deviations.md): a keypoint nothing
 observed, just outside a mask (eq 1's signed distance in (-band, 0)), takes max(P, ``flow_edge_p``) (``edge_band``);
 eq 7 leaves it at P_S < 0.5, static.
 """
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import DynamicsConfig
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.errors import D2SlamError
 
 _DEFAULT = DynamicsConfig()
@@ -68,7 +68,7 @@ def check_edge_band(band: float, p_edge: float) -> None:
 
 def edge_band(p: np.ndarray, d_max: np.ndarray, observed: np.ndarray, band: float, p_edge: float) -> tuple[
         np.ndarray, np.ndarray]:
-    """eq 7, ours (``DynamicsConfig.flow_edge_band``): ``(P', edge)``, where ``edge`` marks the keypoints that are not
+    """eq 7, ours (``FlowConfig.flow_edge_band``): ``(P', edge)``, where ``edge`` marks the keypoints that are not
     ``observed`` and lie outside every mask within ``band`` px of one (``d_max``, eq 1's largest signed distance, in
     (-band, 0)), and ``P' = max(P, p_edge)`` there, P elsewhere. ``band <= 0`` flags nothing (the interval is empty).
     ``d_max`` is -inf for a keypoint without masks or with non-finite coordinates, NaN compares False: neither is
@@ -118,7 +118,7 @@ def bayes_update(prior: np.ndarray, p: np.ndarray, cfg: DynamicsConfig = _DEFAUL
     be exactly P whatever the prior (the history erased, and a belief of exactly 0/1 only the transition can undo).
     As b- is in [eps, 1 - eps] after prediction, the normaliser P b- + (1 - P)(1 - b-) is never 0."""
     b = predict(prior, cfg)
-    c = cfg.likelihood_clip
+    c = cfg.ours.likelihood_clip
     lik = np.clip(np.asarray(p, dtype=np.float64), c, 1.0 - c)
     num = lik * b
     return num / (num + (1.0 - lik) * (1.0 - b))

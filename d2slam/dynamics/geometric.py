@@ -10,10 +10,10 @@ whatever the keypoint's history, so its map point is culled. With ORB keypoints 
 pyramid level, alpha = 0.5-0.9 px is close to the noise floor of the test: correct static matches exceed it in a
 sizeable share of frames. An exceedance is therefore evidence, not certainty: P_g = P(dynamic | err > alpha) with
 equal priors = r_dyn / (r_dyn + r_static), r_dyn and r_static the shares of matched dynamic and static keypoints
-that exceed alpha; ``DynamicsConfig.p_g_exceed`` = 0.7 (1.0 restores the paper; measured: docs/deviations.md,
-``DynamicsConfig.p_g_exceed``).
+that exceed alpha; ``OursConfig.p_g_exceed`` = 0.7 (1.0 restores the paper; measured: docs/deviations.md,
+``OursConfig.p_g_exceed``).
 
-Deviation (ours, ``DynamicsConfig.noise_widening``): every threshold of this module (alpha(z) and eq 6's sigma, the
+Deviation (ours, ``OursConfig.noise_widening``): every threshold of this module (alpha(z) and eq 6's sigma, the
 pose test's reprojection and depth thresholds) is widened in each frame to the noise of that frame's static
 residuals, so that it is at least their ``noise_confidence`` (95 %) quantile (``widening``). alpha(z) keeps its
 depth-adaptive shape; on a sensor whose static residuals are narrower the paper's values hold. Why: on real Kinect
@@ -23,7 +23,7 @@ own capture time); the fixed thresholds flagged 30-80 % of static matches and tr
 Eq 6 as printed is a Gaussian *density* of the error (largest at zero error); our reading
 (docs/design.md#geometric-module-eq-4-6) makes it a probability of being dynamic that is 0 at zero error and grows
 with the error, which is what eq 7 needs. Like alpha, its sigma is
-taken at the keypoint's detection scale, sigma x 1.2^octave (``DynamicsConfig.sigma_at_scale``; measured:
+taken at the keypoint's detection scale, sigma x 1.2^octave (``OursConfig.sigma_at_scale``; measured:
 docs/deviations.md): otherwise a match below its scaled threshold could still get P_g > 0.5.
 
 F is estimated by RANSAC (``cv2.findFundamentalMat``, FM_RANSAC, seeded with ``cv2.setRNGSeed``) on the matches
@@ -32,7 +32,7 @@ of them, else on all matches. With fewer than ``f_min_matches`` (8) usable match
 (finite, 3x3) F, there is no F: P_g is undefined (NaN) and eq 7 treats every keypoint as *unmatched*.
 A match whose epipolar line is degenerate (q at the epipole, l_x = l_y = 0) is unmatched as well.
 
-Extension (ours, RGB-D; ``DynamicsConfig.pose_test``): the pose test beside eq 5.
+Extension (ours, RGB-D; ``PoseTestConfig.enabled``): the pose test beside eq 5.
 
     (R, t)  = relative pose t-1 -> t: PnP-RANSAC (SQPnP) on the matches RANSAC used for F with a previous depth
     X'      = R X_q + t,  X_q the previous keypoint back-projected with its depth
@@ -42,7 +42,7 @@ Extension (ours, RGB-D; ``DynamicsConfig.pose_test``): the pose test beside eq 5
 
 The epipolar error measures only the motion across the epipolar line; a point moving along its line (an object
 carried away from or towards the camera, or sliding along the line under rotation) passes eq 5 whatever its speed;
-the pose test sees that motion (measured: docs/deviations.md, ``DynamicsConfig.pose_test``). Without a pose (fewer
+the pose test sees that motion (measured: docs/deviations.md, ``PoseTestConfig.enabled``). Without a pose (fewer
 than ``pnp_min_matches`` matches with a previous depth, or no PnP solution) the test is skipped and eq 5 decides
 alone.
 """
@@ -57,7 +57,8 @@ import numpy as np
 
 from scipy.special import gammaincinv
 
-from d2slam.config import DynamicsConfig
+from d2slam.data.config import DepthNoise
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.depth import depth_sigma, valid_depth
 from d2slam.errors import D2SlamError
 
@@ -81,7 +82,7 @@ def check_matches(matches: np.ndarray, n_cur: int, n_prev: int) -> np.ndarray:
 
 
 def fundamental_matrix(q: np.ndarray, p: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
-                       seed: int | None = None) -> tuple[np.ndarray | None, np.ndarray]:
+                       seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
     """eq 4: F with p~^T F q~ = 0 from matched pixels ``q`` (frame t-1) and ``p`` (frame t), (K, 2) each.
 
     RANSAC (OpenCV FM_RANSAC, threshold ``f_ransac_threshold_px``, confidence, max iterations from the config),
@@ -96,7 +97,7 @@ def fundamental_matrix(q: np.ndarray, p: np.ndarray, cfg: DynamicsConfig = _DEFA
         return none
     if cfg.f_ransac_method not in _METHODS:
         raise D2SlamError(f"unknown f_ransac_method {cfg.f_ransac_method!r}; choose one of {', '.join(_METHODS)}")
-    cv2.setRNGSeed(int(cfg.f_ransac_seed if seed is None else seed))
+    cv2.setRNGSeed(int(seed))
     try:
         F, inl = cv2.findFundamentalMat(q, p, _METHODS[cfg.f_ransac_method], cfg.f_ransac_threshold_px,
                                         cfg.f_ransac_confidence, cfg.f_ransac_max_iters)
@@ -144,7 +145,7 @@ def back_project(px: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def relative_pose(X: np.ndarray, p: np.ndarray, K: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
-                  seed: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+                  seed: int = 0) -> tuple[np.ndarray, np.ndarray] | None:
     """Pose test (ours): (R (3, 3), t (3,)) with p ~ K (R X + t), from 3-D points ``X`` (K, 3) of frame t-1 to their
     matched pixels ``p`` (K, 2) in frame t.
 
@@ -153,17 +154,18 @@ def relative_pose(X: np.ndarray, p: np.ndarray, K: np.ndarray, cfg: DynamicsConf
     points or inliers, or when OpenCV finds no finite pose."""
     X = np.ascontiguousarray(X, dtype=np.float64).reshape(-1, 3)
     p = np.ascontiguousarray(p, dtype=np.float64).reshape(-1, 2)
-    need = max(cfg.pnp_min_matches, 6)
+    need = max(cfg.pose_test.pnp_min_matches, 6)
     ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(p), axis=1)
     if not ok.all():
         X, p = np.ascontiguousarray(X[ok]), np.ascontiguousarray(p[ok])
     if len(X) < need:
         return None
     K = np.asarray(K, dtype=np.float64)
-    cv2.setRNGSeed(int(cfg.f_ransac_seed if seed is None else seed))
+    cv2.setRNGSeed(int(seed))
     try:
-        found, rv, tv, inl = cv2.solvePnPRansac(X, p, K, None, iterationsCount=cfg.pnp_iterations,
-                                                reprojectionError=cfg.pnp_ransac_px, confidence=cfg.pnp_confidence,
+        pt = cfg.pose_test
+        found, rv, tv, inl = cv2.solvePnPRansac(X, p, K, None, iterationsCount=pt.pnp_iterations,
+                                                reprojectionError=pt.pnp_ransac_px, confidence=pt.pnp_confidence,
                                                 flags=cv2.SOLVEPNP_SQPNP)
     except cv2.error:  # degenerate point sets OpenCV refuses: no pose, eq 5 decides alone
         return None
@@ -177,16 +179,16 @@ def relative_pose(X: np.ndarray, p: np.ndarray, K: np.ndarray, cfg: DynamicsConf
 
 
 def pose_residuals(X: np.ndarray, p: np.ndarray, z: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray,
-                   cfg: DynamicsConfig = _DEFAULT) -> tuple[np.ndarray, np.ndarray]:
+                   noise: DepthNoise = DepthNoise()) -> tuple[np.ndarray, np.ndarray]:
     """Pose test (ours): (reprojection error (K,) px, normalised depth residual (K,)) of points ``X`` (K, 3) of frame
-    t-1 moved by (R, t), against their matches: pixels ``p`` (K, 2) and measured depths ``z`` (K,) in frame t. The
-    depth residual is (z - z_pred) / sqrt(sigma(z)^2 + sigma(z_pred)^2) with sigma = ``depth.depth_sigma``. NaN where
-    X is not finite or lies behind the camera; the depth residual also where z is invalid.
+    t-1 moved by (R, t), against their matches: pixels ``p`` (K, 2) and measured depths ``z`` (K,) in frame t. The depth
+    residual is (z - z_pred) / sqrt(sigma(z)^2 + sigma(z_pred)^2) with sigma the camera's depth noise (``noise``). NaN
+    where X is not finite or lies behind the camera; the depth residual also where z is invalid.
 
     Why: eq 5 cannot see a point that moves along its epipolar line (an object carried away from the camera, or slid
     along its lines under rotation); the reprojection and depth residuals of the relative pose do. A flag is evidence
     with the reliability P(dynamic | flagged), ``p_pose_exceed`` (measured: docs/deviations.md,
-    ``DynamicsConfig.pose_test`` and ``DynamicsConfig.p_pose_exceed``)."""
+    ``PoseTestConfig.enabled`` and ``PoseTestConfig.p_pose_exceed``)."""
     X = np.asarray(X, dtype=np.float64).reshape(-1, 3)
     p = np.asarray(p, dtype=np.float64).reshape(-1, 2)
     z = np.asarray(z, dtype=np.float64).reshape(-1)
@@ -197,12 +199,12 @@ def pose_residuals(X: np.ndarray, p: np.ndarray, z: np.ndarray, R: np.ndarray, t
         zc = np.where(ok, Xc[:, 2], np.nan)
         reproj = np.hypot(K[0, 0] * Xc[:, 0] / zc + K[0, 2] - p[:, 0], K[1, 1] * Xc[:, 1] / zc + K[1, 2] - p[:, 1])
         z = np.where(valid_depth(z), z, np.nan)
-        dres = (z - zc) / np.hypot(depth_sigma(z, cfg), depth_sigma(zc, cfg))
+        dres = (z - zc) / np.hypot(depth_sigma(z, noise), depth_sigma(zc, noise))
     return reproj, dres
 
 
 def widening(r: np.ndarray, threshold: np.ndarray | float, dof: int, cfg: DynamicsConfig = _DEFAULT) -> float:
-    """Noise widening (ours, ``DynamicsConfig.noise_widening``): the factor kappa >= 1 by which a test's threshold
+    """Noise widening (ours, ``OursConfig.noise_widening``): the factor kappa >= 1 by which a test's threshold
     grows so that it is at least the ``noise_confidence`` quantile of this frame's static residuals.
 
         sigma = median(r) / chi_dof^-1(0.5)                  the residuals' robust scale, r ~ sigma chi_dof if static
@@ -218,7 +220,7 @@ def widening(r: np.ndarray, threshold: np.ndarray | float, dof: int, cfg: Dynami
     depth image's own capture time): a fixed threshold then flags most static matches of a fast frame and tracking is
     lost (measured: docs/real_data.md). Widened, a static match exceeds the threshold with about the same small
     probability in every frame, and the depth-adaptive shape of alpha(z) (eq 5) is kept."""
-    if not cfg.noise_widening:
+    if not cfg.ours.noise_widening:
         return 1.0
     r = np.asarray(r, dtype=np.float64)
     ok = np.isfinite(r)
@@ -227,7 +229,7 @@ def widening(r: np.ndarray, threshold: np.ndarray | float, dof: int, cfg: Dynami
     th = float(np.median(np.broadcast_to(np.asarray(threshold, dtype=np.float64), r.shape)[ok]))
     if not th > 0:  # a test turned off (threshold 0) is not widened
         return 1.0
-    return max(1.0, float(chi_quantile_over_median(cfg.noise_confidence, dof) * np.median(r[ok]) / th))
+    return max(1.0, float(chi_quantile_over_median(cfg.ours.noise_confidence, dof) * np.median(r[ok]) / th))
 
 
 @lru_cache(maxsize=None)
@@ -255,27 +257,52 @@ class GeometricResult:
     widening: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
+@dataclass
+class PoseInputs:
+    """What the pose test (ours) reads beside the matches: the keypoints' robust depths in both frames, (N,) and (M,),
+    the intrinsics ``K``, the camera's depth noise, and where a depth was read across a depth edge (current (N,),
+    previous (M,) bool: the depth residual is not tested there; None: nowhere)."""
+
+    kp_depth: np.ndarray
+    prev_kp_depth: np.ndarray
+    K: np.ndarray
+    noise: DepthNoise = DepthNoise()
+    depth_edge: np.ndarray | None = None
+    prev_depth_edge: np.ndarray | None = None
+
+    def depths(self, n: int, n_prev: int) -> tuple[np.ndarray, np.ndarray]:
+        """(current, previous) depths as float arrays; a clear error when their lengths differ from the keypoints'."""
+        z_cur = np.asarray(self.kp_depth, dtype=np.float64).reshape(-1)
+        z_prev = np.asarray(self.prev_kp_depth, dtype=np.float64).reshape(-1)
+        if len(z_cur) != n or len(z_prev) != n_prev:
+            raise D2SlamError(f"keypoint depths ({len(z_cur)}, {len(z_prev)}) do not match the keypoints ({n}, "
+                              f"{n_prev})")
+        return z_cur, z_prev
+
+    def edges(self):
+        """(current, previous) depth-edge flags, or None when either is not given."""
+        return None if self.depth_edge is None or self.prev_depth_edge is None else (self.depth_edge,
+                                                                                     self.prev_depth_edge)
+
+
 def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray, prev_belief: np.ndarray,
-                     a: np.ndarray, cfg: DynamicsConfig = _DEFAULT, seed: int | None = None,
-                     kp_depth: np.ndarray | None = None, prev_kp_depth: np.ndarray | None = None,
-                     K: np.ndarray | None = None, scale: np.ndarray | float = 1.0,
-                     fit: np.ndarray | None = None, depth_edge: np.ndarray | None = None,
-                     prev_depth_edge: np.ndarray | None = None) -> GeometricResult:
+                     a: np.ndarray, cfg: DynamicsConfig = _DEFAULT, seed: int = 0,
+                     scale: np.ndarray | float = 1.0, fit: np.ndarray | None = None,
+                     pose: PoseInputs | None = None) -> GeometricResult:
     """eq 4-6 for the current keypoints ``kps`` (N, 2) given ``matches`` (K, 2) to ``prev_kps`` (M, 2).
 
     ``a`` (N,) is the threshold of each current keypoint (alpha(z_p), or ``fixed_alpha`` for the `geometric`
     ablation). Matches with non-finite coordinates are ignored. A previous belief that is NaN counts as the prior
-    (0.5, static since "dynamic" means > 0.5). With ``kp_depth`` (N,), ``prev_kp_depth`` (M,) and intrinsics ``K``
-    given and ``cfg.pose_test`` on, the pose test (module docstring, :func:`pose_test`) runs on the matches that have
-    eq 5's error, with the pose from the matches RANSAC used for F (those with a valid previous depth), skipping the
-    depth residual where ``depth_edge`` (N,) or ``prev_depth_edge`` (M,) says a depth was read across an edge;
-    ``scale`` (N,) or scalar is each keypoint's detection scale 1.2^octave (``depth.octave_factor``), for eq 6's
-    sigma and the reprojection threshold. ``fit`` (K,) bool: the matches F may be fitted on (default all;
-    ``flow.flow_matches``)."""
+    (0.5, static since "dynamic" means > 0.5). With ``pose`` given and ``cfg.pose_test.enabled``, the pose test
+    (module docstring, :func:`pose_test`) runs on the matches that have eq 5's error, with the pose from the matches
+    RANSAC used for F (those with a valid previous depth). ``scale`` (N,) or scalar is each keypoint's detection scale
+    1.2^octave (``depth.octave_factor``), for eq 6's sigma and the reprojection threshold. ``fit`` (K,) bool: the
+    matches F may be fitted on (default all; ``flow.flow_matches``). ``seed``: the RANSACs' (the run's seed)."""
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     prev_kps = np.asarray(prev_kps, dtype=np.float64).reshape(-1, 2)
     n = len(kps)
-    depths = _pose_depths(kp_depth, prev_kp_depth, n, len(prev_kps)) if cfg.pose_test and K is not None else None
+    pose = pose if cfg.pose_test.enabled else None
+    depths = pose.depths(n, len(prev_kps)) if pose is not None else None
     err = np.full(n, np.nan)
     res = GeometricResult(None, 0, False, err, np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool))
     if depths is not None:
@@ -295,26 +322,13 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     scale = np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,))
     s_fit = scale[m[sel, 0]]
     k_e = widening(e_m[sel] / s_fit, a[m[sel, 0]] / s_fit, 1, cfg)  # eq 5-6 at this frame's noise (ours)
-    res.p_g, res.dynamic = geometric_probability(err, a * k_e, k_e * (cfg.sigma * scale if cfg.sigma_at_scale
-                                                                       else cfg.sigma), cfg.p_g_exceed)
+    res.p_g, res.dynamic = geometric_probability(err, a * k_e, k_e * (cfg.sigma * scale if cfg.ours.sigma_at_scale
+                                                                       else cfg.sigma), cfg.ours.p_g_exceed)
     res.observed = np.isfinite(err)
     res.widening = (k_e, 1.0, 1.0)
     if depths is not None:
-        edges = None if depth_edge is None or prev_depth_edge is None else (depth_edge, prev_depth_edge)
-        pose_test(res, m, p, q, sel, scale, *depths, K, edges, cfg, seed)
+        pose_test(res, m, p, q, sel, scale, *depths, pose, cfg, seed)
     return res
-
-
-def _pose_depths(kp_depth, prev_kp_depth, n: int, n_prev: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """(current, previous) keypoint depths as float arrays, None when either is not given; a clear error when their
-    lengths differ from the keypoints'."""
-    if kp_depth is None or prev_kp_depth is None:
-        return None
-    z_cur = np.asarray(kp_depth, dtype=np.float64).reshape(-1)
-    z_prev = np.asarray(prev_kp_depth, dtype=np.float64).reshape(-1)
-    if len(z_cur) != n or len(z_prev) != n_prev:
-        raise D2SlamError(f"keypoint depths ({len(z_cur)}, {len(z_prev)}) do not match the keypoints ({n}, {n_prev})")
-    return z_cur, z_prev
 
 
 def _finite_matches(kps: np.ndarray, prev_kps: np.ndarray, matches, fit) -> tuple[np.ndarray, np.ndarray]:
@@ -343,36 +357,37 @@ def _fit_set(m: np.ndarray, prev_belief, fit: np.ndarray, n_prev: int, cfg: Dyna
 
 
 def pose_test(res: GeometricResult, m: np.ndarray, p: np.ndarray, q: np.ndarray, sel: np.ndarray, scale: np.ndarray,
-              z_cur: np.ndarray, z_prev: np.ndarray, K: np.ndarray, edges, cfg: DynamicsConfig = _DEFAULT,
-              seed: int | None = None) -> None:
+              z_cur: np.ndarray, z_prev: np.ndarray, pose: PoseInputs, cfg: DynamicsConfig = _DEFAULT,
+              seed: int = 0) -> None:
     """The pose test (ours, module docstring) on the matches ``m`` (K, 2) with pixels ``p`` / ``q``, filling ``res``:
     the relative pose by PnP from the fit set ``sel`` with a previous depth, the residuals of every match, the flags
     (reprojection above ``pose_reproj_px`` x scale, depth residual above ``pose_depth_sigmas``, both widened to the
-    frame's noise; the depth residual not tested where ``edges`` = (current (N,), previous (M,)) flags a depth read
-    across an edge) on the observed keypoints, P_g raised to ``p_pose_exceed`` where flagged."""
+    frame's noise; the depth residual not tested where ``pose``'s depth-edge flags say a depth was read across an
+    edge) on the observed keypoints, P_g raised to ``p_pose_exceed`` where flagged."""
     n = len(res.err)
     zq = z_prev[m[:, 1]]
     has_z = valid_depth(zq)
+    K, pc, edges = pose.K, cfg.pose_test, pose.edges()
     X = back_project(q, np.where(has_z, zq, np.nan), K)
-    pose = relative_pose(X[sel & has_z], p[sel & has_z], K, cfg, seed)
+    rt = relative_pose(X[sel & has_z], p[sel & has_z], K, cfg, seed)
     k_r = k_z = 1.0
-    if pose is not None:
-        r_m, z_m = pose_residuals(X, p, z_cur[m[:, 0]], pose[0], pose[1], K, cfg)
+    if rt is not None:
+        r_m, z_m = pose_residuals(X, p, z_cur[m[:, 0]], rt[0], rt[1], K, pose.noise)
         res.reproj_err[m[:, 0]], res.depth_err[m[:, 0]] = r_m, z_m
-        k_r = widening(r_m[sel] / scale[m[sel, 0]], cfg.pose_reproj_px, 2, cfg)
-        k_z = widening(np.abs(z_m[sel]), cfg.pose_depth_sigmas, 1, cfg)
+        k_r = widening(r_m[sel] / scale[m[sel, 0]], pc.pose_reproj_px, 2, cfg)
+        k_z = widening(np.abs(z_m[sel]), pc.pose_depth_sigmas, 1, cfg)
     flag = np.zeros(n, dtype=bool)
     with np.errstate(invalid="ignore"):
-        if cfg.pose_reproj_px > 0:
-            flag |= res.reproj_err > cfg.pose_reproj_px * scale * k_r
-        if cfg.pose_depth_sigmas > 0:
-            dz_flag = np.abs(res.depth_err) > cfg.pose_depth_sigmas * k_z
+        if pc.pose_reproj_px > 0:
+            flag |= res.reproj_err > pc.pose_reproj_px * scale * k_r
+        if pc.pose_depth_sigmas > 0:
+            dz_flag = np.abs(res.depth_err) > pc.pose_depth_sigmas * k_z
             if edges is not None:
                 at_edge = np.asarray(edges[0], dtype=bool).copy()
                 at_edge[m[:, 0]] |= np.asarray(edges[1], dtype=bool)[m[:, 1]]
                 dz_flag &= ~at_edge
             flag |= dz_flag
     res.pose_dynamic = res.observed & flag
-    res.p_g = np.where(res.pose_dynamic, np.maximum(res.p_g, cfg.p_pose_exceed), res.p_g)
+    res.p_g = np.where(res.pose_dynamic, np.maximum(res.p_g, pc.p_pose_exceed), res.p_g)
     res.dynamic = res.dynamic | res.pose_dynamic
     res.widening = (res.widening[0], k_r, k_z)

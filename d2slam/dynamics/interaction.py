@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from d2slam.config import DynamicsConfig
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps, delta, gamma, valid_depth
 from d2slam.dynamics.semantic import FrameMasks, MaskEdges, mask_edges
 
@@ -70,10 +70,10 @@ def mask_depths(depth: np.ndarray, masks: np.ndarray | list[MaskEdges] | None,
     ``masks`` (n, H, W) bool, the frame's ``mask_edges`` or ``FrameMasks`` (their bounding boxes are reused).
     Deviation, for speed: the median is taken over the mask pixels of a grid of stride ``zone_median_stride`` (4:
     1/16 of the pixels) inside the mask's bounding box; it differs from the full median by far less than the zone's
-    1 m tolerance (the tests bound the difference; measured: docs/deviations.md, ``DynamicsConfig.zone_median_stride``).
+    1 m tolerance (the tests bound the difference; measured: docs/deviations.md, ``OursConfig.zone_median_stride``).
     Stride 1 = every pixel. A mask the grid misses entirely falls back to every pixel."""
     edges = masks.edges if isinstance(masks, FrameMasks) else masks if isinstance(masks, list) else mask_edges(masks)
-    s = max(int(cfg.zone_median_stride), 1)
+    s = max(int(cfg.ours.zone_median_stride), 1)
     depth = np.asarray(depth)
     out = np.full(len(edges), np.nan)
     for k, e in enumerate(edges):  # loop over masks only
@@ -133,17 +133,17 @@ def oim_candidates(belief: np.ndarray, observed: np.ndarray, geo_dynamic: np.nda
     Deviation: with the paper's candidates the OIM flips many more static keypoints than dynamic ones, and each flip
     takes a static keypoint out of tracking and mapping. A keypoint whose own epipolar test passed has direct
     evidence of being static, which its neighbours' should not override; keeping it out of the OIM costs some recall
-    and lowers the ATE (measured: docs/deviations.md, ``DynamicsConfig.oim_skip_observed_static``). Unmatched
+    and lowers the ATE (measured: docs/deviations.md, ``OursConfig.oim_skip_observed_static``). Unmatched
     keypoints (most of an object's keypoints while it is carried) stay candidates.
     ``oim_skip_observed_static=False`` gives the paper's reading.
 
     ``oim_skip_neighbour_static`` (ours, off by default) also drops the unmatched keypoints whose matched neighbours
     say static, ``p_nb`` (``neighbour_p_g``) <= 0.5: it trades recall for precision (measured: docs/deviations.md,
-    ``DynamicsConfig.oim_skip_neighbour_static``)."""
+    ``OursConfig.oim_skip_neighbour_static``)."""
     cand = np.asarray(belief, dtype=np.float64) <= cfg.dynamic_threshold
-    if cfg.oim_skip_observed_static:
+    if cfg.ours.oim_skip_observed_static:
         cand &= ~(np.asarray(observed, dtype=bool) & ~np.asarray(geo_dynamic, dtype=bool))
-    if cfg.oim_skip_neighbour_static and p_nb is not None:
+    if cfg.ours.oim_skip_neighbour_static and p_nb is not None:
         with np.errstate(invalid="ignore"):
             cand &= ~(np.asarray(p_nb, dtype=np.float64) <= cfg.dynamic_threshold)  # NaN compares False
     return cand
@@ -202,9 +202,34 @@ def object_interaction(kps: np.ndarray, z: np.ndarray, candidate: np.ndarray, dy
     return flip, centroid
 
 
+def moving_masks(fm: FrameMasks, observed: np.ndarray, dynamic: np.ndarray,
+                 cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
+    """eq 9 (ours, ``OursConfig.oim_moving_test``): (n,) bool, whether each person moves this frame: of the m
+    matched keypoints on its mask (``observed``), d failed the geometric test (``dynamic``), and a binomial tail
+    P(X >= d | m, 1 - noise_confidence) below ``oim_moving_alpha`` says more failed than the thresholds' false alarms
+    explain. A mask with fewer than ``oim_moving_min`` matched keypoints counts as moving (it cannot be told still);
+    an empty mask as still. Without the test every mask moves (the paper's OIM)."""
+    from scipy.stats import binom
+
+    n = len(fm.edges)
+    ours = cfg.ours
+    if not ours.oim_moving_test:
+        return np.ones(n, dtype=bool)
+    observed = np.asarray(observed, dtype=bool)
+    dynamic = np.asarray(dynamic, dtype=bool) & observed
+    out = np.zeros(n, dtype=bool)
+    for k, inside in enumerate(fm.inside):  # loop over masks only
+        if inside is None:
+            continue
+        m, d = int((inside & observed).sum()), int((inside & dynamic).sum())
+        out[k] = m < ours.oim_moving_min or binom.sf(d - 1, m, 1.0 - ours.noise_confidence) < ours.oim_moving_alpha
+    return out
+
+
 def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray, d: np.ndarray, known: float,
               candidates: np.ndarray, dynamic: np.ndarray, cfg: DynamicsConfig = _DEFAULT,
-              use_depth: bool = True, matched: MatchedPoints | None = None) -> tuple[np.ndarray, np.ndarray]:
+              use_depth: bool = True, matched: MatchedPoints | None = None,
+              moving: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """eq 9-10 for one frame, reusing the semantic module's work: (zone (N,) bool, oim (N,) bool).
 
     ``fm`` the frame's ``FrameMasks`` (edges, trees, pixel lookups, bounding-box distances), ``maps`` its
@@ -219,43 +244,64 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
     3. the exact zone (eq 9, the test of ``interaction_zone``) on those rows only: distances beyond ``known`` are
        searched again up to the zone's reach with the mask's cached edge trees.
 
+    ``moving`` (optional (n,) bool, :func:`moving_masks`): only these masks have a zone.
+
     ``zone`` is the zone flag where step 3 ran (False elsewhere), and ``oim = zone`` (those keypoints flip)."""
     n = len(maps.z)
     zone = np.zeros(n, dtype=bool)
-    edges = fm.edges
-    if not edges or n == 0:
+    if not fm.edges or n == 0:
         return zone, zone.copy()
-    z = maps.z
-    finite = fm.kp.finite
     reach = cfg.zone_factor * delta(z_n, cfg, use_depth)
     zn_ok = valid_depth(z_n)
+    still = np.zeros(len(fm.edges), dtype=bool) if moving is None else ~np.asarray(moving, dtype=bool)
+    if still.all():  # a still person has no zone
+        return zone, zone.copy()
     with np.errstate(invalid="ignore"):
-        near_depth = [maps.valid & (np.abs(z - z_n[k]) < cfg.zone_depth) for k in range(len(edges))] \
+        near_depth = [maps.valid & (np.abs(maps.z - z_n[k]) < cfg.zone_depth) for k in range(len(fm.edges))] \
             if use_depth else None
     # 1. candidates
-    cand = np.zeros(n, dtype=bool)
-    for k, e in enumerate(edges):  # loop over masks only
-        if e.empty or (use_depth and not zn_ok[k]):
-            continue
-        ok = fm.box[k] <= reach[k]
-        if use_depth:
-            ok &= near_depth[k]
-        cand |= ok
-    cand &= finite & candidates
+    cand = _near_a_mask(fm, reach, zn_ok, near_depth, still) & fm.kp.finite & candidates
     # 2. eq 10
-    would_flip, _ = object_interaction(kps, z, cand, dynamic, cfg, use_depth, maps=maps, finite=finite,
+    would_flip, _ = object_interaction(kps, maps.z, cand, dynamic, cfg, use_depth, maps=maps, finite=fm.kp.finite,
                                        matched=matched)
     rows = np.flatnonzero(would_flip)
     if len(rows) == 0:
         return zone, zone.copy()
     # 3. eq 9 on the rows that would flip
+    zone[rows] = _in_a_zone(fm, d, rows, reach, zn_ok, near_depth, known, still)
+    return zone, zone.copy()
+
+
+def _near_a_mask(fm: FrameMasks, reach: np.ndarray, zn_ok: np.ndarray, near_depth: list | None,
+                 still: np.ndarray) -> np.ndarray:
+    """(N,) bool, ``oim_frame``'s step 1: within ``reach`` px of the bounding box of some mask not ``still`` (a lower
+    bound of the distance to the mask) and, with the depths (``near_depth`` given), at that mask's depth."""
+    cand = np.zeros(len(fm.kp.finite), dtype=bool)
+    for k, e in enumerate(fm.edges):  # loop over masks only
+        if e.empty or still[k] or (near_depth is not None and not zn_ok[k]):
+            continue
+        ok = fm.box[k] <= reach[k]
+        if near_depth is not None:
+            ok &= near_depth[k]
+        cand |= ok
+    return cand
+
+
+def _in_a_zone(fm: FrameMasks, d: np.ndarray, rows: np.ndarray, reach: np.ndarray, zn_ok: np.ndarray,
+               near_depth: list | None, known: float, still: np.ndarray) -> np.ndarray:
+    """(len(rows),) bool, ``oim_frame``'s step 3: eq 9's zone (of the masks not ``still``) for the keypoints ``rows``;
+    signed distances ``d`` beyond ``known`` px are searched again up to the zone's reach with the mask's cached edge
+    trees."""
+    finite = fm.kp.finite
     hit = np.zeros(len(rows), dtype=bool)
-    for k, e in enumerate(edges):  # loop over masks only
+    for k, e in enumerate(fm.edges):  # loop over masks only
         dk = d[rows, k]
-        depth_ok = near_depth[k][rows] if use_depth else None
-        if not (e.empty or e.full or reach[k] <= known) and (zn_ok[k] or not use_depth):
+        depth_ok = near_depth[k][rows] if near_depth is not None else None
+        if still[k]:
+            continue
+        if not (e.empty or e.full or reach[k] <= known) and (zn_ok[k] or near_depth is None):
             sel = (dk <= -known) & finite[rows]
-            if use_depth:
+            if near_depth is not None:
                 sel &= depth_ok
             sel &= fm.box[k][rows] <= reach[k]
             if sel.any():
@@ -263,11 +309,10 @@ def oim_frame(fm: FrameMasks, kps: np.ndarray, maps: DepthMaps, z_n: np.ndarray,
                 dk[sel] = fm.signed(k, float(reach[k]), rows[sel])
         with np.errstate(invalid="ignore"):
             zk = dk > -reach[k]
-        if use_depth:
+        if near_depth is not None:
             zk &= depth_ok & zn_ok[k]
         hit |= zk
-    zone[rows] = hit
-    return zone, zone.copy()
+    return hit
 
 
 def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: np.ndarray,
@@ -282,7 +327,7 @@ def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: n
     Why: eq 7 gives an unmatched keypoint outside every mask area P = 0.5, so its belief only keeps its prior. Many
     of the dynamic keypoints the classifier misses are such keypoints (on people the masks missed and on carried
     objects), and their matched neighbours on the same surface usually carry the motion. It raises the recall at an
-    unchanged ATE (measured: docs/deviations.md, ``DynamicsConfig.neighbour_p_g``).
+    unchanged ATE (measured: docs/deviations.md, ``OursConfig.neighbour_p_g``).
 
     One ``cKDTree.query`` (k nearest, bounded by the largest radius) over the matched keypoints: no Python loop.
     ``matched`` (optional): the frame's ``MatchedPoints`` of ``observed`` with a valid depth, whose tree the OIM
@@ -296,7 +341,7 @@ def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: n
     oi = matched.idx
     ok = ~observed & maps.valid & matched.finite
     qi = np.flatnonzero(ok if skip is None else ok & ~np.asarray(skip, dtype=bool))
-    k = min(int(cfg.neighbour_k), len(oi))
+    k = min(int(cfg.ours.neighbour_k), len(oi))
     if len(qi) == 0 or k == 0:
         return out
     radius = maps.delta[qi]
@@ -304,9 +349,9 @@ def neighbour_p_g(kps: np.ndarray, maps: DepthMaps, observed: np.ndarray, p_g: n
     dist, j = dist.reshape(len(qi), k), j.reshape(len(qi), k)
     found = j < len(oi)  # missing neighbours come back as index len(oi), distance inf
     nb = oi[np.where(found, j, 0)]
-    keep = found & (dist < radius[:, None]) & (np.abs(maps.z[qi, None] - maps.z[nb]) < cfg.neighbour_depth)
+    keep = found & (dist < radius[:, None]) & (np.abs(maps.z[qi, None] - maps.z[nb]) < cfg.ours.neighbour_depth)
     count = keep.sum(axis=1)
     total = np.where(keep, np.asarray(p_g, dtype=np.float64)[nb], 0.0).sum(axis=1)  # finite: nb are observed
-    has = count >= max(int(cfg.neighbour_min), 1)
+    has = count >= max(int(cfg.ours.neighbour_min), 1)
     out[qi[has]] = total[has] / count[has]
     return out

@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 from scipy.special import expit
 
-from d2slam.config import DynamicsConfig
+from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.depth import uncertainty_width
 from d2slam.dynamics.kernels import edge_rows, nearest_sq
 from d2slam.errors import D2SlamError

@@ -1,5 +1,5 @@
 """Which parts of D2SLAM's classifier run (``d2slam.dynamics.classifier.D2SlamFilter``): the study's ablations are
-the full method with one switch off (``d2slam.methods`` builds them). Plain data: the command line lists the methods
+the full method with one switch off (``d2slam.run.methods`` builds them). Plain data: the command line lists the methods
 without loading the classifier."""
 
 from __future__ import annotations

@@ -11,9 +11,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT
 from d2slam.data.intrinsics import FREIBURG3
 from d2slam.dynamics.depth import keypoint_depth
+from d2slam.slam.config import OrbConfig
 from d2slam.slam.hook import FilterInput
 
 K_FR3 = FREIBURG3.K
@@ -64,7 +64,7 @@ def two_view_scene(seed: int = 0, n_kps: int = 1000, n_matches: int = 800, n_per
         np.stack([pick % w, pick // w], axis=1) + rng.uniform(-0.5, 0.5, (len(pick), 2)),
         rng.uniform([0, 0], [w - 1, h - 1], (n_kps - len(pick), 2)),
     ]).astype(np.float32)
-    kp_depth = keypoint_depth(depth, kps, DEFAULT.orb.depth_patch_radius)
+    kp_depth = keypoint_depth(depth, kps, OrbConfig().depth_patch_radius)
     pix = np.rint(kps).astype(np.int64)
     who = owner[pix[:, 1], pix[:, 0]]
     truth = who >= 0

@@ -8,7 +8,7 @@ any other and evo aligns it without complaint. Three checks, the first that can 
    line ``d2slam synth`` writes in ``groundtruth.txt``): the scenario and seed must agree (a static twin shares its
    sequence's camera path, so the twin flag does not count);
 2. frame times: the ground truth is a sequence folder (or its ``groundtruth.txt``) with ``rgb.txt``: a trajectory of
-   this sequence has its poses at the frame times, so at least ``CliConfig.eval_min_frame_share`` of its timestamps
+   this sequence has its poses at the frame times, so at least ``BelongsConfig.eval_min_frame_share`` of its timestamps
    must be in ``rgb.txt`` or ``depth.txt`` (each synthetic scenario and seed has its own frame jitter);
    Against a bare ground-truth file, a trajectory whose header names the sequence it was run on is checked against
    that sequence's ``groundtruth.txt`` (the same positions within ``eval_same_gt_m``);
@@ -27,8 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from d2slam.config import CLI, CliConfig
+from d2slam.data.tum import interpolate_poses, read_file_list, read_tum_trajectory
 from d2slam.errors import D2SlamError
+from d2slam.eval.config import BelongsConfig
+from d2slam.eval.trajectory import aligned_estimate
 
 _RUN_HEADER = re.compile(r"^#\s*d2slam (?:run --method \S+|orbslam3 \([^)]*\)) (?P<root>.+?)\s*$")
 _SYNTH_HEADER = re.compile(r"^#\s*file: 'd2slam-synth (?P<scenario>\S+) seed (?P<seed>-?\d+)(?P<twin> static twin)?'")
@@ -81,8 +83,6 @@ def synthetic_identity(folder: Path | None, gt_file: Path | None = None) -> tupl
 def frame_share(timestamps: np.ndarray, folder: Path, tol: float) -> float | None:
     """Share of ``timestamps`` within ``tol`` s of a frame time of ``folder`` (``rgb.txt`` or ``depth.txt``); None
     when the folder lists no frames."""
-    from d2slam.data.tum import read_file_list
-
     frames = []
     for name in ("rgb.txt", "depth.txt"):
         if (folder / name).is_file():
@@ -104,8 +104,6 @@ def frame_share(timestamps: np.ndarray, folder: Path, tol: float) -> float | Non
 def same_poses(a, b, tol_m: float) -> bool:
     """Whether trajectories ``a`` and ``b`` hold the same positions (within ``tol_m``) wherever both have poses
     (``b`` interpolated at ``a``'s times; at least 3 common poses)."""
-    from d2slam.data.tum import interpolate_poses
-
     at = interpolate_poses(b.timestamps, b.poses, a.timestamps)
     ok = np.isfinite(at).all(axis=(1, 2))
     if ok.sum() < 3:
@@ -113,7 +111,8 @@ def same_poses(a, b, tol_m: float) -> bool:
     return bool(np.max(np.linalg.norm(at[ok, :3, 3] - np.asarray(a.poses)[ok, :3, 3], axis=1)) <= tol_m)
 
 
-def residual_check(gt_xyz: np.ndarray, est_xyz: np.ndarray, cli: CliConfig = CLI) -> tuple[bool, float, float, float]:
+def residual_check(gt_xyz: np.ndarray, est_xyz: np.ndarray,
+                   cli: BelongsConfig = BelongsConfig()) -> tuple[bool, float, float, float]:
     """The residual rule (module docstring, 3) on matched ground-truth and aligned estimated positions (M, 3):
     (refused, ATE RMSE, the ground truth's extent, the estimate's extent), extents as RMS distances from the
     centroid."""
@@ -131,7 +130,8 @@ def _who(ident: tuple[str, int]) -> str:
     return f"{ident[0]} seed {ident[1]}"
 
 
-def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Path, cli: CliConfig = CLI) -> str:
+def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Path,
+                  cli: BelongsConfig = BelongsConfig()) -> str:
     """Why ``est`` (read from ``traj_path``) belongs to ``gt`` (read from ``gt_file``, in the sequence folder
     ``gt_folder`` when there is one), as a short reason; a one-line :class:`D2SlamError` when it does not (module
     docstring)."""
@@ -149,8 +149,6 @@ def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Pat
         if folder is not None and source == folder.resolve():
             return "same sequence folder"
         if folder is None and (source / "groundtruth.txt").is_file():
-            from d2slam.data.tum import read_tum_trajectory
-
             if not same_poses(gt, read_tum_trajectory(source / "groundtruth.txt"), cli.eval_same_gt_m):
                 raise D2SlamError(f"the trajectory was run on {source}, whose groundtruth.txt is not this ground "
                                   f"truth{force}", path=traj_path)
@@ -163,7 +161,6 @@ def check_belongs(gt, est, gt_file: Path, gt_folder: Path | None, traj_path: Pat
                                   f"frame times of {folder} (rgb.txt, depth.txt; {100 * cli.eval_min_frame_share:.0f} "
                                   f"% needed): it was not run on this sequence{force}", path=traj_path)
             return f"{100 * share:.0f} % of its timestamps are frame times of the sequence"
-    from d2slam.eval.trajectory import aligned_estimate
 
     gt_xyz, est_xyz, _ = aligned_estimate(gt, est)
     refused, ate, extent, spread = residual_check(gt_xyz, est_xyz, cli)

@@ -3,8 +3,8 @@
 ``keypoint_truth(kps, dynamic_mask)`` labels each keypoint from a per-pixel truth mask (the synthetic benchmark's
 ``SyntheticSequence.dynamic_mask(i)``: a person, or a moved object while it moves). ``KeypointMetrics`` accumulates
 confusion counts over frames (and ``ModuleMetrics`` one per module of the classifier's diagnostics).
-``KeypointRecorder(sequence)`` is the per-frame recorder of ``d2slam.pipeline.run_sequence`` that does all of it over a
-run and returns a JSON-ready dict (``result()``).
+``KeypointRecorder(sequence)`` is the per-frame recorder of ``d2slam.run.sequence.run_sequence`` that does all of it
+over a run and returns a JSON-ready dict (``result()``).
 
 Undefined ratios (no predicted or no true dynamic keypoint at all) are NaN, never a made-up 0 or 1.
 """

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import EvalConfig
 from d2slam.data.base import Trajectory
+from d2slam.eval.config import EvalConfig
 from d2slam.eval.trajectory import MAX_DIFF
 
 STAGES = ("score", "group", "geometry", "loop")  # how far a candidate got, in order
@@ -104,7 +104,7 @@ def closest_call(cands: list, timestamps: np.ndarray, groundtruth: Trajectory,
 
 def loop_summary(result, timestamps: np.ndarray, groundtruth: Trajectory | None,
                  cfg: EvalConfig = EvalConfig()) -> dict:
-    """The loop-closing fields of a run (``d2slam.record.EngineRun``) for its metrics JSON: ``loop_closing``, and
+    """The loop-closing fields of a run (``d2slam.run.record.EngineRun``) for its metrics JSON: ``loop_closing``, and
     when on ``loops`` ([frame of keyframe a, frame of keyframe b] each), with ground truth ``loops_true`` /
     ``loops_false`` / ``loop_errors`` ([m, deg]) and ``loop_closest_call`` (:func:`closest_call`), the median
     detection time per keyframe (ms) and each correction's time (s)."""

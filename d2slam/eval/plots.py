@@ -17,9 +17,10 @@ import numpy as np
 
 from d2slam.data.base import Trajectory
 from d2slam.errors import D2SlamError
+from d2slam.eval.trajectory import aligned_estimate
 from d2slam.outputs import save_figure
 
-# Every method of d2slam.methods and the real ORB-SLAM3 runs; related methods in related hues (ORB-SLAM3 oranges,
+# Every method of d2slam.run.methods and the real ORB-SLAM3 runs; related methods in related hues (ORB-SLAM3 oranges,
 # the D2SLAM variants blues, its ablations purples / greens / yellows). Pairwise CIELAB distance >= 20
 # (tests/test_plots.py).
 METHOD_COLOURS = {
@@ -75,8 +76,6 @@ def plot_trajectory(groundtruth: Trajectory, estimate: Trajectory, out: str | Pa
     """Top (x-y) and side (x-z) views of the SE(3)-aligned estimate and the ground truth (drawn above it), saved
     as PNG."""
     from matplotlib.figure import Figure  # outside pyplot: PNG by Agg, the caller's backend untouched
-
-    from d2slam.eval.trajectory import aligned_estimate
 
     out = Path(out)
     if not out.parent.is_dir():

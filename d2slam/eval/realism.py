@@ -1,15 +1,13 @@
 """Real against synthetic sensor, side by side: the statistics ``d2slam bench realism --real SEQ --twin SEQ`` prints
 and ``docs/real_data.md`` quotes, as library functions (a notebook calls the same).
 
-Everything here is measured on the *engine's own* inputs: the sequence is run through the engine with a keypoint
-filter that marks nothing dynamic (:class:`Observer`; the engine then tracks exactly as ``--method none`` does) and
-records, per frame, what the filter would see (``FilterInput``: the frame-to-frame matches of all keypoints, in
-undistorted pixels, with their depths) and which map points the tracked frame matched. From that log:
+Everything here is measured on the *engine's own* inputs, the log of :func:`d2slam.run.observe.engine_log` (per frame
+what a keypoint filter would see, and which map points the tracked frame matched). From that log:
 
 - static epipolar error (eq 5) of every match against F found by RANSAC on the frame's matches (as the geometric
   module finds it), percentiles overall, by keypoint depth and by image radius (``SynthEvalConfig.realism_depth_bins``,
   ``realism_radius_bins``);
-- the pose test's residuals (our deviation, ``DynamicsConfig.pose_test``): reprojection error (px) and normalised
+- the pose test's residuals (our deviation, ``PoseTestConfig.enabled``): reprojection error (px) and normalised
   depth residual |dz| / sigma of the relative pose found by PnP RANSAC on the matches with depth;
 - track lengths: how many consecutive frames a map point stays matched (an inlier) in the tracked frames;
 - depth holes: share of the image and of the keypoints without depth;
@@ -27,37 +25,22 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from d2slam.config import DEFAULT, Config
+from d2slam.data.config import DepthNoise
+from d2slam.data.tum import interpolate_poses
+from d2slam.dynamics.config import DynamicsConfig
+from d2slam.dynamics.depth import depth_sigma
+from d2slam.dynamics.geometric import back_project, epipolar_error, fundamental_matrix, pose_residuals, relative_pose
 from d2slam.errors import D2SlamError
+from d2slam.ranges import AnyConfig, part_of
+from d2slam.slam.frame import undistort
+from d2slam.synth.config import SynthConfig, SynthEvalConfig
+from d2slam.synth.realism import texture_stats
+from d2slam.synth.scene import Scene
+from d2slam.synth.twin import RecordedPath, placement
+from d2slam.synth.world import WorldRenderer
 
-
-# --------------------------------------------------------------------------------------------------
-# the engine's inputs, recorded
-# --------------------------------------------------------------------------------------------------
-class Observer:
-    """A keypoint filter that marks nothing dynamic (every belief 0: the engine tracks as without a filter) and keeps
-    what it was given: per frame the matched keypoints (current ``p``, previous ``q``; undistorted pixels), their
-    depths and octaves."""
-
-    def __init__(self):
-        self.frames: list[dict] = []
-
-    def reset(self) -> None:
-        self.frames = []
-
-    def __call__(self, inp) -> np.ndarray:
-        m = np.asarray(inp.matches, np.int64).reshape(-1, 2)
-        self.frames.append({
-            "index": int(inp.frame_index), "timestamp": float(inp.timestamp), "n_kp": len(inp.kps),
-            "kp_holes": int(np.count_nonzero(np.asarray(inp.kp_depth) <= 0)),
-            "p": np.asarray(inp.kps, np.float64)[m[:, 0]], "q": np.asarray(inp.prev_kps, np.float64)[m[:, 1]],
-            "zp": np.asarray(inp.kp_depth, np.float64)[m[:, 0]],
-            "zq": np.asarray(inp.prev_kp_depth, np.float64)[m[:, 1]],
-            "octave": (np.asarray(inp.octave)[m[:, 0]] if inp.octave is not None else np.zeros(len(m), np.int64)),
-            "hole_share": float(np.count_nonzero(np.asarray(inp.depth) <= 0)) / max(np.asarray(inp.depth).size, 1),
-        })
-        return np.zeros(len(inp.kps))
 
 
 @dataclass
@@ -70,27 +53,6 @@ class EngineLog:
     timestamps: np.ndarray  # (n,) RGB timestamps of the frames run
     observed: list[dict]  # Observer.frames: one per frame
     tracks: list[np.ndarray] = field(default_factory=list)  # per frame: map point ids matched (inliers); empty if lost
-
-
-def engine_log(seq, frames: int | None = None, config: Config | None = None, progress: bool = False) -> EngineLog:
-    """Run ``seq`` (its first ``frames``) through the engine with an :class:`Observer` and log its inputs."""
-    from d2slam.pipeline import run_sequence
-    from d2slam.slam.engine import Engine
-
-    config = config or DEFAULT
-    obs = Observer()
-    eng = Engine(seq.camera, config, obs)
-    tracks: list[np.ndarray] = []
-
-    def rec(i, kps, belief, diag):
-        f = eng.last
-        ok = eng.tracker.last_tracked is f and f is not None and f.Tcw is not None
-        tracks.append(np.unique(f.mp[(f.mp >= 0) & ~f.outlier]) if ok else np.zeros(0, np.int64))
-
-    run = run_sequence(seq, config, keypoint_filter=obs, recorder=rec, progress=progress, engine=eng, frames=frames)
-    n = run.frames
-    return EngineLog(getattr(seq, "name", ""), n, run.tracked, np.asarray(seq.timestamps[:n], float), obs.frames,
-                     tracks)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -144,8 +106,6 @@ def image_velocity(camera, poses_at, t: float, px: np.ndarray, z: np.ndarray, h:
     """(K, 2) image velocity (px/s, in the camera's distorted image) at pixels ``px`` (K, 2, distorted) of scene
     points at depths ``z`` (K,) seen at time ``t``, from the camera poses ``poses_at(times) -> (n, 4, 4)``
     (``T_world_camera``): each point is fixed in the world and projected (with the lens distortion) at t -+ h."""
-    from d2slam.slam.frame import undistort
-
     K = camera.K
     und = undistort(np.asarray(px, np.float64).reshape(-1, 2), camera)
     Xc = np.stack([(und[:, 0] - K[0, 2]) / K[0, 0] * z, (und[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
@@ -164,7 +124,7 @@ def frame_blur(gray: np.ndarray, depth: np.ndarray, camera, poses_at, t: float,
     """Per patch of the realism grid (``SynthEvalConfig.realism_blur_*``): the image speed (px/s) the ground truth
     gives (``poses_at(times)``: ``T_world_camera``) and the blur extent measured along it (:func:`blur_extent`; NaN
     where none is measured)."""
-    ev = ev or DEFAULT.synth_eval
+    ev = ev or SynthEvalConfig()
     h, w = gray.shape[:2]
     c = patch_grid(w, h, ev.realism_blur_grid[0], ev.realism_blur_grid[1], ev.realism_blur_patch)
     r = ev.realism_blur_patch // 2
@@ -209,13 +169,12 @@ class MatchStats:
     frame: np.ndarray  # the match's frame index
 
 
-def match_stats(log: EngineLog, K: np.ndarray, config: Config | None = None) -> MatchStats:
+def match_stats(log: EngineLog, K: np.ndarray, config: AnyConfig | None = None,
+                noise: DepthNoise = DepthNoise()) -> MatchStats:
     """Eq 5 and the pose test on every logged frame's matches, as the geometric module computes them
-    (``d2slam.dynamics.geometric``: F by RANSAC, PnP RANSAC on the matches with depth in the previous frame)."""
-    from d2slam.dynamics.geometric import (back_project, epipolar_error, fundamental_matrix, pose_residuals,
-                                           relative_pose)
-
-    dyn = (config or DEFAULT).dynamics
+    (``d2slam.dynamics.geometric``: F by RANSAC, PnP RANSAC on the matches with depth in the previous frame; the
+    camera's depth ``noise``)."""
+    dyn = part_of(config, "dynamics", DynamicsConfig)
     cols: dict[str, list] = {k: [] for k in ("epi", "depth", "radius", "reproj", "dres", "frame")}
     for f in log.observed:
         p, q = f["p"], f["q"]
@@ -230,7 +189,7 @@ def match_stats(log: EngineLog, K: np.ndarray, config: Config | None = None) -> 
         X = back_project(q, np.where(has, f["zq"], np.nan), K)
         pose = relative_pose(X[has], p[has], K, dyn) if has.sum() >= 6 else None
         if pose is not None:
-            reproj, d = pose_residuals(X, p, f["zp"], pose[0], pose[1], K, dyn)
+            reproj, d = pose_residuals(X, p, f["zp"], pose[0], pose[1], K, noise)
             dres = np.abs(d)
         for name, v in (("epi", epi), ("depth", f["zp"]), ("radius", np.hypot(p[:, 0] - K[0, 2], p[:, 1] - K[1, 2])),
                         ("reproj", reproj), ("dres", dres), ("frame", np.full(k, f["index"]))):
@@ -261,10 +220,6 @@ def track_lengths(tracks: list[np.ndarray]) -> np.ndarray:
 def angular_speed(seq, n: int) -> np.ndarray:
     """(n,) the ground truth's angular speed (deg/s) between each of the first ``n`` frames and the one before (NaN
     for the first, and where the ground truth has no pose)."""
-    from scipy.spatial.transform import Rotation
-
-    from d2slam.data.tum import interpolate_poses
-
     gt = seq.groundtruth
     ts = np.asarray(seq.timestamps[:n], float)
     out = np.full(n, np.nan)
@@ -315,24 +270,20 @@ class Realism:
     speed_per_match: np.ndarray = field(default=None)  # the angular speed of each match's frame
 
 
-def measure(seq, frames: int | None = None, stride: int | None = None, config: Config | None = None,
-            time_offset: float | None = None, progress: bool = False) -> Realism:
-    """The realism statistics of the first ``frames`` frames of ``seq`` (per-frame image statistics on every
-    ``stride``-th: ``SynthEvalConfig.realism_stride``). The ground truth's image motion (for the blur) is taken
-    ``time_offset`` s after the timestamps: what the images show (default ``TwinConfig.rgb_time_shift``, measured on
-    fr1/rpy, which its twin renders)."""
-    from d2slam.data.tum import interpolate_poses
-    from d2slam.synth.realism import texture_stats
+def measure(seq, log: EngineLog, stride: int | None = None, config: AnyConfig | None = None,
+            time_offset: float | None = None) -> Realism:
+    """The realism statistics of the frames of ``seq`` that ``log`` ran (:func:`d2slam.run.observe.engine_log`; the
+    per-frame image statistics on every ``stride``-th: ``SynthEvalConfig.realism_stride``). The ground truth's image
+    motion (for the blur) is taken ``time_offset`` s after the timestamps: what the images show (default
+    ``TwinConfig.rgb_time_shift``, measured on fr1/rpy, which its twin renders)."""
 
-    config = config or DEFAULT
-    ev = config.synth_eval
-    n = len(seq) if frames is None else min(len(seq), int(frames))
-    log = engine_log(seq, n, config, progress)
-    ms = match_stats(log, seq.camera.K, config)
+    ev = part_of(config, "synth_eval", SynthEvalConfig)
+    n = log.frames
+    ms = match_stats(log, seq.camera.K, config, seq.camera.depth_noise)
     stride = int(stride or ev.realism_stride)
     idx = np.arange(0, n, max(stride, 1))
     gt = seq.groundtruth
-    offset = config.synth.twin.rgb_time_shift if time_offset is None else float(time_offset)
+    offset = part_of(config, "synth", SynthConfig).twin.rgb_time_shift if time_offset is None else float(time_offset)
 
     def poses_at(t):
         tt = np.clip(np.asarray(t, float) + offset, gt.timestamps[0], gt.timestamps[-1])
@@ -384,9 +335,9 @@ def _fmt(v, digits=2) -> str:
     return "/".join("-" if not np.isfinite(x) else f"{x:.{digits}f}" for x in v)
 
 
-def comparison(real: Realism, twin: Realism, config: Config | None = None) -> list[tuple[str, str, str]]:
+def comparison(real: Realism, twin: Realism, config: AnyConfig | None = None) -> list[tuple[str, str, str]]:
     """The side-by-side table: (what, real, twin) rows."""
-    ev = (config or DEFAULT).synth_eval
+    ev = part_of(config, "synth_eval", SynthEvalConfig)
     rows = [("frames tracked (engine, no filter)", f"{real.tracked}/{real.frames}", f"{twin.tracked}/{twin.frames}")]
 
     def row(label, f, digits=2):
@@ -444,8 +395,6 @@ def gt_epipolar_errors(log: EngineLog, seq, offset: float, readout: float) -> np
     ``offset`` s after their timestamps and each row ``readout`` s after the one above it (rolling shutter; the middle
     row at the timestamp): each keypoint's instant is its frame's timestamp + offset + (its distorted row - middle)
     x readout, and F is that of the ground truth's relative pose between the two instants."""
-    from d2slam.data.tum import interpolate_poses
-
     cam = seq.camera
     K = cam.K
     Kinv = np.linalg.inv(K)
@@ -517,10 +466,6 @@ def depth_consistency(seq, indices, offset: float, step: int = 4, edge_m: float 
     relative motion wherever the camera's motion changes between the frames, so the residual over many frames is
     least at the true one; a wrong ``readout`` gives each row the wrong motion, the more so the faster the camera
     turns."""
-    from d2slam.data.tum import interpolate_poses
-    from d2slam.slam.frame import undistort
-    from d2slam.synth.sensor import depth_sigma
-
     cam = seq.camera
     K = cam.K
     gt = seq.groundtruth
@@ -553,25 +498,34 @@ def depth_consistency(seq, indices, offset: float, step: int = 4, edge_m: float 
         src = vv.ravel()[ok]
         X = rays[ok] * zs[ok, None]
         Xw = np.einsum("nij,nj->ni", Ta[src, :3, :3], X) + Ta[src, :3, 3]
-        row = np.full(len(X), (H - 1) // 2)
-        for _ in range(2):  # the row a point lands on decides the instant it is seen at: twice is enough
-            Xb = np.einsum("nji,nj->ni", Tb[row, :3, :3], Xw - Tb[row, :3, 3])
-            front = Xb[:, 2] > 0.1
-            uv, _ = cv2.projectPoints(np.where(front[:, None], Xb, [0.0, 0.0, 1.0]).reshape(-1, 1, 3), np.zeros(3),
-                                      np.zeros(3), K, np.asarray(cam.dist))
-            uv = uv.reshape(-1, 2)
-            row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
-            if readout == 0:
-                break
-        Xb, uv = Xb[front], np.rint(uv[front]).astype(np.int64)
+        Xb, uv = _seen_by_rows(Xw, Tb, cam, readout)
         inside = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
         zb = cur[uv[inside, 1], uv[inside, 0]].astype(np.float64)
         zp = Xb[inside, 2]
         valid = zb > 0
-        r = np.abs(zb[valid] - zp[valid]) / np.hypot(depth_sigma(zb[valid]), depth_sigma(zp[valid]))
+        noise = cam.depth_noise
+        r = np.abs(zb[valid] - zp[valid]) / np.hypot(depth_sigma(zb[valid], noise), depth_sigma(zp[valid], noise))
         out.append(float(np.median(r)) if r.size else np.nan)
         prev = (i, cur)
     return np.array(out)
+
+
+def _seen_by_rows(Xw: np.ndarray, Tb: np.ndarray, cam, readout: float) -> tuple[np.ndarray, np.ndarray]:
+    """World points ``Xw`` (M, 3) as the camera sees them through a rolling shutter (``Tb``: the camera's pose
+    T_world_camera at each image row's instant, (H, 4, 4); ``readout`` 0: one instant): (the points in the camera
+    frame at the instant of the row they land on, (M', 3); their pixels, rounded) for those in front of it."""
+    K, H = cam.K, len(Tb)
+    row = np.full(len(Xw), (H - 1) // 2)
+    for _ in range(2):  # the row a point lands on decides the instant it is seen at: twice is enough
+        Xb = np.einsum("nji,nj->ni", Tb[row, :3, :3], Xw - Tb[row, :3, 3])
+        front = Xb[:, 2] > 0.1
+        uv, _ = cv2.projectPoints(np.where(front[:, None], Xb, [0.0, 0.0, 1.0]).reshape(-1, 1, 3), np.zeros(3),
+                                  np.zeros(3), K, np.asarray(cam.dist))
+        uv = uv.reshape(-1, 2)
+        row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+        if readout == 0:
+            break
+    return Xb[front], np.rint(uv[front]).astype(np.int64)
 
 
 def hole_kinds(depth: np.ndarray, border: tuple[int, int, int, int], jump_a: float, jump_b: float) -> dict:
@@ -623,10 +577,6 @@ def anchor_scan(rec, real_depths: list[np.ndarray], indices: np.ndarray, xs, ys,
     """For every anchor (x, y, heading) of the grid: the depth percentiles of the twin's clean depth (distorted,
     inside ``depth_border``) at the frames ``indices`` against the real ones (``real_depths``, the same frames), and
     the mismatch: the mean |log(twin / real)| over the percentiles. Sorted best first. Renders depth only."""
-    from d2slam.config import SynthConfig
-    from d2slam.synth.scene import Scene
-    from d2slam.synth.twin import RecordedPath, placement
-    from d2slam.synth.world import WorldRenderer
 
     cfg = cfg or SynthConfig()
     indices = np.asarray(indices, int)

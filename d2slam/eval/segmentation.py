@@ -13,8 +13,16 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
-from d2slam.config import DEFAULT, Config, SynthEvalConfig
+from d2slam.dynamics.config import DynamicsConfig
+from d2slam.dynamics.depth import beta, uncertainty_width
+from d2slam.ranges import AnyConfig, part_of
+from d2slam.synth.config import SynthConfig, SynthEvalConfig
+from d2slam.synth.generate import render_frame
+from d2slam.synth.realism import sample_indices
+from d2slam.synth.scene import Scene
+from d2slam.synth.world import WorldRenderer
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 _PERCENTILE = SynthEvalConfig.seg_eval_boundary_percentile
@@ -102,7 +110,7 @@ def depth_bin_table(depth: np.ndarray, values: np.ndarray, edges) -> list[tuple[
     return out
 
 
-def synthetic_rows(runs, segmenter, config: Config | None = None) -> tuple[list[dict], list[dict]]:
+def synthetic_rows(runs, segmenter, config: AnyConfig | None = None) -> tuple[list[dict], list[dict]]:
     """A segmenter on synthetic people. For each run ``(scenario, seed, frames, stride)``, every ``stride``-th frame
     of the sequence is rendered in memory (the generator's own ``render_frame``: the RGB as written to ``rgb/``,
     sensor blur and noise included) and segmented (``segmenter(rgb)`` -> list of ``PersonInstance``).
@@ -110,15 +118,7 @@ def synthetic_rows(runs, segmenter, config: Config | None = None) -> tuple[list[
     Returns ``(people, frames)``: one ``frame_rows`` row per visible person plus ``scenario``, ``seed``, ``frame``;
     one row per frame with ``scenario``, ``seed``, ``frame``, ``masks`` (predicted) and ``false_pos`` (predicted
     masks whose IoU with every person of the scene is below ``config.synth_eval.seg_eval_iou``)."""
-    from tqdm import tqdm
-
-    from d2slam.synth.generate import render_frame
-    from d2slam.synth.realism import sample_indices
-    from d2slam.synth.scene import Scene
-    from d2slam.synth.world import WorldRenderer
-
-    config = config or DEFAULT
-    cfg, ev = config.synth, config.synth_eval
+    cfg, ev = part_of(config, "synth", SynthConfig), part_of(config, "synth_eval", SynthEvalConfig)
     runs = [(str(sc), int(seed), int(n), int(stride)) for sc, seed, n, stride in runs]
     todo = [sample_indices(n, stride) for _, _, n, stride in runs]
     people, frames = [], []
@@ -152,19 +152,17 @@ def detected(people: list[dict], cfg: SynthEvalConfig | None = None) -> np.ndarr
 
 
 def boundary_table(people: list[dict],
-                   config: Config | None = None) -> list[tuple[str, int, float, float, float, float]]:
+                   config: AnyConfig | None = None) -> list[tuple[str, int, float, float, float, float]]:
     """Boundary error of detected people (``frame_rows`` rows with area >= ``seg_eval_min_area`` and IoU >=
     ``seg_eval_iou``) beside eq 2's uncertainty half-width ``w(z) = ln(p / (1 - p)) / beta(z)`` at each person's
     median depth, per depth bin (``seg_eval_depth_bins``) and over all (label "all"): (label, people, median of the
     mean error, median of the percentile error, median w, share of people whose percentile error is <= w)."""
-    from d2slam.dynamics.depth import beta, uncertainty_width
 
-    config = config or DEFAULT
-    cfg = config.synth_eval
+    cfg, dyn = part_of(config, "synth_eval", SynthEvalConfig), part_of(config, "dynamics", DynamicsConfig)
     col = {k: np.array([r[k] for r in people], float).reshape(-1) for k in ("depth", "boundary_mean", "boundary_q")}
     det = detected(people, cfg) & np.isfinite(col["boundary_q"])  # NaN: a person covering the whole image
     z = col["depth"][det]
-    width = uncertainty_width(beta(z, config.dynamics), config.dynamics)
+    width = uncertainty_width(beta(z, dyn), dyn)
     values = [col["boundary_mean"][det], col["boundary_q"][det], width, (col["boundary_q"][det] <= width) * 1.0]
     tables = [depth_bin_table(z, v, cfg.seg_eval_depth_bins) + [("all", *depth_bin_table(z, v, ())[0][1:])]
               for v in values]

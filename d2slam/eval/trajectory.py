@@ -15,6 +15,10 @@ import copy
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from evo.core import metrics, sync
+from evo.core.geometry import GeometryException
+from evo.core.metrics import PoseRelation
+from evo.core.trajectory import PoseTrajectory3D
 
 from d2slam.data.base import Trajectory
 from d2slam.errors import D2SlamError
@@ -56,7 +60,6 @@ class Evaluation:
 
 
 def to_evo(traj: Trajectory, what: str):
-    from evo.core.trajectory import PoseTrajectory3D
 
     ts = np.asarray(traj.timestamps, dtype=np.float64)
     poses = np.asarray(traj.poses, dtype=np.float64)
@@ -72,8 +75,6 @@ def evaluate(groundtruth: Trajectory, estimate: Trajectory, max_diff: float = MA
     """ATE / RPE of ``estimate`` against ``groundtruth`` (both T_world_camera). Raises ``D2SlamError`` when a
     trajectory is empty, when fewer than 3 poses associate within ``max_diff`` seconds, or when the estimate is
     too short for one RPE pair."""
-    from evo.core import metrics, sync
-    from evo.core.metrics import PoseRelation
 
     ref = to_evo(groundtruth, "ground truth")
     est = to_evo(estimate, "estimated trajectory")
@@ -169,8 +170,6 @@ def relative_errors(ref: np.ndarray, est: np.ndarray, pairs: np.ndarray) -> tupl
 
 def aligned_estimate(groundtruth: Trajectory, estimate: Trajectory, max_diff: float = MAX_DIFF):
     """(gt positions (M, 3), aligned estimated positions (M, 3), timestamps (M,)) of the associated poses."""
-    from evo.core import sync
-
     ref_a, est_a = sync.associate_trajectories(to_evo(groundtruth, "ground truth"),
                                                to_evo(estimate, "estimated trajectory"), max_diff=max_diff)
     _align(est_a, ref_a, estimate)
@@ -180,8 +179,6 @@ def aligned_estimate(groundtruth: Trajectory, estimate: Trajectory, max_diff: fl
 def _align(est, ref, estimate: Trajectory) -> None:
     """evo's SE(3) Umeyama alignment of ``est`` onto ``ref`` in place; a :class:`D2SlamError` when the matched
     positions are degenerate (all on one line or at one point: no rotation can be fitted)."""
-    from evo.core.geometry import GeometryException
-
     try:
         est.align(ref, correct_scale=False)
     except GeometryException as exc:

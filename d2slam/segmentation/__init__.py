@@ -15,10 +15,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from d2slam.config import DEFAULT, Config, SegmentationConfig
+import numpy as np
+
 from d2slam.errors import D2SlamError
+from d2slam.ranges import AnyConfig, part_of
 from d2slam.segmentation.base import PersonInstance, Segmenter, stack_masks
 from d2slam.segmentation.cache import CachedSegmenter
+from d2slam.segmentation.config import SegmentationConfig
+from d2slam.segmentation.onnx import OnnxSegmenter, default_model_path
+from d2slam.segmentation.sim import LabelSegmenter
 
 KINDS = ("onnx", "sim", "gt", "truth")
 
@@ -26,27 +31,18 @@ __all__ = ["KINDS", "PersonInstance", "Segmenter", "stack_masks", "CachedSegment
            "cached_segmenter", "masks_origin", "flush_masks", "segmentation_config", "mask_source"]
 
 
-def segmentation_config(config: Config | SegmentationConfig | None = None) -> SegmentationConfig:
-    if config is None:
-        return DEFAULT.segmentation
-    if isinstance(config, Config):
-        return config.segmentation
-    if isinstance(config, SegmentationConfig):
-        return config
-    raise TypeError(f"expected Config or SegmentationConfig, got {type(config).__name__}")
+def segmentation_config(config: AnyConfig | SegmentationConfig | None = None) -> SegmentationConfig:
+    """The segmenter's section of a whole config, the section itself, or its defaults (None)."""
+    return part_of(config, "segmentation", SegmentationConfig)
 
 
-def get_segmenter(kind: str, sequence=None, config: Config | SegmentationConfig | None = None,
+def get_segmenter(kind: str, sequence=None, config: AnyConfig | SegmentationConfig | None = None,
                   model: str | Path | None = None, allow_unknown_model: bool | None = None):
     """A segmenter of ``kind`` ("onnx", "sim", "gt" or "truth"). ``sequence`` is needed by sim/gt/truth (its ``mask_*``
     folders); ``model`` overrides ``$D2SLAM_SEG_MODEL`` for onnx."""
     if kind == "onnx":
-        from d2slam.segmentation.onnx import OnnxSegmenter
-
         return OnnxSegmenter(model, segmentation_config(config), allow_unknown_model)
     if kind in ("sim", "gt", "truth"):
-        from d2slam.segmentation.sim import LabelSegmenter
-
         return LabelSegmenter(sequence, kind)
     raise D2SlamError(f"unknown segmenter kind {kind!r}; choose one of {', '.join(KINDS)}")
 
@@ -56,15 +52,13 @@ _CACHED: dict[tuple, CachedSegmenter] = {}  # the few most recent (sequence, kin
 _MAX_CACHED = 8
 
 
-def cached_segmenter(sequence, kind: str = "onnx", config: Config | SegmentationConfig | None = None,
+def cached_segmenter(sequence, kind: str = "onnx", config: AnyConfig | SegmentationConfig | None = None,
                      model: str | Path | None = None) -> CachedSegmenter:
     """The :class:`CachedSegmenter` that :func:`masks_for` reads ``kind`` masks of ``sequence`` through (the ONNX
     session is built once per process and config/model; the few most recent ones are kept)."""
     cfg = segmentation_config(config)
     model_key = None
     if kind == "onnx":  # keyed by the file it reads, so a changed $D2SLAM_SEG_MODEL gets a session of its own
-        from d2slam.segmentation.onnx import default_model_path
-
         model_key = str(Path(model).expanduser() if model is not None else default_model_path())
     key = (id(sequence), kind, cfg, model_key)
     cached = _CACHED.get(key)
@@ -81,7 +75,7 @@ def cached_segmenter(sequence, kind: str = "onnx", config: Config | Segmentation
     return cached
 
 
-def masks_for(sequence, index: int, kind: str = "onnx", config: Config | SegmentationConfig | None = None,
+def masks_for(sequence, index: int, kind: str = "onnx", config: AnyConfig | SegmentationConfig | None = None,
               model: str | Path | None = None) -> list[PersonInstance]:
     """Persons of frame ``index`` of ``sequence``: the pipeline's entry point. ``onnx`` goes through the mask
     cache (filled on demand; the ONNX session is built once per process and config/model); ``sim``/``gt`` read
@@ -92,7 +86,7 @@ def masks_for(sequence, index: int, kind: str = "onnx", config: Config | Segment
 LABEL_FOLDERS = {"sim": "mask_sim/", "gt": "mask_gt/", "truth": "mask_gt/ and scene.json"}
 
 
-def masks_origin(sequence, kind: str, config: Config | SegmentationConfig | None = None,
+def masks_origin(sequence, kind: str, config: AnyConfig | SegmentationConfig | None = None,
                  frames: int | None = None, progress: bool = True) -> str:
     """Where the ``kind`` masks of ``sequence`` come from, for a run's summary: the model file and the mask cache
     for ``onnx`` (whose first ``frames`` frames are segmented into the cache now when missing: announced and
@@ -117,8 +111,6 @@ def mask_source(sequence, masks_from):
     --masks-from``; the study's ``oracle`` on a static twin reads its dynamic sibling's truth, the *occluded twin*),
     which must have the same frames: as many, at the same timestamps (a clear error otherwise, not masks of other
     frames)."""
-    import numpy as np
-
     if masks_from is None or masks_from is sequence:
         return sequence
     n, m = len(sequence), len(masks_from)

@@ -8,7 +8,7 @@ Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/masks.npz``, one f
   new key. The images' content (:func:`images_digest`) is the sha256 of every image listed in ``rgb.txt``, found
   again cheaply from their names, sizes and modification times (a memo per folder, ``stamps/``); the images are
   hashed in full when those changed or were never seen, and when the memo was written within
-  ``CliConfig.cache_mtime_window_s`` of an image's last modification (a change in that window could keep the same
+  ``CacheConfig.cache_mtime_window_s`` of an image's last modification (a change in that window could keep the same
   time on a file system with coarse timestamps). So replaced images are never read with the old masks, and
   touched or copied ones (same bytes, new times) keep them;
 * segmenter key = ``<kind>-<sha256(identity)[:16]>`` where ``identity()`` holds the model's sha256 (the model file,
@@ -22,8 +22,8 @@ Layout: ``cache_dir("masks", <sequence key>, <segmenter key>)/masks.npz``, one f
   ``bits[offsets[j]:offsets[j + 1]]``, the ``np.packbits`` of that rectangle (row-major).
 
 Person masks cover a small part of a frame, so the file is small and a frame is decoded by unpacking its rectangles
-into zeroed masks: no decompression and no file access per frame (``d2slam bench segmentation --cache SEQ``). The file
-is read once per process and sequence (``MaskStore``). Frames segmented since are written by rewriting the file
+into zeroed masks: no decompression and no file access per frame (``d2slam bench segmenter_speed --cache SEQ``). The
+file is read once per process and sequence (``MaskStore``). Frames segmented since are written by rewriting the file
 atomically (a temporary file named after the writing process, :mod:`d2slam.outputs`, then a rename; under a lock
 file, merged with what other processes added meanwhile): every
 ``SegmentationConfig.cache_flush_frames`` new frames, when every frame of the sequence is cached, at the end of
@@ -42,17 +42,24 @@ import hashlib
 import json
 import os
 import tempfile
+import time
 import weakref
 import zipfile
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
+from d2slam.cachefiles import CACHE, Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
+from d2slam.data.base import RGBDFrame
+from d2slam.data.tum import read_file_list
 from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps, temp_tag, write_bytes
 from d2slam.paths import cache_dir
+from d2slam.progress import PROGRESS, announce, progress as follow
 from d2slam.segmentation.base import PersonInstance
+from d2slam.segmentation.config import SegmentationConfig
+from d2slam.segmentation.onnx import read_rgb
 
 FORMAT = "d2slam-masks/2"
 STORE_NAME = "masks.npz"
@@ -77,8 +84,6 @@ def sequence_key(sequence) -> str:
 
 
 def _listed_images(root: Path) -> list[Path]:
-    from d2slam.data.tum import read_file_list
-
     _, names, _ = read_file_list(root / "rgb.txt")  # D2SlamError naming the line on a bad row
     return [p if p.is_absolute() else root / p for p in map(Path, names)]
 
@@ -86,13 +91,11 @@ def _listed_images(root: Path) -> list[Path]:
 def images_digest(root: str | Path, window_s: float | None = None) -> str:
     """sha256 of the content of every image ``root/rgb.txt`` lists (with its name): from the memo
     ``cache_dir("masks", "stamps", <root digest>.json)`` when the images' names, sizes and modification times are
-    those it recorded and it was written at least ``window_s`` (``CliConfig.cache_mtime_window_s``) after the newest
+    those it recorded and it was written at least ``window_s`` (``CacheConfig.cache_mtime_window_s``) after the newest
     of them was modified; otherwise every image is hashed and the memo rewritten. The memo is sealed
     (:func:`d2slam.cachefiles.sealed`): a damaged one is said and made again. A missing image counts by its name."""
-    from d2slam.config import CLI
-
     root = Path(root).resolve()
-    window = CLI.cache_mtime_window_s if window_s is None else window_s
+    window = CACHE.cache_mtime_window_s if window_s is None else window_s
     images = _listed_images(root)
     stats = []
     for p in images:
@@ -118,7 +121,6 @@ def images_digest(root: str | Path, window_s: float | None = None) -> str:
         h.update(f"{p.relative_to(root) if p.is_relative_to(root) else p}|".encode())
         h.update((sha256_file(p) if size >= 0 else "missing").encode())
     content = h.hexdigest()
-    import time
 
     try:
         write_bytes(memo_path, json.dumps(sealed({"root": str(root), "stat": stat, "content": content,
@@ -357,8 +359,6 @@ def load_frame_file(path: Path, timestamp: float | None = None) -> list[PersonIn
 def convert_frame_files(folder: Path, store: MaskStore, timestamps, progress: bool = True) -> int:
     """Add the ``<timestamp>.npz`` files of ``folder`` (earlier layout) for ``timestamps`` to ``store`` (unreadable
     files are skipped: recomputed later); returns how many were added."""
-    from tqdm import tqdm
-
     files = [(t, folder / f"{timestamp_stem(t)}.npz") for t in np.asarray(timestamps, dtype=np.float64).tolist()]
     files = [(t, p) for t, p in files if t not in store and p.is_file()]
     added = 0
@@ -384,14 +384,12 @@ class CachedSegmenter:
     the cache file (default ``SegmentationConfig.cache_flush_frames``)."""
 
     def __init__(self, segmenter, sequence, root: str | Path | None = None, flush_frames: int | None = None):
-        from d2slam.config import DEFAULT
-
         self.segmenter = segmenter
         self.sequence = sequence
         self.name = segmenter.name
         self.cacheable = getattr(segmenter, "cacheable", True)
         self.hits = self.misses = self.recovered = 0
-        self.flush_frames = int(flush_frames or DEFAULT.segmentation.cache_flush_frames)
+        self.flush_frames = int(flush_frames or SegmentationConfig().cache_flush_frames)
         self.dir = self.store = None
         if self.cacheable:
             seq_key, seg_key = sequence_key(sequence), segmenter_key(segmenter)
@@ -473,7 +471,7 @@ class CachedSegmenter:
     def fill(self, progress: bool = True, frames: int | None = None, recheck: bool = True) -> tuple[int, int]:
         """Segment the first ``frames`` frames (all by default) not yet cached, then write the cache file; ``recheck``
         also decodes the cached ones. With ``progress`` the segmentation is announced with an estimate
-        (``CliConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Segmenting holds the sequence's
+        (``ProgressConfig.segment_frame_s``) and followed (:mod:`d2slam.progress`). Segmenting holds the sequence's
         ``segment.lock``: a second process waits for the first and reads its masks. Returns (hits, misses) of this
         call."""
         if not self.cacheable:
@@ -489,15 +487,11 @@ class CachedSegmenter:
             return self._fill(n, self.missing(n), progress, recheck)
 
     def _fill(self, n: int, todo: list[int], progress: bool, recheck: bool) -> tuple[int, int]:
-        from d2slam.config import CLI
-        from d2slam.progress import announce
-        from d2slam.progress import progress as follow
-
         if todo and progress:
             model = getattr(self.segmenter, "model_path", None)
             announce(f"segmenting {len(todo)} frames of {self.sequence.name} with "
                      f"{Path(model).name if model else self.name} into the mask cache {self.dir} (once per "
-                     "sequence)", len(todo) * CLI.segment_frame_s)
+                     "sequence)", len(todo) * PROGRESS.segment_frame_s)
         h0, m0 = self.hits, self.misses
         for i in follow(range(n) if recheck else todo, desc=f"segment {self.sequence.name}",
                         enabled=progress and bool(todo)):
@@ -518,7 +512,6 @@ class RgbListSequence:
         path = self.root / "rgb.txt"
         if not path.is_file():
             raise D2SlamError("not a TUM sequence folder: rgb.txt not found", path=path)
-        from d2slam.data.tum import read_file_list
 
         stamps, names, _ = read_file_list(path)  # D2SlamError naming the line on bad rows / order
         if not len(stamps):
@@ -531,9 +524,6 @@ class RgbListSequence:
         return len(self.timestamps)
 
     def __getitem__(self, index: int):
-        from d2slam.data.base import RGBDFrame
-        from d2slam.segmentation.onnx import read_rgb
-
         if not -len(self) <= index < len(self):
             raise IndexError(index)
         index %= len(self)

@@ -30,19 +30,19 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import onnxruntime as ort
 
 from d2slam.assets import DERIVED, DOWNLOADS, assets_cache, find
-from d2slam.config import SegmentationConfig
+from d2slam.cachefiles import sha256_file
 from d2slam.errors import D2SlamError
 from d2slam.segmentation.base import PersonInstance
+from d2slam.segmentation.config import NOT_IN_KEY, SegmentationConfig
 
 MODEL_ENV = "D2SLAM_SEG_MODEL"
 ALLOW_UNKNOWN_ENV = "D2SLAM_SEG_ALLOW_UNKNOWN"
 DEFAULT_MODEL_NAME = "yolov8n-seg_deq_384x512.onnx"
 # Version of the decoding below: part of the mask-cache key, bump when decoding changes masks.
 DECODER_VERSION = 1
-# SegmentationConfig fields that do not change masks, left out of the mask-cache key.
-NOT_IN_KEY = ("intra_op_threads", "allow_spinning", "cache_flush_frames")
 
 #: sha256 -> file name of the three YOLOv8n-seg files (``d2slam.assets``).
 KNOWN_MODELS: dict[str, str] = {a.sha256: Path(a.path).name for a in (*DOWNLOADS, *DERIVED)
@@ -77,8 +77,6 @@ def file_sha256(path: str | Path) -> str:
     st = path.stat()
     key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
     if key not in _SHA_CACHE:
-        from d2slam.cachefiles import sha256_file
-
         _SHA_CACHE[key] = sha256_file(path)
     return _SHA_CACHE[key]
 
@@ -159,8 +157,6 @@ class OnnxSegmenter:
 
     def __init__(self, model_path: str | Path | None = None, config: SegmentationConfig | None = None,
                  allow_unknown_model: bool | None = None):
-        import onnxruntime as ort
-
         self.config = config or SegmentationConfig()
         self.model_path, self.sha256 = check_model(model_path, allow_unknown_model)
         opts = ort.SessionOptions()

@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, Config
 from d2slam.data.base import Camera
 from d2slam.errors import D2SlamError
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.frame import Frame, OrbExtractor
-from d2slam.slam.hook import FilterHook, FilterInput, KeypointFilter, update_point_beliefs
+from d2slam.slam.hook import FilterHook, FilterInput, HookFrame, KeypointFilter, update_point_beliefs
 from d2slam.slam.local_mapping import LocalMapper
 from d2slam.slam.loop_closing import LoopCloser
 from d2slam.slam.map import KeyFrame, Map
@@ -44,14 +44,15 @@ class TrackResult:
         return self.state == OK
 
 
-def refills(config: Config, keypoint_filter: KeypointFilter | None) -> bool:
+def refills(config: SlamConfig, keypoint_filter: KeypointFilter | None) -> bool:
     """Whether a run's extraction budget depends on its filter's output (``EngineConfig.refill_filtered`` and a
     filter): such a run extracts every frame itself and cannot use stored features (see ``Engine.feature_budget``)."""
     return bool(config.engine.refill_filtered and keypoint_filter is not None)
 
 
 class Engine:
-    def __init__(self, camera: Camera, config: Config = DEFAULT, keypoint_filter: KeypointFilter | None = None):
+    def __init__(self, camera: Camera, config: SlamConfig = SlamConfig(),
+                 keypoint_filter: KeypointFilter | None = None):
         cv2.setNumThreads(int(config.engine.cv_threads))
         self.camera = camera
         self.config = config
@@ -60,7 +61,7 @@ class Engine:
         self.filter = keypoint_filter
         self.proj = Projector(camera, config)
         self.extractor = OrbExtractor(config.orb, config.engine, camera)
-        self.hook = FilterHook(keypoint_filter, self.proj, self.cfg) if keypoint_filter is not None else None
+        self.hook = FilterHook(keypoint_filter, self.proj, config) if keypoint_filter is not None else None
         self.vocabulary = load_vocabulary(self.cfg.vocabulary or None) if self.cfg.loop_closing else None
         self._worker: ThreadPoolExecutor | None = None  # extracts the upcoming frame while this one is tracked
         self._upcoming: tuple[int, Future] | None = None
@@ -75,13 +76,16 @@ class Engine:
         if self.vocabulary is not None:
             self.loop = LoopCloser(self.map, self.proj, self.config, self.vocabulary, self.mapper)
             self.tracker.keyframe_db = self.loop.db
-        self.last: Frame | None = None  # last processed frame (tracked or not)
-        self.last_gray: np.ndarray | None = None  # its grey image (None when it came as stored features)
-        self.last_depth: np.ndarray | None = None  # its depth image (None when none was given)
+        self.previous: HookFrame | None = None  # the last processed frame (tracked or not) and its images
         self.frame_refs: dict[int, tuple[int, np.ndarray]] = {}  # frame index -> (ref keyframe id, T_c_ref)
         self.timestamps: dict[int, float] = {}
         if self.hook is not None:
             self.hook.reset()
+
+    @property
+    def last(self) -> Frame | None:
+        """The last processed frame (tracked or not)."""
+        return self.previous.frame if self.previous is not None else None
 
     @property
     def last_filter_input(self) -> FilterInput | None:
@@ -111,11 +115,12 @@ class Engine:
             self._drop_upcoming()
             with timer("extract"):
                 frame = self.extractor(gray, depth, index, timestamp, self.feature_budget())
+        current = HookFrame(frame, gray, depth)
         with timer("filter"):
             if self.hook is not None:
-                prev = self.last
-                self.hook(frame, gray, depth, masks, prev, self.last_gray, self.last_depth, self.map,
-                          tracker.velocity, prev is not None and prev is tracker.last_tracked)
+                prev = self.previous
+                tracked = prev is not None and prev.frame is tracker.last_tracked
+                self.hook(current, masks, prev, self.map, tracker.velocity if tracked else None)
         if upcoming is not None and features is None:
             self._extract_upcoming(frame, *upcoming)
         with timer("track"):
@@ -138,7 +143,7 @@ class Engine:
             if ok:
                 self.frame_refs[index] = (frame.ref_kf, frame.Tcr)
                 self.timestamps[index] = timestamp
-            self.last, self.last_gray, self.last_depth = frame, gray, depth
+            self.previous = current
         state = OK if ok else (NOT_INITIALIZED if tracker.state == NOT_INITIALIZED else LOST)
         n_in = int(((frame.mp >= 0) & ~frame.outlier).sum()) if ok else 0
         return TrackResult(index, timestamp, state, how, frame.n, n_in, keyframe, timer.seconds)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from d2slam.cachefiles import Damaged, load_npz
 from d2slam.errors import D2SlamError
 from d2slam.outputs import staged_file
 from d2slam.slam.frame import Frame
@@ -65,8 +66,6 @@ class CachedFeatures:
 
     def __init__(self, path: str | Path):
         """:class:`~d2slam.cachefiles.Damaged` when the file cannot be read in full or its arrays disagree."""
-        from d2slam.cachefiles import Damaged, load_npz
-
         self.path = Path(path)
         z = load_npz(self.path, ("format", "offsets", "timestamps", "extract_ms") + FIELDS)
         if str(z["format"]) != FORMAT:
@@ -83,8 +82,6 @@ class CachedFeatures:
 
     def check(self, timestamps) -> None:
         """Raise unless the file holds exactly the frames with these timestamps."""
-        from d2slam.cachefiles import Damaged
-
         ts = np.asarray(timestamps, dtype=np.float64)
         if len(ts) != len(self) or not np.array_equal(ts, self.timestamps):
             raise Damaged(f"it does not match the sequence ({len(self)} frames stored, {len(ts)} in the sequence)")

@@ -4,12 +4,15 @@ generator so the engine can be unit-tested on its own."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from d2slam.data.base import Camera
+from d2slam.data.base import Camera, Trajectory
 from d2slam.data.intrinsics import FREIBURG3
+from d2slam.data.tum import write_tum_trajectory
 
 FR3 = FREIBURG3
 
@@ -94,11 +97,6 @@ def room_sequence(n: int = 30, seed: int = 0, fps: float = 30.0):
 
 def write_room_sequence(root, n: int = 30, seed: int = 0, fps: float = 30.0) -> "Path":
     """Write a :func:`room_sequence` as a TUM folder (rgb/, depth/ x5000, rgb.txt, depth.txt, groundtruth.txt)."""
-    from pathlib import Path
-
-    from d2slam.data.base import Trajectory
-    from d2slam.data.tum import write_tum_trajectory
-
     root = Path(root)
     (root / "rgb").mkdir(parents=True, exist_ok=True)
     (root / "depth").mkdir(parents=True, exist_ok=True)

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from d2slam.config import EngineConfig, OrbConfig
 from d2slam.data.base import Camera
+from d2slam.slam.config import EngineConfig, OrbConfig
 from d2slam.slam.depth import keypoint_depth
 from d2slam.slam.matching import Gridded
 

@@ -13,13 +13,15 @@ from typing import Protocol
 
 import numpy as np
 
-from d2slam.config import EngineConfig
 from d2slam.data.base import Camera
 from d2slam.errors import D2SlamError
+from d2slam.slam.config import OrbConfig, SlamConfig
 from d2slam.slam.frame import Frame
 from d2slam.slam.map import Map
 from d2slam.slam.matching import rotation_consistent, search_by_projection, unique_by_target, window_cross_match
 from d2slam.slam.projection import EPS_Z, Projector
+
+_ORB = OrbConfig()
 
 
 @dataclass
@@ -38,21 +40,28 @@ class FilterInput:
     mappoint_belief: np.ndarray  # (N,) belief carried by the map point each keypoint was associated to, NaN if none
     masks: np.ndarray | None  # (n, H, W) bool person masks, or None when the run has no segmenter
     # (N,) int pyramid level (ORB octave) of each current keypoint, or None when the engine does not give it. Used by
-    # the geometric module to express alpha(z) at the keypoint's detection scale (DynamicsConfig.alpha_octave_scale).
+    # the geometric module to express alpha(z) at the keypoint's detection scale (OursConfig.alpha_at_scale).
     octave: np.ndarray | None = None
     # (H, W) uint8 grey image of the previous frame, None on the first frame or when it came as stored features. Used
-    # by the optional flow correspondences of the geometric module (DynamicsConfig.flow, d2slam.dynamics.flow).
+    # by the optional flow correspondences of the geometric module (FlowConfig, d2slam.dynamics.flow).
     prev_gray: np.ndarray | None = None
     # (H, W) depth image (metres) of the previous frame, None on the first frame: the depth of the flow's new matches
-    # for the pose test (DynamicsConfig.flow_new_depth; the flow itself needs ``prev_gray``).
+    # for the pose test (FlowConfig.flow_new_depth; the flow itself needs ``prev_gray``).
     prev_depth: np.ndarray | None = None
     # Where the keypoints are in the images (detected, distorted pixel coordinates), (N, 2) and (M, 2), for whatever
     # reads the images, the depth maps or the masks at a keypoint; ``kps`` and ``prev_kps`` are undistorted, for
     # geometry. None when the camera has no lens distortion (then they are ``kps`` and ``prev_kps``).
     kps_px: np.ndarray | None = None
     prev_kps_px: np.ndarray | None = None
-    # The camera (its lens distortion turns image positions into the undistorted coordinates of ``kps``).
+    # The camera (its lens distortion turns image positions into the undistorted coordinates of ``kps``; its depth
+    # noise scales the pose test's depth residual).
     camera: Camera | None = None
+    # How the engine measured the keypoints: its pyramid's scale (an octave k is scale_factor^k px wide at level 0)
+    # and the patch its robust keypoint depth is the median of ((2 r + 1)^2 pixels).
+    scale_factor: float = _ORB.scale_factor
+    depth_patch_radius: int = _ORB.depth_patch_radius
+    # The run's seed (EngineConfig.seed): the filter's RANSACs draw from it.
+    seed: int = 0
 
     def pixels(self) -> tuple[np.ndarray, np.ndarray]:
         """(current, previous) keypoints where they are in the images: ``kps_px`` and ``prev_kps_px``, or the
@@ -63,10 +72,18 @@ class FilterInput:
 
 class KeypointFilter(Protocol):
     """Anything callable on a FilterInput returning (N,) float beliefs in [0, 1] (dynamic probability)."""
-
     def __call__(self, inp: FilterInput) -> np.ndarray: ...
-
     def reset(self) -> None: ...
+
+
+@dataclass
+class HookFrame:
+    """A frame as the hook sees it: the engine's features of it and the images they came from (``gray`` None when the
+    frame came as stored features; ``depth`` None when none was given)."""
+
+    frame: Frame
+    gray: np.ndarray | None
+    depth: np.ndarray | None
 
 
 class FilterHook:
@@ -74,55 +91,58 @@ class FilterHook:
     keypoints, beliefs and images, the beliefs of the map points the matches lead to; writes ``frame.belief``.
     ``last_input`` is the last ``FilterInput`` (for notebooks and benchmarks)."""
 
-    def __init__(self, keypoint_filter: KeypointFilter, proj: Projector, cfg: EngineConfig):
+    def __init__(self, keypoint_filter: KeypointFilter, proj: Projector, config: SlamConfig):
         self.filter = keypoint_filter
         self.proj = proj
-        self.cfg = cfg
+        self.cfg = config.engine
+        self.orb = config.orb
         self.last_input: FilterInput | None = None
 
     def reset(self) -> None:
         self.filter.reset()
         self.last_input = None
 
-    def __call__(self, frame: Frame, gray, depth, masks, prev: Frame | None, prev_gray, prev_depth, map_: Map,
-                 velocity: np.ndarray | None, prev_tracked: bool) -> None:
-        """``prev``: the last processed frame (None on the first), with its images; ``velocity``: the motion model's
-        prediction T_frame_prev, usable for guided matching when ``prev_tracked`` (``prev`` is the last tracked
-        frame)."""
-        n = frame.n
-        camera = self.proj.camera
-        if prev is None or prev.n == 0 or n == 0:
-            matches = np.zeros((0, 2), dtype=np.int64)
-            prev_kps, prev_kp_depth = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
-            prev_px = prev_kps
-            prev_belief = np.zeros(0)
-        else:
-            matches = self.matches(frame, prev, velocity if prev_tracked else None)
-            prev_kps, prev_kp_depth = prev.kps.astype(np.float32), prev.depth.astype(np.float32)
-            prev_px = prev.kps_raw.astype(np.float32)
-            prev_belief = prev.belief if prev.belief is not None else np.full(prev.n, 0.5)
-        mp_belief = np.full(n, np.nan)
-        if len(matches) and prev is not None:
-            pm = prev.mp[matches[:, 1]]
-            has = pm >= 0
-            alive = np.zeros(len(pm), dtype=bool)
-            alive[has] = map_.points.alive[pm[has]]
-            mp_belief[matches[alive, 0]] = map_.points.belief[pm[alive]]
-        inp = FilterInput(frame_index=frame.index, timestamp=frame.timestamp, gray=gray, depth=depth, K=self.proj.K,
-                          kps=frame.kps.astype(np.float32), kp_depth=frame.depth.astype(np.float32),
-                          prev_kps=prev_kps, prev_kp_depth=prev_kp_depth, prev_belief=np.asarray(prev_belief),
-                          matches=matches, mappoint_belief=mp_belief, masks=masks, octave=frame.octave,
-                          prev_gray=prev_gray if prev is not None else None,
-                          prev_depth=prev_depth if prev is not None else None,
-                          kps_px=frame.kps_raw.astype(np.float32) if camera.has_distortion else None,
-                          prev_kps_px=prev_px if camera.has_distortion else None, camera=camera)
+    def __call__(self, current: HookFrame, masks: np.ndarray | None, prev: HookFrame | None, map_: Map,
+                 velocity: np.ndarray | None) -> None:
+        """``prev``: the last processed frame (None on the first); ``masks``: the current frame's person masks;
+        ``velocity``: the motion model's prediction T_frame_prev when ``prev`` is the last tracked frame (for guided
+        matching), else None."""
+        frame = current.frame
+        inp = self.filter_input(current, masks, prev, map_, velocity)
         belief = np.asarray(self.filter(inp), dtype=np.float64)
+        n = frame.n
         if belief.shape != (n,) or not np.all(np.isfinite(belief)) or belief.min(initial=0) < 0 or \
                 belief.max(initial=0) > 1:
             raise D2SlamError(f"frame {frame.index}: the keypoint filter returned beliefs of shape {belief.shape} "
                               f"(expected ({n},) finite values in [0, 1])")
         frame.belief = belief
         self.last_input = inp
+
+    def filter_input(self, current: HookFrame, masks, prev: HookFrame | None, map_: Map, velocity) -> FilterInput:
+        """The filter's input for ``current`` against ``prev`` (see ``__call__``)."""
+        frame, camera = current.frame, self.proj.camera
+        p = prev.frame if prev is not None else None
+        if p is None or p.n == 0 or frame.n == 0:
+            matches = np.zeros((0, 2), dtype=np.int64)
+            prev_kps, prev_kp_depth = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+            prev_px = prev_kps
+            prev_belief = np.zeros(0)
+        else:
+            matches = self.matches(frame, p, velocity)
+            prev_kps, prev_kp_depth = p.kps.astype(np.float32), p.depth.astype(np.float32)
+            prev_px = p.kps_raw.astype(np.float32)
+            prev_belief = p.belief if p.belief is not None else np.full(p.n, 0.5)
+        distorted = camera.has_distortion
+        return FilterInput(frame_index=frame.index, timestamp=frame.timestamp, gray=current.gray, depth=current.depth,
+                           K=self.proj.K, kps=frame.kps.astype(np.float32), kp_depth=frame.depth.astype(np.float32),
+                           prev_kps=prev_kps, prev_kp_depth=prev_kp_depth, prev_belief=np.asarray(prev_belief),
+                           matches=matches, mappoint_belief=_mappoint_belief(frame, p, matches, map_), masks=masks,
+                           octave=frame.octave, prev_gray=prev.gray if prev is not None else None,
+                           prev_depth=prev.depth if prev is not None else None,
+                           kps_px=frame.kps_raw.astype(np.float32) if distorted else None,
+                           prev_kps_px=prev_px if distorted else None, camera=camera,
+                           scale_factor=self.orb.scale_factor, depth_patch_radius=self.orb.depth_patch_radius,
+                           seed=self.cfg.seed)
 
     def matches(self, frame: Frame, prev: Frame, velocity: np.ndarray | None) -> np.ndarray:
         """(K, 2) one-to-one matches (keypoint of ``frame``, keypoint of ``prev``) given to the filter.
@@ -171,6 +191,18 @@ class FilterHook:
             cur, pv = cur[rot], pv[rot]
         out = np.stack([cur, pv], axis=1).astype(np.int64)
         return out[np.argsort(out[:, 0], kind="stable")]
+
+
+def _mappoint_belief(frame: Frame, prev: Frame | None, matches: np.ndarray, map_: Map) -> np.ndarray:
+    """(N,) the belief of the live map point each current keypoint's match observed in ``prev``, NaN where none."""
+    mp_belief = np.full(frame.n, np.nan)
+    if len(matches) and prev is not None:
+        pm = prev.mp[matches[:, 1]]
+        has = pm >= 0
+        alive = np.zeros(len(pm), dtype=bool)
+        alive[has] = map_.points.alive[pm[has]]
+        mp_belief[matches[alive, 0]] = map_.points.belief[pm[alive]]
+    return mp_belief
 
 
 def update_point_beliefs(map_: Map, frame: Frame, threshold: float) -> None:

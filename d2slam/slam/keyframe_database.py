@@ -4,7 +4,7 @@ loop candidates and relocalisation candidates.
 
 A keyframe's bag of words is made of its static keypoints only: a keypoint the hook flags dynamic
 (``KeyFrame.dynamic``) gives no word, so a person standing in two views cannot make them look alike. Without a filter
-(``none``) every keypoint counts, as in ORB-SLAM3 (and with ``EngineConfig.loop_dynamic_keypoints``, an ablation).
+(``none``) every keypoint counts, as in ORB-SLAM3 (and with ``LoopConfig.loop_dynamic_keypoints``, an ablation).
 
 The covisibility graph follows ORB-SLAM's ``UpdateConnections``: when a keyframe enters the database its weights
 (shared map points) to the others are counted once; a connection (at least ``covisibility_min_shared`` points) is
@@ -20,7 +20,7 @@ import numpy as np
 
 from numba import njit
 
-from d2slam.config import EngineConfig
+from d2slam.slam.config import EngineConfig
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.orb_vocabulary import BowVocabulary
 
@@ -60,14 +60,14 @@ class KeyFrameDatabase:
         """The bag of words of the ``usable`` keypoints (None: all) of a frame or keyframe."""
         n = len(desc)
         sel = np.arange(n) if usable is None else np.flatnonzero(usable)
-        words, weights, w, nd = self.voc.bow(desc[sel], self.cfg.bow_levelsup)
+        words, weights, w, nd = self.voc.bow(desc[sel], self.cfg.loops.bow_levelsup)
         kp_words, kp_nodes = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
         kp_words[sel], kp_nodes[sel] = w, nd
         return Bow(words, weights, kp_words, kp_nodes)
 
     def add(self, kf: KeyFrame) -> Bow:
         """Enter ``kf``: its bag of words (static keypoints), the inverted file, its connections and parent."""
-        bow = self.bow(kf.desc, None if kf.dynamic is None or self.cfg.loop_dynamic_keypoints else ~kf.dynamic)
+        bow = self.bow(kf.desc, None if kf.dynamic is None or self.cfg.loops.loop_dynamic_keypoints else ~kf.dynamic)
         self.bows[kf.id] = bow
         m = len(bow.words)
         n0 = self.n_post
@@ -166,7 +166,7 @@ class KeyFrameDatabase:
         kfs, common = self._sharing(bow, exclude)
         if len(kfs) == 0:
             return [], []
-        keep = common > cfg.loop_common_words * common.max()
+        keep = common > cfg.loops.loop_common_words * common.max()
         kfs = kfs[keep]
         sc = self.scores(bow, kfs)
         if min_score is not None:
@@ -178,7 +178,7 @@ class KeyFrameDatabase:
         groups = []
         for k in kfs.tolist():
             best, best_s, acc = k, score_of[k], score_of[k]
-            for c in self.best_covisibles(k, cfg.loop_group_size):
+            for c in self.best_covisibles(k, cfg.loops.loop_group_size):
                 s = score_of.get(c)
                 if s is None:
                     continue
@@ -189,7 +189,7 @@ class KeyFrameDatabase:
         top = max(g[1] for g in groups)
         out, seen = [], set()
         for best, acc, s in groups:
-            if acc > cfg.loop_group_ratio * top and best not in seen:
+            if acc > cfg.loops.loop_group_ratio * top and best not in seen:
                 seen.add(best)
                 out.append((best, acc, s))
         return out, list(score_of.items())

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import Config
+from d2slam.slam.config import SlamConfig
 from d2slam.slam import geometric_tools
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import (CHECK_CHI2, rotation_consistent, search_by_projection, search_for_triangulation,
@@ -18,7 +18,7 @@ from d2slam.slam.projection import Projector, inv
 
 
 class LocalMapper:
-    def __init__(self, map_: Map, proj: Projector, config: Config, vocabulary=None):
+    def __init__(self, map_: Map, proj: Projector, config: SlamConfig, vocabulary=None):
         self.map = map_
         self.proj = proj
         self.cfg = config.engine
@@ -27,19 +27,19 @@ class LocalMapper:
         self.pending: KeyFrame | None = None  # keyframe whose local BA and culling wait for an idle frame
 
     def insert(self, kf: KeyFrame) -> list[int]:
-        """Map the new keyframe ``kf``: recent points culled, neighbours searched, then (``EngineConfig.ba_when_idle``)
+        """Map the new keyframe ``kf``: recent points culled, neighbours searched, then (``MappingConfig.ba_when_idle``)
         its local BA and keyframe culling wait for ``idle`` (a waiting keyframe's are dropped, as ORB-SLAM3's local
         mapping skips them when the next keyframe is already queued), or run now. Returns the keyframes culled."""
         self.pending = None
         cfg = self.cfg
-        if cfg.update_points:  # ProcessNewKeyFrame: the points the keyframe observes now
+        if cfg.mapping.update_points:  # ProcessNewKeyFrame: the points the keyframe observes now
             self.map.update_points(kf.mp[kf.mp >= 0], self.proj.scales)
         self.map_point_culling(kf)
-        if cfg.triangulate_neighbours:
+        if cfg.mapping.triangulate_neighbours:
             self.create_new_map_points(kf)
-        if cfg.fuse_neighbours:
+        if cfg.mapping.fuse_neighbours:
             self.search_in_neighbors(kf)
-        if cfg.ba_when_idle:
+        if cfg.mapping.ba_when_idle:
             self.pending = kf
             return []
         return self.optimise(kf)
@@ -61,15 +61,15 @@ class LocalMapper:
         """ORB-SLAM MapPointCulling over the recently created points: found in too few of the frames that should
         have seen them, or too few observations once ``mappoint_cull_age`` keyframes old; points leave the recent
         list at ``mappoint_recent_age`` keyframes."""
-        cfg = self.cfg
+        mc = self.cfg.mapping
         P = self.map.points
         r = self.map.recent_points
         r = r[P.alive[r]]
         ratio = P.found[r] / np.maximum(P.visible[r], 1)
         age = kf.id - P.first_kf[r]
-        bad = (ratio < cfg.mappoint_found_ratio) | ((age >= cfg.mappoint_cull_age) & (P.nobs[r] <= cfg.mappoint_min_obs))
+        bad = (ratio < mc.mappoint_found_ratio) | ((age >= mc.mappoint_cull_age) & (P.nobs[r] <= mc.mappoint_min_obs))
         self.map.cull_points(r[bad])
-        self.map.recent_points = r[~bad & (age < cfg.mappoint_recent_age)]
+        self.map.recent_points = r[~bad & (age < mc.mappoint_recent_age)]
 
     def search_in_neighbors(self, kf: KeyFrame) -> None:
         """ORB-SLAM3 SearchInNeighbors: the targets are the new keyframe's best ``fuse_neighbours`` covisibles and
@@ -79,19 +79,19 @@ class LocalMapper:
         distance ranges of its points and of the merged ones. The reprojection test weighs u_R at 1 px x scale as
         ORB-SLAM3 (``fuse_disparity_model``: with ``disparity_sigma_px``)."""
         cfg = self.cfg
-        first = self.covisible(kf.id, cfg.fuse_neighbours)
+        first = self.covisible(kf.id, cfg.mapping.fuse_neighbours)
         targets = list(first)
         for k in first:
-            targets += [c for c in self.covisible(k, cfg.fuse_second_neighbours) if c != kf.id]
+            targets += [c for c in self.covisible(k, cfg.mapping.fuse_second_neighbours) if c != kf.id]
         targets = list(dict.fromkeys(targets))
         if not targets:
             return
-        sigma = cfg.disparity_sigma_px if cfg.fuse_disparity_model else 0.0
+        sigma = cfg.disparity_sigma_px if cfg.mapping.fuse_disparity_model else 0.0
         own = kf.mp[kf.mp >= 0]
-        merged = [self.fuse_into(self.map.keyframes[k], own, cfg.fuse_radius, sigma, merge_all=True) for k in targets]
+        merged = [self.fuse_into(self.map.keyframes[k], own, cfg.mapping.fuse_radius, sigma, merge_all=True) for k in targets]
         pts = np.concatenate([self.map.keyframes[k].mp for k in targets])
-        merged.append(self.fuse_into(kf, pts[pts >= 0], cfg.fuse_radius, sigma, merge_all=True))
-        if cfg.update_points:
+        merged.append(self.fuse_into(kf, pts[pts >= 0], cfg.mapping.fuse_radius, sigma, merge_all=True))
+        if cfg.mapping.update_points:
             self.map.update_points(np.concatenate([kf.mp[kf.mp >= 0], *merged]), self.proj.scales)
 
     def fuse_into(self, kf: KeyFrame, pids: np.ndarray, th: float, disparity_sigma: float | None = None,
@@ -160,7 +160,7 @@ class LocalMapper:
         MapPointCulling. Returns the points made."""
         cfg, made = self.cfg, 0
         C1 = inv(kf.Tcw)[:3, 3]
-        for k in self.covisible(kf.id, cfg.triangulate_neighbours):
+        for k in self.covisible(kf.id, cfg.mapping.triangulate_neighbours):
             kf2 = self.map.keyframes[k]
             if np.linalg.norm(inv(kf2.Tcw)[:3, 3] - C1) < self.proj.b:
                 continue
@@ -170,8 +170,8 @@ class LocalMapper:
             v1 = geometric_tools.View(kf.Tcw, kf.kps[i1], kf.ur[i1], kf.depth[i1], kf.octave[i1])
             v2 = geometric_tools.View(kf2.Tcw, kf2.kps[i2], kf2.ur[i2], kf2.depth[i2], kf2.octave[i2])
             X, ok = geometric_tools.new_points(v1, v2, self.proj.K, self.proj.bf, self.proj.scales,
-                                               cfg.triangulation_max_cos_parallax, cfg.chi2_mono, cfg.chi2_stereo,
-                                               cfg.triangulation_ratio_factor * self.orb.scale_factor)
+                                               cfg.mapping.triangulation_max_cos_parallax, cfg.chi2_mono, cfg.chi2_stereo,
+                                               cfg.mapping.triangulation_ratio_factor * self.orb.scale_factor)
             made += len(self._add_triangulated(kf, kf2, i1[ok], i2[ok], X[ok]))
         return made
 
@@ -190,8 +190,8 @@ class LocalMapper:
                                         self._nodes(kf2)[f2], kf2.kps[f2], kf2.ur[f2] >= 0, kf2.octave[f2],
                                         kf2.desc[f2], geometric_tools.fundamental_matrix(kf1.Tcw, kf2.Tcw, proj.K),
                                         geometric_tools.epipole(kf1.Tcw, kf2.Tcw, proj.K), proj.scales ** 2,
-                                        cfg.desc_th_low, cfg.triangulation_epipolar_chi2,
-                                        cfg.triangulation_epipole_px ** 2, proj.scales)
+                                        cfg.desc_th_low, cfg.mapping.triangulation_epipolar_chi2,
+                                        cfg.mapping.triangulation_epipole_px ** 2, proj.scales)
         i1, i2 = f1[rows[:, 0]], f2[rows[:, 1]]
         if cfg.check_orientation and len(i1):
             ok = rotation_consistent(kf1.angle[i1], kf2.angle[i2], cfg.rotation_histogram_bins)
@@ -208,7 +208,7 @@ class LocalMapper:
         0 without a vocabulary."""
         if kf.fv_nodes is None:
             kf.fv_nodes = np.zeros(len(kf.kps), dtype=np.int64) if self.vocabulary is None else \
-                self.vocabulary.transform(kf.desc, self.cfg.bow_levelsup)[1]
+                self.vocabulary.transform(kf.desc, self.cfg.loops.bow_levelsup)[1]
         return kf.fv_nodes
 
     def _add_triangulated(self, kf1: KeyFrame, kf2: KeyFrame, i1: np.ndarray, i2: np.ndarray,
@@ -235,7 +235,7 @@ class LocalMapper:
         (those with most observations of the local points; the others' observations are left out). Outlier
         observations are erased."""
         cfg, M = self.cfg, self.map
-        local = [kf.id] + self.covisible(kf.id, cfg.local_ba_window)
+        local = [kf.id] + self.covisible(kf.id, cfg.mapping.local_ba_window)
         P = M.points
         pmask = np.zeros(P.n, dtype=bool)
         for k in local:
@@ -252,15 +252,15 @@ class LocalMapper:
         pos = np.minimum(np.searchsorted(cams, obs_kf), len(cams) - 1)
         n_obs = np.bincount(pos[cams[pos] == obs_kf], minlength=len(cams))
         outside = np.flatnonzero(~is_local)
-        if len(outside) > cfg.local_ba_max_fixed:
-            drop = outside[np.argsort(-n_obs[outside], kind="stable")[cfg.local_ba_max_fixed:]]
+        if len(outside) > cfg.mapping.local_ba_max_fixed:
+            drop = outside[np.argsort(-n_obs[outside], kind="stable")[cfg.mapping.local_ba_max_fixed:]]
             cams = np.delete(cams, drop)
             is_local = np.isin(cams, local)
         fixed = ~is_local | (cams == 0)
         if fixed.all():
             return
         keep = np.isin(obs_kf, cams)
-        self.adjust(rows[keep], obs_kf[keep], cams, fixed, cfg.local_ba_iterations, erase_outliers=True)
+        self.adjust(rows[keep], obs_kf[keep], cams, fixed, cfg.mapping.local_ba_iterations, erase_outliers=True)
 
     def global_bundle_adjustment(self, iterations: int) -> None:
         """ORB-SLAM ``GlobalBundleAdjustemnt``: every good keyframe (the first one fixed) and every live point not
@@ -306,7 +306,7 @@ class LocalMapper:
         P.pos[pts] = new_X
         if erase_outliers:
             out = np.flatnonzero(outlier)
-            if cfg.lba_depth_outliers_mono:  # only the depth disagrees: the image observation stays
+            if cfg.mapping.lba_depth_outliers_mono:  # only the depth disagrees: the image observation stays
                 chi2, front = image_chi2(new_poses[cam_of[obs_kf[out]]], new_X[pinv[out]], uv[out], inv_s2[out],
                                          self.proj.K)
                 depth_only = (ur[out] >= 0) & (chi2 <= cfg.chi2_mono) & front
@@ -330,15 +330,15 @@ class LocalMapper:
             if len(sel) == 0:
                 continue
             pts = K_.mp[sel]
-            cand = P.nobs[pts] > cfg.keyframe_redundant_obs
+            cand = P.nobs[pts] > cfg.mapping.keyframe_redundant_obs
             oct_here = np.full(P.n, -1)
             oct_here[pts[cand]] = K_.octave[sel[cand]]
             rows = M.observation_rows(oct_here >= 0)
             rows = rows[M.obs.kf[rows] != k]
             ok = M.obs.octave[rows] <= oct_here[M.obs.pt[rows]] + 1
             cnt = np.bincount(M.obs.pt[rows][ok], minlength=P.n)
-            redundant = int((cnt[pts] > cfg.keyframe_redundant_obs).sum())
-            if redundant > cfg.keyframe_redundancy * len(sel):
+            redundant = int((cnt[pts] > cfg.mapping.keyframe_redundant_obs).sum())
+            if redundant > cfg.mapping.keyframe_redundancy * len(sel):
                 M.set_keyframe_bad(k)
                 culled.append(k)
         return culled

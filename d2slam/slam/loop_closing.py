@@ -20,7 +20,7 @@ keyframe, then a full bundle adjustment.
 
 Dynamics: the keypoints the hook flagged when the keyframe was made (``KeyFrame.dynamic``) give no word and take no
 3D-3D match; the map points the hook marked dynamic (belief above ``mappoint_belief_threshold``) are left out of the
-window. Without a filter every keypoint and point takes part (and with ``EngineConfig.loop_dynamic_keypoints``, an
+window. Without a filter every keypoint and point takes part (and with ``LoopConfig.loop_dynamic_keypoints``, an
 ablation, every keypoint).
 """
 
@@ -30,8 +30,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
-from d2slam.config import Config
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.keyframe_database import KeyFrameDatabase
 from d2slam.slam.local_mapping import LocalMapper
 from d2slam.slam.map import KeyFrame, Map
@@ -92,7 +93,7 @@ class Candidate:
 
 
 class LoopCloser:
-    def __init__(self, map_: Map, proj: Projector, config: Config, vocabulary: BowVocabulary, mapper: LocalMapper):
+    def __init__(self, map_: Map, proj: Projector, config: SlamConfig, vocabulary: BowVocabulary, mapper: LocalMapper):
         self.map = map_
         self.proj = proj
         self.cfg = config.engine
@@ -134,7 +135,7 @@ class LoopCloser:
     def detect(self, kf: KeyFrame):
         """ORB-SLAM ``DetectLoop`` + ``ComputeSim3``: (loop keyframe, score, Geometry) or None."""
         cfg, db = self.cfg, self.db
-        if len(self.map.keyframes) < cfg.loop_min_keyframes or kf.id < self.last_loop_kf + cfg.loop_gap:
+        if len(self.map.keyframes) < cfg.loops.loop_min_keyframes or kf.id < self.last_loop_kf + cfg.loops.loop_gap:
             return None
         connected = db.connected(kf.id)
         if not connected:
@@ -156,7 +157,7 @@ class LoopCloser:
         for c in consistent:
             cand = self.map.keyframes[c]
             geo, count = self.geometry(kf, cand)
-            ok = geo is not None and geo.inliers >= cfg.loop_min_matches
+            ok = geo is not None and geo.inliers >= cfg.loops.loop_min_matches
             self.log.append(Candidate(kf.frame_index, cand.frame_index, best_of[c], min_score,
                                       "loop" if ok else "geometry", count))
             if ok:
@@ -179,7 +180,7 @@ class LoopCloser:
                     if not taken[g]:
                         current.append((group, n + 1))
                         taken[g] = True
-                    if n + 1 >= self.cfg.loop_consistency and not enough:
+                    if n + 1 >= self.cfg.loops.loop_consistency and not enough:
                         out.append(c)
                         enough = True
             if not some:
@@ -202,7 +203,7 @@ class LoopCloser:
         ``loop_nn_ratio``, Hamming <= ``desc_th_low``, orientation check)."""
         cfg, proj, P = self.cfg, self.proj, self.map.points
         static = np.ones(len(kf.kps), bool)
-        if kf.dynamic is not None and not cfg.loop_dynamic_keypoints:
+        if kf.dynamic is not None and not cfg.loops.loop_dynamic_keypoints:
             static = ~kf.dynamic
         own = kf.mp[kf.mp >= 0]
         # the keyframe's static keypoints with depth (3D) against the candidate's usable points it does not see
@@ -212,21 +213,21 @@ class LoopCloser:
         pts_ok = self.usable_points([cand.id])
         usable[has] = np.isin(cand.mp[has], pts_ok) & ~np.isin(cand.mp[has], own)
         nb = np.where(usable, self.db.bows[cand.id].kp_nodes, -1)
-        m = search_by_bow(na, kf.desc, nb, cand.desc, cfg.loop_nn_ratio, cfg.desc_th_low)
+        m = search_by_bow(na, kf.desc, nb, cand.desc, cfg.loops.loop_nn_ratio, cfg.desc_th_low)
         if cfg.check_orientation and len(m):
             m = m[rotation_consistent(kf.angle[m[:, 0]], cand.angle[m[:, 1]], cfg.rotation_histogram_bins)]
-        if len(m) < cfg.loop_min_inliers:
+        if len(m) < cfg.loops.loop_min_inliers:
             return None, len(m)
         a, b = m[:, 0], m[:, 1]
         T, inl = self.ransac(kf, cand, a, b)
-        if T is None or inl.sum() < cfg.loop_min_inliers:
+        if T is None or inl.sum() < cfg.loops.loop_min_inliers:
             return None, int(inl.sum())
         a, pts = a[inl], cand.mp[b[inl]]
         T, good = pose_optimization(T, P.pos[pts], kf.kps[a], kf.ur[a], kf.inv_sigma2[a], proj.K, proj.bf, cfg)
-        if good.sum() < cfg.loop_min_inliers:
+        if good.sum() < cfg.loops.loop_min_inliers:
             return None, int(good.sum())
         # guided: the window's points projected with that pose
-        window = self.usable_points([cand.id] + self.db.best_covisibles(cand.id, cfg.loop_window))
+        window = self.usable_points([cand.id] + self.db.best_covisibles(cand.id, cfg.loops.loop_window))
         window = window[~np.isin(window, own)]
         kp, pid = self.search(kf, T, window, static, a[good], pts[good])
         T, good = pose_optimization(T, P.pos[pid], kf.kps[kp], kf.ur[kp], kf.inv_sigma2[kp], proj.K, proj.bf, cfg)
@@ -237,13 +238,13 @@ class LoopCloser:
         """Rigid ``Tcw`` of ``kf`` in the candidate's map from 3-point samples of the matches (keypoint ``a`` of
         ``kf`` with depth, point of keypoint ``b`` of ``cand``): Kabsch on all hypotheses at once; inliers project
         within ``loop_ransac_chi2`` sigma^2 in both keyframes (ORB-SLAM ``Sim3Solver::CheckInliers``); the best
-        hypothesis (first on ties) is refitted to its inliers. Seeded by ``ransac_seed`` and the frame index."""
+        hypothesis (first on ties) is refitted to its inliers. Seeded by ``EngineConfig.seed`` and the frame index."""
         cfg, proj = self.cfg, self.proj
         Pc = proj.backproject(kf.kps[a], kf.depth[a])  # in the current camera
         X = self.map.points.pos[cand.mp[b]]  # in the loop's map
         m = len(a)
-        rng = np.random.default_rng([int(cfg.ransac_seed), int(kf.frame_index)])
-        s = rng.integers(0, m, size=(cfg.loop_ransac_iterations, 3))
+        rng = np.random.default_rng([int(cfg.seed), int(kf.frame_index)])
+        s = rng.integers(0, m, size=(cfg.loops.loop_ransac_iterations, 3))
         s = s[(s[:, 0] != s[:, 1]) & (s[:, 0] != s[:, 2]) & (s[:, 1] != s[:, 2])]
         if len(s) == 0:
             return None, np.zeros(m, bool)
@@ -264,7 +265,7 @@ class LoopCloser:
     def _inliers(self, R, t, X, Pc, kf, cand, a, b) -> np.ndarray:
         """(H, M) inlier masks of hypotheses ``Pc = R X + t``: X projected into ``kf`` and ``Pc`` mapped back into
         the candidate, both within ``loop_ransac_chi2`` x sigma^2 pixels^2 of their keypoints."""
-        K, th = self.proj.K, self.cfg.loop_ransac_chi2
+        K, th = self.proj.K, self.cfg.loops.loop_ransac_chi2
         Xc = np.einsum("hij,mj->hmi", R, X) + t[:, None, :]
         e1 = _sq_error(Xc, kf.kps[a], K) * kf.inv_sigma2[a]
         Xw = np.einsum("hji,hmj->hmi", R, Pc[None] - t[:, None, :])  # R^T (Pc - t)
@@ -286,9 +287,9 @@ class LoopCloser:
         if len(pids):
             pids, u, v, z, level, _ = proj.in_frustum(P, Tcw, pids)
             if len(pids):
-                best, d1, _, _, _ = search_by_projection(kf.grid(cfg.search_grid_cell), np.c_[u, v],
-                                                         u - proj.bf / z, cfg.loop_search_radius * proj.scales[level],
-                                                         level - 1, level, P.desc[pids], free)
+                radius = cfg.loops.loop_search_radius * proj.scales[level]
+                best, d1, _, _, _ = search_by_projection(kf.grid(cfg.search_grid_cell), np.c_[u, v], u - proj.bf / z,
+                                                         radius, level - 1, level, P.desc[pids], free)
                 ok = (best >= 0) & (d1 <= cfg.desc_th_low)
                 k2, p2, d2 = best[ok], pids[ok], d1[ok].astype(np.float64)
                 keep = unique_by_target(p2, k2, d2)
@@ -327,7 +328,7 @@ class LoopCloser:
         # the window's points fused into the group (corrected poses)
         for k in group:
             if not kfs[k].bad:
-                self.mapper.fuse_into(kfs[k], geo.window_pts[P.alive[geo.window_pts]], cfg.loop_fuse_radius)
+                self.mapper.fuse_into(kfs[k], geo.window_pts[P.alive[geo.window_pts]], cfg.loops.loop_fuse_radius)
         # new connections made by the fusion: the loop edges of the essential graph
         previous = {k: set(db.weights.get(k, {})) for k in group}
         links = []
@@ -359,7 +360,7 @@ class LoopCloser:
             if p is not None:
                 edges.setdefault((min(k, p), max(k, p)), False)
         W = covisibility_matrix(M)
-        ii, jj = np.nonzero(np.triu(W >= cfg.essential_min_shared, 1))
+        ii, jj = np.nonzero(np.triu(W >= cfg.loops.essential_min_shared, 1))
         for i, j in zip(ii.tolist(), jj.tolist()):
             if idx[i] >= 0 and idx[j] >= 0:
                 edges.setdefault((i, j), False)
@@ -372,7 +373,7 @@ class LoopCloser:
         meas = src[0] @ inverse_batch(src[1])  # T_i T_j^-1
         fixed = np.zeros(len(good), bool)
         fixed[idx[loop_kf.id]] = True
-        poses = pose_graph_optimization(start, fixed, ei, ej, meas, cfg.loop_pgo_iterations)
+        poses = pose_graph_optimization(start, fixed, ei, ej, meas, cfg.loops.loop_pgo_iterations)
         # every point follows its reference keyframe: the group keyframe that corrected it, else its first good
         # observer
         ref = by.copy()
@@ -388,14 +389,12 @@ class LoopCloser:
         P.normal[alive] = np.einsum("nij,nj->ni", D[:, :3, :3], P.normal[alive])
         for n, k in enumerate(good.tolist()):
             kfs[k].Tcw = poses[n]
-        self.mapper.global_bundle_adjustment(cfg.loop_full_ba_iterations)
+        self.mapper.global_bundle_adjustment(cfg.loops.loop_full_ba_iterations)
 
 
 def covisibility_matrix(map_: Map) -> np.ndarray:
     """(n_keyframes, n_keyframes) shared points of every pair of good keyframes (alive points), by one sparse
     product of the keyframe-point incidence."""
-    from scipy.sparse import csr_matrix
-
     M = map_
     rows = np.flatnonzero(M.obs.view("valid"))
     pt, kf = M.obs.pt[rows], M.obs.kf[rows]

@@ -115,7 +115,7 @@ def _popcount64(x):
 
 
 @njit(cache=True, nogil=True)
-def _hamming(a, i, b, j):
+def hamming_at(a, i, b, j):
     """Hamming distance between the 256-bit descriptors a[i] and b[j] (four uint64 words each)."""
     d = 0
     for w in range(4):
@@ -166,7 +166,7 @@ def _search_grid(cell, col0, row0, cols, rows, order, start, kps, octave, ur, de
                                 continue
                         elif e2 > chi2_mono:
                             continue
-                    d = _hamming(desc, k, qdesc, i)
+                    d = hamming_at(desc, k, qdesc, i)
                     if d < d1:
                         d2, l2 = d1, l1
                         b1, d1, l1 = k, d, lv
@@ -243,7 +243,7 @@ def _triangulation_pairs(n1, kp1, st1, d1, n2, kp2, st2, oct2, d2, F, ep, sigma2
         b_idx, b_dist = -1, th_low
         j = j0
         while j < len(n2) and n2[j] == n1[i]:
-            d = _hamming(d1, i, d2, j)
+            d = hamming_at(d1, i, d2, j)
             ok = d <= b_dist and den > 0
             if ok and not st1[i] and not st2[j]:
                 ex, ey = ep[0] - kp2[j, 0], ep[1] - kp2[j, 1]
@@ -275,7 +275,7 @@ def _medoids(d, start):
         row = np.empty(n, np.int64)
         for i in range(n):
             for j in range(n):
-                row[j] = _hamming(d, a + i, d, a + j)
+                row[j] = hamming_at(d, a + i, d, a + j)
             med = np.sort(row)[(n - 1) // 2]
             if med < best_med:
                 best, best_med = a + i, med
@@ -380,7 +380,7 @@ def _bow_nearest(na, da, nb, db, ratio, max_dist):
         b1, d1, d2 = -1, 1 << 20, 1 << 20
         j = j0
         while j < nb.shape[0] and nb[j] == na[i]:
-            d = _hamming(da, i, db, j)
+            d = hamming_at(da, i, db, j)
             if d < d1:
                 d2 = d1
                 b1, d1 = j, d

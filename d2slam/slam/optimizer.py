@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import g2opy as g2o
 import numpy as np
+from scipy.sparse import coo_matrix, identity
+from scipy.sparse.linalg import spsolve
+from scipy.spatial.transform import Rotation
 
-from d2slam.config import EngineConfig
 from d2slam.slam import lm
+from d2slam.slam.config import EngineConfig
 
 
 def _se3(Tcw: np.ndarray) -> "g2o.SE3Quat":
@@ -128,7 +131,7 @@ class _G2oPoseRounds:
     def __init__(self, Tcw, X, uv, ur, inv_sigma2, K, bf, cfg: EngineConfig, coarse: bool):
         m = len(X)
         self.cfg = cfg
-        self.opt = _optimizer(dense=True, gain_threshold=cfg.pose_opt_gain_threshold)
+        self.opt = _optimizer(dense=True, gain_threshold=cfg.tracking.pose_opt_gain_threshold)
         self.vpose = g2o.VertexSE3Expmap()
         self.vpose.set_estimate(_se3(Tcw))
         self.vpose.set_id(0)
@@ -173,7 +176,7 @@ class _G2oPoseRounds:
             self.kernels[1].set_delta(1e12)
             self.robust = False
         self.opt.initialize_optimization(0)
-        self.opt.optimize(self.cfg.pose_opt_iterations)
+        self.opt.optimize(self.cfg.tracking.pose_opt_iterations)
         return _mat(self.vpose.estimate())
 
     def close(self) -> None:
@@ -195,8 +198,8 @@ class _LmPoseRounds:
     def round(self, rough: bool, inlier: np.ndarray, robust: bool) -> np.ndarray:
         cfg = self.cfg
         self.T = lm.pose_lm(self.T, self.X, self.meas, self.stereo, self.info_coarse if rough else self.info_fine,
-                            inlier, self.delta, *self.K, self.bf, robust, cfg.pose_opt_iterations,
-                            cfg.pose_opt_gain_threshold)
+                            inlier, self.delta, *self.K, self.bf, robust, cfg.tracking.pose_opt_iterations,
+                            cfg.tracking.pose_opt_gain_threshold)
         return self.T
 
     def close(self) -> None:
@@ -289,14 +292,14 @@ def pose_optimization(Tcw: np.ndarray, X: np.ndarray, uv: np.ndarray, ur: np.nda
     if m < 3:
         return Tcw.copy(), np.zeros(m, dtype=bool)
     X = np.ascontiguousarray(X, dtype=np.float64)
-    coarse = cfg.disparity_sigma_px > 0 and cfg.pose_opt_coarse_rounds > 0
+    coarse = cfg.disparity_sigma_px > 0 and cfg.tracking.pose_opt_coarse_rounds > 0
     rounds = (_G2oPoseRounds if cfg.optimizer == "g2o" else _LmPoseRounds)(Tcw, X, uv, ur, inv_sigma2, K, bf, cfg,
                                                                           coarse)
     th = np.where(rounds.stereo, cfg.chi2_stereo, cfg.chi2_mono)
     inlier, T = np.ones(m, dtype=bool), Tcw.copy()
     try:
-        for it in range(cfg.pose_opt_rounds):
-            rough = coarse and it < cfg.pose_opt_coarse_rounds
+        for it in range(cfg.tracking.pose_opt_rounds):
+            rough = coarse and it < cfg.tracking.pose_opt_coarse_rounds
             T = rounds.round(rough, inlier, robust=it <= 2)  # ORB-SLAM drops the robust kernel after the third round
             chi2, front = reprojection_chi2(T, X, uv, ur, inv_sigma2, K, bf, 0.0 if rough else cfg.disparity_sigma_px)
             inlier = (chi2 <= th) & front
@@ -315,7 +318,7 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
     inv_sigma2), Huber kernels, Schur complement on the points. Returns (poses, X, outlier (O,) bool): outliers
     are observations above the chi2 thresholds or behind the camera after optimisation (ORB-SLAM erases them).
     ``EngineConfig.optimizer``: the compiled kernels of ``d2slam.slam.lm`` or g2o."""
-    n_it = cfg.local_ba_iterations if iterations is None else iterations
+    n_it = cfg.mapping.local_ba_iterations if iterations is None else iterations
     if cfg.optimizer == "g2o":
         new_poses, new_X = _local_bundle_adjustment_g2o(poses, fixed, X, obs_cam, obs_pt, uv, ur, inv_sigma2, K, bf,
                                                         cfg, n_it)
@@ -330,8 +333,6 @@ def local_bundle_adjustment(poses: np.ndarray, fixed: np.ndarray, X: np.ndarray,
 
 def se3_log(T: np.ndarray) -> np.ndarray:
     """(N, 6) twists ``(omega, upsilon)`` of (N, 4, 4) rigid transforms (the inverse of ``lm.se3_exp``)."""
-    from scipy.spatial.transform import Rotation
-
     w = Rotation.from_matrix(T[:, :3, :3]).as_rotvec()
     th = np.linalg.norm(w, axis=1)
     W = _hat(w)
@@ -377,9 +378,6 @@ def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray
     updates ``T <- exp(xi) T`` (``lm.update_pose``), first-order Jacobians ``Ad(meas^-1)`` and ``-Ad(meas^-1 T_i
     T_j^-1)`` (g2o's ``EdgeSE3Expmap``), g2o's Levenberg-Marquardt damping (``lm``) over a sparse system (SuperLU).
     Returns the optimised poses."""
-    from scipy.sparse import coo_matrix, identity
-    from scipy.sparse.linalg import spsolve
-
     T = np.ascontiguousarray(poses, dtype=np.float64).copy()
     n, E = len(T), len(ei)
     col = np.full(n, -1, np.int64)
@@ -397,27 +395,9 @@ def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray
     e, R = residual(T)
     chi = float(np.sum(e * e))
     lam, nu = 0.0, 2.0
-    r6 = np.arange(6)
+    size = 6 * len(free)
     for it in range(iterations):
-        Jj = -adjoint(R)
-        blocks, brow, bcol = [], [], []
-        b = np.zeros(6 * len(free))
-        for Ja, a in ((Ji, ei), (Jj, ej)):
-            ca = col[a]
-            ok = ca >= 0
-            np.add.at(b, (6 * ca[ok])[:, None] + r6, -np.einsum("eki,ek->ei", Ja[ok], e[ok]))
-            for Jb, bb in ((Ji, ei), (Jj, ej)):
-                cb = col[bb]
-                both = ok & (cb >= 0)
-                blocks.append(np.einsum("eki,ekj->eij", Ja[both], Jb[both]))
-                brow.append(ca[both])
-                bcol.append(cb[both])
-        blk = np.concatenate(blocks)
-        rr = (6 * np.concatenate(brow))[:, None, None] + r6[None, :, None]
-        cc = (6 * np.concatenate(bcol))[:, None, None] + r6[None, None, :]
-        size = 6 * len(free)
-        H = coo_matrix((blk.ravel(), (np.broadcast_to(rr, blk.shape).ravel(), np.broadcast_to(cc, blk.shape).ravel())),
-                       shape=(size, size)).tocsc()
+        H, b = _pose_graph_system(Ji, -adjoint(R), e, ei, ej, col, size)
         if it == 0:
             lam = 1e-5 * float(H.diagonal().max())
         trials, rho = 0, 0.0
@@ -439,3 +419,28 @@ def pose_graph_optimization(poses: np.ndarray, fixed: np.ndarray, ei: np.ndarray
         if rho <= 0 or not np.isfinite(lam):
             break
     return T
+
+
+def _pose_graph_system(Ji: np.ndarray, Jj: np.ndarray, e: np.ndarray, ei: np.ndarray, ej: np.ndarray,
+                       col: np.ndarray, size: int):
+    """The normal equations (H sparse CSC (size, size), b (size,)) of the pose graph: edge Jacobians ``Ji`` / ``Jj``
+    (E, 6, 6) of the poses ``ei`` / ``ej``, residuals ``e`` (E, 6); ``col`` each pose's block (-1: fixed)."""
+    r6 = np.arange(6)
+    blocks, brow, bcol = [], [], []
+    b = np.zeros(size)
+    for Ja, a in ((Ji, ei), (Jj, ej)):
+        ca = col[a]
+        ok = ca >= 0
+        np.add.at(b, (6 * ca[ok])[:, None] + r6, -np.einsum("eki,ek->ei", Ja[ok], e[ok]))
+        for Jb, bb in ((Ji, ei), (Jj, ej)):
+            cb = col[bb]
+            both = ok & (cb >= 0)
+            blocks.append(np.einsum("eki,ekj->eij", Ja[both], Jb[both]))
+            brow.append(ca[both])
+            bcol.append(cb[both])
+    blk = np.concatenate(blocks)
+    rr = (6 * np.concatenate(brow))[:, None, None] + r6[None, :, None]
+    cc = (6 * np.concatenate(bcol))[:, None, None] + r6[None, None, :]
+    H = coo_matrix((blk.ravel(), (np.broadcast_to(rr, blk.shape).ravel(), np.broadcast_to(cc, blk.shape).ravel())),
+                   shape=(size, size)).tocsc()
+    return H, b

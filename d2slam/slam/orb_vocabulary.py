@@ -1,6 +1,7 @@
 """The engine's bag of words (ORB-SLAM3 ``ORBVocabulary``, DBoW2's ``TemplatedVocabulary::transform``): the DBoW2
-text vocabulary that the real ORB-SLAM3 loads (``d2slam vocab build``, or ``$PYORBSLAM3_VOCAB``), read once per
-process from a ``.npz`` derived from the text file (keyed by its sha256, written atomically into the cache).
+text vocabulary that the real ORB-SLAM3 loads (:mod:`d2slam.slam.dbow2`; ``d2slam vocab build``, or
+``$PYORBSLAM3_VOCAB``), read once per process from a ``.npz`` derived from the text file (keyed by its sha256, written
+atomically into the cache).
 
 A descriptor descends the tree from the root to a leaf, taking at each level the child with the smallest Hamming
 distance (the first on ties, as DBoW2); the leaf is its word (word id = node id) and the node it passed at depth
@@ -19,9 +20,12 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from d2slam.config import EngineConfig
+from d2slam.cachefiles import Damaged, load_npz, report_damaged, sha256_file
 from d2slam.errors import D2SlamError
-from d2slam.slam.matching import _hamming
+from d2slam.outputs import remove_stale_temps, staged_file
+from d2slam.paths import cache_dir
+from d2slam.slam.dbow2 import Vocabulary
+from d2slam.slam.matching import hamming_at
 
 
 @dataclass(frozen=True)
@@ -68,7 +72,7 @@ def _descend(children, node_desc, desc, fv_depth):
                 c = children[cur, j]
                 if c < 0:
                     break
-                d = _hamming(node_desc, c, desc, i)
+                d = hamming_at(node_desc, c, desc, i)
                 if d < best_d:
                     best, best_d = c, d
             if best < 0:
@@ -89,41 +93,46 @@ def score(ids_a: np.ndarray, w_a: np.ndarray, ids_b: np.ndarray, w_b: np.ndarray
     return float(np.minimum(w_a[ia], w_b[ib]).sum()) if len(common) else 0.0
 
 
-def vocabulary_source(cfg: EngineConfig) -> str | None:
-    """The vocabulary file the engine reads: ``EngineConfig.vocabulary`` when set, else None (the project's:
-    ``$PYORBSLAM3_VOCAB`` or the one built by ``d2slam vocab build``, built on first use)."""
-    return cfg.vocabulary or None
+def default_vocabulary_path() -> Path:
+    """Where ``d2slam vocab build`` writes the project's vocabulary (in the cache)."""
+    return cache_dir("vocab") / "d2slam_orbvoc.txt"
+
+
+def vocabulary_path(path: str | None = None) -> Path:
+    """The vocabulary file the engine reads: ``path`` (``EngineConfig.vocabulary``) when given, else
+    ``$PYORBSLAM3_VOCAB`` (e.g. the official ORBvoc.txt), else the project's (:func:`default_vocabulary_path`)."""
+    chosen = Path(path) if path else Path(os.environ["PYORBSLAM3_VOCAB"]) if os.environ.get("PYORBSLAM3_VOCAB") \
+        else default_vocabulary_path()
+    return chosen.expanduser().resolve()
+
+
+def vocabulary_ready(path: str | None = None) -> bool:
+    """Whether the engine can load the vocabulary :func:`vocabulary_path` picks from its derived ``.npz`` at once
+    (False: the file is missing, or it has not been derived yet; the run path then checks or builds it first)."""
+    chosen = vocabulary_path(path)
+    if not chosen.is_file():
+        return False
+    stat = chosen.stat()
+    return bow_path(str(chosen), _sha256(str(chosen), stat.st_size, stat.st_mtime_ns)).is_file()
 
 
 def load_vocabulary(path: str | None = None) -> BowVocabulary:
-    """The vocabulary at ``path`` (None: the one ``d2slam.baselines.vocab.resolve_vocabulary`` picks,
-    ``$PYORBSLAM3_VOCAB`` or the project's, built on first use), loaded once per process. A file whose derived
-    ``.npz`` is in the cache is read from it directly; any other goes through ``resolve_vocabulary`` (its checks,
-    the build) first."""
-    from d2slam.baselines.vocab import default_vocab_path, resolve_vocabulary
-
-    chosen = Path(path) if path else Path(os.environ["PYORBSLAM3_VOCAB"]) if os.environ.get("PYORBSLAM3_VOCAB") \
-        else default_vocab_path()
-    chosen = chosen.expanduser().resolve()
-    if chosen.is_file():
-        stat = chosen.stat()
-        sha = _sha256(str(chosen), stat.st_size, stat.st_mtime_ns)
-        if _npz_path(str(chosen), sha).is_file():
-            return _load(str(chosen), sha)
-    info = resolve_vocabulary(path, build=True, progress=False)
-    return _load(info["path"], info["sha256"])
+    """The vocabulary file :func:`vocabulary_path` picks, loaded once per process: from its derived ``.npz`` in the
+    cache when there is one, else from the text file (then derived). The engine loads a file and nothing else: the
+    project's is built by ``d2slam vocab build`` (or by the run path, ``d2slam.run.sequence.ensure_vocabulary``)."""
+    chosen = vocabulary_path(path)
+    if not chosen.is_file():
+        raise D2SlamError("no ORB vocabulary: run `d2slam vocab build` (or set PYORBSLAM3_VOCAB)", path=chosen)
+    stat = chosen.stat()
+    return _load(str(chosen), _sha256(str(chosen), stat.st_size, stat.st_mtime_ns))
 
 
 @lru_cache(maxsize=4)
 def _sha256(path: str, size: int, mtime_ns: int) -> str:
-    from d2slam.cachefiles import sha256_file
-
     return sha256_file(Path(path))
 
 
-def _npz_path(path: str, sha256: str) -> Path:
-    from d2slam.paths import cache_dir
-
+def bow_path(path: str, sha256: str) -> Path:
     return cache_dir("vocab", "bow") / f"{Path(path).stem}-{sha256[:16]}.npz"
 
 
@@ -133,8 +142,6 @@ BOW_ARRAYS = ("k", "L", "children", "desc", "weight")
 def read_bow(npz: Path) -> tuple:
     """The arrays of a derived ``.npz`` (:data:`BOW_ARRAYS`), checked against each other;
     :class:`~d2slam.cachefiles.Damaged` when they cannot be read or do not fit."""
-    from d2slam.cachefiles import Damaged, load_npz
-
     z = load_npz(npz, BOW_ARRAYS)
     k, L, children, desc, weight = (z[n] for n in BOW_ARRAYS)
     n = len(weight)
@@ -146,18 +153,13 @@ def read_bow(npz: Path) -> tuple:
 
 @lru_cache(maxsize=2)
 def _load(path: str, sha256: str) -> BowVocabulary:
-    from d2slam.cachefiles import Damaged, report_damaged
-    from d2slam.outputs import remove_stale_temps, staged_file
-
-    npz = _npz_path(path, sha256)
+    npz = bow_path(path, sha256)
     if npz.is_file():
         try:
             k, L, children, desc, weight = read_bow(npz)
             return BowVocabulary(k, L, children, desc, weight, sha256, path)
         except Damaged as exc:  # derived from the text file: made again
             report_damaged(npz, "bag-of-words vocabulary", exc, "deriving it again from the vocabulary")
-    from d2slam.baselines.vocab import Vocabulary
-
     v = Vocabulary.load(path)
     if v.weighting != 0 or v.scoring != 0:
         raise D2SlamError(f"the engine reads TF-IDF vocabularies with L1 scoring (weighting 0, scoring 0), not "

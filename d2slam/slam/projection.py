@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import Config
 from d2slam.data.base import Camera
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.frame import close_depth, undistort
 
 EPS_Z = 1e-9  # depths below this count as behind the camera (no division by ~0)
@@ -35,7 +35,7 @@ class Projector:
     """What every stage needs of the camera: intrinsics, ``bf`` and its baseline, the close-point depth, the
     pyramid scales."""
 
-    def __init__(self, camera: Camera, config: Config):
+    def __init__(self, camera: Camera, config: SlamConfig):
         self.camera = camera
         self.cfg = config.engine
         self.K = camera.K
@@ -73,15 +73,15 @@ class Projector:
     def in_frustum(self, points, Tcw: np.ndarray, pids: np.ndarray):
         """ORB-SLAM ``isInFrustum`` for map points ``pids`` (of ``points``, the map's point columns) seen from
         ``Tcw``: in front, in the image, within the scale-invariance distance range, viewing angle within
-        ``EngineConfig.frustum_view_cos``. Returns the visible (pids, u, v, z, predicted level, viewing cosine)."""
+        ``TrackingConfig.frustum_view_cos``. Returns the visible (pids, u, v, z, predicted level, viewing cosine)."""
         cfg = self.cfg
         X = points.pos[pids]
         u, v, z = self.project(Tcw, X)
         PO = X - inv(Tcw)[:3, 3]
         dist = np.linalg.norm(PO, axis=1)
         view_cos = np.einsum("ij,ij->i", PO, points.normal[pids]) / np.maximum(dist, 1e-12)
-        ok = (z > 0) & self.in_image(u, v) & (dist >= cfg.frustum_dmin_factor * points.dmin[pids]) & \
-            (dist <= cfg.frustum_dmax_factor * points.dmax[pids]) & (view_cos >= cfg.frustum_view_cos)
+        ok = (z > 0) & self.in_image(u, v) & (dist >= cfg.tracking.frustum_dmin_factor * points.dmin[pids]) & \
+            (dist <= cfg.tracking.frustum_dmax_factor * points.dmax[pids]) & (view_cos >= cfg.tracking.frustum_view_cos)
         pids, u, v, z, dist, view_cos = pids[ok], u[ok], v[ok], z[ok], dist[ok], view_cos[ok]
         level = np.clip(np.ceil(np.log(points.dmax[pids] / dist) / self.log_scale), 0, self.n_levels - 1).astype(
             np.int64)

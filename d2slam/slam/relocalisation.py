@@ -26,7 +26,7 @@ def relocalise(tracker, frame: Frame) -> bool:
     if tracker.keyframe_db is not None:
         cands = [map_.keyframes[k] for k in tracker.keyframe_db.relocalisation_candidates(frame.desc, ~frame.dynamic)]
     else:
-        cands = sorted(kfs, key=lambda k: -k.id)[: cfg.relocalisation_candidates]
+        cands = sorted(kfs, key=lambda k: -k.id)[: cfg.relocalisation.relocalisation_candidates]
         ref = tracker.ref_kf
         if ref is not None and not ref.bad and ref not in cands:
             cands = [ref] + cands
@@ -35,20 +35,22 @@ def relocalise(tracker, frame: Frame) -> bool:
         return False
     for kf in shortlist(tracker, frame, cands):
         frame.mp[:] = -1
-        n = tracker.match_keyframe(frame, kf, cfg.nn_ratio_relocalisation)
-        if n < cfg.reference_min_matches:
+        n = tracker.match_keyframe(frame, kf, cfg.relocalisation.nn_ratio_relocalisation)
+        if n < cfg.tracking.reference_min_matches:
             continue
         sel = np.flatnonzero(frame.mp >= 0)
         obj = map_.points.pos[frame.mp[sel]].astype(np.float64)
         img = frame.kps[sel].astype(np.float64)
-        cv2.setRNGSeed(int(cfg.ransac_seed) + int(frame.index))
+        cv2.setRNGSeed(int(cfg.seed) + int(frame.index))
         try:
+            rl = cfg.relocalisation
             ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-                obj, img, tracker.proj.K, None, iterationsCount=cfg.pnp_iterations,
-                reprojectionError=cfg.pnp_reprojection_px, confidence=cfg.pnp_confidence, flags=cv2.SOLVEPNP_EPNP)
+                obj, img, tracker.proj.K, None, iterationsCount=rl.relocalisation_pnp_iterations,
+                reprojectionError=rl.relocalisation_pnp_px, confidence=rl.relocalisation_pnp_confidence,
+                flags=cv2.SOLVEPNP_EPNP)
         except cv2.error:
             continue
-        if not ok or inliers is None or len(inliers) < cfg.tracking_min_inliers:
+        if not ok or inliers is None or len(inliers) < cfg.tracking.tracking_min_inliers:
             continue
         keep = np.zeros(len(sel), dtype=bool)
         keep[inliers.ravel()] = True
@@ -58,14 +60,14 @@ def relocalise(tracker, frame: Frame) -> bool:
         T[:3, 3] = tvec.ravel()
         frame.Tcw = T
         n_good = tracker.optimize_pose(frame)
-        if n_good < cfg.tracking_min_inliers:
+        if n_good < cfg.tracking.tracking_min_inliers:
             continue
         tracker.discard_outliers(frame)
-        if n_good < cfg.relocalisation_min_inliers:
-            tracker.search_local_points(frame, map_.points_of([kf.id]), cfg.search_radius_relocalisation)
+        if n_good < cfg.relocalisation.relocalisation_min_inliers:
+            tracker.search_local_points(frame, map_.points_of([kf.id]), cfg.relocalisation.search_radius_relocalisation)
             n_good = tracker.optimize_pose(frame)
             tracker.discard_outliers(frame)
-        if n_good >= cfg.relocalisation_min_inliers:
+        if n_good >= cfg.relocalisation.relocalisation_min_inliers:
             tracker.ref_kf = kf
             return True
     frame.mp[:] = -1
@@ -92,5 +94,5 @@ def shortlist(tracker, frame: Frame, cands: list[KeyFrame]) -> list[KeyFrame]:
     best = nearest_matches(frame.desc[fsel], desc)
     ok = best[:, 2] <= cfg.desc_th_low
     votes = np.bincount(owner[best[ok, 1].astype(np.int64)], minlength=len(cands))
-    order = np.argsort(-votes, kind="stable")[: cfg.relocalisation_pnp_candidates]
-    return [cands[i] for i in order if votes[i] >= cfg.reference_min_matches]
+    order = np.argsort(-votes, kind="stable")[: cfg.relocalisation.relocalisation_pnp_candidates]
+    return [cands[i] for i in order if votes[i] >= cfg.tracking.reference_min_matches]

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from d2slam.config import Config
 from d2slam.slam import relocalisation
+from d2slam.slam.config import SlamConfig
 from d2slam.slam.frame import Frame
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import knn_ratio_match, rotation_consistent, search_by_projection, unique_by_target
@@ -49,13 +49,13 @@ def points_from_depth(map_: Map, proj: Projector, kf: KeyFrame, idx: np.ndarray,
 class Tracker:
     """Per-frame pose estimation against the map, and the state it carries from frame to frame."""
 
-    def __init__(self, map_: Map, proj: Projector, config: Config):
+    def __init__(self, map_: Map, proj: Projector, config: SlamConfig):
         self.map = map_
         self.proj = proj
         self.cfg = config.engine
         self.orb = config.orb
         # new points of a keyframe: every untracked keypoint closer than this (see create_keyframe)
-        self.new_points_depth_m = max(proj.th_depth_m, self.cfg.kf_new_points_depth)
+        self.new_points_depth_m = max(proj.th_depth_m, self.cfg.keyframes.kf_new_points_depth)
         self.state = NOT_INITIALIZED
         self.last_tracked: Frame | None = None
         self.velocity: np.ndarray | None = None  # T_current_last of the constant-velocity model
@@ -107,7 +107,7 @@ class Tracker:
     def initialize(self, frame: Frame) -> bool:
         """ORB-SLAM StereoInitialization: first keyframe at the origin, a map point per keypoint with depth."""
         usable = (frame.depth > 0) & ~frame.dynamic
-        if usable.sum() < self.cfg.init_min_keypoints:
+        if usable.sum() < self.cfg.tracking.init_min_keypoints:
             return False
         frame.Tcw = np.eye(4)
         kf = make_keyframe(self.map, frame)
@@ -186,29 +186,29 @@ class Tracker:
         last.Tcw = last.Tcr @ self.map.keyframes[last.ref_kf].Tcw
         frame.Tcw = self.velocity @ last.Tcw
         frame.mp[:] = -1
-        th = self.cfg.search_radius_last_frame
+        th = self.cfg.tracking.search_radius_last_frame
         n = self.search_last_frame(frame, last, th)
-        if n < self.cfg.tracking_min_matches:
+        if n < self.cfg.tracking.tracking_min_matches:
             frame.mp[:] = -1
             n = self.search_last_frame(frame, last, 2 * th)
-        if n < self.cfg.tracking_min_matches:
+        if n < self.cfg.tracking.tracking_min_matches:
             return False
         n_in = self.optimize_pose(frame)
         self.discard_outliers(frame)
-        return n_in >= self.cfg.tracking_min_inliers
+        return n_in >= self.cfg.tracking.tracking_min_inliers
 
     def track_reference_keyframe(self, frame: Frame) -> bool:
         """Descriptor matching against the reference keyframe's points (ORB-SLAM uses BoW; we use cv2 2-NN)."""
         kf = self.ref_kf
         if kf is None or self.last_tracked is None or frame.n == 0:
             return False
-        n = self.match_keyframe(frame, kf, self.cfg.nn_ratio_reference)
-        if n < self.cfg.reference_min_matches:
+        n = self.match_keyframe(frame, kf, self.cfg.tracking.nn_ratio_reference)
+        if n < self.cfg.tracking.reference_min_matches:
             return False
         frame.Tcw = self.last_tracked.Tcw.copy()
         n_in = self.optimize_pose(frame)
         self.discard_outliers(frame)
-        return n_in >= self.cfg.tracking_min_inliers
+        return n_in >= self.cfg.tracking.tracking_min_inliers
 
     def match_keyframe(self, frame: Frame, kf: KeyFrame, ratio: float) -> int:
         """2-NN descriptor matching of the frame's free static keypoints against ``kf``'s live points."""
@@ -232,14 +232,14 @@ class Tracker:
         pts = pts[self.map.points.alive[pts]]
         counts = self.map.keyframe_counts(pts)
         order = np.argsort(-counts, kind="stable")
-        first = [int(k) for k in order[: cfg.local_map_max_keyframes] if counts[k] > 0
+        first = [int(k) for k in order[: cfg.tracking.local_map_max_keyframes] if counts[k] > 0
                  and not self.map.keyframes[k].bad]
         if first:
             self.ref_kf = self.map.keyframes[first[0]]
         out = list(first)
         seen = set(out)
-        for k in first[: cfg.local_map_neighbour_sources]:
-            for c in self.map.covisible(k, cfg.local_map_neighbours, cfg.covisibility_min_shared):
+        for k in first[: cfg.tracking.local_map_neighbour_sources]:
+            for c in self.map.covisible(k, cfg.tracking.local_map_neighbours, cfg.covisibility_min_shared):
                 if c not in seen:
                     seen.add(c)
                     out.append(c)
@@ -260,12 +260,12 @@ class Tracker:
         P.visible[pids] += 1
         if len(pids) == 0:
             return 0
-        widen = np.where(view_cos > cfg.local_map_frontal_cos, cfg.local_map_radius_frontal,
-                         cfg.local_map_radius_oblique)
+        widen = np.where(view_cos > cfg.tracking.local_map_frontal_cos, cfg.tracking.local_map_radius_frontal,
+                         cfg.tracking.local_map_radius_oblique)
         radius = th * widen * self.proj.scales[level]
         best, d1, d2, l1, l2 = self.search_projected(frame, np.c_[u, v], u - self.proj.bf / z, radius, level - 1,
                                                      level, P.desc[pids])
-        ok = (best >= 0) & (d1 <= cfg.desc_th_high) & ~((l1 == l2) & (d1 > cfg.nn_ratio_local_map * d2))
+        ok = (best >= 0) & (d1 <= cfg.desc_th_high) & ~((l1 == l2) & (d1 > cfg.tracking.nn_ratio_local_map * d2))
         kp, p, d = best[ok], pids[ok], d1[ok]
         keep = unique_by_target(p, kp, d)
         frame.mp[kp[keep]] = p[keep]
@@ -280,19 +280,19 @@ class Tracker:
         local = self.local_keyframes(frame)
         if local:
             pts = self.map.points_of(local)
-            th = cfg.search_radius_local_map
+            th = cfg.tracking.search_radius_local_map
             if frame.index == self.last_reloc_frame:
-                th = cfg.search_radius_relocalised
+                th = cfg.relocalisation.search_radius_relocalised
             elif frame.index - self.last_reloc_frame < 2:
-                th = cfg.search_radius_after_relocalisation
+                th = cfg.relocalisation.search_radius_after_relocalisation
             self.search_local_points(frame, pts, th)
         n_in = self.optimize_pose(frame)
         inl = (frame.mp >= 0) & ~frame.outlier
         self.map.points.found[frame.mp[inl]] += 1
         self.n_inliers = n_in
-        need = cfg.local_map_min_inliers
-        if frame.index - self.last_reloc_frame < cfg.kf_max_frames:
-            need = max(need, cfg.relocalisation_min_inliers) if self.last_reloc_frame >= 0 else need
+        need = cfg.tracking.local_map_min_inliers
+        if frame.index - self.last_reloc_frame < cfg.keyframes.kf_max_frames:
+            need = max(need, cfg.relocalisation.relocalisation_min_inliers) if self.last_reloc_frame >= 0 else need
         return n_in >= need
 
     # ------------------------------------------------------------------ keyframes
@@ -300,9 +300,9 @@ class Tracker:
         """ORB-SLAM3 NeedNewKeyFrame for RGB-D (local mapping is synchronous; its busy time is emulated)."""
         cfg = self.cfg
         n_kfs = len(self.map.good_keyframes())
-        if frame.index - self.last_reloc_frame < cfg.kf_max_frames and n_kfs > cfg.kf_max_frames:
+        if frame.index - self.last_reloc_frame < cfg.keyframes.kf_max_frames and n_kfs > cfg.keyframes.kf_max_frames:
             return False
-        min_obs = cfg.kf_ref_min_obs if n_kfs > 2 else cfg.kf_ref_min_obs_first
+        min_obs = cfg.keyframes.kf_ref_min_obs if n_kfs > 2 else cfg.keyframes.kf_ref_min_obs_first
         ref = self.ref_kf
         rp = ref.mp[ref.mp >= 0]
         rp = rp[self.map.points.alive[rp]]
@@ -311,16 +311,17 @@ class Tracker:
         tracked = (frame.mp >= 0) & ~frame.outlier
         n_tracked_close = int((close & tracked).sum())
         n_untracked_close = int((close & ~tracked).sum())
-        need_close = n_tracked_close < cfg.kf_close_tracked and n_untracked_close > cfg.kf_close_untracked
-        ratio = cfg.kf_tracked_ratio if n_kfs >= 2 else cfg.kf_tracked_ratio_first
+        kfc = cfg.keyframes
+        need_close = n_tracked_close < kfc.kf_close_tracked and n_untracked_close > kfc.kf_close_untracked
+        ratio = cfg.keyframes.kf_tracked_ratio if n_kfs >= 2 else cfg.keyframes.kf_tracked_ratio_first
         inl = self.n_inliers
-        c1a = frame.index >= self.last_kf_frame + cfg.kf_max_frames
+        c1a = frame.index >= self.last_kf_frame + cfg.keyframes.kf_max_frames
         # c1b needs local mapping idle: ours runs synchronously (always idle), so "idle" is emulated as
         # kf_mapping_busy_frames frames after the last keyframe (ORB-SLAM3 maps in its own thread while tracking
         # goes on); c1c (tracking weak) inserts a keyframe even when busy, as ORB-SLAM3 does for RGB-D.
-        c1b = frame.index >= self.last_kf_frame + max(cfg.kf_min_frames, cfg.kf_mapping_busy_frames)
-        c1c = inl < n_ref * cfg.kf_weak_ratio or need_close
-        c2 = (inl < n_ref * ratio or need_close) and inl > cfg.kf_min_inliers
+        c1b = frame.index >= self.last_kf_frame + max(cfg.keyframes.kf_min_frames, cfg.keyframes.kf_mapping_busy_frames)
+        c1c = inl < n_ref * cfg.keyframes.kf_weak_ratio or need_close
+        c2 = (inl < n_ref * ratio or need_close) and inl > cfg.keyframes.kf_min_inliers
         return bool((c1a or c1b or c1c) and c2)
 
     def create_keyframe(self, frame: Frame) -> KeyFrame:
@@ -337,7 +338,7 @@ class Tracker:
         cand = cand[np.argsort(frame.depth[cand], kind="stable")]
         has = kf.mp[cand] >= 0
         count = np.cumsum(np.ones(len(cand), dtype=np.int64))
-        stop = (frame.depth[cand] > self.new_points_depth_m) & (count > self.cfg.kf_new_points_min)
+        stop = (frame.depth[cand] > self.new_points_depth_m) & (count > self.cfg.keyframes.kf_new_points_min)
         if stop.any():
             cand, has = cand[: np.argmax(stop)], has[: np.argmax(stop)]
         new = cand[~has & (frame.mp[cand] < 0)]

@@ -14,8 +14,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from d2slam.config import DEFAULT, SynthEvalConfig
+from d2slam.config import DEFAULT
 from d2slam.study.grid import LABELS, ORBSLAM3
+from d2slam.study.improvement import improvement
+from d2slam.study.paper import SEQUENCES, orbslam3_baselines, paper_table, published_absolute
+from d2slam.synth.config import SynthEvalConfig
 
 METHODS = ("orbslam3-masked", "semantic", "none", "d2slam")  # compared with orbslam3 (the first two: masks only)
 MASKED = ("orbslam3-masked", "semantic")
@@ -25,9 +28,6 @@ PUBLISHED_MASKED = ("DynaSLAM", "DS-SLAM", "CFP-SLAM")
 def published_improvements() -> pd.DataFrame:
     """Improvement (%) of each published mask-based method over each published ORB-SLAM3 value: rows the paper's
     sequence labels, columns ``(method, ORB-SLAM3 source)``."""
-    from d2slam.study.paper import SEQUENCES, published_absolute
-    from d2slam.study.improvement import improvement
-
     pub = published_absolute()
     base = pub[pub["method"] == "ORB-SLAM3"].pivot(index="sequence", columns="source", values="ate_rmse_m")
     cols = {}
@@ -48,9 +48,6 @@ def calibration_table(runs: pd.DataFrame, methods=METHODS) -> pd.DataFrame:
     """One row per scenario with ORB-SLAM3 runs: ``orbslam3_ate`` (median, min, max over seeds, m), per method
     ``imp_<method>`` (median, min, max of the per-seed improvements over orbslam3, %), the published ORB-SLAM3 ATE
     range and the published mask-based improvement range (``None`` for scenarios of our own)."""
-    from d2slam.study.paper import orbslam3_baselines, paper_table
-    from d2slam.study.improvement import improvement
-
     pub_imp = published_improvements()
     base = orbslam3_baselines()
     paper = paper_table(1)

@@ -19,6 +19,7 @@ Same inputs give the same deterministic columns whichever executor ran them (tes
 from __future__ import annotations
 
 import json
+from collections import Counter
 import math
 import time
 from dataclasses import dataclass, field
@@ -27,17 +28,27 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from d2slam.errors import D2SlamError
+from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.cachefiles import Damaged, load_npz, read_json, report_damaged, sealed, sha256_file, unsealed
-from d2slam.outputs import file_lock, staged_file, write_bytes
-from d2slam.progress import announce
-from d2slam.study import grid as G
-from d2slam.study import tables as T
-from d2slam.study.executors import executor_name, map_ordered
+from d2slam.config import DEFAULT
+from d2slam.data import Trajectory, write_tum_trajectory
+from d2slam.digests import digest
+from d2slam.errors import D2SlamError
+from d2slam.outputs import file_lock, remove_stale_temps as remove, staged_file, write_bytes
+from d2slam.paths import cache_dir
+from d2slam.progress import PROGRESS, announce
+from d2slam.run.warmup import warm_up
+from d2slam.study import grid as G, plots as P, sequences, tables as T
+from d2slam.study.executors import executor_name, map_ordered, on_dask_workers, process_cpu_s
 from d2slam.study.grid import RunSpec, expand_grid
-from d2slam.study.keys import run_key
-from d2slam.study.runner import (execute_run, failed_row, features_dir, onnx_sequence_keys, prepare_sequence,
-                                 run_options, segment_sequence)
+from d2slam.study.keys import (code_info, fingerprint_differences, key_parts, run_ident, why_changed,
+                               worker_fingerprint)
+from d2slam.study.manifest import build_manifest, git_info
+from d2slam.study.runner import (RunOptions, execute_run, failed_row, features_dir, onnx_sequence_keys,
+                                 prepare_sequence, run_options, segment_sequence)
+from d2slam.study.sequences import composite_dir, is_complete, real_sequence_dir, sequence_dir
+from d2slam.synth.generate import estimated_seconds
+from d2slam.synth.version import generator_version
 
 RETRY = ("failed", "crashed", "timeout")  # statuses never reused by --resume
 
@@ -82,11 +93,6 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
     ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.keys.run_key`: the run, config,
     masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
     and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
-    from d2slam.config import DEFAULT
-    from d2slam.digests import generator_version
-    from d2slam.study.keys import code_info
-    from d2slam.study.manifest import build_manifest, git_info
-
     checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
     if specs is None:
@@ -96,124 +102,225 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
                             source="tum" if tum_root else "synth")
     if not specs:
         raise D2SlamError("the study grid is empty")
-    method_order = list(dict.fromkeys(s.method for s in specs))
     out = Path(out).expanduser()
     out.mkdir(parents=True, exist_ok=True)
     options = run_options(config, cache_root=cache_root, tum_root=tum_root, masks=masks,
                           orbslam3_repeats=orbslam3_repeats, orbslam3_timeout=orbslam3_timeout)
-    remove_stale_temps(options, out)
-
-    def phase(fn, items, desc, unit, on_result=None, cost=None) -> list:  # interrupted: nothing its killed workers left
-        if progress is not False and items:
-            announce(*plans[desc](items))
-        try:
-            return map_ordered(fn, items, (options,), jobs, scheduler, desc=desc, progress=progress,
-                               on_result=on_result, cost=cost, unit=unit)
-        except BaseException:
-            remove_stale_temps(options, out)
-            raise
-
-    ex = {"executor": executor_name(jobs, scheduler), "jobs": int(jobs),
-          "scheduler": scheduler if isinstance(scheduler, str) else (None if scheduler is None else "in-process")}
-    t0 = time.perf_counter()
-
-    plans = phase_plans(options, None if scheduler is not None else int(jobs))
-    keys = list(dict.fromkeys(s.sequence_key for s in specs))
-    prepared = phase(prepare_sequence, keys, "sequences", "sequence", cost=sequence_cost)
-    prep_error = {p["key"]: p["error"] for p in prepared if p["error"]}
-    t_seq = time.perf_counter() - t0
-
+    workers = None if scheduler is None else check_dask_workers(scheduler, worker_fingerprint(code))
+    study = _Phases(out, options, jobs, scheduler, progress, workers)
+    prep_error = study.sequences(specs)
     if any(s.method in G.REPEATED or (s.loop_closing and config.engine.loop_closing) for s in specs):
         _prepare_vocabulary(progress is not False)
-    if ex["executor"] != "serial":
+    if study.executor["executor"] != "serial":
         _prepare_kernels()
-    keys_by_id = {s.run_id: run_key(s, options) for s in specs}
-    reused = {}
-    if resume:
-        for s in specs:
-            r = load_run(out, s, keys_by_id[s.run_id])
-            if r is not None:
-                reused[s.run_id] = r
+    idents = {s.run_id: run_ident(s, options) for s in specs}
+    keys_by_id = {i: digest(ident) for i, ident in idents.items()}
+    reused, reasons = _reusable(out, specs, keys_by_id, idents) if resume else ({}, {})
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
-    t_seg = time.perf_counter()
-    phase(segment_sequence, onnx_sequence_keys(todo, options), "segmentation", "sequence", cost=sequence_cost)
-    t_seg = time.perf_counter() - t_seg
-    (out / "runs").mkdir(exist_ok=True)
-
-    def checkpoint(i, r):  # each run is saved as it finishes, so that --resume recovers an interrupted study
-        save_run(out, todo[i], {**r, "key": keys_by_id[todo[i].run_id]})
-
-    if progress is not False and reused:
-        announce(f"runs: {len(reused)} reused from {out / 'runs'} (--resume)")
-    done = phase(execute_run, todo, "runs", "run", on_result=checkpoint, cost=lambda s: run_cost(s, options))
-    by_id = {s.run_id: r for s, r in zip(todo, done)}
-    by_id.update(reused)
+    if resume and progress is not False:
+        announce(resume_plan(len(specs), len(reused), [reasons[s.run_id] for s in todo]))
+    study.segmentation(todo)
+    by_id = {**study.runs(todo, keys_by_id, idents, reused), **reused}
+    results = [by_id.get(s.run_id) or {"row": failed_row(s, f"sequence: {prep_error[s.sequence_key]}"),
+                                       "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}}
+               for s in specs]
     for s in specs:
         if s.run_id in by_id:
             by_id[s.run_id]["key"] = keys_by_id[s.run_id]
-    results = []
-    for s in specs:
-        if s.run_id in by_id:
-            results.append(by_id[s.run_id])
-        else:
-            results.append({"row": failed_row(s, f"sequence: {prep_error[s.sequence_key]}"), "trajectory": None,
-                            "aligned": None, "keypoints": None, "stage_ms": {}})
-    t_runs = time.perf_counter() - t0 - t_seq - t_seg
-
-    grid = {"scenarios": list(dict.fromkeys(s.scenario for s in specs)), "methods": method_order,
-            "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
-            "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
-            "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options["orbslam3_repeats"],
-            "masks": masks, "reused_runs": sorted(reused)}
-    manifest = build_manifest(config, grid, ex, generator_version(),
-                              {"sequences_s": round(t_seq, 2), "segmentation_s": round(t_seg, 2),
-                               "runs_s": round(t_runs, 2)}, git=checkout, code=code)
+    manifest = build_manifest(config, _grid(specs, options, masks, reused, [reasons.get(s.run_id) for s in todo]),
+                              study.executor, generator_version(),
+                              study.timing(), git=checkout, code=code)
     # the finished runs are on disk already (saved as they finished, or read from there by --resume)
+    method_order = list(dict.fromkeys(s.method for s in specs))
     res = write_results(out, specs, results, method_order, manifest, plots=plots, saved=set(by_id))
-    manifest["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
+    manifest["timing"]["total_s"] = round(time.perf_counter() - study.t0, 2)
     write_bytes(out / "manifest.json", json.dumps(manifest, indent=2, default=_json_default) + "\n")
     return res
 
 
-def run_cost(spec: RunSpec, options: dict) -> float:
+class _Phases:
+    """A study's three phases on its executor (``jobs`` processes or a Dask ``scheduler``): the sequences, their
+    segmentation, the runs; each announced before it starts (``phase_plans``) and timed. An interrupted phase leaves
+    nothing its killed workers were writing."""
+
+    def __init__(self, out: Path, options: RunOptions, jobs: int, scheduler, progress: bool | None,
+                 workers: int | None = None):
+        self.out, self.options, self.jobs, self.scheduler, self.progress = out, options, jobs, scheduler, progress
+        self.executor = {"executor": executor_name(jobs, scheduler), "jobs": int(jobs),
+                         "scheduler": scheduler if isinstance(scheduler, str) else (None if scheduler is None
+                                                                                   else "in-process")}
+        if scheduler is not None:  # a Dask cluster: its workers, not --jobs, set how many calls run at once
+            self.executor.update(jobs=None, workers=workers)
+        remove_stale_temps(options, out)
+        self.t0 = time.perf_counter()
+        self.plans = phase_plans(options, int(jobs) if scheduler is None else workers)
+        self.seconds = {"sequences_s": 0.0, "segmentation_s": 0.0, "runs_s": 0.0}  # each phase's own
+        self.cpu = {"sequences": [], "segmentation": [], "runs": []}  # each call's CPU seconds, where it ran
+        self.cpu0 = process_cpu_s(children=False)  # the executor's workers are children too: counted per call
+
+    def _phase(self, fn, items, desc: str, unit: str, on_result=None, cost=None) -> list:
+        if self.progress is not False and items:
+            announce(*self.plans[desc](items))
+        t = time.perf_counter()
+        try:
+            return map_ordered(fn, items, (self.options,), self.jobs, self.scheduler, desc=desc,
+                               progress=self.progress, on_result=on_result, cost=cost, unit=unit,
+                               cpu=self.cpu[desc])
+        except BaseException:
+            remove_stale_temps(self.options, self.out)
+            raise
+        finally:
+            self.seconds[f"{desc}_s"] += time.perf_counter() - t
+
+    def sequences(self, specs) -> dict:
+        """Generate (or find) every sequence of ``specs``; the key -> error of those that failed."""
+        keys = list(dict.fromkeys(s.sequence_key for s in specs))
+        prepared = self._phase(prepare_sequence, keys, "sequences", "sequence", cost=sequence_cost)
+        return {p["key"]: p["error"] for p in prepared if p["error"]}
+
+    def segmentation(self, todo) -> None:
+        """The real segmenter's masks of the sequences some run of ``todo`` reads them of, into the mask cache."""
+        self._phase(segment_sequence, onnx_sequence_keys(todo, self.options), "segmentation", "sequence",
+                    cost=sequence_cost)
+
+    def runs(self, todo, keys_by_id: dict, idents: dict, reused: dict) -> dict:
+        """Run ``todo``, each saved as it finishes (so that --resume recovers an interrupted study); run id ->
+        its result."""
+        (self.out / "runs").mkdir(exist_ok=True)
+
+        def checkpoint(i, r):
+            rid = todo[i].run_id
+            save_run(self.out, todo[i], {**r, "key": keys_by_id[rid], "key_parts": key_parts(idents[rid])})
+
+        if self.progress is not False and reused:
+            announce(f"runs: {len(reused)} reused from {self.out / 'runs'} (--resume)")
+        done = self._phase(execute_run, todo, "runs", "run", on_result=checkpoint,
+                           cost=lambda s: run_cost(s, self.options))
+        return {s.run_id: r for s, r in zip(todo, done)}
+
+    def timing(self) -> dict:
+        """Wall seconds of the sequences, of the segmentation, and of everything else up to now (the runs, with the
+        vocabulary and the kernels prepared for them); beside each, the CPU seconds of its calls wherever they ran
+        (``*_cpu_s``: the workers' and ORB-SLAM3's processes), and this process's own (``study_process_cpu_s``:
+        scheduling, the vocabulary, the kernels, the tables; the serial executor's calls too)."""
+        s = self.seconds
+        rest = time.perf_counter() - self.t0 - s["sequences_s"] - s["segmentation_s"]
+        cpu = {f"{k}_cpu_s": round(sum(v), 2) for k, v in self.cpu.items()}
+        return {"sequences_s": round(s["sequences_s"], 2), "segmentation_s": round(s["segmentation_s"], 2),
+                "runs_s": round(rest, 2), **cpu, "study_process_cpu_s": round(process_cpu_s(children=False) - self.cpu0, 2)}
+
+
+def check_dask_workers(scheduler, expected: dict) -> int:
+    """The number of workers connected to the Dask ``scheduler``, each checked to compute what this process keys the
+    runs by: its :func:`d2slam.study.keys.worker_fingerprint` (the methods' source, the numeric packages, the sequence
+    generator) must be ``expected`` (this process's). A cluster with no worker, a worker that cannot import d2slam
+    and a worker with other code or packages are refused in one line: its runs would carry this checkout's key and
+    another's numbers. Workers that join later are not checked."""
+    found = on_dask_workers(scheduler, worker_fingerprint)
+    if not found:
+        raise D2SlamError(f"the Dask scheduler at {scheduler} has no worker: start them first (`dask worker "
+                          f"{scheduler if isinstance(scheduler, str) else 'tcp://HOST:PORT'} --nthreads 1`)")
+    bad = []
+    for name, got in sorted(found.items()):
+        if isinstance(got, BaseException):
+            bad.append(f"{name} cannot run d2slam ({type(got).__name__}: {got})")
+        elif fingerprint_differences(expected, got):
+            bad.append(f"{name} differs in {'; '.join(fingerprint_differences(expected, got))}")
+    if bad:
+        raise D2SlamError(f"{len(bad)} of the {len(found)} Dask workers would not compute what this checkout keys "
+                          f"its runs by: {'; '.join(bad)}. Every worker needs this d2slam checkout and environment "
+                          "(environment.txt), and a restart after either changes")
+    return len(found)
+
+
+def _reusable(out: Path, specs, keys_by_id: dict, idents: dict) -> tuple[dict, dict]:
+    """The runs of ``out/runs`` --resume reuses (run id -> result: those whose key is this study's and that did not
+    fail), and why each other run is run again (run id -> :func:`d2slam.study.keys.why_changed`)."""
+    reused, reasons = {}, {}
+    for s in specs:
+        r = load_run(out, s, keys_by_id[s.run_id])
+        if r is not None:
+            reused[s.run_id] = r
+            continue
+        record = _saved_record(out, s)
+        if record is None:
+            reasons[s.run_id] = "no earlier result"
+        elif record.get("key") == keys_by_id[s.run_id]:
+            reasons[s.run_id] = f"it ended {(record.get('row') or {}).get('status')}"
+        else:
+            reasons[s.run_id] = why_changed(record.get("key_parts"), idents[s.run_id])
+    return reused, reasons
+
+
+def _saved_record(out: Path, spec: RunSpec) -> dict | None:
+    """A saved run's record as it is on disk (None: none or unreadable; :func:`load_run` says when it is damaged)."""
+    try:
+        return read_json(out / "runs" / f"{spec.run_id}.json")
+    except (OSError, ValueError, Damaged):
+        return None
+
+
+def resume_plan(total: int, reused: int, reasons: list[str]) -> str:
+    """What ``--resume`` will do, said before it starts: how many runs it reuses and runs, and why those run."""
+    counts = Counter(reasons)
+    why = "; ".join(f"{n} {r}" for r, n in counts.most_common())
+    return f"resume: {total} runs, {reused} reused, {len(reasons)} to run" + (f" ({why})" if why else "")
+
+
+def _grid(specs, options: RunOptions, masks: str | None, reused: dict, reasons: list | None = None) -> dict:
+    """The manifest's ``grid``: what the study ran."""
+    return {"scenarios": list(dict.fromkeys(s.scenario for s in specs)),
+            "methods": list(dict.fromkeys(s.method for s in specs)),
+            "seeds": sorted({s.seed for s in specs}), "frames": sorted({s.frames for s in specs}),
+            "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
+            "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options.orbslam3_repeats,
+            "masks": masks, "reused_runs": sorted(reused),
+            **({"rerun_reasons": dict(Counter(r for r in reasons if r))} if reused or any(reasons or []) else {})}
+
+
+def run_cost(spec: RunSpec, options: RunOptions) -> float:
     """Estimated cost of a run (ms): its frames x the method's ``StudyConfig.run_cost_ms`` (the real ORB-SLAM3's
     runs: x its repeats). Only the order of the runs depends on it (longest first)."""
-    study = options["config"].get("study") or {}
-    costs = dict(study.get("run_cost_ms") or ())
-    ms = float(costs.get(spec.method, study.get("run_cost_default_ms", 1.0)))
-    repeats = int(options.get("orbslam3_repeats") or 1) if spec.method in G.REPEATED else 1
-    return max(int(spec.frames), 1) * ms * repeats
+    study = options.config.study
+    ms = float(dict(study.run_cost_ms).get(spec.method, study.run_cost_default_ms))
+    repeats = int(options.orbslam3_repeats or 1) if spec.method in G.REPEATED else 1
+    frames = int(spec.frames) or (COMPOSITE_FRAMES if spec.source == "composite" else 1)  # 0: all of the recording
+    return max(frames, 1) * ms * repeats
 
 
-def phase_plans(options: dict, workers: int | None) -> dict:
+def phase_plans(options: RunOptions, workers: int | None) -> dict:
     """For each phase of the study (``sequences``, ``segmentation``, ``runs``), a function of its items giving what
     to announce before it starts: (what it will do, estimated seconds on ``workers`` processes, or None when the
-    number of workers is not known: a Dask cluster). Estimates: ``CliConfig.synth_setup_s`` + frames x
+    number of workers is not known). Estimates: ``ProgressConfig.synth_setup_s`` + frames x
     ``synth_frame_s`` per sequence to generate, frames x ``segment_frame_s`` to segment (an upper bound: masks
     already in the cache are read), :func:`run_cost` per run."""
-    from d2slam.config import CLI
-    from d2slam.synth.generate import estimated_seconds
-    from d2slam.study.sequences import is_complete, sequence_dir
-
     on = "" if workers is None else f" on {workers} worker{'s' if workers > 1 else ''}"
 
     def spread(seconds: list[float]) -> float | None:  # the longest item bounds it from below
         return None if workers is None or not seconds else max(sum(seconds) / max(workers, 1), max(seconds))
 
+    def composite_frames(k) -> int:  # a composite's frames: the recording's when 0
+        return int(k[3]) or COMPOSITE_FRAMES
+
     def sequences(keys):
         synth = [k for k in keys if k[0] == "synth"]
-        todo = [k for k in synth if not is_complete(sequence_dir(*k[1:], root=options.get("cache_root")))]
-        what = (f"sequences: {len(todo)} to generate{on} ({sum(int(k[3]) for k in todo)} frames), "
-                f"{len(synth) - len(todo)} cached" + (f", {len(keys) - len(synth)} real (TUM)" if len(synth) < len(keys)
-                                                      else ""))
-        return what, spread([estimated_seconds(int(k[3]), 1) for k in todo])
+        todo = [k for k in synth if not is_complete(sequence_dir(*k[1:], root=options.cache_root))]
+        comp = [k for k in keys if k[0] == "composite" and not k[4]]
+        ctodo = [k for k in comp if not composite_cached(k, options.cache_root)]
+        made = len(synth) + len(comp)
+        what = (f"sequences: {len(todo) + len(ctodo)} to generate{on} "
+                f"({sum(int(k[3]) for k in todo) + sum(composite_frames(k) for k in ctodo)} frames), "
+                f"{made - len(todo) - len(ctodo)} cached" + (f", {len(keys) - made} real (TUM)" if made < len(keys)
+                                                             else ""))
+        return what, spread([estimated_seconds(int(k[3]), 1) for k in todo]
+                            + [estimated_seconds(composite_frames(k), 1, scenario=k[1]) for k in ctodo])
 
     def segmentation(keys):
         frames = [int(k[3]) for k in keys]
         known = all(f > 0 for f in frames)  # a real sequence's frames may be "all" (0)
         return (f"segmentation: {len(keys)} sequence{'s' if len(keys) > 1 else ''} with the real segmenter{on}"
                 + (f" ({sum(frames)} frames; masks already in the cache are read)" if known else ""),
-                spread([f * CLI.segment_frame_s for f in frames]) if known else None)
+                spread([f * PROGRESS.segment_frame_s for f in frames]) if known else None)
 
     def runs(specs):
         known = all(int(s.frames) > 0 for s in specs)
@@ -222,21 +329,35 @@ def phase_plans(options: dict, workers: int | None) -> dict:
     return {"sequences": sequences, "segmentation": segmentation, "runs": runs}
 
 
+# The frames of a composite over the whole recording, for the phase's estimate (fr1/rpy: 694 associated frames).
+COMPOSITE_FRAMES = 694
+
+
+def composite_cached(key: tuple, cache_root=None) -> bool:
+    """Whether the composite of ``key`` (``RunSpec.sequence_key``) is in the cache (of ``cache_root``, default the
+    user's) (False when its recording is not: the run says why)."""
+    try:
+        rec = real_sequence_dir(G.COMPOSITE_RECORDING)
+    except D2SlamError:
+        return False
+    return is_complete(composite_dir(key[1], key[2], key[3], rec, root=cache_root))
+
+
 def sequence_cost(key: tuple) -> float:
-    """Estimated cost of generating or segmenting a sequence (``RunSpec.sequence_key``): its frames."""
+    """Estimated cost of generating or segmenting a sequence (``RunSpec.sequence_key``): its frames (a composite's
+    over its whole recording: its frames, each as costly as ``synth_composite_frame_s`` over ``synth_frame_s``)."""
+    if key[0] == "composite":
+        return float(int(key[3]) or COMPOSITE_FRAMES) * (1.0 if key[4] else PROGRESS.synth_composite_frame_s /
+                                                          PROGRESS.synth_frame_s)
     return float(max(int(key[3]), 1))
 
 
-def remove_stale_temps(options: dict, out: Path | None = None) -> list[Path]:
+def remove_stale_temps(options: RunOptions, out: Path | None = None) -> list[Path]:
     """Remove what killed processes left half-written in the caches a study writes (sequence folders, feature files,
     mask files: ``*.tmp-<pid>...``, :func:`d2slam.outputs.remove_stale_temps`) and in ``out/runs``; the temporaries
     of running processes (another study sharing the cache) stay."""
-    from d2slam.outputs import remove_stale_temps as remove
-    from d2slam.paths import cache_dir
-    from d2slam.study import sequences
-
     outs = [] if out is None else [p for d in ("", "runs", "trajectories", "plots") for p in remove(Path(out) / d)]
-    return (sequences.remove_stale_temps(options.get("cache_root")) + remove(features_dir(options))
+    return (sequences.remove_stale_temps(options.cache_root) + remove(features_dir(options))
             + remove(cache_dir("masks"), "*/*/*.tmp-*") + outs)
 
 
@@ -276,8 +397,6 @@ def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
 def _prepare_vocabulary(progress) -> None:
     """Build the ORB vocabulary once, here, before ORB-SLAM3 runs and the engine's loop closing start in parallel
     workers (each would otherwise build it on first use). A failure is left to the runs, which record it."""
-    from d2slam.baselines.vocab import resolve_vocabulary
-
     try:
         resolve_vocabulary(None, build=True, progress=bool(progress))
     except D2SlamError:
@@ -286,9 +405,7 @@ def _prepare_vocabulary(progress) -> None:
 
 def _prepare_kernels() -> None:
     """Compile the engine's kernels here (or load them from numba's cache) before the workers start, so that they
-    load them instead of each compiling the same ones at once (``d2slam.warmup``)."""
-    from d2slam.warmup import warm_up
-
+    load them instead of each compiling the same ones at once (``d2slam.run.warmup``)."""
     warm_up()
 
 
@@ -332,7 +449,8 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
         npz.unlink(missing_ok=True)
     # the record last, whole or not at all: --resume reuses a run only when its record is there; sealed with the
     # sha256 of its content and of the arrays, so that a damaged one is not reused
-    record = {"run": s.to_dict(), "key": r.get("key"), "row": r["row"], "keypoints": r.get("keypoints"),
+    record = {"run": s.to_dict(), "key": r.get("key"), "key_parts": r.get("key_parts"), "row": r["row"],
+              "keypoints": r.get("keypoints"),
               "stage_ms": r.get("stage_ms"), "loops": r.get("loops"),
               "arrays_sha256": sha256_file(npz) if arrays else None}
     record = sealed(json.loads(json.dumps(record, default=_json_default)))  # sealed as it will be read back
@@ -341,8 +459,6 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
 
 def write_trajectory(out: Path, s: RunSpec, r: dict) -> None:
     """``trajectories/<run>.txt`` (TUM format) of a run that has one."""
-    from d2slam.data import Trajectory, write_tum_trajectory
-
     if r.get("trajectory") is not None and len(r["trajectory"][0]):
         (out / "trajectories").mkdir(parents=True, exist_ok=True)
         ts, poses = r["trajectory"]
@@ -366,8 +482,6 @@ def module_f1(specs: list[RunSpec], results: list[dict]) -> pd.DataFrame:
 
 
 def make_plots(out: Path, specs, results, df, summary, method_order) -> dict:
-    from d2slam.study import plots as P
-
     pdir = out / "plots"
     pdir.mkdir(exist_ok=True)
     files = {}

@@ -12,6 +12,7 @@ import os
 from pathlib import Path
 
 from d2slam.errors import D2SlamError
+from d2slam.outputs import write_bytes
 from d2slam.study import tables as T
 from d2slam.study.grid import LOOP_SCENARIOS
 
@@ -63,8 +64,6 @@ def replace_headline(readme: str, table: str) -> str:
 
 
 def _write(path: Path, text: str) -> None:
-    from d2slam.outputs import write_bytes
-
     write_bytes(path, text)
 
 

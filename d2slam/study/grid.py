@@ -12,6 +12,10 @@ The scenario with a return (``office_loop``, ours) runs ``none``, ``d2slam`` and
 closing on and off (its twin with it on), always at its own length (``d2slam.synth.scene.default_frames``: 1200
 frames; fewer would not return), whatever ``frames``.
 
+The real-background set (``COMPOSITE_SCENARIOS``, ``source="composite"``): per seed, the people composited into the
+whole real fr1/rpy (every method, as on the fr3 scenarios), and its twins on the real recording itself (``none``,
+``d2slam``; ``oracle`` with the composite's truth: the occluded twin), always over all frames, whatever ``frames``.
+
 Order (rows of ``runs.csv``): scenarios in the paper's order (w/xyz, w/half, w/static, w/rpy, s/static), then the
 dynamic sequence before its twin, then seeds ascending, then methods in the order given. The order never depends
 on which executor ran the grid or when a run finished.
@@ -21,7 +25,10 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from d2slam.assets import real_full
 from d2slam.errors import D2SlamError
+from d2slam.run.methods import get_method, methods
+from d2slam.synth.scene import default_frames, tum_frames
 
 # The five fr3 sequences of the paper's Tables 1-3, in their order, with the paper's row labels; then the
 # interaction scenarios of our own (a person carries a box / pushes a chair across the view).
@@ -31,8 +38,16 @@ LOOP_SCENARIOS = ("office_loop",)  # with a return (ours): loop closing on and o
 # Real recordings (d2slam.study.sequences.real_sequence_dir): TUM fr1/rpy, a real Kinect with fast rotations, blur
 # and lens distortion and nobody in view, where a keypoint filter must cost nothing.
 REAL_SCENARIOS = ("fr1_rpy",)
-SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS + REAL_SCENARIOS
-LABELS = {"fr1_rpy": "fr1/rpy (real)", "walking_xyz": "w/xyz", "walking_halfsphere": "w/half", "walking_static": "w/static",
+# The real-background set (source "composite"; d2slam.synth.compositing, docs/real_people.md): the people composited
+# into the whole real fr1/rpy (its images, sensor and camera motion real; the people and their truth ours), one
+# composite per seed: two people walk in and out of view (real_walking) or one of them carries a box (real_carry).
+# Their twins are the real recording itself: `none` and `d2slam` run on it, `oracle` on it with the composite's truth
+# as masks (the occluded twin: the people's silhouettes cut out of the real frames).
+COMPOSITE_SCENARIOS = ("real_walking", "real_carry")
+COMPOSITE_RECORDING = "fr1_rpy"  # the real recording of REAL_SCENARIOS the composites are made of
+SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS + REAL_SCENARIOS + COMPOSITE_SCENARIOS
+LABELS = {"real_walking": "walking on fr1/rpy (composite)", "real_carry": "carry on fr1/rpy (composite)",
+          "fr1_rpy": "fr1/rpy (real)", "walking_xyz": "w/xyz", "walking_halfsphere": "w/half", "walking_static": "w/static",
           "walking_rpy": "w/rpy", "sitting_static": "s/static", "walking_carry": "carry (ours)",
           "walking_push": "push (ours)", "office_loop": "loop (ours)"}
 TUM_FOLDERS = {s: f"rgbd_dataset_freiburg3_{s}" for s in FR3_SCENARIOS}
@@ -66,7 +81,9 @@ class RunSpec:
     seed: int
     frames: int
     twin: bool = False
-    source: str = "synth"  # "synth" (generated, cached) | "tum" (a fr3 folder of a TUM copy) | "real" (REAL_SCENARIOS)
+    # "synth" (generated, cached) | "tum" (a fr3 folder of a TUM copy) | "real" (REAL_SCENARIOS) | "composite"
+    # (COMPOSITE_SCENARIOS: generated into the real recording, cached; its twin is the real recording)
+    source: str = "synth"
     loop_closing: bool = True  # the engine's loop closing (EngineConfig.loop_closing; ORB-SLAM3 always has its own)
 
     @property
@@ -132,6 +149,10 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
         if scenario in REAL_SCENARIOS:
             specs += [RunSpec(scenario, m, min(seeds), 0, False, "real") for m in real_methods]
             continue
+        if scenario in COMPOSITE_SCENARIOS:  # all frames of the recording; the twin: the recording itself
+            for twin, ms in ((False, methods), (True, twins)):
+                specs += [RunSpec(scenario, m, seed, 0, twin, "composite") for seed in sorted(seeds) for m in ms]
+            continue
         n = frames_of(scenario, frames, source)
         keep = bool
         if default and scenario in INTERACTION_SCENARIOS:
@@ -151,22 +172,17 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
 
 def default_scenarios() -> list[str]:
     """The study's default scenarios: every synthetic one, and the real recordings whose sequence is in the cache
-    (``d2slam assets fetch --full-real``)."""
-    from d2slam.assets import real_full
-
-    return [s for s in SCENARIOS if s not in REAL_SCENARIOS or real_full() is not None]
+    (``d2slam assets fetch --full-real``) with the composites into them."""
+    return [s for s in SCENARIOS if s not in REAL_SCENARIOS + COMPOSITE_SCENARIOS or real_full() is not None]
 
 
 def frames_of(scenario: str, frames: int | str, source: str = "synth") -> int:
     """The frames of a scenario's runs: ``frames``, or with ``tum`` its TUM duration (all frames of a real copy); the
     scenario with a return always its own length."""
     if scenario in LOOP_SCENARIOS:
-        from d2slam.synth.scene import default_frames
-
         return default_frames(scenario)
     if frames != "tum":
         return int(frames)
-    from d2slam.synth.scene import tum_frames
 
     return 0 if source == "tum" else tum_frames(scenario)
 
@@ -174,8 +190,6 @@ def frames_of(scenario: str, frames: int | str, source: str = "synth") -> int:
 def default_methods(source: str = "synth") -> list[str]:
     """Every method of the run registry (``none`` first) and ``orbslam3``; on a real TUM copy, not those that need
     a synthetic sequence's own masks (``oracle``: truth, ``d2slam-sim``: the simulated segmenter)."""
-    from d2slam.methods import methods
-
     names = list(methods())
     if source == "tum":
         truth = _truth_methods()
@@ -184,8 +198,6 @@ def default_methods(source: str = "synth") -> list[str]:
 
 
 def _truth_methods() -> set[str]:
-    from d2slam.methods import get_method, methods
-
     return {m for m in methods() if get_method(m).masks in ("truth", "sim")}
 
 

@@ -8,6 +8,7 @@ import platform
 import subprocess
 import sys
 
+import d2slam
 from d2slam.paths import REPO_ROOT
 from d2slam.study.keys import code_info, package_versions
 
@@ -52,7 +53,6 @@ def build_manifest(config, grid: dict, executor: dict, generator_version: str, t
                    git: dict | None = None, code: dict | None = None) -> dict:
     """The study's manifest. ``git`` and ``code`` are taken when the study starts (``run_study``): a commit made
     while it runs must not be recorded as the code that ran. Default: now."""
-    import d2slam
 
     return {"d2slam_version": d2slam.__version__, "git": git if git is not None else git_info(),
             "code": code if code is not None else code_info(), "config_hash": config.hash(),

@@ -16,6 +16,7 @@ import pandas as pd
 from d2slam.errors import D2SlamError
 from d2slam.paths import REPO_ROOT
 from d2slam.study.grid import FR3_SCENARIOS, LABELS
+from d2slam.study.improvement import improvement_table
 
 SEQUENCES = [LABELS[s] for s in FR3_SCENARIOS]  # w/xyz, w/half, w/static, w/rpy, s/static
 PAPER_METHODS = ["DynaSLAM", "DS-SLAM", "DP-SLAM", "D2SLAM"]
@@ -102,8 +103,6 @@ def implied_baseline() -> pd.DataFrame:
 
 def side_by_side(runs: pd.DataFrame, table: int, ours: str = "d2slam", baseline: str = "none") -> pd.DataFrame:
     """The paper's D2SLAM improvement next to ours (median over seeds, over ``baseline``) for Table ``table``."""
-    from d2slam.study.improvement import improvement_table
-
     metric = STUDY_METRIC[METRICS[table]]
     scen, _, cells = improvement_table(runs, metric, baseline, [ours])
     paper = paper_table(table)["D2SLAM"]

@@ -11,6 +11,7 @@ import pandas as pd
 
 from d2slam.eval.plots import GROUND_TRUTH, legend, method_colour
 from d2slam.outputs import save_figure
+from d2slam.run.sequence import STAGES
 from d2slam.study.grid import LABELS, SCENARIOS
 
 
@@ -126,8 +127,6 @@ def plot_keypoint_f1(module_f1: pd.DataFrame, out: Path) -> Path | None:
 
 def plot_runtime(df: pd.DataFrame, out: Path, methods: list[str]) -> Path | None:
     """Stacked mean milliseconds per frame and stage, per method (median over runs)."""
-    from d2slam.pipeline import STAGES
-
     stages = [c for c in (f"ms_{s}" for s in STAGES) if c in df]
     d = df[np.isfinite(df["ms_per_frame"].astype(float))]
     ms = [m for m in methods if m in set(d["method"])]

@@ -10,34 +10,58 @@ Dask worker needs no access to the study's output folder.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 import tempfile
 import time
 import traceback
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from d2slam.cachefiles import Damaged, report_damaged
+from d2slam.config import DEFAULT, Config
+from d2slam.data import open_sequence
 from d2slam.digests import digest, source_digest
 from d2slam.errors import D2SlamError
-from d2slam.pipeline import STAGES as ENGINE_STAGES
-from d2slam.record import RunRecord
-from d2slam.study.grid import LABELS, ORACLE, ORBSLAM3_MASKED, REPEATED, STUDY_MASKS, RunSpec
+from d2slam.paths import cache_dir
+from d2slam.run.methods import get_method, mask_kind, masks_read, methods
+from d2slam.run.orbslam3_runs import run_orbslam3
+from d2slam.run.record import RunRecord
+from d2slam.run.runner import run_config, run_method
+from d2slam.run.sequence import STAGES as ENGINE_STAGES
+from d2slam.segmentation import masks_for
+from d2slam.slam.engine import refills
+from d2slam.slam.features import CachedFeatures, FeatureRecorder
+from d2slam.study.grid import COMPOSITE_RECORDING, LABELS, ORACLE, ORBSLAM3_MASKED, REPEATED, STUDY_MASKS, RunSpec
+from d2slam.study.sequences import ensure_composite, ensure_sequence, real_sequence_dir, tum_sequence_dir
 
 
-def run_options(config=None, cache_root: str | None = None, tum_root: str | None = None, masks: str | None = None,
-                orbslam3_repeats: int | None = None, orbslam3_timeout: float | None = None) -> dict:
-    """The options every run of a study shares, as a picklable dict (``config`` as a nested dict; ``masks``: the
-    study's masks, the real segmenter's unless given)."""
-    from d2slam.config import DEFAULT
+@dataclass(frozen=True)
+class RunOptions:
+    """What every run of a study shares (picklable: a worker process or a Dask worker gets it with each run): the
+    config, the sequence cache's folder (None: the user's cache), the TUM folder of a TUM study, the study's masks
+    (the real segmenter's unless given), ORB-SLAM3's repeats and time limit per repeat (None: its budget)."""
 
+    config: Config = DEFAULT
+    cache_root: str | None = None
+    tum_root: str | None = None
+    masks: str = STUDY_MASKS
+    orbslam3_repeats: int = DEFAULT.baseline.orbslam3_repeats
+    orbslam3_timeout: float | None = None
+
+
+def run_options(config: Config | None = None, cache_root: str | None = None, tum_root: str | None = None,
+                masks: str | None = None, orbslam3_repeats: int | None = None,
+                orbslam3_timeout: float | None = None) -> RunOptions:
+    """The :class:`RunOptions` of a study (defaults: the config's repeats, the real segmenter's masks)."""
     config = config or DEFAULT
-    return {"config": config.to_dict(), "cache_root": None if cache_root is None else str(cache_root),
-            "tum_root": None if tum_root is None else str(tum_root), "masks": masks or STUDY_MASKS,
-            "orbslam3_repeats": int(orbslam3_repeats or config.baseline.orbslam3_repeats),
-            "orbslam3_timeout": orbslam3_timeout}
+    return RunOptions(config, None if cache_root is None else str(cache_root), None if tum_root is None else
+                      str(tum_root), masks or STUDY_MASKS, int(orbslam3_repeats or config.baseline.orbslam3_repeats),
+                      orbslam3_timeout)
 
 
-def prepare_sequence(key: tuple, options: dict) -> dict:
+def prepare_sequence(key: tuple, options: RunOptions) -> dict:
     """Generate (or find) the sequence of ``RunSpec.sequence_key``; returns ``{"key", "path", "error"}``."""
     source, scenario, seed, frames, twin = key
     try:
@@ -48,35 +72,28 @@ def prepare_sequence(key: tuple, options: dict) -> dict:
         return {"key": key, "path": None, "error": _message(exc)}
 
 
-def onnx_sequence_keys(specs, options: dict) -> list[tuple]:
+def onnx_sequence_keys(specs, options: RunOptions) -> list[tuple]:
     """The sequences (``RunSpec.sequence_key``) on which some run of ``specs`` reads the real segmenter's masks."""
-    from d2slam.methods import get_method, mask_kind, methods
-
     keys = []
     for s in specs:
         if s.method not in methods():
             continue  # an unknown method's run records its own error
         method = get_method(s.method)
-        if method.needs_masks and mask_kind(method, None if method.masks else options["masks"],
-                                            synthetic=s.source == "synth") == "onnx":
+        if masks_read(method, options.masks, synthetic=_has_truth(s)) == "onnx":
             keys.append(s.sequence_key)
     return list(dict.fromkeys(keys))
 
 
-def segment_sequence(key: tuple, options: dict) -> dict:
+def segment_sequence(key: tuple, options: RunOptions) -> dict:
     """Segment every frame the runs read of the sequence ``key`` with the real segmenter into the mask cache, once per
     sequence before the runs (which then only read it, whichever worker runs them; two runs on one sequence at the
     same time would otherwise both segment it). Returns ``{"key", "error"}``; a failure is left to the runs,
     which meet it again and record it."""
-    from d2slam.config import Config
-    from d2slam.data import open_sequence
-    from d2slam.segmentation import masks_for
-
     source, scenario, seed, frames, twin = key
     try:
         with _single_threaded():
             seq = open_sequence(_sequence_path(source, scenario, seed, frames, twin, options))
-            config = Config.from_dict(options["config"])
+            config = options.config
             n = len(seq) if frames <= 0 else min(len(seq), frames)
             for i in range(n):
                 masks_for(seq, i, "onnx", config)
@@ -85,23 +102,29 @@ def segment_sequence(key: tuple, options: dict) -> dict:
         return {"key": key, "error": _message(exc)}
 
 
-def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
-    if source == "real":
-        from d2slam.study.sequences import real_sequence_dir
+def _has_truth(spec: RunSpec) -> bool:
+    """Whether the run's masks can come from a synthetic truth: a synthetic sequence or a composite (its twin, the
+    real recording, reads the composite's)."""
+    return spec.source in ("synth", "composite")
 
+
+def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
+    if source == "composite":
+        recording = real_sequence_dir(COMPOSITE_RECORDING)
+        if twin:  # the twin of a composite is its real recording
+            return recording
+        return ensure_composite(scenario, seed, frames, recording, root=options.cache_root, progress=False)
+    if source == "real":
         return real_sequence_dir(scenario)
     if source == "tum":
-        from d2slam.study.sequences import tum_sequence_dir
-
-        if not options.get("tum_root"):
+        if not options.tum_root:
             raise D2SlamError("a TUM run needs tum_root (D2SLAM_TUM_ROOT)")
-        return tum_sequence_dir(options["tum_root"], scenario)
-    from d2slam.study.sequences import ensure_sequence
+        return tum_sequence_dir(options.tum_root, scenario)
 
-    return ensure_sequence(scenario, seed, frames, twin, root=options.get("cache_root"), progress=False)
+    return ensure_sequence(scenario, seed, frames, twin, root=options.cache_root, progress=False)
 
 
-def execute_run(spec: RunSpec | dict, options: dict) -> dict:
+def execute_run(spec: RunSpec | dict, options: RunOptions) -> dict:
     """Run one grid cell. Returns ``{"row": {...}, "trajectory": (timestamps, poses) | None,
     "aligned": (gt_xyz, est_xyz) | None, "keypoints": per-module dict | None, "stage_ms": {...}, "loops": {...} |
     None}``; never raises."""
@@ -133,7 +156,7 @@ def base_row(spec: RunSpec) -> dict:
             "deterministic": int(spec.method not in REPEATED), "repeats": 1}
 
 
-def failed_row(spec: RunSpec, error: str, wall_s: float | None = None, options: dict | None = None) -> dict:
+def failed_row(spec: RunSpec, error: str, wall_s: float | None = None, options: RunOptions | None = None) -> dict:
     """The row of a run that failed (``error``: why), with its config's hash when the options give one and its
     time when it ran."""
     extra = {}
@@ -192,20 +215,12 @@ def _metric_columns(record: RunRecord) -> dict:
     return out
 
 
-def _config(spec: RunSpec, options: dict):
-    from d2slam.config import Config
-
-    config = Config.from_dict(options["config"])
-    return dataclasses.replace(config, engine=dataclasses.replace(
-        config.engine, ransac_seed=int(spec.seed), loop_closing=bool(config.engine.loop_closing and spec.loop_closing)))
+def _config(spec: RunSpec, options: RunOptions) -> Config:
+    return run_config(options.config, spec.seed, spec.loop_closing)
 
 
-def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bool]:
+def _run_engine(spec: RunSpec, path: Path, options: RunOptions) -> tuple[RunRecord, bool]:
     """The run of an engine method and whether it read the sequence's stored features."""
-    from d2slam.data import open_sequence
-    from d2slam.methods import get_method, run_method
-    from d2slam.slam.engine import refills
-
     config = _config(spec, options)
     method = get_method(spec.method)
     seq = open_sequence(path)
@@ -213,11 +228,12 @@ def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bo
         raise D2SlamError(f"sequence has {len(seq)} frames, the study expects {spec.frames}", path=path)
     frames = len(seq) if spec.source == "synth" or spec.frames <= 0 else min(len(seq), spec.frames)
     # a method with its own masks (oracle: truth) keeps them whatever the study's --masks
-    requested = None if method.masks else options["masks"]
+    requested = None if method.masks else options.masks
     mask_seq = None
     if method.needs_masks and spec.twin and spec.method == ORACLE:
         # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
-        # the people and moving objects are cut out of a scene where nothing moves
+        # the people and moving objects are cut out of a scene where nothing moves (a composite's twin: the real
+        # recording, the composite's silhouettes cut out of its real frames)
         mask_seq = open_sequence(_sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, False, options))
     stored = {}
 
@@ -229,7 +245,7 @@ def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bo
         return stored["features"]
 
     record = run_method(seq, spec.method, config, masks=requested if method.needs_masks else None,
-                        mask_seq=mask_seq, synthetic=spec.source == "synth", features=stored_features, progress=False,
+                        mask_seq=mask_seq, synthetic=_has_truth(spec), features=stored_features, progress=False,
                         frames=frames)
     features, save_to = stored["features"], stored["save_to"]
     if save_to is not None:
@@ -241,13 +257,11 @@ def _run_engine(spec: RunSpec, path: Path, options: dict) -> tuple[RunRecord, bo
 FEATURES_CODE = ("slam/frame.py", "slam/depth.py", "slam/features.py", "data")
 
 
-def features_path(seq, path: Path, config, options: dict, frames: int | None = None) -> Path:
+def features_path(seq, path: Path, config, options: RunOptions, frames: int | None = None) -> Path:
     """Where the study keeps the extracted features of a sequence's first ``frames`` frames (default: all;
     ``d2slam.slam.features``): named after the sequence folder, its frame count and a digest of what an extraction
     depends on (ORB and engine settings, camera, OpenCV version, the frame and data code), under
     ``<cache>/study/features`` (or ``<cache_root>/features``)."""
-    import cv2
-
     cam = seq.camera
     ident = {"orb": dataclasses.asdict(config.orb), "engine": dataclasses.asdict(config.engine),
              "camera": [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.bf, cam.depth_factor,
@@ -257,20 +271,15 @@ def features_path(seq, path: Path, config, options: dict, frames: int | None = N
     return features_dir(options) / f"{Path(path).resolve().name}_n{n}-{digest(ident)}.npz"
 
 
-def features_dir(options: dict) -> Path:
+def features_dir(options: RunOptions) -> Path:
     """The folder of the study's feature files: ``<cache>/study/features`` (or ``<cache_root>/features``)."""
-    from d2slam.paths import cache_dir
-
-    return Path(options["cache_root"]) / "features" if options.get("cache_root") else cache_dir("study", "features")
+    return Path(options.cache_root) / "features" if options.cache_root else cache_dir("study", "features")
 
 
-def _features(seq, path: Path, config, options: dict, frames: int | None = None):
+def _features(seq, path: Path, config, options: RunOptions, frames: int | None = None):
     """(features for ``run_sequence``, where to save them afterwards or None): the cached features of the sequence's
     first ``frames`` frames when a run already saved them, else a recorder. A damaged cache file is said (one line)
     and replaced."""
-    from d2slam.cachefiles import Damaged, report_damaged
-    from d2slam.slam.features import CachedFeatures, FeatureRecorder
-
     n = len(seq) if frames is None else frames
     target = features_path(seq, path, config, options, n)
     if target.is_file():
@@ -284,19 +293,16 @@ def _features(seq, path: Path, config, options: dict, frames: int | None = None)
     return FeatureRecorder(), target
 
 
-def _run_orbslam3(spec: RunSpec, path: Path, options: dict) -> RunRecord:
-    from d2slam.baselines.orbslam3 import run_orbslam3
-    from d2slam.methods import get_method, mask_kind
-
+def _run_orbslam3(spec: RunSpec, path: Path, options: RunOptions) -> RunRecord:
     config = _config(spec, options)
-    repeats = int(options.get("orbslam3_repeats") or config.baseline.orbslam3_repeats)
+    repeats = int(options.orbslam3_repeats or config.baseline.orbslam3_repeats)
     masks = None
     if spec.method == ORBSLAM3_MASKED:  # the study's --masks, else the real segmenter's
-        masks = mask_kind(get_method(spec.method), options["masks"], synthetic=spec.source == "synth")
+        masks = mask_kind(get_method(spec.method), options.masks, synthetic=_has_truth(spec))
     with tempfile.TemporaryDirectory(prefix="d2slam_study_orbslam3_") as tmp:
         return run_orbslam3(path, Path(tmp) / "orbslam3.txt", repeats=repeats, config=config, progress=False,
                             max_frames=spec.frames if spec.source != "synth" else 0,
-                            timeout=options.get("orbslam3_timeout"), masks=masks)
+                            timeout=options.orbslam3_timeout, masks=masks)
 
 
 def _message(exc: BaseException) -> str:
@@ -314,14 +320,10 @@ class _single_threaded:
     oversubscribe the cores."""
 
     def __enter__(self):
-        import cv2
-
         self._prev = cv2.getNumThreads()
         cv2.setNumThreads(1)
         return self
 
     def __exit__(self, *exc):
-        import cv2
-
         cv2.setNumThreads(self._prev)
         return False

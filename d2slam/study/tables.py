@@ -16,16 +16,23 @@ import math
 import numpy as np
 import pandas as pd
 
-from d2slam.config import DEFAULT, EvalConfig
+from d2slam.config import DEFAULT
+from d2slam.eval.config import EvalConfig
+from d2slam.eval.fragment import is_fragment
 from d2slam.outputs import staged_file
-from d2slam.record import is_fragment
-from d2slam.study.grid import (BASELINE, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS, LOOP_SCENARIOS, ORACLE,
-                               REAL_SCENARIOS,
+from d2slam.study.grid import (BASELINE, COMPOSITE_SCENARIOS, FR3_SCENARIOS, FULL, INTERACTION_SCENARIOS, LABELS,
+                               LOOP_SCENARIOS, ORACLE, REAL_SCENARIOS,
                                ORBSLAM3, ORBSLAM3_MASKED, REPEATED, SCENARIOS)
 from d2slam.study.improvement import improvement, improvement_table, metric_matrix  # noqa: F401 - the tables' API
 from d2slam.study.improvement import methods_of as _methods
 from d2slam.study.improvement import nanmedian as _nanmedian
 from d2slam.study.improvement import scenarios_of as _scenarios
+import json
+from d2slam.errors import D2SlamError
+from d2slam.study.calibration import calibration_checks, calibration_markdown, calibration_table
+from d2slam.study.grid import RunSpec
+from d2slam.study.paper import published_real
+from pathlib import Path
 
 # runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
 KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source", "loop_closing"]
@@ -35,8 +42,8 @@ RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp
                                    "kp_static_precision", "kp_object_recall", "kp_object_keypoints", "frames_tracked",
                                    "frames_lost", "tracked_share", "fragment", "keyframes", "map_points", "loops",
                                    "loops_true", "loops_false", "loop_closest_ratio"]
-# tracked_share: frames_tracked over the frames the run went through (``frames`` is the grid's, 0 = all); fragment:
-# 1 when that share is below EvalConfig.min_tracked_share (d2slam.record.is_fragment: its errors are over the tracked
+# tracked_share: frames_tracked over the frames the run went through (``frames`` is the grid's, 0 = all); fragment: 1
+# when that share is below EvalConfig.min_tracked_share (d2slam.run.record.is_fragment: its errors are over the tracked
 # part only). loops: detected by the engine's loop closing, true / false against the ground truth; loop_closest_ratio:
 # the score of the wrong place-recognition candidate that went furthest over its keyframe's minimum score
 # (d2slam.eval.loops).
@@ -97,8 +104,6 @@ def read_runs_csv(path) -> pd.DataFrame:
             df[c] = np.nan
     missing = [c for c in RUN_COLUMNS if c not in df.columns]
     if missing:
-        from d2slam.errors import D2SlamError
-
         raise D2SlamError(f"not a study runs.csv: missing columns {', '.join(missing)}", path=path)
     return runs_frame(df.to_dict("records"))
 
@@ -134,7 +139,7 @@ def write_summary_csv(summary: pd.DataFrame, path) -> None:
 # ------------------------------------------------------------------------------------------------------------
 # Paper-format tables
 # ------------------------------------------------------------------------------------------------------------
-# Cells whose runs tracked less than this share of their frames (median over seeds; d2slam.record.is_fragment) get a
+# Cells whose runs tracked less than this share of their frames (median over seeds; d2slam.run.record.is_fragment) get a
 # dagger: EvalConfig.min_tracked_share, the rule `d2slam run` applies to one run.
 TRACKED_FLAG = DEFAULT.evaluation.min_tracked_share
 DAGGER = " †"
@@ -532,11 +537,47 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
     seeds = sorted(set(int(s) for s in df["seed"]))
     frames = sorted(set(int(f) for f in df["frames"]))
     real = df[df["scenario"].isin(REAL_SCENARIOS)]
-    df = df[~df["scenario"].isin(REAL_SCENARIOS)]
-    if df.empty:  # real recordings only
-        return "\n".join(["# D2SLAM study: results", "", "## Real recordings", "", REAL_NOTE, "",
-                          real_markdown(real, methods), "", "## Runs without metrics", "",
-                          failures_markdown(real), ""])
+    comp = df[df["scenario"].isin(COMPOSITE_SCENARIOS)]
+    df = df[~df["scenario"].isin(REAL_SCENARIOS + COMPOSITE_SCENARIOS)]
+    if df.empty:  # real recordings (and the composites into them) only
+        return "\n".join(["# D2SLAM study: results"] + _recordings_markdown(real, comp, methods)
+                         + ["", "## Runs without metrics", "", failures_markdown(pd.concat([real, comp])), ""])
+    out = _header_markdown(df, methods, seeds, frames, manifest)
+    loops = df[df["scenario"].isin(LOOP_SCENARIOS)]
+    df = df[~(df["scenario"].isin(LOOP_SCENARIOS) & (df["loop_closing"] == 0))]  # the others: loop closing on
+    have_orb = ORBSLAM3 in methods and np.isfinite(df[df["method"] == ORBSLAM3]["ate_rmse_m"]).any()
+    ours = df[df["scenario"].isin(INTERACTION_SCENARIOS)]
+    df_all, df = df, df[~df["scenario"].isin(INTERACTION_SCENARIOS + LOOP_SCENARIOS)]  # the paper's: fr3
+    out += _metric_tables_markdown(df, methods, have_orb)
+    out += _ours_markdown(ours, loops, df_all, methods)
+    out += _twins_markdown(df_all, methods)
+    out += ["", "## Frames tracked (%), median over seeds", "",
+            "ATE and RPE are computed on the tracked frames only (the TUM convention); a method that loses track "
+            "early can show a small error over a short trajectory: read the errors with this table.", "",
+            tracking_markdown(df_all, methods)]
+    out += ["", "## Dynamic-keypoint classification: F1 (precision / recall), medians over seeds", "",
+            keypoint_markdown(df_all, methods)]
+    out += _recordings_markdown(real, comp, methods)
+    out += ["", "## Runs without metrics", "", failures_markdown(pd.concat([df_all, real, comp])), ""]
+    return "\n".join(out)
+
+
+def _recordings_markdown(real: pd.DataFrame, comp: pd.DataFrame, methods: list[str] | None) -> list[str]:
+    """The sections of the real recordings (``real``) and of the people composited into them (``comp``), those that
+    have runs."""
+    out = []
+    if not real.empty:
+        out += ["", "## Real recordings", "", REAL_NOTE, "", real_markdown(real, methods)]
+    if not comp.empty:
+        out += ["", "## Real background: people composited into a real recording", "", COMPOSITE_NOTE, "",
+                real_background_markdown(comp, methods)]
+    return out
+
+
+def _header_markdown(df: pd.DataFrame, methods: list[str], seeds: list[int], frames: list[int],
+                     manifest: dict | None) -> list[str]:
+    """The title and what the tables are made of: the sequences (``df``: the synthetic or fr3 runs), the seeds and
+    frames of every run, the conventions, the config and code."""
     src = "real TUM RGB-D" if (df["source"] == "tum").all() else "synthetic TUM-like"
     out = ["# D2SLAM study: results", "",
            f"Sequences: {src}, {', '.join(_frames_label(f) for f in frames)} frames; seeds "
@@ -554,14 +595,14 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
     if manifest:
         out.append(f"Config hash `{manifest.get('config_hash', '')}`, git `{manifest.get('git', {}).get('commit', '')}`"
                    f", generator `{manifest.get('generator_version', '')}`.")
-    loops = df[df["scenario"].isin(LOOP_SCENARIOS)]
-    df = df[~(df["scenario"].isin(LOOP_SCENARIOS) & (df["loop_closing"] == 0))]  # the others: loop closing on
-    have_orb = ORBSLAM3 in methods and np.isfinite(df[df["method"] == ORBSLAM3]["ate_rmse_m"]).any()
-    ours = df[df["scenario"].isin(INTERACTION_SCENARIOS)]
-    df_all, df = df, df[~df["scenario"].isin(INTERACTION_SCENARIOS + LOOP_SCENARIOS)]  # the paper's: fr3
-    n = 0
-    for metric in METRIC_COLUMNS:
-        n += 1
+    return out
+
+
+def _metric_tables_markdown(df: pd.DataFrame, methods: list[str], have_orb: bool) -> list[str]:
+    """Tables 1-3 (ATE, RPE translation and rotation) on the paper's fr3 scenarios: the improvement over ``none``
+    and (when it ran) over ORB-SLAM3, the absolute values, and the benchmark against the published record."""
+    out = []
+    for n, metric in enumerate(METRIC_COLUMNS, start=1):
         title, unit = TITLES[metric], UNITS[metric]
         out += ["", f"## Table {n}: {title} ({unit}), improvement over `{BASELINE}`", ""]
         if BASELINE in methods:
@@ -574,8 +615,6 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
         out += ["", f"### Table {n}c: {title} ({unit}), absolute: median [min, max] over seeds", "",
                 absolute_markdown(df, metric, 0, methods)]
     if have_orb and df["scenario"].isin(FR3_SCENARIOS).any():
-        from d2slam.study.calibration import calibration_checks, calibration_markdown, calibration_table
-
         cal = calibration_table(df)
         if not cal.empty:
             out += ["", "## The benchmark against the published record on the real fr3 sequences", "",
@@ -583,6 +622,12 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
                     "over seeds) beside the published values on the real TUM sequences (`d2slam bench calibration`; "
                     "d2slam.study.calibration).", "", calibration_markdown(cal), ""]
             out += [f"- {label}: {what}: {'met' if ok else 'not met'}" for label, what, ok in calibration_checks(cal)]
+    return out
+
+
+def _ours_markdown(ours: pd.DataFrame, loops: pd.DataFrame, df_all: pd.DataFrame, methods: list[str]) -> list[str]:
+    """The scenarios beyond the paper's (people moving objects, the loop) and what the OIM buys."""
+    out = []
     if not ours.empty:
         out += ["", "## Interaction scenarios (ours): people moving objects", "",
                 "A person carries a box (`walking_carry`) or pushes a chair (`walking_push`) across the view while "
@@ -595,8 +640,13 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
                 "`d2slam` with and without the Object Interaction Module (eq 9-10): ATE (medians over seeds) and the "
                 "recall of the final classification on the keypoints of moved objects while they move (which the "
                 "masks do not cover) and on every dynamic keypoint.", "", oim_markdown(df_all)]
-    df = df_all
+    return out
+
+
+def _twins_markdown(df: pd.DataFrame, methods: list[str]) -> list[str]:
+    """The static twins' ATE, each method's ATE over the twin's, the targets run by run, and the occluded twin."""
     occluded = _has_occluded(df)
+    out = []
     if (df["twin"] == 1).any():
         out += ["", "## Static twins: ATE (m), absolute", ""]
         if occluded:
@@ -618,16 +668,7 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
         out += ["", "## ATE relative to the occluded twin", "", OCCLUDED_NOTE, "",
                 "Median ATE of each method on the dynamic sequence / median ATE of the occluded twin; in brackets "
                 "the range of the per-seed ratios.", "", occluded_markdown(df, [m for m in methods])]
-    out += ["", "## Frames tracked (%), median over seeds", "",
-            "ATE and RPE are computed on the tracked frames only (the TUM convention); a method that loses track "
-            "early can show a small error over a short trajectory: read the errors with this table.", "",
-            tracking_markdown(df, methods)]
-    out += ["", "## Dynamic-keypoint classification: F1 (precision / recall), medians over seeds", "",
-            keypoint_markdown(df, methods)]
-    if not real.empty:
-        out += ["", "## Real recordings", "", REAL_NOTE, "", real_markdown(real, methods)]
-    out += ["", "## Runs without metrics", "", failures_markdown(pd.concat([df, real])), ""]
-    return "\n".join(out)
+    return out
 
 
 REAL_NOTE = ("The real TUM fr1/rpy (723 frames of a Kinect turning fast about its own axes, with blur and lens "
@@ -641,8 +682,6 @@ REAL_NOTE = ("The real TUM fr1/rpy (723 frames of a Kinect turning fast about it
 def real_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
     """The real recordings: per method, frames tracked, ATE (m; ORB-SLAM3: median [min, max] of its repeats), ATE
     over `none`'s, RPE and ms per frame; then the published ATE of other systems on the same recordings."""
-    from d2slam.study.paper import published_real
-
     rows = []
     for scenario in [s for s in REAL_SCENARIOS if s in set(df["scenario"])]:
         d = df[df["scenario"] == scenario]
@@ -662,6 +701,48 @@ def real_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
             rows.append([LABELS.get(scenario, scenario), f"{p['method']} (published: {p['source']})", "",
                          _num(float(p["ate_rmse_m"]), 3), "", "", ""])
     return _md(["sequence", "method", "frames tracked", "ATE (m)", "ATE / `none`", "RPE (m)", "ms / frame"], rows)
+
+
+COMPOSITE_NOTE = ("The benchmark's people composited into the whole real fr1/rpy (`d2slam synth real_walking --on`; "
+                  "docs/real_people.md): the background, the sensor and the camera motion are real, the people and "
+                  "their per-pixel truth ours; one composite per seed. Its twins are the real recording itself: "
+                  "`none` and `d2slam` on it, and the occluded twin, `oracle` on it with the composite's truth as its "
+                  "masks (the people's silhouettes cut out of the real frames: what occlusion alone costs). ATE (m): "
+                  "median [min, max] over seeds (`orbslam3`, `orbslam3-masked`: each seed's the median of its "
+                  "repeats); ATE / occluded twin: the per-seed ratios, median [min, max]. Target: `d2slam` within "
+                  f"{TARGET_ATE_TWIN:g}x the occluded twin on every run; `none` and the real ORB-SLAM3 beside it "
+                  "measure what handling the dynamics is worth on a real background.")
+
+
+def real_background_markdown(df: pd.DataFrame, methods: list[str] | None = None) -> str:
+    """The composites (``COMPOSITE_SCENARIOS``): per sequence, the twins on the real recording (``none``,
+    ``d2slam``, the occluded twin), then every method on the composite: frames tracked (median share), ATE (median
+    [min, max] over seeds), ATE over the same seed's occluded twin; then the target line of ``d2slam``."""
+    rows, lines = [], []
+    for scenario in [s for s in COMPOSITE_SCENARIOS if s in set(df["scenario"])]:
+        d = df[df["scenario"] == scenario]
+        occ = d[(d["twin"] == 1) & (d["method"] == ORACLE)].set_index("seed")["ate_rmse_m"]
+        label = LABELS.get(scenario, scenario)
+        for twin in (1, 0):
+            dt = d[d["twin"] == twin]
+            for m in [m for m in (methods or _methods(dt)) if m in set(dt["method"])]:
+                g = dt[dt["method"] == m]
+                ate = g["ate_rmse_m"].to_numpy(np.float64)
+                ratios = [float(a) / float(occ[sd]) if sd in occ.index and float(occ[sd]) > 0 else np.nan
+                          for sd, a in zip(g["seed"], ate)]
+                what = (f"real recording: `{m}`" + (" (occluded twin)" if m == ORACLE else "")) if twin else f"`{m}`"
+                share = tracked_fraction(d, scenario, m, twin)
+                rows.append([label, what, _num(100 * share, 1) + _flag(d, scenario, m, twin),
+                             spread_cell(ate, 4), spread_cell(ratios, 2)])
+        g = d[(d["twin"] == 0) & (d["method"] == FULL)]
+        if len(g) and len(occ):
+            r = np.array([float(a) / float(occ[sd]) if sd in occ.index else np.nan
+                          for sd, a in zip(g["seed"], g["ate_rmse_m"])])
+            ok = int((r <= TARGET_ATE_TWIN).sum())
+            lines.append(f"- {label}: `{FULL}` within {TARGET_ATE_TWIN:g}x the occluded twin on {ok} of {len(r)} runs"
+                         f" ({', '.join(_num(v, 2, 'x') for v in r)}): {'met' if ok == len(r) else 'not met'}")
+    table = _md(["sequence", "method", "frames tracked (%)", "ATE (m)", "ATE / occluded twin"], rows)
+    return table + ("\n\n" + "\n".join(lines) if lines else "")
 
 
 LOOP_NOTE = ("`office_loop`: the camera walks one loop round the office, returns to where it started and goes on "
@@ -778,12 +859,6 @@ def read_run_records(out) -> list[dict]:
     """The per-run JSON records of a finished study (``out/runs/<run_id>.json``: run, row, keypoints, stage_ms), in
     the order of ``out/runs.csv``. A run whose record is missing is skipped; an unreadable one is a D2SlamError
     naming the file."""
-    import json
-    from pathlib import Path
-
-    from d2slam.errors import D2SlamError
-    from d2slam.study.grid import RunSpec
-
     out = Path(out)
     df = read_runs_csv(out / "runs.csv")
     records = []

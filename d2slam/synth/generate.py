@@ -34,14 +34,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 from zlib_ng import zlib_ng
+
 from d2slam import __version__
-from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
-from d2slam.progress import progress as _progress
-from d2slam.synth.scene import Scene
+from d2slam.progress import PROGRESS, progress as _progress
+from d2slam.synth.composite import composite_groundtruth
+from d2slam.synth.compositing import render_composite_frame
+from d2slam.synth.config import SynthConfig
+from d2slam.synth.rigid import pose_rows
+from d2slam.synth.scene import COMPOSITE_SCENARIOS, Scene
 from d2slam.synth.segsim import simulate_segmenter
 from d2slam.synth.sensor import depth_to_png, rgb_sensor
-from d2slam.synth.rigid import pose_rows
 from d2slam.synth.twin import render_twin_frame, twin_groundtruth
 from d2slam.synth.world import WorldRenderer
 
@@ -78,6 +81,8 @@ def render_frame(scene: Scene, renderer: WorldRenderer, i: int) -> dict:
     mask_gt, mask_sim (uint8), plus the wall time (``ms``) and the CPU time of this process (``cpu_ms``: its OpenGL
     rasteriser threads included) of each stage: posing the bodies (``bodies``), the two OpenGL passes (``gl``), the
     sensor model, the simulated segmenter."""
+    if scene.composite:
+        return render_composite_frame(scene, renderer, i)
     if scene.recording is not None:
         return render_twin_frame(scene, renderer, i)
     cfg = scene.cfg
@@ -89,8 +94,9 @@ def render_frame(scene: Scene, renderer: WorldRenderer, i: int) -> dict:
     clock.lap("bodies")
     rgb, z, ids = renderer.draw(T)
     clock.lap("gl")
-    depth = depth_to_png(z, rngs[0], cfg)
-    zc = float(z[cfg.height // 2, cfg.width // 2])
+    cam = scene.intrinsics
+    depth = depth_to_png(z, rngs[0], cfg, camera=cam)
+    zc = float(z[int(cam.height) // 2, int(cam.width) // 2])
     rgb_out = rgb_sensor(rgb, blur_vector(scene, t, T, zc), rngs[1], cfg, bank_seed=scene.seed)
     clock.lap("sensor")
     sim = simulate_segmenter(ids, z, scene.person_ids, scene.K, rngs[2], cfg)
@@ -139,7 +145,7 @@ def png_bytes(img: np.ndarray, compression: int) -> bytes:
     return PNG_SIGNATURE + chunk(b"IHDR", head) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
 
 
-def _write(path: Path, img: np.ndarray, compression: int, labels: bool = False) -> None:
+def write_image(path: Path, img: np.ndarray, compression: int, labels: bool = False) -> None:
     """Write ``img`` (RGB order) as a PNG: the noisy images (RGB, depth) by :func:`png_bytes`, label images (masks)
     by OpenCV with zlib's default strategy and no filter (long runs of equal values: smaller, and faster to write
     and read than filtered)."""
@@ -160,10 +166,12 @@ def _frame_job(i: int) -> dict:
     comp = scene.cfg.png_compression
     name = stamp(scene.t0 + scene.t_rel[i]) + ".png"
     dname = stamp(scene.t0 + scene.t_rel[i] + scene.depth_offset[i]) + ".png"
-    _write(out / "rgb" / name, f["rgb"], comp)
-    _write(out / "depth" / dname, f["depth"], comp)
-    _write(out / "mask_gt" / name, f["mask_gt"], comp, labels=True)
-    _write(out / "mask_sim" / name, f["mask_sim"], comp, labels=True)
+    write_image(out / "rgb" / name, f["rgb"], comp)
+    write_image(out / "depth" / dname, f["depth"], comp)
+    write_image(out / "mask_gt" / name, f["mask_gt"], comp, labels=True)
+    write_image(out / "mask_sim" / name, f["mask_sim"], comp, labels=True)
+    if "mask_depth" in f:  # a composite: what its depth image shows (taken at another instant than its colour)
+        write_image(out / "mask_depth" / dname, f["mask_depth"], comp, labels=True)
     clock.lap("write")
     cpu_ms = 1e3 * (time.process_time() - cpu0)
     counts = np.bincount(f["mask_gt"].ravel(), minlength=256)
@@ -188,6 +196,8 @@ def _init_worker(args) -> None:
 def groundtruth(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(timestamps, (N, 7) tx ty tz qx qy qz qw) at ``gt_rate`` Hz on an absolute grid covering the frames (a twin:
     its recording's samples, ``twin_groundtruth``)."""
+    if scene.composite:
+        return composite_groundtruth(scene)
     if scene.recording is not None:
         return twin_groundtruth(scene)
     c = scene.cfg
@@ -198,8 +208,16 @@ def groundtruth(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return ts, pose_rows(scene.camera.poses(ts - scene.t0))
 
 
+def camera_json(cam) -> dict:
+    """``scene.json``'s ``camera``: the intrinsics, the image size and the depth factor."""
+    return {"fx": float(cam.fx), "fy": float(cam.fy), "cx": float(cam.cx), "cy": float(cam.cy),
+            "width": int(cam.width), "height": int(cam.height), "depth_factor": float(cam.depth_factor)}
+
+
 def scene_json(scene: Scene) -> dict:
     c = scene.cfg
+    if scene.composite:
+        return composite_scene_json(scene)
     if scene.recording is not None:
         return twin_scene_json(scene)
     return {
@@ -208,8 +226,7 @@ def scene_json(scene: Scene) -> dict:
         "seed": scene.seed,
         "frames": scene.frames,
         "static_twin": scene.static_twin,
-        "camera": {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height,
-                   "depth_factor": c.depth_factor},
+        "camera": camera_json(scene.intrinsics),
         "objects": scene.objects_info(),
         "person_ids": scene.person_ids,
         "moved_object_ids": scene.moved_object_ids,
@@ -223,6 +240,7 @@ def scene_json(scene: Scene) -> dict:
             "start_time": scene.t0,
             "duration": scene.duration,
             "config": dataclasses.asdict(c),
+            "depth_noise": dataclasses.asdict(scene.intrinsics.depth_noise),
         },
     }
 
@@ -232,8 +250,7 @@ def twin_scene_json(scene: Scene) -> dict:
     recording it follows (name, frames, the placement in the room)."""
     c, rec = scene.cfg, scene.recording
     cam = rec.camera
-    camera = {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height,
-              "depth_factor": c.depth_factor, "bf": float(cam.bf), "name": f"{cam.name}-twin"}
+    camera = {**camera_json(cam), "bf": float(cam.bf), "name": f"{cam.name}-twin"}
     if c.twin.distortion and cam.has_distortion:
         camera["dist"] = [float(v) for v in cam.dist]
     return {
@@ -248,18 +265,41 @@ def twin_scene_json(scene: Scene) -> dict:
                      "timestamps, through its camera with the lens distortion, the sensor of generator.config.twin. "
                      "Poses: T_world_camera of the optical centre, camera x right / y down / z forward, world Z up.",
             "start_time": scene.t0, "duration": scene.duration, "config": dataclasses.asdict(c),
+            "depth_noise": dataclasses.asdict(cam.depth_noise),
         },
     }
 
 
-def _prepare_out(out: Path) -> None:
+def composite_scene_json(scene: Scene) -> dict:
+    """``scene.json`` of a composite: the twin's keys (its camera with the lens distortion), its people and objects,
+    the recording it is composited into (name, frames) and that recording's room as measured
+    (``d2slam.synth.composite.RealRoom.summary``: the floor, the room frame the people were planned in, the free
+    space's areas)."""
+    out = twin_scene_json(scene)
+    c, rec = scene.cfg, scene.recording
+    out.update(static_twin=False, objects=scene.objects_info(), person_ids=scene.person_ids,
+               moved_object_ids=scene.moved_object_ids)
+    out["camera"]["name"] = f"{rec.camera.name}-composite"
+    out["recording"] = {"name": rec.name, "frames": len(rec),
+                        "room": scene.room.summary(c.composite.vis_min_coverage)}
+    out["generator"]["notes"] = (
+        "People composited into a real recording (d2slam.synth.compositing): rgb/ and depth/ are the recording's "
+        "images with the people rendered along its ground truth (in the room frame recording.room.room_frame, a 4x4 "
+        "applied to the recording's poses), at its RGB and depth timestamps, through its camera with the lens "
+        "distortion and the sensor of generator.config.twin, z-tested against its depth. groundtruth.txt is the "
+        "recording's, in its own world. mask_gt/: the ids in the colour image; mask_depth/ (named as depth/): the ids "
+        "the depth image shows. moving_intervals are in the clock of rgb.txt.")
+    return out
+
+
+def _prepare_out(out: Path, subdirs=SUBDIRS) -> None:
     if out.exists() and not out.is_dir():
         raise D2SlamError("output path exists and is not a folder", path=out)
     if out.exists() and any(out.iterdir()) and not (out / "scene.json").exists():
         raise D2SlamError("output folder is not empty and holds no synthetic sequence (scene.json); refusing to "
                           "overwrite it", path=out)
     out.mkdir(parents=True, exist_ok=True)
-    for d in SUBDIRS:  # a re-run replaces the previous sequence entirely
+    for d in subdirs:  # a re-run replaces the previous sequence entirely
         if (out / d).exists():
             shutil.rmtree(out / d)
         (out / d).mkdir()
@@ -274,13 +314,12 @@ def worker_count(frames: int, workers: int | None = None, cfg: SynthConfig | Non
 
 
 def estimated_seconds(frames: int, workers: int | None = None, cfg: SynthConfig | None = None,
-                      twin: bool = False) -> float:
-    """What generating ``frames`` frames should take (``CliConfig.synth_setup_s``, ``synth_frame_s``; a twin's:
-    ``synth_twin_frame_s``), announced before it starts."""
-    from d2slam.config import CLI
-
-    per_frame = CLI.synth_twin_frame_s if twin else CLI.synth_frame_s
-    return CLI.synth_setup_s + frames * per_frame / worker_count(frames, workers, cfg)
+                      twin: bool = False, scenario: str | None = None) -> float:
+    """What generating ``frames`` frames should take (``ProgressConfig.synth_setup_s``, ``synth_frame_s``; a twin's:
+    ``synth_twin_frame_s``; a composite's: ``synth_composite_frame_s``), announced before it starts."""
+    per_frame = PROGRESS.synth_composite_frame_s if scenario in COMPOSITE_SCENARIOS else \
+        PROGRESS.synth_twin_frame_s if twin else PROGRESS.synth_frame_s
+    return PROGRESS.synth_setup_s + frames * per_frame / worker_count(frames, workers, cfg)
 
 
 def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, static_twin: bool = False,
@@ -294,13 +333,29 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
     scene = Scene(scenario, seed, frames, static_twin, cfg, recording)
     frames, static_twin = scene.frames, scene.static_twin
     t_scene = time.perf_counter() - t_start
-    _prepare_out(out)
+    _prepare_out(out, SUBDIRS + (("mask_depth",) if scene.composite else ()))
+    n_gt = _write_lists(scene, out, scenario, seed, recording)
+    n_workers = worker_count(frames, workers, cfg)
+    t_frames = time.perf_counter()
+    stats = _render_frames(scene, out, n_workers, progress, (scenario, seed, frames, static_twin, cfg, str(out),
+                                                            recording))
+    wall = time.perf_counter() - t_start
+    frames_wall = time.perf_counter() - t_frames
+    return {"out": out, "scenario": scenario, "seed": seed, "frames": frames, "static_twin": static_twin,
+            "workers": n_workers, "person_ids": scene.person_ids, "moved_object_ids": scene.moved_object_ids,
+            "objects": scene.objects_info(), "stats": stats, "seconds": wall, "seconds_frames": frames_wall,
+            "seconds_scene": t_scene, "gt_poses": n_gt}
+
+
+def _write_lists(scene: Scene, out: Path, scenario: str, seed: int, recording) -> int:
+    """``rgb.txt``, ``depth.txt``, ``groundtruth.txt`` (TUM's comment lines first) and ``scene.json`` of ``scene``
+    into ``out``; returns the ground truth's sample count."""
     stamps = [stamp(scene.t0 + t) for t in scene.t_rel]
     dstamps = [stamp(scene.t0 + t + d) for t, d in zip(scene.t_rel, scene.depth_offset)]
     if len(set(stamps)) != len(stamps):
         raise D2SlamError("duplicate frame timestamps (frame_jitter too large for fps)")
     on = f" on {recording.name}" if recording is not None else ""
-    head = f"# file: 'd2slam-synth {scenario}{on} seed {seed}{' static twin' if static_twin else ''}'\n"
+    head = f"# file: 'd2slam-synth {scenario}{on} seed {seed}{' static twin' if scene.static_twin else ''}'\n"
     (out / "rgb.txt").write_text("# color images\n" + head + "# timestamp filename\n"
                                  + "".join(f"{s} rgb/{s}.png\n" for s in stamps))
     (out / "depth.txt").write_text("# depth maps\n" + head + "# timestamp filename\n"
@@ -311,36 +366,32 @@ def generate(scenario: str, out: str | Path, frames: int = 300, seed: int = 0, s
     (out / "groundtruth.txt").write_text("# ground truth trajectory\n" + head
                                          + "# timestamp tx ty tz qx qy qz qw\n" + lines)
     (out / "scene.json").write_text(json.dumps(scene_json(scene), indent=1) + "\n")
+    return len(ts)
 
-    n_workers = worker_count(frames, workers, cfg)
+
+def _render_frames(scene: Scene, out: Path, n_workers: int, progress: bool, scene_args: tuple) -> list:
+    """Render and write every frame of ``scene`` into ``out`` (``_frame_job``), here or on ``n_workers`` processes
+    that rebuild the scene from ``scene_args``; the per-frame stats."""
+    frames = scene.frames
     renderer = WorldRenderer(scene) if n_workers == 1 else None  # workers make their own OpenGL contexts
     _STATE.clear()
     _STATE.update(scene=scene, renderer=renderer, out=out)
-    bar = dict(total=frames, desc=f"synth {scenario}{' (static twin)' if static_twin else ''}", unit="frame",
-               enabled=progress)
-    t_frames = time.perf_counter()
+    bar = dict(total=frames, desc=f"synth {scene.scenario}{' (static twin)' if scene.static_twin else ''}",
+               unit="frame", enabled=progress)
     try:
         if n_workers == 1:
             prev = cv2.getNumThreads()
             cv2.setNumThreads(1)
             try:
-                stats = [_frame_job(i) for i in _progress(range(frames), **bar)]
+                return [_frame_job(i) for i in _progress(range(frames), **bar)]
             finally:
                 cv2.setNumThreads(prev)
-        else:
-            # spawn, not fork: a forked child inherits OpenCV's (possibly locked) thread pool and can hang;
-            # each worker rebuilds the scene from its arguments, which is deterministic
-            ctx = mp.get_context("spawn")
-            initargs = ((scenario, seed, frames, static_twin, cfg, str(out), recording),)
-            with ctx.Pool(n_workers, initializer=_init_worker, initargs=initargs) as pool:
-                stats = list(_progress(pool.imap(_frame_job, range(frames), chunksize=2), **bar))
+        # spawn, not fork: a forked child inherits OpenCV's (possibly locked) thread pool and can hang; each worker
+        # rebuilds the scene from its arguments, which is deterministic
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(n_workers, initializer=_init_worker, initargs=(scene_args,)) as pool:
+            return list(_progress(pool.imap(_frame_job, range(frames), chunksize=2), **bar))
     finally:
         _STATE.clear()
         if renderer is not None:
             renderer.close()
-    wall = time.perf_counter() - t_start
-    frames_wall = time.perf_counter() - t_frames
-    return {"out": out, "scenario": scenario, "seed": seed, "frames": frames, "static_twin": static_twin,
-            "workers": n_workers, "person_ids": scene.person_ids, "moved_object_ids": scene.moved_object_ids,
-            "objects": scene.objects_info(), "stats": stats, "seconds": wall, "seconds_frames": frames_wall,
-            "seconds_scene": t_scene, "gt_poses": len(ts)}

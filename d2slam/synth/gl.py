@@ -76,8 +76,9 @@ def _reader_class(pr):
                 GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
                 GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
                 GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
-                colour = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE), np.uint8)
-                return colour.reshape(h, w, 3)[::-1], None
+                fmt, ch = (GL.GL_RGBA, 4) if getattr(self, "d2slam_alpha", False) else (GL.GL_RGB, 3)
+                colour = np.frombuffer(GL.glReadPixels(0, 0, w, h, fmt, GL.GL_UNSIGNED_BYTE), np.uint8)
+                return colour.reshape(h, w, ch)[::-1], None
             GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
             ids = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_RED, GL.GL_UNSIGNED_BYTE), np.uint8)
             d = np.frombuffer(GL.glReadPixels(0, 0, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT), np.float32)
@@ -93,10 +94,12 @@ def _reader_class(pr):
 
 
 class GLRenderer:
-    """Offscreen renderer of a pinhole camera ``K`` (``width`` x ``height``) with a texture ``atlas`` (uint8 RGB)."""
+    """Offscreen renderer of a pinhole camera ``K`` (``width`` x ``height``) with a texture ``atlas`` (uint8 RGB).
+    ``alpha``: the colour pass gives RGBA over a transparent background, the alpha the share of a pixel's samples
+    that a surface covers (the layer of people composited into a real image, ``d2slam.synth.compositing``)."""
 
     def __init__(self, K: np.ndarray, width: int, height: int, atlas: np.ndarray, near: float = 0.05,
-                 far: float = 20.0, threads: int = 1):
+                 far: float = 20.0, threads: int = 1, alpha: bool = False):
         # llvmpipe's rasteriser threads (read when the context is created; renders do not depend on it)
         os.environ.setdefault("LP_NUM_THREADS", str(int(threads)))
         pr = import_pyrender()
@@ -108,7 +111,8 @@ class GLRenderer:
             raise D2SlamError(f"cannot create an offscreen OpenGL context with {PLATFORM_ENV}="
                               f"{os.environ.get(PLATFORM_ENV)} ({type(e).__name__}: {e}); {CONTEXT_HELP}") from None
         self.renderer._renderer.__class__ = _reader_class(pr)
-        self.scene = pr.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[1.0, 1.0, 1.0])
+        self.renderer._renderer.d2slam_alpha = bool(alpha)
+        self.scene = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0 if alpha else 1.0], ambient_light=[1.0, 1.0, 1.0])
         cam = pr.IntrinsicsCamera(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), znear=near,
                                   zfar=far)
         self.cam_node = self.scene.add(cam, pose=np.eye(4))
@@ -149,7 +153,7 @@ class GLRenderer:
         return rgb, depth, ids
 
     def render_colour(self, T_world_camera: np.ndarray) -> np.ndarray:
-        """The colour pass alone: ``rgb`` (H, W, 3) uint8."""
+        """The colour pass alone: ``rgb`` (H, W, 3) uint8 (with ``alpha``: RGBA (H, W, 4))."""
         self.scene.set_pose(self.cam_node, np.asarray(T_world_camera, float) @ _GL_FROM_CV)
         rgb, _ = self.renderer.render(self.scene, flags=self.pr.RenderFlags.FLAT)
         return np.ascontiguousarray(rgb)

@@ -23,8 +23,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from d2slam.config import DEFAULT, Config, SynthConfig, SynthEvalConfig
+from d2slam.data.base import RGBDFrame
 from d2slam.errors import D2SlamError
+from d2slam.ranges import AnyConfig, part_of
+from d2slam.segmentation import get_segmenter
+from d2slam.slam.config import EngineConfig, OrbConfig
+from d2slam.slam.frame import OrbExtractor
+from d2slam.synth.config import SYNTH_CAMERA, SynthConfig, SynthEvalConfig
+from d2slam.synth.generate import render_frame
+from d2slam.synth.scene import Scene
+from d2slam.synth.world import WorldRenderer
 
 MIN_AREA = 0.05  # frames with less mask than this (a sliver at the border) have no meaningful ratio
 
@@ -59,16 +67,10 @@ def ratio(kp: np.ndarray, area: np.ndarray) -> np.ndarray:
     return kp[ok] / area[ok]
 
 
-def extractor(camera=None, config: Config | None = None):
-    """The engine's ORB extractor (ORB-SLAM settings) for a 640x480 fr3-like camera."""
-    from d2slam.data.base import Camera
-    from d2slam.slam.frame import OrbExtractor
-
-    cfg = config or DEFAULT
-    if camera is None:
-        s = cfg.synth
-        camera = Camera(s.fx, s.fy, s.cx, s.cy, s.width, s.height)
-    return OrbExtractor(cfg.orb, cfg.engine, camera)
+def extractor(camera=None, config: AnyConfig | None = None):
+    """The engine's ORB extractor (ORB-SLAM settings) for ``camera`` (default the synthetic one, freiburg3's)."""
+    camera = camera or SYNTH_CAMERA
+    return OrbExtractor(part_of(config, "orb", OrbConfig), part_of(config, "engine", EngineConfig), camera)
 
 
 def keypoints_on(kps: np.ndarray, masks: list[np.ndarray]) -> list[float]:
@@ -108,14 +110,10 @@ def sample_indices(frames: int, stride: int) -> np.ndarray:
 
 
 def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: int = 10,
-                    cfg: SynthConfig | None = None, config: Config | None = None, ext=None) -> FrameStats:
+                    cfg: SynthConfig | None = None, config: AnyConfig | None = None, ext=None) -> FrameStats:
     """Person / dynamic statistics of every ``stride``-th frame of a synthetic sequence (rendered in memory)."""
-    from d2slam.synth.generate import render_frame
-    from d2slam.synth.scene import Scene
-    from d2slam.synth.world import WorldRenderer
 
-    config = config or DEFAULT
-    cfg = cfg or config.synth
+    cfg = cfg or part_of(config, "synth", SynthConfig)
     scene = Scene(scenario, seed, frames, False, cfg)
     renderer = WorldRenderer(scene)
     ext = ext or extractor(config=config)
@@ -130,23 +128,20 @@ def synthetic_stats(scenario: str, seed: int = 101, frames: int = 300, stride: i
         dyn_lut[[o.oid for o in scene.objects if o.moving(t)]] = True
         masks = [person_lut[f["mask_gt"]], dyn_lut[f["mask_gt"]]]
         gray = cv2.cvtColor(f["rgb"], cv2.COLOR_RGB2GRAY)
-        areas, kps, n = frame_stats(gray, f["depth"].astype(np.float32) / cfg.depth_factor, masks, ext)
-        rows.append((areas[0], kps[0], n, areas[1], kps[1], *texture_stats(gray, config.synth_eval)))
+        areas, kps, n = frame_stats(gray, f["depth"].astype(np.float32) / scene.intrinsics.depth_factor, masks, ext)
+        texture = texture_stats(gray, part_of(config, "synth_eval", SynthEvalConfig))
+        rows.append((areas[0], kps[0], n, areas[1], kps[1], *texture))
     renderer.close()
     a = np.array(rows, float).reshape(-1, 7)
     return FrameStats(f"{scenario} seed {seed}", idx, a[:, 0], a[:, 1], a[:, 2].astype(int), dyn_area=a[:, 3],
                       dyn_kp=a[:, 4], textured=a[:, 5], corners=a[:, 6].astype(int))
 
 
-def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, ext=None) -> FrameStats:
+def real_stats(paths: list[Path], segmenter=None, config: AnyConfig | None = None, ext=None) -> FrameStats:
     """Person statistics of real RGB frames (no depth needed), persons from ``segmenter`` (default: ONNX)."""
-    from d2slam.data.base import RGBDFrame
-
     if not paths:
         raise D2SlamError("no real frames to measure")
     if segmenter is None:
-        from d2slam.segmentation import get_segmenter
-
         segmenter = get_segmenter("onnx", config=config)
     ext = ext or extractor(config=config)
     rows = []
@@ -162,7 +157,7 @@ def real_stats(paths: list[Path], segmenter=None, config: Config | None = None, 
             mask |= inst.mask
         gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         areas, kps, n = frame_stats(gray, depth, [mask], ext)
-        rows.append((areas[0], kps[0], n, *texture_stats(gray, (config or DEFAULT).synth_eval)))
+        rows.append((areas[0], kps[0], n, *texture_stats(gray, part_of(config, "synth_eval", SynthEvalConfig))))
     a = np.array(rows, float)
     return FrameStats("TUM fr3 (real, ONNX masks)", np.arange(len(paths)), a[:, 0], a[:, 1], a[:, 2].astype(int),
                       textured=a[:, 3], corners=a[:, 4].astype(int))

@@ -17,6 +17,7 @@ The loop is over quads (a few hundred per frame), never over pixels. Pixel centr
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -161,8 +162,18 @@ class Renderer:
             quads = QuadSet.from_quads(quads)
         if len(quads) == 0:
             return rgb, invz, ids
+        view = self._project(quads, T_world_camera)
+        for i in view.order:
+            self._draw(quads, view, int(i), rgb, invz, ids)
+        return rgb, invz, ids
+
+    def _project(self, quads: QuadSet, T_world_camera: np.ndarray) -> SimpleNamespace:
+        """Every quad in the camera frame (origin ``Oc``, edges ``Uc``, ``Vc``, normal ``nc``, plane offset ``dd``,
+        corners ``P`` with depths ``z``, pixels ``u``, ``v``; ``full``: all corners ahead of the near plane) and the
+        visible ones front to back (``order``)."""
+        H, W = self.height, self.width
         R, C = T_world_camera[:3, :3], T_world_camera[:3, 3]
-        K, Kinv, near = self.K, self.Kinv, self.near
+        K, near = self.K, self.near
         fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
         Oc = (quads.O - C) @ R  # == (R^T (O - C))^T
         Uc, Vc = quads.U @ R, quads.V @ R
@@ -180,47 +191,53 @@ class Renderer:
         inside = (~full) | ((u.max(1) >= 0) & (u.min(1) < W) & (v.max(1) >= 0) & (v.min(1) < H))
         order = np.flatnonzero(cand & inside)
         order = order[np.argsort(z[order].min(axis=1), kind="stable")]
-        u_img, v_img = self._u, self._v
-        for i in order:
-            if full[i]:
-                uu, vv, zi = u[i], v[i], z[i]
-            else:
-                Pi = _clip_near(P[i], near)
-                if len(Pi) == 0:
-                    continue
-                uu = fx * Pi[:, 0] / Pi[:, 2] + cx
-                vv = fy * Pi[:, 1] / Pi[:, 2] + cy
-                zi = Pi[:, 2]
-            x0, x1 = max(int(np.floor(uu.min())), 0), min(int(np.ceil(uu.max())) + 1, W)
-            y0, y1 = max(int(np.floor(vv.min())), 0), min(int(np.ceil(vv.max())) + 1, H)
-            if x1 <= x0 or y1 <= y0:
-                continue
-            w, h = x1 - x0, y1 - y0
-            cov = np.zeros((h, w), np.uint8)
-            pts = np.round(np.stack([uu - x0, vv - y0], axis=1) * 16.0).astype(np.int32)
-            cv2.fillConvexPoly(cov, pts, 1, cv2.LINE_8, 4)
-            # inverse depth, affine in (u, v) on the plane
-            a = (nc[i] @ Kinv) / dd[i]
-            iz = (np.float32(a[0]) * u_img[x0:x1])[None, :] + (np.float32(a[1]) * v_img[y0:y1] + np.float32(a[2]))[:, None]
-            # on the polygon 1/z lies between its vertices' values; rasterised edge pixels just outside a
-            # near edge-on quad would extrapolate far beyond, so clamp
-            np.clip(iz, np.float32(1.0 / zi.max()), np.float32(1.0 / zi.min()), out=iz)
-            zb = invz[y0:y1, x0:x1]
-            m = (iz > zb) & (cov != 0)
-            if not m.any():
-                continue
-            tex = self.textures[quads.tex[i]]
-            th, tw = tex.shape[:2]
-            Hm = K @ np.column_stack([Uc[i] / tw, Vc[i] / th, Oc[i]])
-            Hm[0] -= x0 * Hm[2]
-            Hm[1] -= y0 * Hm[2]
-            patch = cv2.warpPerspective(tex, Hm, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-            shade = quads.shade[i]
-            if shade < 0.999:
-                patch = cv2.convertScaleAbs(patch, alpha=shade)
-            # cv2.copyTo writes through the numpy views (row-strided Mats); checked by tests/test_synth_render
-            mu = m.view(np.uint8)
-            cv2.copyTo(patch, mu, rgb[y0:y1, x0:x1])
-            cv2.copyTo(iz, mu, zb)
-            ids[y0:y1, x0:x1][m] = quads.oid[i]
-        return rgb, invz, ids
+        return SimpleNamespace(Oc=Oc, Uc=Uc, Vc=Vc, nc=nc, dd=dd, P=P, z=z, u=u, v=v, full=full, order=order)
+
+    def _draw(self, quads: QuadSet, view: SimpleNamespace, i: int, rgb, invz, ids) -> None:
+        """Quad ``i`` (of ``view``) drawn where it is nearer than what is drawn already: its texture warped into its
+        box, its inverse depth and id."""
+        H, W = self.height, self.width
+        K, near = self.K, self.near
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        if view.full[i]:
+            uu, vv, zi = view.u[i], view.v[i], view.z[i]
+        else:
+            Pi = _clip_near(view.P[i], near)
+            if len(Pi) == 0:
+                return
+            uu = fx * Pi[:, 0] / Pi[:, 2] + cx
+            vv = fy * Pi[:, 1] / Pi[:, 2] + cy
+            zi = Pi[:, 2]
+        x0, x1 = max(int(np.floor(uu.min())), 0), min(int(np.ceil(uu.max())) + 1, W)
+        y0, y1 = max(int(np.floor(vv.min())), 0), min(int(np.ceil(vv.max())) + 1, H)
+        if x1 <= x0 or y1 <= y0:
+            return
+        w, h = x1 - x0, y1 - y0
+        cov = np.zeros((h, w), np.uint8)
+        pts = np.round(np.stack([uu - x0, vv - y0], axis=1) * 16.0).astype(np.int32)
+        cv2.fillConvexPoly(cov, pts, 1, cv2.LINE_8, 4)
+        # inverse depth, affine in (u, v) on the plane
+        a = (view.nc[i] @ self.Kinv) / view.dd[i]
+        iz = (np.float32(a[0]) * self._u[x0:x1])[None, :] \
+            + (np.float32(a[1]) * self._v[y0:y1] + np.float32(a[2]))[:, None]
+        # on the polygon 1/z lies between its vertices' values; rasterised edge pixels just outside a near edge-on
+        # quad would extrapolate far beyond, so clamp
+        np.clip(iz, np.float32(1.0 / zi.max()), np.float32(1.0 / zi.min()), out=iz)
+        zb = invz[y0:y1, x0:x1]
+        m = (iz > zb) & (cov != 0)
+        if not m.any():
+            return
+        tex = self.textures[quads.tex[i]]
+        th, tw = tex.shape[:2]
+        Hm = K @ np.column_stack([view.Uc[i] / tw, view.Vc[i] / th, view.Oc[i]])
+        Hm[0] -= x0 * Hm[2]
+        Hm[1] -= y0 * Hm[2]
+        patch = cv2.warpPerspective(tex, Hm, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        shade = quads.shade[i]
+        if shade < 0.999:
+            patch = cv2.convertScaleAbs(patch, alpha=shade)
+        # cv2.copyTo writes through the numpy views (row-strided Mats); checked by tests/test_synth_render
+        mu = m.view(np.uint8)
+        cv2.copyTo(patch, mu, rgb[y0:y1, x0:x1])
+        cv2.copyTo(iz, mu, zb)
+        ids[y0:y1, x0:x1][m] = quads.oid[i]

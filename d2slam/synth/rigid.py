@@ -8,6 +8,7 @@ points along heading ``h`` (a person's or a chair's forward).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def rot_x(a):
@@ -66,8 +67,6 @@ def look_at(C: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray
 def pose_rows(T: np.ndarray) -> np.ndarray:
     """(N, 7) ``tx ty tz qx qy qz qw`` of poses (N, 4, 4) (a TUM ground truth's columns), the quaternion's sign kept
     continuous (no flips between samples) and its first qw >= 0."""
-    from scipy.spatial.transform import Rotation
-
     q = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # x y z w
     flip = np.concatenate([[1.0], np.sign(np.sum(q[1:] * q[:-1], axis=1))])
     flip[flip == 0] = 1.0

@@ -9,17 +9,19 @@ path and the clock of its dynamic sequence.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import argparse
 
 import numpy as np
 
-from d2slam.config import SynthConfig
 from d2slam.errors import D2SlamError
 from d2slam.synth import bodies
 from d2slam.synth.actors import BOX_HALF, Chair, FloorPlan, HeldObject, Leg, Person, Planner, Timeline
+from d2slam.synth.composite import RoomPlanner, box_rest, real_room
+from d2slam.synth.config import SYNTH_CAMERA, SynthConfig
 from d2slam.synth.render import Quad, QuadSet, box_quads, boxes
 from d2slam.synth.rigid import look_at, rot_x, rot_y, rot_z, rots, tf, yaw_pose  # noqa: F401 (re-exported)
 from d2slam.synth.textures import make_texture
+from d2slam.synth.twin import LensMap, RecordedPath, placement, twin_config
 
 # The fr3-named scenarios imitate the TUM fr3 sequences of the same name (camera motion and what the people do);
 # the interaction scenarios are ours: a person carries a box / pushes a chair across the view (camera as w/xyz).
@@ -33,7 +35,12 @@ SCENARIOS = FR3_SCENARIOS + INTERACTION_SCENARIOS + LOOP_SCENARIOS
 # truth (an input: ``d2slam synth fr1_rpy_twin --on-trajectory TUM_DIR``), through its camera, with the sensor
 # calibrated against it (SynthConfig.twin). Not part of the study's grid.
 TWIN_SCENARIOS = ("fr1_rpy_twin",)
-ALL_SCENARIOS = SCENARIOS + TWIN_SCENARIOS
+# People composited into a real recording (d2slam.synth.composite, compositing; ours): the recording's images are the
+# background and its ground truth the camera path (an input: ``d2slam synth real_walking --on-trajectory TUM_DIR``);
+# two people walk in and out of view on its free floor (real_walking), or one of them carries a box (real_carry).
+COMPOSITE_SCENARIOS = ("real_walking", "real_carry")
+RECORDED_SCENARIOS = TWIN_SCENARIOS + COMPOSITE_SCENARIOS  # the scenarios that follow a real recording
+ALL_SCENARIOS = SCENARIOS + TWIN_SCENARIOS + COMPOSITE_SCENARIOS
 # ``--frames tum``: the durations (s) of the real TUM fr3 sequences as the dataset lists them; our interaction
 # scenarios take 30 s, about the fr3 walking sequences' mean (office_loop: its default frames).
 TUM_DURATIONS = {"walking_xyz": 28.83, "walking_halfsphere": 35.81, "walking_static": 24.83, "walking_rpy": 30.61,
@@ -73,8 +80,6 @@ def tum_frames(scenario: str, fps: float = 30.0) -> int:
 
 def frames_arg(value: str) -> int | str:
     """``--frames``: a number of frames, or ``tum`` (each scenario at its TUM duration)."""
-    import argparse
-
     if str(value).lower() == "tum":
         return "tum"
     try:
@@ -90,9 +95,9 @@ def default_frames(scenario: str) -> int:
 
 def resolve_frames(scenario: str, frames: int | str | None, fps: float = 30.0, recorded: int | None = None) -> int:
     """``frames`` as a number of frames for ``scenario`` (``tum``: its TUM duration; None, or ``tum`` for a scenario
-    without one: ``default_frames``). A twin (``recorded``: its recording's frames) takes the recording's frames, at
-    most ``frames``."""
-    if scenario in TWIN_SCENARIOS:
+    without one: ``default_frames``). A twin or a composite (``recorded``: its recording's frames) takes the
+    recording's frames, at most ``frames``."""
+    if scenario in RECORDED_SCENARIOS:
         return int(recorded) if frames in (None, "tum") else min(int(frames), int(recorded))
     if frames is None or (frames == "tum" and scenario in SCENARIO_FRAMES):
         return default_frames(scenario)
@@ -193,13 +198,16 @@ class CameraPath:
 # the scene
 # --------------------------------------------------------------------------------------------------
 class Scene:
-    """Room, people, moved objects, camera path and clock of one synthetic sequence."""
+    """Room, people, moved objects, camera path (``camera``) and clock of one synthetic sequence, and the camera its
+    images are taken through (``intrinsics``: ``SYNTH_CAMERA``, or a twin's recording's)."""
 
     def __init__(self, scenario: str, seed: int = 0, frames: int = 300, static_twin: bool = False,
                  cfg: SynthConfig | None = None, recording=None):
         sidx = scenario_index(scenario)
         twin = scenario in TWIN_SCENARIOS
+        self.composite = scenario in COMPOSITE_SCENARIOS
         self.check_recording(scenario, recording)
+        self.check_static_twin(scenario, static_twin)
         if int(frames) < 1:
             raise D2SlamError(f"--frames must be at least 1 (got {frames})")
         if int(seed) < 0:
@@ -207,14 +215,15 @@ class Scene:
         self.cfg = cfg or SynthConfig()
         self.recording = recording
         self.sidx = sidx
-        if twin:
+        if twin or self.composite:
             self._twin_clock(recording, int(frames))
         else:
             self.scenario, self.seed, self.frames = scenario, int(seed), int(frames)
             self.static_twin = bool(static_twin)
-            c = self.cfg
-            self.K = np.array([[c.fx, 0, c.cx], [0, c.fy, c.cy], [0, 0, 1.0]])
-            self.canvas_K, self.canvas_size = self.K, (c.width, c.height)
+            c, cam = self.cfg, SYNTH_CAMERA
+            self.intrinsics = cam
+            self.K = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+            self.canvas_K, self.canvas_size = self.K, (cam.width, cam.height)
             # clock: frame times (relative) with small jitter, depth a few ms later (rendered at the RGB instant)
             clock = np.random.default_rng([self.seed, 4, sidx])
             jit = clock.uniform(-c.frame_jitter, c.frame_jitter, size=frames)
@@ -228,7 +237,8 @@ class Scene:
         self.textures: list[np.ndarray] = []
         self.static_quads: list[Quad] = []
         self.floor_rects: list[tuple[float, float, float, float]] = []  # furniture on the floor (people avoid it)
-        self._build_room(np.random.default_rng([self.seed, 1]))
+        if not self.composite:  # a composite's room is the recording's own
+            self._build_room(np.random.default_rng([self.seed, 1]))
         self.people: list[Person] = []
         self.objects: list[Chair | HeldObject] = []  # everything people move (ids in mask_gt)
         self._build_actors(np.random.default_rng([self.seed, 2, sidx]))
@@ -239,26 +249,34 @@ class Scene:
 
     @staticmethod
     def check_recording(scenario: str, recording) -> None:
-        """A twin scenario needs its recording, and only a twin takes one."""
+        """A twin or composite scenario needs its recording, and only they take one."""
         scenario_index(scenario)
-        if scenario in TWIN_SCENARIOS and recording is None:
+        if scenario in RECORDED_SCENARIOS and recording is None:
             raise D2SlamError(f"{scenario} follows a real recording's trajectory: give its TUM folder "
-                              "(--on-trajectory TUM_DIR)")
-        if scenario not in TWIN_SCENARIOS and recording is not None:
-            raise D2SlamError(f"{scenario} has its own camera path; --on-trajectory is for the twin scenarios "
-                              f"({', '.join(TWIN_SCENARIOS)})")
+                              "(--on-trajectory TUM_DIR, or --on)")
+        if scenario not in RECORDED_SCENARIOS and recording is not None:
+            raise D2SlamError(f"{scenario} has its own camera path; --on (--on-trajectory) is for the scenarios on a "
+                              f"real recording ({', '.join(RECORDED_SCENARIOS)})")
+
+    @staticmethod
+    def check_static_twin(scenario: str, static_twin: bool) -> None:
+        """A composite has no static twin to generate: it is its recording."""
+        if scenario in COMPOSITE_SCENARIOS and static_twin:
+            raise D2SlamError(f"the static twin of {scenario} is its recording itself (the TUM folder given to --on): "
+                              "nothing to generate")
 
     def _twin_clock(self, rec, frames: int) -> None:
-        """A twin's camera, clock and path: the recording's camera and first ``frames`` frames (RGB and depth
-        times), its ground truth placed in the room (d2slam.synth.twin); static (no people)."""
-        from d2slam.synth.twin import LensMap, RecordedPath, placement, twin_config
-
+        """The camera, clock and path of a scene on a real recording: the recording's camera and first ``frames``
+        frames (RGB and depth times); a twin: its ground truth placed in the office (d2slam.synth.twin), static (no
+        people); a composite: its ground truth in the room frame of the recording's own room
+        (d2slam.synth.composite), the room measured from its depth."""
         tw = self.cfg.twin
-        self.cfg = twin_config(self.cfg, rec.camera)
+        self.cfg = twin_config(self.cfg)
         self.frames = min(frames, len(rec))
-        self.static_twin = True
-        c = self.cfg
-        self.K = np.array([[c.fx, 0, c.cx], [0, c.fy, c.cy], [0, 0, 1.0]])
+        self.static_twin = not self.composite
+        c, cam = self.cfg, rec.camera
+        self.intrinsics = cam
+        self.K = np.array([[float(cam.fx), 0, float(cam.cx)], [0, float(cam.fy), float(cam.cy)], [0, 0, 1.0]])
         self.lens = LensMap(rec.camera, tw.distortion)
         self.canvas_K, self.canvas_size = self.lens.K, (self.lens.width, self.lens.height)
         ts = np.asarray(rec.rgb_times[:self.frames], float)
@@ -266,6 +284,10 @@ class Scene:
         self.t_rel = ts - self.t0
         self.depth_offset = np.asarray(rec.depth_times[:self.frames], float) - ts
         self.duration = float(self.t_rel[-1]) + 1.0 / c.fps
+        if self.composite:
+            self.room = real_room(rec, self.cfg)
+            self.camera = RecordedPath(rec, self.room.M, self.t0)
+            return
         first = RecordedPath(rec, np.eye(4), self.t0).poses([0.0])[0]
         self.camera = RecordedPath(rec, placement(first, tw.anchor_xy, tw.anchor_heading_deg), self.t0)
 
@@ -293,7 +315,15 @@ class Scene:
     def _build_room(self, rng):
         """An office corner in a hall: plain painted walls, a plain floor, a structured hall ceiling, a cork
         partition behind two white desks with monitors and keyboards, shelves with books, a cabinet, a whiteboard,
-        a few posters and cardboard boxes. Plain surfaces are most of the view, as in the TUM fr3 office."""
+        a few posters and cardboard boxes. Plain surfaces are most of the view, as in the TUM fr3 office. One ``rng``
+        draws everything, in this order: the walls, the desks, the furniture, the desks' clutter."""
+        self._walls(rng)
+        self._desks(rng)
+        self._furniture(rng)
+        self._clutter(rng)
+
+    def _walls(self, rng):
+        """The walls, floor and ceiling, the partition behind the desks with its posters, the whiteboard."""
         tpm = self.cfg.room_texels_per_m
         X, (Y0, Y1), Hh = ROOM_X, ROOM_Y, ROOM_H
         W, D = 2 * X, Y1 - Y0
@@ -320,7 +350,9 @@ class Scene:
             self.static_quads.append(Quad(np.array(O, float), U, V, tex))
         # white boards in dark frames on the back wall, above the partition
         self._box(rng, (1.2, Y1 - 0.02, 1.95), (0.7, 0.01, 0.45), "plastic", front=2, front_kind="panels")
-        # two white desks with a modesty panel, a monitor (dark frame, screen) and a keyboard each
+
+    def _desks(self, rng):
+        """Two white desks with a modesty panel, a monitor (dark frame, screen) and a keyboard each."""
         for x in (-1.0, 1.05):
             self._box(rng, (x, 3.42, 0.735), (0.8, 0.4, 0.02), "desk")
             self.floor_rects.append((x - 0.8, x + 0.8, 3.02, 3.82))  # under the desk: its legs and panel
@@ -331,6 +363,9 @@ class Scene:
             self._box(rng, (mx, 3.6, 0.98), (0.25, 0.025, 0.18), "plastic", front=2, front_kind="screen")
             self._box(rng, (mx, 3.62, 0.78), (0.04, 0.04, 0.04), "plastic")
             self._box(rng, (mx + rng.uniform(-0.05, 0.05), 3.3, 0.765), (0.22, 0.07, 0.012), "keyboard")
+
+    def _furniture(self, rng):
+        """Shelves with books, a cabinet, cardboard boxes on the floor, small boxes on the desks."""
         self._box(rng, (-ROOM_X + 0.2, 2.0, 1.0), (0.2, 0.75, 1.0), "plastic", front=1, front_kind="books", floor=True)
         self._box(rng, (ROOM_X - 0.2, 1.3, 0.9), (0.2, 0.8, 0.9), "plastic", front=0, front_kind="books", floor=True)
         self._box(rng, (ROOM_X - 0.25, 3.4, 0.55), (0.25, 0.4, 0.55), "plastic", floor=True)
@@ -344,8 +379,10 @@ class Scene:
         for x in (-1.6, -0.3, 0.6, 1.7):
             h = rng.uniform(0.04, 0.1)
             self._box(rng, (x + rng.uniform(-0.1, 0.1), 3.25, 0.755 + h), (rng.uniform(0.05, 0.12), 0.08, h), "box")
-        # the clutter of a used desk, as on the TUM fr3 desks: sheets of paper, a stack of books, a mug, a tool; under
-        # each desk a computer and beside it a waste bin
+
+    def _clutter(self, rng):
+        """The clutter of a used desk, as on the TUM fr3 desks: sheets of paper, a stack of books, a mug, a tool; under
+        each desk a computer and beside it a waste bin."""
         for x in (-1.0, 1.05):
             for _ in range(int(rng.integers(2, 4))):
                 self._box(rng, (x + rng.uniform(-0.65, 0.65), rng.uniform(3.1, 3.5), 0.757), (rng.uniform(0.1, 0.15),
@@ -373,7 +410,7 @@ class Scene:
         b = self.cfg.body
         shape = tuple(float(v) for v in rng.uniform(b.shape_low, b.shape_high))
         clothes = bodies.random_clothes(rng, b)
-        return shape, clothes, float(rng.uniform(*b.gait_jitter)), self._garments(rng, clothes)
+        return shape, clothes, float(rng.uniform(*b.motion.gait_jitter)), self._garments(rng, clothes)
 
     def _garments(self, rng, clothes: bodies.Clothes) -> np.ndarray:
         """One texture per garment (shirt, trousers, shoes, skin with the face in front, hair) in its colour: one turn
@@ -392,7 +429,7 @@ class Scene:
     def _new_person(self, k: int, role: str, rng, timeline: Timeline) -> Person:
         """Person k (id k + 1): look from its own texture stream, gait stride and seated movements from ``rng``."""
         shape, clothes, style, tex = self._person_look(self._texture_rng(k))
-        params = {"style": style, "stride": float(rng.uniform(*self.cfg.body.stride_m)),
+        params = {"style": style, "stride": float(rng.uniform(*self.cfg.body.motion.stride_m)),
                   "f": rng.uniform(2.0, 6.0, size=8), "ph": rng.uniform(0, 2 * np.pi, size=8)}
         return Person(k + PERSON_IDS_START, f"person_{k + 1}", role, shape, clothes, params, self.cfg.body, timeline,
                       tex)
@@ -401,12 +438,16 @@ class Scene:
         c, a = self.cfg, self.cfg.actors
         if self.scenario in TWIN_SCENARIOS:  # a static twin: nobody, nothing moved
             return
+        if self.composite:
+            self._composite_actors(rng)
+            return
         if self.scenario == "sitting_static":  # two people seated throughout, their chairs part of the room
             seats = [(-0.55, 2.55, -np.pi / 2 + 0.35), (0.6, 2.45, -np.pi / 2 - 0.35)]
             for k, (x, y, hd) in enumerate(seats):
                 x, y, hd = x + rng.uniform(-0.1, 0.1), y + rng.uniform(-0.15, 0.15), hd + rng.uniform(-0.15, 0.15)
-                chair = Chair(0, "chair", np.array([x, y]) + a.seat_offset_m * np.array([np.cos(hd), np.sin(hd)]),
-                              hd, self._tex(self._texture_rng(k), "seat", 0.5, 0.5, c.room_texels_per_m))
+                seat = np.array([x, y]) + a.sitting.seat_offset_m * np.array([np.cos(hd), np.sin(hd)])
+                tex = self._tex(self._texture_rng(k), "seat", 0.5, 0.5, c.room_texels_per_m)
+                chair = Chair(0, "chair", seat, hd, tex)
                 tl = Timeline(a)
                 tl.add(Leg("sit", -1.0, self.duration + 1.0, 0.0, chair.xy, chair=chair))
                 self.people.append(self._new_person(k, "sit", rng, tl))
@@ -414,27 +455,28 @@ class Scene:
                     self.static_quads += box_quads(T, half, tex, 0)
             return
         # two desk chairs that shift a little when somebody sits down or gets up
-        jx, jy = a.desk_chair_jitter
+        jx, jy = a.sitting.desk_chair_jitter
         chairs = []
         for j, (oid, side) in enumerate(zip(DESK_CHAIR_IDS, (-1.0, 1.0))):
-            xy = np.array([side * a.desk_chair_x + rng.uniform(-jx, jx), a.desk_chair_y + rng.uniform(-jy, jy)])
-            h = np.pi / 2 + rng.uniform(-a.desk_chair_turn, a.desk_chair_turn)
+            chair_x = side * a.sitting.desk_chair_x + rng.uniform(-jx, jx)  # drawn before y
+            xy = np.array([chair_x, a.sitting.desk_chair_y + rng.uniform(-jy, jy)])
+            h = np.pi / 2 + rng.uniform(-a.sitting.desk_chair_turn, a.sitting.desk_chair_turn)
             tex = self._tex(self._texture_rng(10 + j), "seat", 0.5, 0.5, c.body_texels_per_m)
             chairs.append(Chair(oid, f"desk_chair_{j + 1}", xy, float(h), tex))
         held = []
         if self.scenario in INTERACTION_SCENARIOS:  # the box / chair on one side of the view, taken from the camera's side
             side = rng.choice([-1.0, 1.0])
-            xy = np.array([side * rng.uniform(*a.object_x), rng.uniform(*a.object_y)])
-            h = np.pi / 2 + rng.uniform(-a.object_turn, a.object_turn)
+            xy = np.array([side * rng.uniform(*a.holding.object_x), rng.uniform(*a.holding.object_y)])
+            h = np.pi / 2 + rng.uniform(-a.holding.object_turn, a.holding.object_turn)
             trng = self._texture_rng(0)
             if self.scenario == "walking_carry":
                 tex = self._tex(trng, "box", 0.45, 0.32, c.body_texels_per_m)
                 held.append(HeldObject(MOVED_BOX_ID, "carried_box", "box", tex, yaw_pose(xy, h, BOX_HALF[2]),
-                                       tf(t=a.box_offset), float(BOX_HALF[2])))
+                                       tf(t=a.holding.box_offset), float(BOX_HALF[2])))
             else:
                 tex = self._tex(trng, "seat", 0.5, 0.5, c.body_texels_per_m)
                 held.append(HeldObject(MOVED_CHAIR_ID, "pushed_chair", "chair", tex, yaw_pose(xy, h),
-                                       tf(t=a.push_offset), 0.0))
+                                       tf(t=a.holding.push_offset), 0.0))
         floor = FloorPlan((-ROOM_X, ROOM_X, ROOM_Y[0], ROOM_Y[1]), self.floor_rects, a.floor_clearance)
         for k in range(2):  # with an object to move, the first person moves it
             role = ("carry" if held[0].kind == "box" else "push") if held and k == 0 else "walk"
@@ -442,6 +484,23 @@ class Scene:
         Planner(rng, a, floor, self.duration + 1.0, chairs, held).plan(
             self.people, {self.people[0].pid: held[0]} if held else None)
         self.objects = chairs + held
+
+    def _composite_actors(self, rng):
+        """The people of a composite (d2slam.synth.composite): two walkers on the recording's free floor, the first
+        carrying a box in real_carry, planned together."""
+        c = self.cfg
+        held = []
+        planner = RoomPlanner(rng, c.actors, self.room, self.duration + 1.0, held, c.composite)
+        if self.scenario == "real_carry":
+            xy, h = box_rest(rng, planner, c)
+            tex = self._tex(self._texture_rng(0), "box", 0.45, 0.32, c.body_texels_per_m)
+            held.append(HeldObject(MOVED_BOX_ID, "carried_box", "box", tex, yaw_pose(xy, h, BOX_HALF[2]),
+                                   tf(t=c.actors.holding.box_offset), float(BOX_HALF[2])))
+            planner.objects = list(held)
+        for k in range(2):
+            self.people.append(self._new_person(k, "carry" if held and k == 0 else "walk", rng, Timeline(c.actors)))
+        planner.plan(self.people, {self.people[0].pid: held[0]} if held else None)
+        self.objects = held
 
     # ---- per-frame ----
     @property

@@ -1,8 +1,8 @@
 """Kinect-like sensor model: depth noise, quantisation and holes; RGB motion blur and noise.
 
-Depth (``SynthConfig``): ``z_noisy = z + sigma(z) n``, ``n ~ N(0, 1)`` at each pixel, correlated between neighbours
-over ``depth_noise_corr_px`` (a structured-light sensor matches a window), with
-``sigma(z) = depth_noise_a + depth_noise_b (z - depth_noise_c)^2`` metres (Kinect axial noise, ~1.2 mm at 0.4 m,
+Depth (``SynthConfig``, the camera's noise and depth factor): ``z_noisy = z + sigma(z) n``, ``n ~ N(0, 1)`` at each
+pixel, correlated between neighbours over ``depth_noise_corr_px`` (a structured-light sensor matches a window), with
+the camera's ``sigma(z) = a + b (z - c)^2`` metres (``Camera.depth_noise``: Kinect axial noise, ~1.2 mm at 0.4 m,
 ~2 mm at 1 m, ~13 mm at 3 m), stored as a 16-bit PNG of ``round(z_noisy * depth_factor)`` (1/5000 m steps).
 Holes (value 0): beyond ``depth_max``; at depth edges (a jump of more than ``hole_edge_jump_a + hole_edge_jump_b z``
 metres inside a 3x3 window, dilated, each pixel dropped with probability ``hole_edge_prob``); random small blobs
@@ -14,14 +14,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from d2slam.config import SynthConfig
-
-
-def depth_sigma(z: np.ndarray, cfg: SynthConfig | None = None) -> np.ndarray:
-    """Standard deviation (m) of the depth noise at depth z (m): a + b (z - c)^2."""
-    cfg = cfg or SynthConfig()
-    z = np.asarray(z, dtype=np.float64)
-    return cfg.depth_noise_a + cfg.depth_noise_b * (z - cfg.depth_noise_c) ** 2
+from d2slam.data.base import Camera
+from d2slam.synth.config import SYNTH_CAMERA, SynthConfig
 
 
 def depth_holes(z: np.ndarray, rng: np.random.Generator, cfg: SynthConfig) -> tuple[np.ndarray, np.ndarray,
@@ -76,18 +70,20 @@ def correlated_noise(white: np.ndarray, corr_px: float) -> np.ndarray:
 
 
 def depth_to_png(z: np.ndarray, rng: np.random.Generator, cfg: SynthConfig | None = None,
-                 holes: bool = True) -> np.ndarray:
-    """Clean depth (float32 m, 0 = nothing) -> noisy, quantised, holed uint16 image (value = metres * factor)."""
+                 holes: bool = True, camera: Camera = SYNTH_CAMERA) -> np.ndarray:
+    """Clean depth (float32 m, 0 = nothing) -> noisy, quantised, holed uint16 image (value = metres x the
+    ``camera``'s depth factor; its depth noise)."""
     cfg = cfg or SynthConfig()
+    noise = camera.depth_noise
     z = np.asarray(z, np.float32)
-    sigma = z - np.float32(cfg.depth_noise_c)
+    sigma = z - np.float32(noise.c)
     np.square(sigma, out=sigma)
-    sigma *= np.float32(cfg.depth_noise_b)
-    sigma += np.float32(cfg.depth_noise_a)
+    sigma *= np.float32(noise.b)
+    sigma += np.float32(noise.a)
     zn = correlated_noise(rng.standard_normal(z.shape, dtype=np.float32), cfg.depth_noise_corr_px)
     zn *= sigma
     zn += z
-    zn *= np.float32(cfg.depth_factor)
+    zn *= np.float32(camera.depth_factor)
     np.rint(zn, out=zn)
     out = np.clip(zn, 0, 65535, out=zn).astype(np.uint16)
     hole = z <= 0

@@ -1,9 +1,9 @@
 """Seeded procedural textures. The room's give ORB plenty of corners (rectangles, lines, text-like marks, blobs).
 People wear clothes built from a base colour: shirts with stripes or checks (or plain), folds, small printed marks
 and at most one logo; plain trousers with seams; skin with a face; hair strands; all blurred like fabric. Their
-constants (``SynthConfig.cloth_*``) are calibrated with ``d2slam bench realism`` so that the share of the engine's
+constants (``ClothConfig.cloth_*``) are calibrated with ``d2slam bench realism`` so that the share of the engine's
 ORB keypoints on people over their area matches real TUM fr3 frames, about 0.4-0.7 (measured: docs/deviations.md,
-``SynthConfig.cloth_*``).
+``ClothConfig.cloth_*``).
 
 Every texture is a function of ``(rng, kind, width, height)`` (and the config) only, so the same seed gives the
 same pixels.
@@ -17,7 +17,7 @@ import string
 import cv2
 import numpy as np
 
-from d2slam.config import SynthConfig
+from d2slam.synth.config import SynthConfig
 
 _FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX, cv2.FONT_HERSHEY_PLAIN,
           cv2.FONT_HERSHEY_TRIPLEX)
@@ -385,16 +385,16 @@ def _clothes(rng, kind, width, height, cfg: SynthConfig, texels_per_m: float | N
     ``texels_per_m``."""
     tpm = float(texels_per_m or cfg.body_texels_per_m)
     img = np.empty((height, width, 3), np.uint8)
-    contrast = cfg.cloth_contrast
+    contrast = cfg.cloth.cloth_contrast
     given = None if base is None else tuple(int(c) for c in base)
     if kind == "cloth":
         base = given or _colour(rng, 25, 225)
         img[:] = base
         other = _shifted(base, rng, contrast)
         u = rng.random()
-        step = max(4, int(rng.uniform(*cfg.cloth_pattern_m) * tpm))
-        if u >= cfg.cloth_plain_prob:
-            if rng.random() >= cfg.cloth_check_prob:  # stripes, horizontal or vertical
+        step = max(4, int(rng.uniform(*cfg.cloth.cloth_pattern_m) * tpm))
+        if u >= cfg.cloth.cloth_plain_prob:
+            if rng.random() >= cfg.cloth.cloth_check_prob:  # stripes, horizontal or vertical
                 vertical = rng.random() < 0.3
                 for k in range(0, width if vertical else height, step):
                     a, b = ((k, 0), (k + step // 2 - 1, height)) if vertical else ((0, k), (width, k + step // 2 - 1))
@@ -412,23 +412,23 @@ def _clothes(rng, kind, width, height, cfg: SynthConfig, texels_per_m: float | N
         _lines(img, rng, int(rng.integers(2, 6)), [_shifted(base, rng, contrast / 2)],
                (max(1, int(0.008 * tpm)), max(2, int(0.02 * tpm))))
         # small printed marks (motifs, buttons, letters), Poisson with cloth_marks_per_m2
-        n_marks = int(rng.poisson(cfg.cloth_marks_per_m2 * width * height / tpm ** 2))
+        n_marks = int(rng.poisson(cfg.cloth.cloth_marks_per_m2 * width * height / tpm ** 2))
         if n_marks:
-            pal = [_shifted(base, rng, cfg.cloth_print_contrast) for _ in range(2)]
-            size = max(4, int(rng.uniform(*cfg.cloth_mark_m) * tpm))
+            pal = [_shifted(base, rng, cfg.cloth.cloth_print_contrast) for _ in range(2)]
+            size = max(4, int(rng.uniform(*cfg.cloth.cloth_mark_m) * tpm))
             kinds = rng.integers(0, 3, size=n_marks)
             _rects(img, rng, int((kinds == 0).sum()), size, pal, filled=0.8)
             _blobs(img, rng, int((kinds == 1).sum()), size // 2, pal)
             _text(img, rng, int((kinds == 2).sum()), (size / 40, size / 25), pal, (1, 2))
-        if rng.random() < cfg.cloth_print_prob:  # one printed logo: a patch and a short word on it
+        if rng.random() < cfg.cloth.cloth_print_prob:  # one printed logo: a patch and a short word on it
             size = rng.uniform(0.08, 0.16) * tpm
             x, y = int(rng.uniform(0.2, 0.6) * width), int(rng.uniform(0.15, 0.5) * height)
-            col = _shifted(base, rng, cfg.cloth_print_contrast)
+            col = _shifted(base, rng, cfg.cloth.cloth_print_contrast)
             if rng.random() < 0.5:
                 cv2.rectangle(img, (x, y), (x + int(size), y + int(0.6 * size)), col, -1)
             else:
                 cv2.ellipse(img, (x, y), (int(size / 2), int(size / 3)), 0.0, 0, 360, col, -1, cv2.LINE_AA)
-            _text(img, rng, 1, (0.3 * size / 20, 0.5 * size / 20), [_shifted(col, rng, cfg.cloth_print_contrast)],
+            _text(img, rng, 1, (0.3 * size / 20, 0.5 * size / 20), [_shifted(col, rng, cfg.cloth.cloth_print_contrast)],
                   (1, 2))
     elif kind == "trousers":
         base = given or _colour(rng, 20, 130)
@@ -465,5 +465,5 @@ def _clothes(rng, kind, width, height, cfg: SynthConfig, texels_per_m: float | N
         img[:] = base
         _lines(img, rng, 8 + width * height // 4000, [_jitter(base, rng, contrast // 2) for _ in range(3)], (1, 2))
     img = _grain(img, rng, 2.0)
-    sigma = max(cfg.cloth_blur_m * tpm, 0.6)
+    sigma = max(cfg.cloth.cloth_blur_m * tpm, 0.6)
     return cv2.GaussianBlur(img, (0, 0), sigma)

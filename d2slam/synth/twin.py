@@ -28,15 +28,21 @@ other scenarios.
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from d2slam.config import SynthConfig
 from d2slam.data.base import Camera
+from d2slam.data.tum import TumSequence, interpolate_poses
 from d2slam.errors import D2SlamError
+from d2slam.synth.config import SynthConfig
+from d2slam.synth.rigid import pose_rows
+from d2slam.synth.segsim import simulate_segmenter
+from d2slam.synth.sensor import depth_to_png, rgb_sensor
 
 
 # --------------------------------------------------------------------------------------------------
@@ -52,16 +58,26 @@ class Recording:
     depth_times: np.ndarray  # (N,) their depth images' timestamps
     gt_times: np.ndarray  # (M,) ground truth timestamps
     gt_poses: np.ndarray  # (M, 4, 4) T_world_camera in the recording's world (Z up)
+    root: Path | None = None  # its folder
+    frame_index: np.ndarray | None = None  # (N,) each frame's index among the folder's associated frames
 
     def __len__(self) -> int:
         return len(self.rgb_times)
+
+    def part(self, first: int, frames: int) -> "Recording":
+        """The recording's frames ``first`` .. ``first + frames - 1`` (its ground truth whole)."""
+        if not 0 <= int(first) < len(self) or int(frames) < 1:
+            raise D2SlamError(f"frames {first} to {int(first) + int(frames) - 1} are not in the recording's "
+                              f"{len(self)} frames", path=self.root)
+        cut = slice(int(first), int(first) + int(frames))
+        index = None if self.frame_index is None else self.frame_index[cut]
+        return dataclasses.replace(self, rgb_times=self.rgb_times[cut], depth_times=self.depth_times[cut],
+                                   frame_index=index)
 
 
 def read_recording(path: str | Path) -> Recording:
     """A TUM folder (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``; the camera from its name) as a
     :class:`Recording`; frames outside the ground truth's span are left out (the twin needs a pose for each)."""
-    from d2slam.data.tum import TumSequence
-
     seq = TumSequence(path)
     gt = seq.groundtruth
     if gt is None or len(gt) < 2:
@@ -71,7 +87,7 @@ def read_recording(path: str | Path) -> Recording:
     if not inside.any():
         raise D2SlamError("no frame lies within the ground truth's time span", path=seq.root)
     return Recording(seq.name, seq.camera, ts[inside], dts[inside], np.asarray(gt.timestamps, float),
-                     np.asarray(gt.poses, float))
+                     np.asarray(gt.poses, float), Path(seq.root), np.flatnonzero(inside))
 
 
 def placement(first_pose: np.ndarray, anchor_xy: tuple[float, float], heading_deg: float) -> np.ndarray:
@@ -102,8 +118,6 @@ class RecordedPath:
         self.A = A
 
     def poses(self, t) -> np.ndarray:
-        from d2slam.data.tum import interpolate_poses
-
         tt = np.clip(self.t0 + np.atleast_1d(np.asarray(t, float)), self.gt_times[0], self.gt_times[-1])
         return interpolate_poses(self.gt_times, self.gt_poses, tt, max_gap=None)
 
@@ -179,28 +193,26 @@ class LensMap:
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
-def twin_config(cfg: SynthConfig, camera: Camera) -> SynthConfig:
-    """The twin's ``SynthConfig``: ``cfg`` with the recording camera's intrinsics, size and depth factor, and the
-    twin's RGB noise and hole blobs (``TwinConfig.rgb_noise_sigma``, ``hole_blob_fraction``)."""
-    import dataclasses
-
+def twin_config(cfg: SynthConfig) -> SynthConfig:
+    """The twin's ``SynthConfig``: ``cfg`` with the twin's RGB noise and hole blobs (``TwinConfig.rgb_noise_sigma``,
+    ``hole_blob_fraction``); its camera is the recording's (``Scene.intrinsics``)."""
     tw = cfg.twin
-    return dataclasses.replace(cfg, fx=float(camera.fx), fy=float(camera.fy), cx=float(camera.cx),
-                               cy=float(camera.cy), width=int(camera.width), height=int(camera.height),
-                               depth_factor=float(camera.depth_factor), rgb_noise_sigma=tw.rgb_noise_sigma,
-                               hole_blob_fraction=tw.hole_blob_fraction)
+    return dataclasses.replace(cfg, rgb_noise_sigma=tw.rgb_noise_sigma, hole_blob_fraction=tw.hole_blob_fraction)
 
 
-def shadow_holes(z: np.ndarray, cfg: SynthConfig) -> np.ndarray:
+def shadow_holes(z: np.ndarray, cfg: SynthConfig, casters: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: the projector's shadow of a clean depth image ``z`` (m, 0 = nothing): ``TwinConfig.shadow_px``
     pixels to the left of every depth edge whose nearer side is on the right (a step of more than ``hole_edge_jump_a
-    + hole_edge_jump_b z`` between horizontal neighbours)."""
+    + hole_edge_jump_b z`` between horizontal neighbours); with ``casters`` (H, W) bool, only the edges whose nearer
+    pixel is one of them."""
     w = int(cfg.twin.shadow_px)
     out = np.zeros(z.shape, bool)
     if w <= 0:
         return out
     left, right = z[:, :-1], z[:, 1:]
     step = (right > 0) & (left - right > cfg.hole_edge_jump_a + cfg.hole_edge_jump_b * right)
+    if casters is not None:
+        step &= casters[:, 1:]
     out[:, :-1] = step
     band = cv2.dilate(out.view(np.uint8), np.ones((1, w), np.uint8), anchor=(0, 0))  # each step and w - 1 to its left
     return band.astype(bool)
@@ -263,16 +275,58 @@ def subframe_times(start: float, end: float, n: int) -> np.ndarray:
     return start + (np.arange(n) + 0.5) * (end - start) / n
 
 
+def subframe_plan(scene, start: float, end: float, windows: np.ndarray, z: np.ndarray,
+                  step_px: float, least: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(instants (n,), (H, n) row weights) of the sub-frames that render an image whose rows are exposed over
+    ``windows`` within ``[start, end]`` (:func:`subframe_count` of them at ``step_px``, at least ``least`` over a
+    window of some length, :func:`row_weights`)."""
+    n = subframe_count(scene, start, end, z, step_px)
+    if end > start:
+        n = max(n, int(least))
+    return subframe_times(start, end, n), row_weights(start, end, n, windows)
+
+
+def depth_rows(scene, renderer, start: float, end: float, windows: np.ndarray, at=None):
+    """(depth (H, W) float32 m, ids (H, W) uint8, the canvas depth at the middle instant, sub-frames) of a depth
+    image whose rows are taken over ``windows`` within ``[start, end]``: each row from the sub-frame whose slice of
+    time holds it (``depth_subframe_px`` apart), through the lens. ``at(t)``: called before each render with its
+    instant (a composite moves its people there)."""
+    tw, lens = scene.cfg.twin, scene.lens
+    H, W = int(scene.intrinsics.height), int(scene.intrinsics.width)
+    mid = 0.5 * (start + end)
+    if at is not None:
+        at(mid)
+    z, ids = renderer.gl.render_depth(scene.camera.poses([mid])[0])
+    times, weights = subframe_plan(scene, start, end, windows, z, tw.depth_subframe_px)
+    if len(times) == 1:
+        return lens(z, nearest=True), lens(ids, nearest=True), z, 1
+    pick = np.argmax(weights, axis=1)
+    zd, idd = np.zeros((H, W), np.float32), np.zeros((H, W), np.uint8)
+    for k, (tk, Tk) in enumerate(zip(times, scene.camera.poses(times))):
+        rows = pick == k
+        if rows.any():
+            if at is not None:
+                at(float(tk))
+            zk, ik = renderer.gl.render_depth(Tk)
+            zd[rows], idd[rows] = lens(zk, nearest=True)[rows], lens(ik, nearest=True)[rows]
+    return zd, idd, z, len(times)
+
+
+def depth_windows(scene, i: int) -> tuple[float, float, np.ndarray]:
+    """:func:`row_windows` of frame ``i``'s depth image: its own instant and rolling shutter
+    (``depth_at_depth_time``), else the RGB image's instant, global."""
+    tw, H = scene.cfg.twin, int(scene.intrinsics.height)
+    t = float(scene.t_rel[i])
+    if tw.depth_at_depth_time:
+        return row_windows(t + float(scene.depth_offset[i]), tw.depth_time_shift, tw.depth_row_readout, 0.0, H)
+    return row_windows(t, tw.rgb_time_shift, 0.0, 0.0, H)
+
+
 def render_twin_frame(scene, renderer, i: int) -> dict:
     """Frame ``i`` of a twin scene, as ``d2slam.synth.generate.render_frame`` returns a frame (see the module
     docstring for what the sensor does)."""
-    import time
-
-    from d2slam.synth.segsim import simulate_segmenter
-    from d2slam.synth.sensor import depth_to_png, rgb_sensor
-
     cfg, tw = scene.cfg, scene.cfg.twin
-    H, W = cfg.height, cfg.width
+    H, W = int(scene.intrinsics.height), int(scene.intrinsics.width)
     t = float(scene.t_rel[i])
     rngs = [np.random.default_rng([scene.seed, scene.sidx, i, k]) for k in (11, 12, 13)]
     ms, cpu = {}, {}
@@ -289,52 +343,41 @@ def render_twin_frame(scene, renderer, i: int) -> dict:
     lens = scene.lens
     # depth: each row at its own instant (the depth image's timestamp, shifted, and its rolling shutter), from the
     # sub-frame whose slice of time holds it
-    if tw.depth_at_depth_time:
-        dstart, dend, dwin = row_windows(t + float(scene.depth_offset[i]), tw.depth_time_shift,
-                                         tw.depth_row_readout, 0.0, H)
-    else:
-        dstart, dend, dwin = row_windows(t, tw.rgb_time_shift, 0.0, 0.0, H)
-    z, ids = renderer.gl.render_depth(scene.camera.poses([0.5 * (dstart + dend)])[0])
-    nd = subframe_count(scene, dstart, dend, z, tw.depth_subframe_px)
-    if nd == 1:
-        zd, idd = lens(z, nearest=True), lens(ids, nearest=True)
-    else:
-        pick = np.argmax(row_weights(dstart, dend, nd, dwin), axis=1)
-        zd, idd = np.zeros((H, W), np.float32), np.zeros((H, W), np.uint8)
-        for k, Tk in enumerate(scene.camera.poses(subframe_times(dstart, dend, nd))):
-            rows = pick == k
-            if rows.any():
-                zk, ik = renderer.gl.render_depth(Tk)
-                zd[rows], idd[rows] = lens(zk, nearest=True)[rows], lens(ik, nearest=True)[rows]
+    zd, idd, z, nd = depth_rows(scene, renderer, *depth_windows(scene, i))
     # RGB: the average of sub-frames over each row's exposure
     start, end, windows = row_windows(t, tw.rgb_time_shift, tw.row_readout, tw.exposure, H)
-    n = subframe_count(scene, start, end, z, tw.subframe_px)
-    weights = row_weights(start, end, n, windows).astype(np.float32)
+    times, weights = subframe_plan(scene, start, end, windows, z, tw.subframe_px)
+    weights = weights.astype(np.float32)
     acc = np.zeros((H, W, 3), np.float32)
-    for k, Tk in enumerate(scene.camera.poses(subframe_times(start, end, n))):
+    for k, Tk in enumerate(scene.camera.poses(times)):
         acc += weights[:, k, None, None] * lens(renderer.gl.render_colour(Tk)).astype(np.float32)
     lap("gl")
     rgb = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
     rgb = rgb_sensor(rgb, (0.0, 0.0), rngs[1], cfg, bank_seed=scene.seed)
-    depth = depth_to_png(zd, rngs[0], cfg)
+    depth = depth_to_png(zd, rngs[0], cfg, camera=scene.intrinsics)
     depth[shadow_holes(zd, cfg)] = 0
-    top, bottom, left, right = tw.depth_border
-    depth[:top] = 0
-    depth[H - bottom:] = 0
-    depth[:, :left] = 0
-    depth[:, W - right:] = 0
+    clear_border(depth, tw.depth_border)
     lap("sensor")
     sim = simulate_segmenter(idd, zd, scene.person_ids, scene.K, rngs[2], cfg)
     lap("segmenter")
     return {"rgb": rgb, "depth": depth, "depth_clean": zd, "mask_gt": idd, "mask_sim": sim,
-            "pose": scene.camera.poses([t])[0], "subframes": n, "depth_subframes": nd, "ms": ms, "cpu_ms": cpu}
+            "pose": scene.camera.poses([t])[0], "subframes": len(times), "depth_subframes": nd, "ms": ms,
+            "cpu_ms": cpu}
+
+
+def clear_border(depth: np.ndarray, border) -> None:
+    """No depth on the image's border (top, bottom, left, right px: ``TwinConfig.depth_border``), in place."""
+    top, bottom, left, right = border
+    H, W = depth.shape
+    depth[:top] = 0
+    depth[H - bottom:] = 0
+    depth[:, :left] = 0
+    depth[:, W - right:] = 0
 
 
 def twin_groundtruth(scene) -> tuple[np.ndarray, np.ndarray]:
     """(timestamps, (N, 7) tx ty tz qx qy qz qw): the recording's ground truth samples over the frames plus
     ``gt_margin``, placed in the room (``d2slam.synth.rigid.pose_rows``)."""
-    from d2slam.synth.rigid import pose_rows
-
     path = scene.camera
     a = scene.t0 + scene.t_rel[0] - scene.cfg.gt_margin
     b = scene.t0 + scene.t_rel[-1] + scene.cfg.gt_margin

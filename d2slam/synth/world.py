@@ -73,11 +73,15 @@ class WorldRenderer:
         c = scene.cfg
         self.scene = scene
         atlas, self.rects = build_atlas(scene.textures)
-        self.gl = GLRenderer(scene.canvas_K, *scene.canvas_size, atlas, c.near_plane, c.far_plane, c.gl_threads)
-        self.gl.set_static(*quad_mesh(scene.static_set, self.rects))
+        # a composite's people are drawn over a real image: their colour with its coverage (alpha)
+        self.gl = GLRenderer(scene.canvas_K, *scene.canvas_size, atlas, c.near_plane, c.far_plane, c.gl_threads,
+                             alpha=bool(getattr(scene, "composite", False)))
+        if len(scene.static_set):  # a composite's scene has no room: the real recording is its background
+            self.gl.set_static(*quad_mesh(scene.static_set, self.rects))
 
-    def update(self, t: float) -> None:
-        """Pose the people and move the objects to time t (s): this frame's dynamic meshes, uploaded."""
+    def meshes(self, t: float) -> list[tuple]:
+        """The people posed and the objects moved to time t (s): ``(object id, positions, triangles, colours,
+        atlas uv)`` each, as :meth:`upload` takes them."""
         meshes = []
         for oid, item in self.scene.dynamic_meshes(t):
             if isinstance(item, QuadSet):
@@ -85,7 +89,15 @@ class WorldRenderer:
             else:  # a person: vertices, triangles, shading, (uv, texture index) per vertex
                 V, tri, shading, (uv, tex) = item
                 meshes.append((oid, V, tri, shading, atlas_uv(uv, tex, self.rects)))
+        return meshes
+
+    def upload(self, meshes: list[tuple]) -> None:
+        """Draw these dynamic meshes (:meth:`meshes`) from now on."""
         self.gl.set_dynamic(meshes)
+
+    def update(self, t: float) -> None:
+        """Pose the people and move the objects to time t (s): this frame's dynamic meshes, uploaded."""
+        self.upload(self.meshes(t))
 
     def draw(self, T_world_camera: np.ndarray):
         """``rgb`` uint8, ``depth`` float32 m (0 = nothing), ``ids`` uint8 object ids of the world as last updated."""

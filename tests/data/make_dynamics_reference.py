@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from d2slam.methods import DYNAMICS, get_filter
+from d2slam.run.methods import DYNAMICS, get_filter
 
 MODES = tuple(DYNAMICS)
 from d2slam.dynamics.toy import two_view_scene

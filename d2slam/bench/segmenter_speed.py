@@ -1,4 +1,4 @@
-"""``d2slam bench segmentation``: frames per second of the ONNX person segmenter, per model, with the time split
+"""``d2slam bench segmenter_speed``: frames per second of the ONNX person segmenter, per model, with the time split
 into preprocess (resize, scale, NCHW), inference (onnxruntime) and postprocess (decode, NMS, masks at frame size),
 on the five real TUM frames (``d2slam.assets``) repeated. Targets: >= 20 fps at 256x320, >= 15 fps at 384x512.
 
@@ -10,11 +10,18 @@ frame."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from pathlib import Path
 
 import numpy as np
+
+from d2slam.assets import asset_path, tum_frames
+from d2slam.config import DEFAULT
+from d2slam.data import open_sequence
+from d2slam.segmentation import CachedSegmenter, get_segmenter, stack_masks
+from d2slam.segmentation.onnx import KNOWN_MODELS, OnnxSegmenter, read_rgb
 
 DESCRIPTION = ("segmenter speed per model (fps; ms split preprocess / inference / postprocess) on the five real "
                "TUM frames repeated")
@@ -34,11 +41,6 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     if args.cache:
         return cache_read(args)
-    import dataclasses
-
-    from d2slam.assets import asset_path, tum_frames
-    from d2slam.config import DEFAULT
-    from d2slam.segmentation.onnx import KNOWN_MODELS, OnnxSegmenter, read_rgb
 
     images = tum_frames()
     frames = [read_rgb(p) for p in images]
@@ -81,10 +83,6 @@ TARGET_READ_MS = 1.0
 
 def cache_read(args) -> int:
     """Milliseconds per frame of the pipeline's mask provider on a segmented sequence (module docstring)."""
-    from d2slam.config import DEFAULT
-    from d2slam.data import open_sequence
-    from d2slam.segmentation import CachedSegmenter, get_segmenter, stack_masks
-
     model = args.model[0] if args.model else None
     seq = open_sequence(args.cache)
     seg = get_segmenter("onnx", config=DEFAULT.segmentation, model=model)

@@ -10,7 +10,7 @@ well under a second.
 ``warm_up`` runs the engine with the ``d2slam`` filter on a few frames of the analytic room
 (``d2slam.slam.fixture``) with a person mask, so that every kernel is compiled (or loaded) with the argument types of
 real runs. ``make demo`` and ``make test`` call it once per install, after fetching the assets (``python -m
-d2slam.warmup``; its engine closes loops with the vocabulary, built from the real TUM frames), so that the first
+d2slam.run.warmup``; its engine closes loops with the vocabulary, built from the real TUM frames), so that the first
 run of a fresh install finds them compiled, and the study calls it before its workers start, so that they do not each compile the same kernels.
 """
 
@@ -20,21 +20,23 @@ import time
 
 import numpy as np
 
+from d2slam.config import DEFAULT
+from d2slam.run.methods import get_filter
+from d2slam.run.sequence import ensure_vocabulary
+from d2slam.slam.engine import Engine
+from d2slam.slam.fixture import FR3, room_sequence
+
 #: Frames of the analytic room the warm-up runs (enough for keyframes, local BA and the filter's every kernel).
 WARM_UP_FRAMES = 24
 
 
 def warm_up(frames: int = WARM_UP_FRAMES) -> float:
     """Compile (or load from the cache) every compiled kernel; returns the seconds it took."""
-    from d2slam.config import DEFAULT
-    from d2slam.methods import get_filter
-    from d2slam.slam.engine import Engine
-    from d2slam.slam.fixture import FR3, room_sequence
-
     t0 = time.perf_counter()
     images, _, ts = room_sequence(int(frames), seed=0)
     mask = np.zeros((1, FR3.height, FR3.width), dtype=bool)
     mask[0, FR3.height // 4:3 * FR3.height // 4, FR3.width // 3:FR3.width // 2] = True  # a person-sized region
+    ensure_vocabulary(DEFAULT)
     engine = Engine(FR3, DEFAULT, get_filter("d2slam", DEFAULT))
     try:
         for i, (gray, depth) in enumerate(images):

@@ -4,7 +4,6 @@
 ``no-depth``, ``no-oim``, ``no-bayes``, ``semantic``, ``geometric``), the real ``orbslam3`` baseline and
 ``orbslam3-masked`` (the real ORB-SLAM3 on frames with the people's pixels removed) plug in here
 with :func:`register` (one line each; the dynamics methods are the classifier with its switches, :data:`DYNAMICS`)::
-
     register("no-oim", _Dynamics("no-oim", switches=Switches(oim=False)), needs_masks=True)
 
 A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and ``reset()``, or None (hook off).
@@ -15,15 +14,41 @@ A factory returns an object with ``__call__(FilterInput) -> (N,) beliefs`` and `
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 from d2slam.config import Config
+from d2slam.data import SyntheticSequence, open_sequence
+from d2slam.dynamics import classifier
+from d2slam.dynamics.config import FLOW_FIELDS, OIM_FIELDS, fields_read
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
+from d2slam.ranges import flat_fields
+from d2slam.segmentation.config import NOT_IN_KEY
+from d2slam.eval.keypoints import OracleFilter
+from d2slam.run.orbslam3_runs import run_orbslam3
+from d2slam.run.record import RunRecord
 
-if TYPE_CHECKING:  # the records' module loads numpy and the data readers: not for listing the methods
-    from d2slam.record import RunRecord
+
+# What a run reads, by the kind of run: the config sections and the parts of the package (folders or files of
+# d2slam/) whose source decides its numbers. The study keys a run by them (d2slam.study.keys), so that a change
+# elsewhere does not re-run it.
+RUN_CODE = ("run/__init__.py", "run/methods.py", "run/metrics.py", "run/observe.py", "run/record.py",
+            "run/runner.py", "run/sequence.py", "run/warmup.py", "config.py", "ranges.py", "study/runner.py")
+ENGINE_SECTIONS = ("orb", "engine", "data", "evaluation")
+ENGINE_CODE = ("slam", "data", "eval") + RUN_CODE
+# the classifier without the OIM's code and flow's (added for the methods that use them)
+DYNAMICS_CODE = tuple(f"dynamics/{n}.py" for n in ("__init__", "classifier", "config", "depth", "fusion",
+                                                    "geometric", "kernels", "semantic", "switches"))
+OIM_CODE, FLOW_CODE = ("dynamics/interaction.py",), ("dynamics/flow.py",)
+MASK_CODE = ("segmentation",)  # the real segmenter's masks (and its config, but what does not change them)
+ORBSLAM3_SECTIONS = ("baseline", "data", "evaluation")
+ORBSLAM3_CODE = ("baselines", "data", "eval", "run/orbslam3_runs.py", "run/record.py", "run/metrics.py",
+                 "config.py", "ranges.py", "study/runner.py")
+
+
+def sections_read(*names: str) -> Callable[[Config], dict]:
+    """``reads`` of a method that reads whole config sections."""
+    return lambda config: {n: flat_fields(getattr(config, n)) for n in names}
 
 
 @dataclass(frozen=True)
@@ -38,6 +63,10 @@ class Method:
     runner: Callable[[object], RunRecord] | None = None
     # The mask kind the method always uses (``--masks`` cannot change it), or None: the run's choice.
     masks: str | None = None
+    # What a run of it reads: ``reads(config)`` -> {section: its fields read, as a dict}; ``code``: the parts of the
+    # package whose source decides its numbers (with the masks' when it reads the real segmenter's, ``mask_code``).
+    reads: Callable[[Config], dict] = sections_read(*ENGINE_SECTIONS)
+    code: tuple[str, ...] = ENGINE_CODE
 
 
 _REGISTRY: dict[str, Method] = {}
@@ -46,8 +75,24 @@ DEFAULT_MASKS = "onnx"
 
 
 def register(name: str, factory: Callable[[Config], object | None], needs_masks: bool = False,
-             help: str = "", runner: Callable[[object], RunRecord] | None = None, masks: str | None = None) -> None:
-    _REGISTRY[name] = Method(name, factory, needs_masks, help, runner, masks)
+             help: str = "", runner: Callable[[object], RunRecord] | None = None, masks: str | None = None,
+             reads: Callable[[Config], dict] | None = None, code: tuple[str, ...] = ENGINE_CODE) -> None:
+    _REGISTRY[name] = Method(name, factory, needs_masks, help, runner, masks,
+                             reads or sections_read(*ENGINE_SECTIONS), code)
+
+
+def run_reads(method: Method, config: Config, masks: str | None) -> tuple[dict, tuple[str, ...]]:
+    """What a run of ``method`` with ``masks`` (its :func:`mask_kind`) reads: the config values and the package's
+    source parts, the segmenter's included when the masks are the real segmenter's (``onnx``), the OIM's and the
+    flow's when it reads their fields."""
+    reads, code = method.reads(config), method.code
+    dyn = reads.get("dynamics", {})
+    code = code + (OIM_CODE if OIM_FIELDS[0] in dyn else ()) + (FLOW_CODE if FLOW_FIELDS[0] in dyn else ())
+    if masks == "onnx":
+        seg = {k: v for k, v in flat_fields(config.segmentation).items() if k not in NOT_IN_KEY}
+        reads = {**reads, "segmentation": seg}
+        code = code + MASK_CODE
+    return reads, code
 
 
 def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | None:
@@ -66,63 +111,12 @@ def mask_kind(method: Method, requested: str | None, synthetic: bool) -> str | N
     return requested
 
 
-def run_method(seq, name: str, config: Config, masks: str | None = None, mask_seq=None, synthetic: bool = False,
-               features: Callable[[object], object] | None = None, progress: bool | None = None,
-               desc: str | None = None, frames: int | None = None) -> RunRecord:
-    """Run method ``name`` of our engine on ``seq`` (its first ``frames`` frames when given): its keypoint filter,
-    the masks :func:`mask_kind` picks from ``masks`` (read from ``mask_seq`` when given: the same frames of another
-    sequence), the keypoint truth recorded on synthetic sequences, the trajectory and loops evaluated against the
-    ground truth. ``features(keypoint_filter)`` may return stored features for ``run_sequence``. The one place
-    where ``d2slam run`` and the study run a method; the real ORB-SLAM3 (``runner``) is not run here."""
-    from d2slam.eval.keypoints import keypoint_recorder
-    from d2slam.eval.loops import loop_summary
-    from d2slam.eval.trajectory import evaluate_run
-    from d2slam.pipeline import run_sequence
-    from d2slam.record import RunRecord
-
-    method = get_method(name)
-    if method.runner is not None:
-        raise D2SlamError(f"--method {name} is not a keypoint filter of the engine: it has its own runner")
-    kfilter = method.factory(config)
-    kind = mask_kind(method, masks, synthetic=synthetic)
-    if mask_seq is not None and kind is None:
-        raise D2SlamError(f"--masks-from: --method {name} reads no masks")
-    n = len(seq) if frames is None else min(len(seq), int(frames))
-    provider, origin = _mask_provider(seq, kind, mask_seq, config, n, progress) if kind is not None else (None, None)
-    recorder = keypoint_recorder(seq)
-    run = run_sequence(seq, config, keypoint_filter=kfilter, mask_provider=provider, recorder=recorder,
-                       progress=progress, desc=desc, features=features(kfilter) if features else None, frames=n)
-    gt = seq.groundtruth
-    evaluation = evaluate_run(gt, run.trajectory) if gt is not None else None
-    status, error = ("unevaluated", "the sequence has no ground truth") if evaluation is None else \
-        (evaluation.status, {"ok": "", "partial": f"ATE only: {evaluation.error}"}.get(
-            evaluation.status, f"evaluation: {evaluation.error}"))
-    return RunRecord(method=name, sequence=getattr(seq, "name", ""), trajectory=run.trajectory, frames=run.frames,
-                     tracked=run.tracked, lost=run.lost, fps=run.fps, ms_per_frame=run.ms_per_frame,
-                     config_hash=config.hash(), loop_closing=run.loop_closing, status=status, error=error,
-                     evaluation=evaluation, stage_ms=run.stage_ms, masks=kind, masks_origin=origin,
-                     keypoints=recorder.result() if recorder is not None else None,
-                     loops=loop_summary(run, seq.timestamps, gt, config.evaluation), keyframes=run.keyframes,
-                     map_points=run.map_points, engine=run,
-                     min_tracked_share=config.evaluation.min_tracked_share)
-
-
-def _mask_provider(seq, kind: str, mask_seq, config: Config, frames: int, progress: bool | None):
-    """``provider(i)`` of the ``kind`` person masks of frame ``i`` (of ``mask_seq`` when given) as an (n, H, W)
-    stack, and where they come from; the real segmenter's masks missing from the cache are computed now,
-    announced, before the run."""
-    from d2slam.segmentation import mask_source, masks_for, masks_origin, stack_masks
-
-    shape = (seq.camera.height, seq.camera.width)
-    src = seq if mask_seq is None else mask_source(seq, mask_seq)
-    origin = masks_origin(src, kind, config, frames=frames, progress=progress is not False)
-    if mask_seq is not None and kind == "onnx":  # the label kinds name their folder already
-        origin = f"{origin}, of {Path(mask_seq.root).resolve()}"
-
-    def provider(i):
-        return stack_masks(masks_for(src, i, kind, config), shape)
-
-    return provider, origin
+def masks_read(method: Method, requested: str | None, synthetic: bool) -> str | None:
+    """The masks a run of ``method`` reads when ``requested`` are asked for (as the study asks for its masks): the
+    method's own kind when it has one, else :func:`mask_kind`'s; None when the method needs none."""
+    if not method.needs_masks:
+        return None
+    return mask_kind(method, None if method.masks else requested, synthetic)
 
 
 def methods() -> list[str]:
@@ -145,38 +139,35 @@ register("none", lambda config: None, needs_masks=False, help="engine with the k
          "stand-in)")
 
 
-
 def _orbslam3_runner(args) -> RunRecord:
     """``d2slam run --method orbslam3[-masked]``: the real ORB-SLAM3 on ``args.sequence`` (on frames with the people
     removed when ``args.masks`` is set), writing ``args.out`` and ``args.metrics_json``."""
-    from d2slam.baselines.orbslam3 import run_orbslam3  # imported on use: pyorbslam3 loads only for this method
-
     return run_orbslam3(args.sequence, args.out, getattr(args, "metrics_json", None),
                         repeats=getattr(args, "repeats", 1) or 1, vocab=getattr(args, "vocab", None),
                         camera=getattr(args, "camera", None),
-                        progress=not getattr(args, "quiet", False), masks=getattr(args, "masks", None))
+                        progress=not getattr(args, "quiet", False), masks=getattr(args, "masks", None),
+                        online_rate=(getattr(args, "rate", None) or 0.0) if getattr(args, "online", False) else None)
 
 
 register("orbslam3", lambda config: None, needs_masks=False, runner=_orbslam3_runner,
+         reads=sections_read(*ORBSLAM3_SECTIONS), code=ORBSLAM3_CODE,
          help="the real ORB-SLAM3 RGB-D (pyorbslam3) on the sequence, not our engine: d2slam.baselines.orbslam3")
 
 
 def _orbslam3_masked_runner(args) -> RunRecord:
-    from d2slam.data import SyntheticSequence, open_sequence
-
+    """``d2slam run --method orbslam3-masked``: the masks the method reads (``mask_kind``), then ORB-SLAM3's run."""
     seq = open_sequence(args.sequence, **({"camera": args.camera} if getattr(args, "camera", None) else {}))
     args.masks = mask_kind(get_method("orbslam3-masked"), args.masks, synthetic=isinstance(seq, SyntheticSequence))
     return _orbslam3_runner(args)
 
 
 register("orbslam3-masked", lambda config: None, needs_masks=True, runner=_orbslam3_masked_runner,
+         reads=sections_read(*ORBSLAM3_SECTIONS, "masking"), code=ORBSLAM3_CODE,
          help="the real ORB-SLAM3 RGB-D on frames whose person pixels (--masks) are removed: depth 0, RGB filled "
               "(d2slam.baselines.masking)")
 
 
 def _oracle(config: Config):
-    from d2slam.eval.keypoints import OracleFilter
-
     return OracleFilter()
 
 
@@ -184,16 +175,15 @@ register("oracle", _oracle, needs_masks=True, masks="truth",
          help="upper bound, not a method: the keypoint truth (persons, moved objects while they move) as the filter; "
               "synthetic sequences only")
 
+
 class _Dynamics:
     """config -> a filter of ``d2slam.dynamics.classifier`` (``kind``: its class name; ``switches`` for
-    ``D2SlamFilter``), imported when a filter is built: the command line lists the methods without loading it."""
+    ``D2SlamFilter``)."""
 
     def __init__(self, name: str, kind: str = "D2SlamFilter", switches: Switches | None = None):
         self.name, self.kind, self.switches = name, kind, switches
 
     def __call__(self, config=None):
-        from d2slam.dynamics import classifier
-
         cls = getattr(classifier, self.kind)
         if self.switches is None:
             return cls(config, name=self.name)
@@ -201,6 +191,14 @@ class _Dynamics:
 
     def __repr__(self) -> str:
         return f"dynamics filter factory {self.name!r}"
+
+    def reads(self, config: Config) -> dict:
+        """The config a run of the filter reads: the engine's sections and the dynamics fields its modules read
+        (the OIM's only with the OIM on, flow's only with flow; the one-module baselines neither)."""
+        s = self.switches
+        oim, flow = (s.oim, s.flow) if s is not None else (False, False)
+        return {**sections_read(*ENGINE_SECTIONS)(config), "dynamics": fields_read(config.dynamics, oim, flow)}
+
 
 
 # The paper's method and its ablations (the classifier with one switch off), and the two single-module baselines:
@@ -210,7 +208,7 @@ DYNAMICS = {
                "full D2SLAM: semantic + geometric + Bayesian fusion + object interaction (eq 1-10)"),
     "d2slam-flow": (_Dynamics("d2slam-flow", switches=Switches(flow=True)), True,
                     "ours: d2slam with sub-pixel LK flow correspondences for eq 5 and the edge band "
-                    "(DynamicsConfig.flow, flow_edge_band)"),
+                    "(FlowConfig.enabled, flow_edge_band)"),
     "no-depth": (_Dynamics("no-depth", switches=Switches(depth=False)), True,
                  "D2SLAM with every depth-adaptive quantity at its midpoint and no OIM depth test"),
     "no-oim": (_Dynamics("no-oim", switches=Switches(oim=False)), True,
@@ -224,12 +222,14 @@ DYNAMICS = {
 }
 FILTER_HELP = {name: text for name, (_, _, text) in DYNAMICS.items()}
 for _name, (_factory, _needs_masks, _help) in DYNAMICS.items():
-    register(_name, _factory, needs_masks=_needs_masks, help=_help)
+    register(_name, _factory, needs_masks=_needs_masks, help=_help, reads=_factory.reads,
+             code=ENGINE_CODE + DYNAMICS_CODE)
 
 
 def _d2slam(config: Config):
     return get_method("d2slam").factory(config)
 
 
-register("d2slam-sim", _d2slam, needs_masks=True, masks="sim",
+register("d2slam-sim", _d2slam, needs_masks=True, masks="sim", reads=DYNAMICS["d2slam"][0].reads,
+         code=ENGINE_CODE + DYNAMICS_CODE,
          help="d2slam on the simulated segmenter's masks (mask_sim of a synthetic sequence) instead of the real one's")

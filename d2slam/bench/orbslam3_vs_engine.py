@@ -1,19 +1,31 @@
-"""``d2slam bench orbslam3``: the real ORB-SLAM3 (pyorbslam3) against our engine's ``none`` method, side by side on
-the same synthetic sequences: the static twins and the walking scenarios (benchmark seeds 101, 102, 103: never
+"""``d2slam bench orbslam3_vs_engine``: the real ORB-SLAM3 (pyorbslam3) against our engine's ``none`` method, side by
+side on the same synthetic sequences: the static twins and the walking scenarios (benchmark seeds 101, 102, 103: never
 tuned on). Figures: status, tracked frames, ATE RMSE, RPE (translation m, rotation deg over 1 s pairs; evo via
-:mod:`d2slam.eval.trajectory`), ms per frame. ORB-SLAM3 is not deterministic (threads): ``--repeats N`` runs it N
-times and prints the median with the [min, max] spread. Sequences come from the study's cache (keyed by the
-generator version)."""
+:mod:`d2slam.eval.trajectory`), ms per frame. ORB-SLAM3 is not deterministic (threads): ``--repeats N`` runs it N times
+and prints the median with the [min, max] spread. Sequences come from the study's cache (keyed by the generator
+version)."""
 
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from d2slam.baselines.orbslam3 import evaluate_trajectory
+from d2slam.config import DEFAULT, load_config_file
+from d2slam.data import open_sequence
+from d2slam.errors import D2SlamError
+from d2slam.outputs import check_output_dir
+from d2slam.paths import cache_dir
+from d2slam.run.orbslam3_runs import run_orbslam3
+from d2slam.run.record import EXIT_FRAGMENT
+from d2slam.study.sequences import ensure_sequence, sequence_dir
 
 DESCRIPTION = ("real ORB-SLAM3 (pyorbslam3) vs our `none` engine on static twins and walking scenarios: "
                "ATE, RPE, tracked frames, ms per frame")
@@ -42,10 +54,6 @@ def add_arguments(parser) -> None:
 def _sequence(scenario: str, seed: int, frames: int, twin: bool, regenerate: bool = False) -> Path:
     """The benchmark sequence: the study's cached copy, keyed by the generator version (a generator change makes a
     new one), shared with `d2slam study` and `d2slam bench engine`."""
-    import shutil
-
-    from d2slam.study.sequences import ensure_sequence, sequence_dir
-
     if regenerate and sequence_dir(scenario, seed, frames, twin).exists():
         shutil.rmtree(sequence_dir(scenario, seed, frames, twin))
     return ensure_sequence(scenario, seed, frames, twin)
@@ -53,19 +61,13 @@ def _sequence(scenario: str, seed: int, frames: int, twin: bool, regenerate: boo
 
 def _run_engine(seq: Path, out: Path) -> dict:
     """Our engine, ``d2slam run SEQ --method none``, in a child process (a crash is recorded, not raised)."""
-    from d2slam.cli import COMMANDS
-
     traj, run_json = out / "none.txt", out / "none.json"
-    if "run" not in COMMANDS:
-        return {"method": "none", "status": "unavailable", "message": "`d2slam run` (our engine) is not in this "
-                "checkout yet"}
     for p in (traj, run_json):
         p.unlink(missing_ok=True)
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "d2slam.cli", "run", str(seq), "--method", "none", "--out",
                            str(traj), "--metrics-json", str(run_json)], capture_output=True, text=True)
     wall = time.perf_counter() - t0
-    from d2slam.commands.run import EXIT_FRAGMENT
 
     if proc.returncode not in (0, EXIT_FRAGMENT) or not run_json.is_file():
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
@@ -105,16 +107,8 @@ def _fmt(run: dict, key: str, fmt: str, metric: bool = False) -> str:
 
 
 def run(args) -> int:
-    from d2slam.baselines.orbslam3 import evaluate_trajectory, run_orbslam3
-    from d2slam.data import open_sequence
-    from d2slam.errors import D2SlamError
-    from d2slam.paths import cache_dir
-
     if args.frames < 30:
         raise D2SlamError("--frames must be at least 30 (RPE needs 1 s pairs)")
-    from d2slam.outputs import check_output_dir
-
-    from d2slam.config import DEFAULT, load_config_file
 
     config = load_config_file(args.config)[0] if args.config else DEFAULT
     out_root = check_output_dir(args.out, "--out") if args.out else cache_dir("bench", "orbslam3")
@@ -151,8 +145,6 @@ def run(args) -> int:
 
 
 def _loadavg() -> tuple:
-    import os
-
     try:
         return os.getloadavg()
     except OSError:  # pragma: no cover
