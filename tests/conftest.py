@@ -18,8 +18,8 @@ def assets_kept(monkeypatch):
 
 class FaultWorld:
     """A cache of its own (``cache``) holding a short synthetic sequence (``seq``: sitting_static, seed 3, 6 frames,
-    in the study's sequence cache) and a copy of the user's vocabulary; ``run`` starts ``d2slam`` (or a fault hook
-    around it: ``tests/fault_hook.py``) in a child process on that cache, ``env`` sets it in this one."""
+    in the study's sequence cache) and the project's vocabulary, built in this process; ``run`` starts ``d2slam`` (or
+    a fault hook around it: ``tests/fault_hook.py``) in a child process on that cache, ``env`` sets it in this one."""
 
     SCENARIO, SEED, FRAMES = "sitting_static", 3, 6
 
@@ -77,15 +77,24 @@ def fault_world(tmp_path_factory):
 
     from d2slam.assets import INT8_MODEL, asset_path
     from d2slam.paths import cache_root
+    from d2slam.synth.version import generator_version
 
-    user_vocab = cache_root() / "vocab"
     world = FaultWorld(tmp_path_factory.mktemp("faults"), asset_path(INT8_MODEL).parents[1])
-    if (user_vocab / "d2slam_orbvoc.txt").is_file():  # spares building it (if stale, it is built on first use)
-        shutil.copytree(user_vocab, world.cache / "vocab",
+    # The user's rendered training frames spare rendering them (the same bytes on every CPU tried). The vocabulary
+    # itself is built here, not copied: the tests rebuild it and compare with the world's, and a build on another
+    # CPU's SIMD paths differs (OpenCV's ORB gives 3 of its 85,000 descriptors one other bit with x86-64-v2's paths
+    # forced, and the k-majority tree grown from them differs in most of its nodes).
+    frames = cache_root() / "vocab" / "train" / generator_version()
+    if frames.is_dir():
+        shutil.copytree(frames, world.cache / "vocab" / "train" / frames.name,
                         ignore=shutil.ignore_patterns("*.lock", "*.tmp-*", "*.part"))
     with pytest.MonkeyPatch.context() as mp:
         world.env(mp)
+        from d2slam.baselines.vocab import build_vocabulary
+        from d2slam.slam.orb_vocabulary import load_vocabulary
         from d2slam.study.sequences import ensure_sequence
 
+        build_vocabulary(progress=False)
+        load_vocabulary()  # its bag of words derived for the engine, as a first run would
         world.seq = ensure_sequence(world.SCENARIO, world.SEED, world.FRAMES, progress=False)
     return world

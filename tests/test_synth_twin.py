@@ -20,6 +20,7 @@ from d2slam.data.intrinsics import FREIBURG1
 from d2slam.errors import D2SlamError
 from d2slam.synth import generate
 from d2slam.synth.scene import Scene
+from d2slam.synth.sensor import correlated_noise
 from d2slam.synth.twin import (LensMap, distort_normalised, placement, read_recording, row_weights,
                                undistort_normalised)
 
@@ -156,20 +157,72 @@ def test_a_rendered_point_lands_where_projectpoints_says():
 
 
 # ---------------------------------------------------------------------------------------------- the others
-# sha256 over the files (path and content; scene.json left out: it lists the whole SynthConfig) of walking_xyz seed 0,
-# 4 frames, and its static twin, as the generator wrote them before the twin scenario and its sensor existed. Made on
-# this project's machine (Mesa llvmpipe, the pinned pyrender); another rasteriser may differ.
-WALKING_XYZ_4 = "06bafb9b6d749777645489d4349947d4ea249a03387bb77e11688444567e50fd"
-WALKING_XYZ_4_TWIN = "69d7d414392a9cff41ff49e053de1c7649bc44e927161fce2c0d1688dabb5cc4"
+# walking_xyz seed 0, 4 frames, and its static twin, as the generator wrote them before the twin scenario and its
+# sensor existed. Made on this project's machine (Mesa llvmpipe, the pinned pyrender); another rasteriser may differ.
+#
+# Across CPUs only the depth PNGs differ: their noise is smoothed by OpenCV's float32 separable filter
+# (d2slam.synth.sensor.correlated_noise), whose SIMD path (AVX2 with FMA, or SSE only) changes the field's last bits
+# (2 in 3 of its values, by up to 1e-6); rounded to steps of 1/5000 m, 1 to 5 of a frame's ~295,000 valid pixels move
+# by one step (x86-64-v2's paths forced: 12 pixels over the 4 frames, a frame's sums moving by at most 3 steps). The
+# holes, the RGB, the masks and the texts are the same bytes on this machine, x86-64-v3 and x86-64-v2. So:
+# - "others": sha256 over the files (path and content), scene.json (it lists the whole SynthConfig) and the depth
+#   PNGs left out, on any CPU;
+# - "depth": per depth PNG (in time order), its holes (value 0), the sum of its values and their sum under the
+#   pseudo-random signs of _signs(); the holes exactly, the sums within DEPTH_TOL steps (a 5 % change of the
+#   noise's correlation length moves the sums by 3,400 to 30,000 steps, the signed sums by 110 to 4,400);
+# - "all": sha256 over the files but scene.json (the depth PNGs too) where the depth noise's filter gives this
+#   machine's bits (FILTER_BITS); on any CPU, a second generation writes the same bytes.
+WALKING_XYZ_4 = {
+    "all": "06bafb9b6d749777645489d4349947d4ea249a03387bb77e11688444567e50fd",
+    "others": "93b6eac51ea8750d973a4a4c5ba171ecb6552989f69b9bc5631444529fae10fc",
+    "depth": [(12264, 5313008523, -5135695), (12236, 5292767038, -6017164), (12601, 5274671935, -7080721),
+              (12407, 5267915081, -3874639)],
+}
+WALKING_XYZ_4_TWIN = {
+    "all": "69d7d414392a9cff41ff49e053de1c7649bc44e927161fce2c0d1688dabb5cc4",
+    "others": "6b60203ff34c96d13e9b7ae92ba8092d714325fb7b1a4c5e62c64f70c6ed3b3a",
+    "depth": [(10431, 5580293862, -5342890), (10347, 5575630814, -6434724), (10493, 5566255171, -8237897),
+              (10199, 5563413551, -6336409)],
+}
+DEPTH_TOL = 64  # steps of 1/5000 m, summed over a frame's pixels
+# sha256 of correlated_noise over a 480 x 640 float32 field of default_rng(0)'s standard normals, on this machine
+FILTER_BITS = "5718ae1d6a36575c3e2e1f6cbf73d5a47d3588d9f78177c2b5131a80b0b3d64c"
 
 
-@pytest.mark.parametrize("static_twin,want", [(False, WALKING_XYZ_4), (True, WALKING_XYZ_4_TWIN)])
-def test_fr3_scenarios_write_the_same_bytes(tmp_path, static_twin, want):
-    out = generate("walking_xyz", tmp_path / "s", frames=4, seed=0, static_twin=static_twin, workers=1,
-                   progress=False)["out"]
+def _digest(out: Path, depth: bool = True) -> str:
     h = hashlib.sha256()
     for p in sorted(out.rglob("*")):
-        if p.is_file() and p.name != "scene.json":
+        if p.is_file() and p.name != "scene.json" and (depth or p.parent.name != "depth"):
             h.update(str(p.relative_to(out)).encode())
             h.update(hashlib.sha256(p.read_bytes()).digest())
-    assert h.hexdigest() == want
+    return h.hexdigest()
+
+
+def _signs(shape: tuple[int, int]) -> np.ndarray:
+    return np.random.default_rng(0).integers(0, 2, shape) * 2 - 1
+
+
+def _depth_summary(path: Path) -> tuple[int, int, int]:
+    d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.int64)
+    return int((d == 0).sum()), int(d.sum()), int((_signs(d.shape) * d).sum())
+
+
+def _filter_has_this_machines_bits() -> bool:
+    white = np.random.default_rng(0).standard_normal((480, 640), dtype=np.float32)
+    field = correlated_noise(white, SynthConfig().depth_noise_corr_px)
+    return hashlib.sha256(field.tobytes()).hexdigest() == FILTER_BITS
+
+
+@pytest.mark.parametrize("static_twin,want", [(False, WALKING_XYZ_4), (True, WALKING_XYZ_4_TWIN)],
+                         ids=["walking_xyz", "static_twin"])
+def test_fr3_scenarios_write_the_same_bytes(tmp_path, static_twin, want):
+    out, again = (generate("walking_xyz", tmp_path / name, frames=4, seed=0, static_twin=static_twin, workers=1,
+                           progress=False)["out"] for name in ("s", "again"))
+    assert _digest(again) == _digest(out)  # byte-identical on one machine
+    assert _digest(out, depth=False) == want["others"]
+    got = [_depth_summary(p) for p in sorted((out / "depth").glob("*.png"))]
+    assert len(got) == len(want["depth"]), got
+    for (holes, total, signed), (w_holes, w_total, w_signed) in zip(got, want["depth"]):
+        assert holes == w_holes and abs(total - w_total) <= DEPTH_TOL and abs(signed - w_signed) <= DEPTH_TOL, got
+    if _filter_has_this_machines_bits():
+        assert _digest(out) == want["all"]

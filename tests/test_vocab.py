@@ -140,6 +140,7 @@ def test_descriptors_descend_to_a_close_word(small_vocab):
 @pytest.mark.parametrize("content, what", [
     ("hello world\n0 1" + " 0" * 33, "header"),
     ("10 6 0 0\n0 1 1 2 3", "35 numbers"),
+    ("10 6 0 0\n0 1" + " 0" * 16 + " (0" + " 0" * 16, "35 numbers"),  # a flipped bit: a space became "("
     ("10 6 0 0\n0 1" + " 0" * 33 + "\n", "newline"),
     ("10 6 0 0\n0 0" + " 0" * 33, "inner node without children"),
     ("10 6 0 0\n5 1" + " 0" * 33, "parent"),

@@ -125,7 +125,10 @@ class Vocabulary:
         n_fields = 3 + DESCRIPTOR_BYTES
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a bad token ends the parse early: caught by the count below
-            values = np.fromstring(body, dtype=np.float64, sep=" ")
+            try:
+                values = np.fromstring(body, dtype=np.float64, sep=" ")
+            except ValueError:  # the pinned numpy (2.4) raises on a bad token: the lines are read one by one below
+                values = np.empty(0)
         if values.size != n_lines * n_fields or not np.isfinite(values).all():
             for i, row in enumerate(body.split("\n")):
                 toks = row.split()
