@@ -96,6 +96,13 @@ class OnlineConfig(Checked):
     mask_tracks_min: int = within(5, 1, 100_000)
     # onnxruntime's intra-op threads of the segmenter's thread (the tracker has the other core).
     segmenter_threads: int = within(1, 1, 64)
+    # The segmenter's thread is this much nicer than the tracker's (Linux; 0: the same), so that on a busy machine the
+    # tracker, which must keep up with the camera, takes a core first and the segmenter what is left.
+    segmenter_nice: int = within(10, 0, 19)
+    # Each keyframe's local BA solved in a thread beside tracking, as ORB-SLAM3's LocalMapping thread, and written
+    # back (with the keyframe culling) between frames, at the first frame after it is done or before the next
+    # keyframe; off: in the tracking thread, in the frame after the keyframe, as offline.
+    mapping_thread: bool = flag(True)
 
 
 @dataclass(frozen=True)

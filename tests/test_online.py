@@ -154,6 +154,44 @@ def test_the_schedule_replays_byte_for_byte(online_run, head, tmp_path):
     assert again.trajectory.poses.tobytes() == run.trajectory.poses.tobytes()
 
 
+def test_local_ba_beside_tracking_is_written_back_where_the_schedule_says(online_run, head):
+    """The online run solves local BA in a thread and records the frames before which each solution was written
+    back; the replay writes them back at those frames, so another schedule of write-backs is another run."""
+    run, cfg = online_run
+    s = run.schedule
+    assert cfg.online.mapping_thread and s.mapped and set(s.mapped) <= set(s.processed)
+    later = dataclasses.replace(s, mapped=[s.processed[min(s.processed.index(i) + 3, len(s.processed) - 1)]
+                                           for i in s.mapped])
+    moved = replay(head, later, "d2slam", cfg, progress=False)
+    assert moved.trajectory.poses.tobytes() != run.trajectory.poses.tobytes()
+    inline = replay(head, s, "d2slam", dataclasses.replace(cfg, online=dataclasses.replace(cfg.online,
+                                                                                           mapping_thread=False)),
+                    progress=False)
+    assert inline.trajectory.poses.tobytes() != run.trajectory.poses.tobytes()
+
+
+def test_the_segmenter_thread_yields_the_cpu():
+    """``segmenter_nice``: the calling thread's niceness goes up by it (Linux; elsewhere nothing changes), the
+    others' stay."""
+    import os
+    import threading
+
+    from d2slam.run.online import yield_cpu
+
+    seen = {}
+
+    def probe():
+        yield_cpu(5)
+        seen["thread"] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    before = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    t = threading.Thread(target=probe)
+    t.start()
+    t.join()
+    assert seen["thread"] == (min(before + 5, 19) if sys.platform.startswith("linux") else before)
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == before
+
+
 def test_a_bad_schedule_is_one_clear_error(tmp_path, head):
     with pytest.raises(D2SlamError, match="no such online schedule"):
         Schedule.load(tmp_path / "missing.npz")

@@ -24,6 +24,8 @@ byte for byte (``d2slam run --deterministic LOG.npz``): the engine is a function
 from __future__ import annotations
 
 import json
+import os
+import sys
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -45,8 +47,9 @@ from d2slam.run import warmup
 from d2slam.run.methods import get_method
 from d2slam.segmentation import get_segmenter, masks_for, stack_masks
 from d2slam.slam.engine import Engine
+from d2slam.slam.local_mapping import MappingThread
 
-SCHEDULE_VERSION = 1
+SCHEDULE_VERSION = 2
 
 
 @dataclass
@@ -55,7 +58,8 @@ class Schedule:
     first frame's arrival. ``processed[j]`` was tracked with the mask of frame ``mask_of[j]`` (-1: none), taken at
     ``start_s[j]`` and done at ``done_s[j]``; the segmenter segmented ``segmented[m]`` from ``seg_start_s[m]`` to
     ``seg_done_s[m]``; ``masks[i]`` are the person masks (n, H, W) bool frame ``i`` read (those of frame
-    ``mask_of[j]``, moved on: :func:`pick_mask`), for every processed frame that read some."""
+    ``mask_of[j]``, moved on: :func:`pick_mask`), for every processed frame that read some; ``mapped`` are the
+    frames before which a local BA solved beside tracking was written back (``OnlineConfig.mapping_thread``)."""
 
     frames: int
     rate_hz: float  # 0: the frames' timestamps
@@ -68,6 +72,7 @@ class Schedule:
     seg_start_s: list[float] = field(default_factory=list)
     seg_done_s: list[float] = field(default_factory=list)
     masks: dict[int, np.ndarray] = field(default_factory=dict)
+    mapped: list[int] = field(default_factory=list)
     meta: dict = field(default_factory=dict)
 
     @property
@@ -107,7 +112,8 @@ class Schedule:
                   "start_s": np.asarray(self.start_s, np.float64), "done_s": np.asarray(self.done_s, np.float64),
                   "segmented": np.asarray(self.segmented, np.int64),
                   "seg_start_s": np.asarray(self.seg_start_s, np.float64),
-                  "seg_done_s": np.asarray(self.seg_done_s, np.float64)}
+                  "seg_done_s": np.asarray(self.seg_done_s, np.float64),
+                  "mapped": np.asarray(self.mapped, np.int64)}
         for k, m in self.masks.items():
             arrays[f"mask_{k}"] = np.packbits(np.asarray(m, bool), axis=None)
             arrays[f"mask_{k}_shape"] = np.asarray(np.shape(m), np.int64)
@@ -140,7 +146,8 @@ class Schedule:
                 processed=data["processed"].tolist(), mask_of=data["mask_of"].tolist(),
                 start_s=data["start_s"].tolist(), done_s=data["done_s"].tolist(),
                 segmented=data["segmented"].tolist(), seg_start_s=data["seg_start_s"].tolist(),
-                seg_done_s=data["seg_done_s"].tolist(), masks=masks, meta=head.get("meta", {}))
+                seg_done_s=data["seg_done_s"].tolist(), masks=masks, mapped=data["mapped"].tolist(),
+                meta=head.get("meta", {}))
         missing = sorted({i for i, k in zip(s.processed, s.mask_of) if k >= 0} - set(masks))
         if missing or len(s.processed) != len(s.mask_of):
             raise D2SlamError(f"online schedule is inconsistent (masks missing for frames {missing[:5]})", path=path)
@@ -157,8 +164,9 @@ class MaskThread:
     until :meth:`wake`); each finished mask replaces the one before (``latest``). It never polls faster: a thread
     that wakes often takes the interpreter's lock from the tracker."""
 
-    def __init__(self, segmenter, source, shape: tuple[int, int], clock, idle_s: float = 0.1):
+    def __init__(self, segmenter, source, shape: tuple[int, int], clock, idle_s: float = 0.1, nice: int = 0):
         self._segmenter, self._source, self._shape, self._clock = segmenter, source, shape, clock
+        self._nice = nice
         self._stack, self._idle = stack_masks, idle_s
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -170,6 +178,7 @@ class MaskThread:
         self._thread.start()
 
     def _loop(self) -> None:
+        yield_cpu(self._nice)
         try:
             while not self._stop.is_set():
                 item = self._source()
@@ -205,6 +214,18 @@ class MaskThread:
             if isinstance(self.error, D2SlamError):
                 raise self.error
             raise D2SlamError(f"the segmenter's thread failed: {type(self.error).__name__}: {self.error}")
+
+
+def yield_cpu(nice: int) -> None:
+    """The calling thread's niceness raised by ``nice`` (Linux, where a thread has its own; elsewhere, or where the
+    system refuses, nothing changes): the scheduler then gives a core to the tracker first."""
+    if nice <= 0 or not sys.platform.startswith("linux"):
+        return
+    tid = threading.get_native_id()
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + int(nice))
+    except OSError:
+        pass
 
 
 def online_segmenter(config: Config):
@@ -337,16 +358,43 @@ class TrackedMasks:
         return self.inner(inp)
 
 
-def online_engine(camera, method: str, config: Config) -> tuple[Engine, TrackedMasks | None]:
-    """The engine of an online run (or its replay) with ``method``'s filter, wrapped in :class:`TrackedMasks` with
-    ``OnlineConfig.mask_tracks`` (then returned too: set its ``mask_frame`` before each frame)."""
+class ReplayedMapping:
+    """The local BA beside tracking as an online run did it, without a clock: each job is solved when it starts (its
+    inputs are copies, so the solution is the same) and is done where the schedule says it was written back (set
+    ``now`` to the schedule's answer before each frame)."""
+
+    def __init__(self):
+        self.now = False
+
+    @staticmethod
+    def start(fn):
+        return fn()
+
+    def ready(self, job) -> bool:
+        return self.now
+
+    @staticmethod
+    def result(job):
+        return job
+
+    def close(self) -> None:
+        pass
+
+
+def online_engine(camera, method: str, config: Config, background=None) -> tuple[Engine, TrackedMasks | None]:
+    """The engine of an online run (or its replay: ``background`` a :class:`ReplayedMapping`) with ``method``'s
+    filter, wrapped in :class:`TrackedMasks` with ``OnlineConfig.mask_tracks`` (then returned too: set its
+    ``mask_frame`` before each frame); with ``OnlineConfig.mapping_thread`` its local BA is solved beside tracking
+    (``MappingThread``, unless ``background`` is given)."""
     filt = get_method(method).factory(config)
     tracked = None
     if config.online.mask_tracks and filt is not None:
         o = config.online
         depth = int(np.ceil(o.mask_max_age_s * (o.rate_hz if o.rate_hz > 0 else 30.0))) + 2
         filt = tracked = TrackedMasks(filt, o.mask_tracks_min, depth)
-    return Engine(camera, config, filt), tracked
+    if background is None and config.online.mapping_thread:
+        background = MappingThread()
+    return Engine(camera, config, filt, background), tracked
 
 
 class OnlineSLAM:
@@ -373,7 +421,8 @@ class OnlineSLAM:
         self.masks = None
         if m.needs_masks and config.online.masks != "off":
             seg = segmenter if segmenter is not None else online_segmenter(config)
-            self.masks = MaskThread(seg, self._next_for_segmenter, (camera.height, camera.width), self._now)
+            self.masks = MaskThread(seg, self._next_for_segmenter, (camera.height, camera.width), self._now,
+                                    nice=config.online.segmenter_nice)
 
     def warm_up(self, rgb: np.ndarray | None = None) -> None:
         """Before the first frame, as a live system starts before its camera does: the compiled kernels loaded
@@ -419,6 +468,8 @@ class OnlineSLAM:
         s.done_s.append(self._now())
         if k >= 0:
             s.masks[i] = masks
+        if res.mapped:
+            s.mapped.append(i)
         return res
 
     def close(self) -> tuple[Trajectory, Schedule]:
@@ -537,7 +588,9 @@ def replay(seq, schedule: Schedule, method: str = "d2slam", config: Config = DEF
     if schedule.meta.get("sequence") not in (None, "", getattr(seq, "name", "")):
         raise D2SlamError(f"the online schedule is of sequence {schedule.meta['sequence']!r}, not "
                           f"{getattr(seq, 'name', '')!r}", path=getattr(seq, "root", None))
-    engine, tracked = online_engine(seq.camera, method, config)
+    mapping = ReplayedMapping() if config.online.mapping_thread else None
+    engine, tracked = online_engine(seq.camera, method, config, mapping)
+    mapped = set(schedule.mapped)
     states = []
     t0 = time.perf_counter()
     for i, k in tqdm(list(zip(schedule.processed, schedule.mask_of)), desc=f"replay {getattr(seq, 'name', '')}",
@@ -545,6 +598,8 @@ def replay(seq, schedule: Schedule, method: str = "d2slam", config: Config = DEF
         f = seq[i]
         if tracked is not None:
             tracked.mask_frame = k
+        if mapping is not None:
+            mapping.now = i in mapped
         res = engine.process(f.gray, f.depth, i, float(f.timestamp), masks=schedule.masks[i] if k >= 0 else None)
         states.append(res.state)
     wall = time.perf_counter() - t0

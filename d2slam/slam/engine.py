@@ -1,7 +1,8 @@
 """The ORB-SLAM3-style RGB-D engine, one frame at a time: extraction, the keypoint-filter hook, tracking
 (``tracking.py``, with ``relocalisation.py``), and for a new keyframe local mapping (``local_mapping.py``) and loop
 closing (``loop_closing.py``, with the keyframe database of ``keyframe_database.py``, which relocalisation also
-uses; ``EngineConfig.loop_closing``), run synchronously for determinism. The engine knows nothing of dynamics except
+uses; ``EngineConfig.loop_closing``), run synchronously for determinism (an online run may solve local BA beside
+tracking, written back between frames: ``Engine(background=...)``). The engine knows nothing of dynamics except
 the hook (``hook.py``)."""
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ class TrackResult:
     n_inliers: int
     keyframe: bool
     timings: dict = field(default_factory=dict)  # seconds per stage (STAGES)
+    mapped: bool = False  # a local BA solved beside tracking was written back before this frame
 
     @property
     def tracked(self) -> bool:
@@ -52,7 +54,10 @@ def refills(config: SlamConfig, keypoint_filter: KeypointFilter | None) -> bool:
 
 class Engine:
     def __init__(self, camera: Camera, config: SlamConfig = SlamConfig(),
-                 keypoint_filter: KeypointFilter | None = None):
+                 keypoint_filter: KeypointFilter | None = None, background=None):
+        """``background``: solves each keyframe's local BA beside tracking (``local_mapping.MappingThread``, or an
+        online run's replay of one), its solution written back at the start of the first frame after it is done, or
+        before the next keyframe; None (offline): in the frame after the keyframe, in order."""
         cv2.setNumThreads(int(config.engine.cv_threads))
         self.camera = camera
         self.config = config
@@ -62,6 +67,7 @@ class Engine:
         self.proj = Projector(camera, config)
         self.extractor = OrbExtractor(config.orb, config.engine, camera)
         self.hook = FilterHook(keypoint_filter, self.proj, config) if keypoint_filter is not None else None
+        self.background = background
         self.vocabulary = load_vocabulary(self.cfg.vocabulary or None) if self.cfg.loop_closing else None
         self._worker: ThreadPoolExecutor | None = None  # extracts the upcoming frame while this one is tracked
         self._upcoming: tuple[int, Future] | None = None
@@ -71,7 +77,7 @@ class Engine:
         self._drop_upcoming()
         self.map = Map()
         self.tracker = Tracker(self.map, self.proj, self.config)
-        self.mapper = LocalMapper(self.map, self.proj, self.config, self.vocabulary)
+        self.mapper = LocalMapper(self.map, self.proj, self.config, self.vocabulary, self.background)
         self.loop = None
         if self.vocabulary is not None:
             self.loop = LoopCloser(self.map, self.proj, self.config, self.vocabulary, self.mapper)
@@ -106,6 +112,9 @@ class Engine:
         self._check_input(gray, depth, index, features)
         timer = StageTimer(*STAGES)
         tracker = self.tracker
+        with timer("local_ba"):
+            done, culled = self.mapper.collect(wait=False)
+            self._replace_culled_reference(done, culled)
         if features is not None:
             frame = features
         elif self._upcoming is not None and self._upcoming[0] == index:
@@ -130,6 +139,7 @@ class Engine:
         keyframe = ok and how != "init" and tracker.need_new_keyframe(frame)
         with timer("local_ba"):
             if keyframe:
+                self._replace_culled_reference(*self.mapper.collect(wait=True))
                 kf = tracker.create_keyframe(frame)
                 self._replace_culled_reference(kf, self.mapper.insert(kf))
             else:
@@ -146,7 +156,8 @@ class Engine:
             self.previous = current
         state = OK if ok else (NOT_INITIALIZED if tracker.state == NOT_INITIALIZED else LOST)
         n_in = int(((frame.mp >= 0) & ~frame.outlier).sum()) if ok else 0
-        return TrackResult(index, timestamp, state, how, frame.n, n_in, keyframe, timer.seconds)
+        return TrackResult(index, timestamp, state, how, frame.n, n_in, keyframe, timer.seconds,
+                           mapped=done is not None)
 
     @staticmethod
     def _gray(image: np.ndarray | None) -> np.ndarray | None:
@@ -173,8 +184,10 @@ class Engine:
             self._upcoming = None
 
     def close(self) -> None:
-        """Stop the extraction worker (an engine that is garbage-collected stops it too)."""
+        """Stop the extraction worker (an engine that is garbage-collected stops it too) and the background's."""
         self._drop_upcoming()
+        if self.background is not None:
+            self.background.close()
         if self._worker is not None:
             self._worker.shutdown()
             self._worker = None
@@ -243,7 +256,8 @@ class Engine:
         """(frame indices, timestamps, poses T_world_camera) of the tracked frames, each frame's pose taken relative
         to its reference keyframe's final (bundle-adjusted) pose, as ORB-SLAM's SaveTrajectoryTUM. Pending local
         mapping runs first (as ORB-SLAM3 empties its queue before saving): call it once the frames are done."""
-        self._replace_culled_reference(*self.mapper.idle())
+        self._replace_culled_reference(*self.mapper.collect(wait=True))
+        self._replace_culled_reference(*self.mapper.idle(now=True))
         idx = np.array(sorted(self.frame_refs), dtype=np.int64)
         poses = np.zeros((len(idx), 4, 4))
         for i, f in enumerate(idx):

@@ -2,13 +2,17 @@
 descriptors, normals and distance ranges (``ProcessNewKeyFrame``), culling of recent points, new points triangulated
 with the covisible keyframes (``CreateNewMapPoints``), the fusion of duplicate points with the neighbours
 (``SearchInNeighbors``), local bundle adjustment, keyframe culling. Each ORB-SLAM3 step that our engine long did
-without is a switch of ``EngineConfig``."""
+without is a switch of ``EngineConfig``. An online run may solve the local BA beside tracking (``MappingThread``),
+written back between frames."""
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
 import numpy as np
 
-from d2slam.slam.config import SlamConfig
+from d2slam.slam.config import EngineConfig, SlamConfig
 from d2slam.slam import geometric_tools
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import (CHECK_CHI2, rotation_consistent, search_by_projection, search_for_triangulation,
@@ -17,14 +21,75 @@ from d2slam.slam.optimizer import image_chi2, local_bundle_adjustment
 from d2slam.slam.projection import Projector, inv
 
 
+@dataclass
+class Adjustment:
+    """A bundle adjustment posed on copies of the map's values (``LocalMapper.problem``): observation ``rows`` of
+    keyframes ``obs_kf`` (``obs_cam``: their places in ``cams``), the points ``pts`` (``pinv``: each row's place in
+    them), the measurements, the starting ``poses`` and positions ``X``. :meth:`solve` reads nothing else, so it may
+    run beside tracking; ``LocalMapper.apply`` writes its solution back."""
+
+    rows: np.ndarray
+    obs_kf: np.ndarray
+    cams: np.ndarray
+    fixed: np.ndarray
+    pts: np.ndarray
+    pinv: np.ndarray
+    obs_cam: np.ndarray
+    uv: np.ndarray
+    ur: np.ndarray
+    inv_s2: np.ndarray
+    poses: np.ndarray
+    X: np.ndarray
+    iterations: int
+    erase_outliers: bool
+    K: np.ndarray
+    bf: float
+    cfg: EngineConfig
+
+    def solve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(poses, points, outlier observations): ``optimizer.local_bundle_adjustment``."""
+        return local_bundle_adjustment(self.poses, self.fixed, self.X, self.obs_cam, self.pinv, self.uv, self.ur,
+                                       self.inv_s2, self.K, self.bf, self.cfg, self.iterations)
+
+
+def _nothing() -> None:
+    """The job of a local BA with nothing to adjust."""
+
+
+class MappingThread:
+    """Local BA beside tracking, in one worker thread (ORB-SLAM3 runs LocalMapping in its own thread; the compiled
+    solver releases the interpreter's lock). A job's solution is written back between frames by
+    ``LocalMapper.collect``: whether it is done by a given frame depends on timing, so an online run records the
+    frames where it was written back and its replay gives them again (``d2slam.run.online``)."""
+
+    def __init__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="d2slam-mapping")
+
+    def start(self, fn) -> Future:
+        return self._pool.submit(fn)
+
+    @staticmethod
+    def ready(job: Future) -> bool:
+        return job.done()
+
+    @staticmethod
+    def result(job: Future):
+        return job.result()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
+
+
 class LocalMapper:
-    def __init__(self, map_: Map, proj: Projector, config: SlamConfig, vocabulary=None):
+    def __init__(self, map_: Map, proj: Projector, config: SlamConfig, vocabulary=None, background=None):
         self.map = map_
         self.proj = proj
         self.cfg = config.engine
         self.orb = config.orb
         self.vocabulary = vocabulary  # BowVocabulary: the feature-vector nodes of triangulation's search (or None)
+        self.background = background  # solves local BA beside tracking (MappingThread), or None: at once
         self.pending: KeyFrame | None = None  # keyframe whose local BA and culling wait for an idle frame
+        self.running: tuple | None = None  # (keyframe, Adjustment or None, job) of a local BA beside tracking
 
     def insert(self, kf: KeyFrame) -> list[int]:
         """Map the new keyframe ``kf``: recent points culled, neighbours searched, then (``MappingConfig.ba_when_idle``)
@@ -44,11 +109,31 @@ class LocalMapper:
             return []
         return self.optimise(kf)
 
-    def idle(self) -> tuple[KeyFrame | None, list[int]]:
-        """A frame without a new keyframe: the pending keyframe's local BA and keyframe culling run. Returns (that
-        keyframe or None, the keyframes culled)."""
+    def idle(self, now: bool = False) -> tuple[KeyFrame | None, list[int]]:
+        """A frame without a new keyframe: the pending keyframe's local BA and keyframe culling run. With a
+        ``background`` (and not ``now``) its local BA starts beside tracking instead, as in ORB-SLAM3's LocalMapping
+        thread, and :meth:`collect` ends it. Returns (the keyframe whose mapping ended, or None; the keyframes
+        culled)."""
         kf, self.pending = self.pending, None
-        return (kf, self.optimise(kf)) if kf is not None else (None, [])
+        if kf is None:
+            return None, []
+        if self.background is None or now:
+            return kf, self.optimise(kf)
+        ba = self.local_ba_problem(kf)
+        self.running = (kf, ba, self.background.start(ba.solve if ba is not None else _nothing))
+        return None, []
+
+    def collect(self, wait: bool) -> tuple[KeyFrame | None, list[int]]:
+        """The local BA running beside tracking, if its background says it is done (``wait``: once it is done): its
+        solution is written back and the keyframe culling runs. Called between frames only, so tracking never sees a
+        map half written. Returns (its keyframe or None, the keyframes culled)."""
+        if self.running is None or not (wait or self.background.ready(self.running[2])):
+            return None, []
+        (kf, ba, job), self.running = self.running, None
+        solution = self.background.result(job)
+        if ba is not None:
+            self.apply(ba, solution)
+        return kf, self.keyframe_culling(kf)
 
     def optimise(self, kf: KeyFrame) -> list[int]:
         self.local_bundle_adjustment(kf)
@@ -234,6 +319,12 @@ class LocalMapper:
         points they see; other keyframes observing those points are fixed, at most ``local_ba_max_fixed`` of them
         (those with most observations of the local points; the others' observations are left out). Outlier
         observations are erased."""
+        ba = self.local_ba_problem(kf)
+        if ba is not None:
+            self.apply(ba, ba.solve())
+
+    def local_ba_problem(self, kf: KeyFrame) -> "Adjustment | None":
+        """The local BA of :meth:`local_bundle_adjustment`, posed (None: nothing to adjust)."""
         cfg, M = self.cfg, self.map
         local = [kf.id] + self.covisible(kf.id, cfg.mapping.local_ba_window)
         P = M.points
@@ -244,7 +335,7 @@ class LocalMapper:
         pmask &= P.view("alive") & (P.view("belief") <= cfg.mappoint_belief_threshold)
         rows = M.observation_rows(pmask)
         if len(rows) == 0:
-            return
+            return None
         obs_kf = M.obs.kf[rows]
         cams = np.unique(obs_kf)
         cams = cams[[not M.keyframes[c].bad for c in cams]]
@@ -258,9 +349,10 @@ class LocalMapper:
             is_local = np.isin(cams, local)
         fixed = ~is_local | (cams == 0)
         if fixed.all():
-            return
+            return None
         keep = np.isin(obs_kf, cams)
-        self.adjust(rows[keep], obs_kf[keep], cams, fixed, cfg.mapping.local_ba_iterations, erase_outliers=True)
+        return self.problem(rows[keep], obs_kf[keep], cams, fixed, cfg.mapping.local_ba_iterations,
+                            erase_outliers=True)
 
     def global_bundle_adjustment(self, iterations: int) -> None:
         """ORB-SLAM ``GlobalBundleAdjustemnt``: every good keyframe (the first one fixed) and every live point not
@@ -280,11 +372,15 @@ class LocalMapper:
     def adjust(self, rows: np.ndarray, obs_kf: np.ndarray, cams: np.ndarray, fixed: np.ndarray, iterations: int,
                erase_outliers: bool) -> None:
         """Bundle adjustment of the keyframes ``cams`` (sorted; ``fixed`` held constant) and the points of the
-        observation ``rows`` (their keyframes ``obs_kf``), written back to the map; with ``erase_outliers`` the
-        observations above the chi2 thresholds afterwards are erased, except (``lba_depth_outliers_mono``) those whose
-        image residual alone passes the monocular test: their keyframe's depth at the keypoint is dropped
-        (``Map.drop_depth``) and they stay as monocular observations."""
-        M, cfg = self.map, self.cfg
+        observation ``rows`` (their keyframes ``obs_kf``), written back to the map (:meth:`problem`, :meth:`apply`)."""
+        ba = self.problem(rows, obs_kf, cams, fixed, iterations, erase_outliers)
+        self.apply(ba, ba.solve())
+
+    def problem(self, rows: np.ndarray, obs_kf: np.ndarray, cams: np.ndarray, fixed: np.ndarray, iterations: int,
+                erase_outliers: bool) -> "Adjustment":
+        """The bundle adjustment of :meth:`adjust`, its inputs copied out of the map: it can be solved beside
+        tracking (:class:`Adjustment`)."""
+        M = self.map
         P = M.points
         cam_of = np.full(len(M.keyframes), -1)
         cam_of[cams] = np.arange(len(cams))
@@ -298,21 +394,30 @@ class LocalMapper:
             k = M.keyframes[c]
             uv[s], ur[s], inv_s2[s] = k.kps[kp[s]], k.ur[kp[s]], k.inv_sigma2[kp[s]]
         poses = np.stack([M.keyframes[c].Tcw for c in cams])
-        new_poses, new_X, outlier = local_bundle_adjustment(poses, fixed, P.pos[pts], cam_of[obs_kf], pinv, uv, ur,
-                                                            inv_s2, self.proj.K, self.proj.bf, cfg, iterations)
-        for i, c in enumerate(cams):
-            if not fixed[i]:
+        return Adjustment(rows, obs_kf, cams, fixed, pts, pinv, cam_of[obs_kf], uv, ur, inv_s2, poses, P.pos[pts],
+                          iterations, erase_outliers, self.proj.K, self.proj.bf, self.cfg)
+
+    def apply(self, ba: "Adjustment", solution: tuple) -> None:
+        """Write a solved :class:`Adjustment` back: the free keyframes' poses, the points; with ``erase_outliers``
+        the observations above the chi2 thresholds are erased, except (``lba_depth_outliers_mono``) those whose image
+        residual alone passes the monocular test: their keyframe's depth at the keypoint is dropped
+        (``Map.drop_depth``) and they stay as monocular observations. Observations erased since the problem was
+        posed stay erased."""
+        M, cfg = self.map, self.cfg
+        new_poses, new_X, outlier = solution
+        for i, c in enumerate(ba.cams):
+            if not ba.fixed[i]:
                 M.keyframes[c].Tcw = new_poses[i]
-        P.pos[pts] = new_X
-        if erase_outliers:
+        M.points.pos[ba.pts] = new_X
+        if ba.erase_outliers:
             out = np.flatnonzero(outlier)
             if cfg.mapping.lba_depth_outliers_mono:  # only the depth disagrees: the image observation stays
-                chi2, front = image_chi2(new_poses[cam_of[obs_kf[out]]], new_X[pinv[out]], uv[out], inv_s2[out],
-                                         self.proj.K)
-                depth_only = (ur[out] >= 0) & (chi2 <= cfg.chi2_mono) & front
-                M.drop_depth(rows[out[depth_only]])
+                chi2, front = image_chi2(new_poses[ba.obs_cam[out]], new_X[ba.pinv[out]], ba.uv[out],
+                                         ba.inv_s2[out], self.proj.K)
+                depth_only = (ba.ur[out] >= 0) & (chi2 <= cfg.chi2_mono) & front
+                M.drop_depth(ba.rows[out[depth_only]])
                 out = out[~depth_only]
-            M.erase_observations(rows[out])
+            M.erase_observations(ba.rows[out])
 
     def keyframe_culling(self, kf: KeyFrame) -> list[int]:
         """ORB-SLAM3 KeyFrameCulling: a covisible keyframe whose close points are ``keyframe_redundancy`` seen by
