@@ -82,7 +82,7 @@ def _views(X, T1, T2, uv1=None, uv2=None, depth=False, oct1=0, oct2=0):
 
 
 def _new_points(v1, v2):
-    return gt.new_points(v1, v2, K, 40.0, SCALES, 0.9998, 5.991, 7.815, 1.5 * 1.2)
+    return gt.new_points(v1, v2, Projector(FR3, DEFAULT), 0.9998, 5.991, 7.815, 1.5 * 1.2)
 
 
 def test_new_points_keep_good_pairs_and_reject_bad_ones():

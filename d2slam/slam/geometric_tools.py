@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from d2slam.slam.projection import inv
+from d2slam.slam.projection import Projector, inv
 
 
 def skew(t: np.ndarray) -> np.ndarray:
@@ -25,7 +25,8 @@ def fundamental_matrix(T1w: np.ndarray, T2w: np.ndarray, K: np.ndarray) -> np.nd
 
 
 def epipole(T1w: np.ndarray, T2w: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Keyframe 1's centre projected into keyframe 2 (pixels; meaningless behind the camera, as in ORB-SLAM3)."""
+    """Keyframe 1's centre projected into keyframe 2 (pixels; meaningless behind the camera, as in ORB-SLAM3, which
+    divides by the signed depth: hence not ``Projector.pixels``, which holds the depth above zero)."""
     C2 = T2w[:3, :3] @ inv(T1w)[:3, 3] + T2w[:3, 3]
     z = C2[2] if abs(C2[2]) > 1e-12 else 1e-12
     return np.array([K[0, 0] * C2[0] / z + K[0, 2], K[1, 1] * C2[1] / z + K[1, 2]])
@@ -59,34 +60,30 @@ class View:
         return inv(self.Tcw)[:3, 3]
 
 
-def _rays(view: View, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    xn = np.c_[(view.uv[:, 0] - K[0, 2]) / K[0, 0], (view.uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(view.uv))]
-    return xn, xn @ view.Tcw[:3, :3]  # normalised coordinates, the ray in the world (R_wc xn)
+def _rays(view: View, proj: Projector) -> tuple[np.ndarray, np.ndarray]:
+    """The keypoints' normalised coordinates (camera coordinates at depth 1) and their rays in the world (R_wc xn)."""
+    xn = proj.backproject(view.uv, np.ones(len(view.uv)))
+    return xn, xn @ view.Tcw[:3, :3]
 
 
-def _from_depth(view: View, K: np.ndarray) -> np.ndarray:
-    xn = _rays(view, K)[0]
+def _from_depth(view: View, proj: Projector) -> np.ndarray:
     Twc = inv(view.Tcw)
-    return (xn * view.depth[:, None]) @ Twc[:3, :3].T + Twc[:3, 3]
+    return proj.backproject(view.uv, view.depth) @ Twc[:3, :3].T + Twc[:3, 3]
 
 
-def _reprojects(view: View, X: np.ndarray, K: np.ndarray, bf: float, sigma2: np.ndarray, chi2_mono: float,
+def _reprojects(view: View, X: np.ndarray, proj: Projector, sigma2: np.ndarray, chi2_mono: float,
                 chi2_stereo: float) -> np.ndarray:
     """In front of the camera and within the chi-square test: ``(du^2 + dv^2) / sigma^2`` (mono) or with ``du_R``
     at 1 px x scale too (where the keypoint has u_R)."""
-    Xc = X @ view.Tcw[:3, :3].T + view.Tcw[:3, 3]
-    z = Xc[:, 2]
-    zs = np.where(z > 0, z, 1.0)
-    u = K[0, 0] * Xc[:, 0] / zs + K[0, 2]
-    v = K[1, 1] * Xc[:, 1] / zs + K[1, 2]
+    u, v, z = proj.project(view.Tcw, X)
     e2 = (u - view.uv[:, 0]) ** 2 + (v - view.uv[:, 1]) ** 2
     stereo = view.ur >= 0
-    e2s = e2 + (u - bf / zs - view.ur) ** 2
+    e2s = e2 + (u - proj.bf / np.where(z > 0, z, 1.0) - view.ur) ** 2
     return (z > 0) & np.where(stereo, e2s <= chi2_stereo * sigma2, e2 <= chi2_mono * sigma2)
 
 
-def new_points(v1: View, v2: View, K: np.ndarray, bf: float, scales: np.ndarray, max_cos_parallax: float,
-               chi2_mono: float, chi2_stereo: float, ratio_factor: float) -> tuple[np.ndarray, np.ndarray]:
+def new_points(v1: View, v2: View, proj: Projector, max_cos_parallax: float, chi2_mono: float, chi2_stereo: float,
+               ratio_factor: float) -> tuple[np.ndarray, np.ndarray]:
     """ORB-SLAM3 ``CreateNewMapPoints``' per-match geometry for matched keypoints of keyframes 1 and 2: the point is
     triangulated when the rays' parallax exceeds the depth's (the stereo parallax ``2 atan(b / 2z)`` of keyframe 1
     where it has depth, else of keyframe 2's), is positive, and (without depth in either) ``cos`` is below
@@ -94,11 +91,12 @@ def new_points(v1: View, v2: View, K: np.ndarray, bf: float, scales: np.ndarray,
     the larger; otherwise dropped. It must then lie in front of both keyframes, reproject within the chi-square
     tests in both, and its distances to the two centres must agree with the keypoints' octaves within
     ``ratio_factor``. Returns ((M, 3) points, kept)."""
-    xn1, ray1 = _rays(v1, K)
-    xn2, ray2 = _rays(v2, K)
+    scales = proj.scales
+    xn1, ray1 = _rays(v1, proj)
+    xn2, ray2 = _rays(v2, proj)
     cos_rays = np.einsum("ij,ij->i", ray1, ray2) / (np.linalg.norm(ray1, axis=1) * np.linalg.norm(ray2, axis=1))
     s1, s2 = v1.ur >= 0, v2.ur >= 0
-    b = bf / K[0, 0]
+    b = proj.b
     cos_s1 = np.where(s1, np.cos(2 * np.arctan2(b / 2, np.where(s1, v1.depth, 1.0))), cos_rays + 1)
     cos_s2 = np.where(~s1 & s2, np.cos(2 * np.arctan2(b / 2, np.where(s2, v2.depth, 1.0))), cos_rays + 1)
     cos_stereo = np.minimum(cos_s1, cos_s2)
@@ -106,11 +104,11 @@ def new_points(v1: View, v2: View, K: np.ndarray, bf: float, scales: np.ndarray,
     use1 = ~tri & s1 & (cos_s1 < cos_s2)
     use2 = ~tri & ~use1 & s2 & (cos_s2 < cos_s1)
     X, ok = triangulate(xn1, xn2, v1.Tcw, v2.Tcw)
-    X[use1], X[use2] = _from_depth(v1, K)[use1], _from_depth(v2, K)[use2]
+    X[use1], X[use2] = _from_depth(v1, proj)[use1], _from_depth(v2, proj)[use2]
     ok = (tri & ok) | use1 | use2
     sig1, sig2 = scales[v1.octave] ** 2, scales[v2.octave] ** 2
-    ok &= _reprojects(v1, X, K, bf, sig1, chi2_mono, chi2_stereo)
-    ok &= _reprojects(v2, X, K, bf, sig2, chi2_mono, chi2_stereo)
+    ok &= _reprojects(v1, X, proj, sig1, chi2_mono, chi2_stereo)
+    ok &= _reprojects(v2, X, proj, sig2, chi2_mono, chi2_stereo)
     d1 = np.linalg.norm(X - v1.centre, axis=1)
     d2 = np.linalg.norm(X - v2.centre, axis=1)
     ratio_dist = d2 / np.where(d1 > 0, d1, 1.0)

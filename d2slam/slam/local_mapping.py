@@ -254,8 +254,8 @@ class LocalMapper:
                 continue
             v1 = geometric_tools.View(kf.Tcw, kf.kps[i1], kf.ur[i1], kf.depth[i1], kf.octave[i1])
             v2 = geometric_tools.View(kf2.Tcw, kf2.kps[i2], kf2.ur[i2], kf2.depth[i2], kf2.octave[i2])
-            X, ok = geometric_tools.new_points(v1, v2, self.proj.K, self.proj.bf, self.proj.scales,
-                                               cfg.mapping.triangulation_max_cos_parallax, cfg.chi2_mono, cfg.chi2_stereo,
+            X, ok = geometric_tools.new_points(v1, v2, self.proj, cfg.mapping.triangulation_max_cos_parallax,
+                                               cfg.chi2_mono, cfg.chi2_stereo,
                                                cfg.mapping.triangulation_ratio_factor * self.orb.scale_factor)
             made += len(self._add_triangulated(kf, kf2, i1[ok], i2[ok], X[ok]))
         return made

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from d2slam.slam.matching import Gridded, medoid_descriptors
+from d2slam.slam.projection import inv
 
 
 class Columns:
@@ -163,7 +164,7 @@ class Map:
             sel = kf == k
             K_ = self.keyframes[k]
             desc[sel] = K_.desc[kp[sel]]
-            centre[sel] = -K_.Tcw[:3, :3].T @ K_.Tcw[:3, 3]
+            centre[sel] = inv(K_.Tcw)[:3, 3]
         P.desc[ids] = desc[medoid_descriptors(desc, np.r_[start, len(rows)])]
         ray = P.pos[pt] - centre
         dist = np.linalg.norm(ray, axis=1)
