@@ -329,6 +329,26 @@ def test_the_last_frame_follows_its_reference_keyframe(room):
     tr.track_with_motion_model(f)
     np.testing.assert_allclose(last.Tcw, last.Tcr @ ref.Tcw, atol=1e-12)
 
+def test_the_motion_model_spans_frames_the_tracker_never_saw(room):
+    """An online run drops frames: the next frame is predicted by the constant velocity over the frame steps since
+    the last tracked frame (the model is per step), so it is tracked by the motion model, not the reference
+    keyframe, and the model carries on per step."""
+    from d2slam.slam.optimizer import se3_power
+
+    frames, gt, ts = room
+    eng = Engine(FR3)
+    for i in range(8):
+        assert eng.process(*frames[i], i, ts[i]).tracked
+    step = eng.tracker.velocity.copy()
+    np.testing.assert_allclose(eng.tracker.motion(11), step @ step @ step @ step, atol=1e-9)  # 7 -> 11
+    before = eng.last.Tcw.copy()
+    r = eng.process(*frames[11], 11, ts[11])  # frames 8-10 dropped
+    assert r.tracked and r.how == "motion"
+    moved = eng.last.Tcw @ np.linalg.inv(before)
+    np.testing.assert_allclose(se3_power(eng.tracker.velocity, 4), moved, atol=1e-9)
+    assert eng.process(*frames[12], 12, ts[12]).how == "motion"
+
+
 def test_textureless_and_invalid_depth_frames_are_lost(room):
     frames, gt, ts = room
     blank = (np.full_like(frames[0][0], 128), frames[0][1])

@@ -129,7 +129,7 @@ class Engine:
             if self.hook is not None:
                 prev = self.previous
                 tracked = prev is not None and prev.frame is tracker.last_tracked
-                self.hook(current, masks, prev, self.map, tracker.velocity if tracked else None)
+                self.hook(current, masks, prev, self.map, tracker.motion(frame.index) if tracked else None)
         if upcoming is not None and features is None:
             self._extract_upcoming(frame, *upcoming)
         with timer("track"):

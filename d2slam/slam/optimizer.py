@@ -343,6 +343,11 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     return np.concatenate([w, np.einsum("nij,nj->ni", Vinv, T[:, :3, 3])], axis=1)
 
 
+def se3_power(T: np.ndarray, a: float) -> np.ndarray:
+    """The rigid transform ``T^a`` (4x4): ``exp(a log T)``, the same screw motion ``a`` times as far."""
+    return lm.se3_exp(a * se3_log(T[None])[0])
+
+
 def _hat(w: np.ndarray) -> np.ndarray:
     W = np.zeros((len(w), 3, 3))
     W[:, 0, 1], W[:, 0, 2], W[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]

@@ -13,7 +13,7 @@ from d2slam.slam.config import SlamConfig
 from d2slam.slam.frame import Frame
 from d2slam.slam.map import KeyFrame, Map
 from d2slam.slam.matching import knn_ratio_match, rotation_consistent, search_by_projection, unique_by_target
-from d2slam.slam.optimizer import pose_optimization
+from d2slam.slam.optimizer import pose_optimization, se3_power
 from d2slam.slam.projection import Projector, inv
 
 OK, LOST, NOT_INITIALIZED = "ok", "lost", "not_initialized"
@@ -58,7 +58,7 @@ class Tracker:
         self.new_points_depth_m = max(proj.th_depth_m, self.cfg.keyframes.kf_new_points_depth)
         self.state = NOT_INITIALIZED
         self.last_tracked: Frame | None = None
-        self.velocity: np.ndarray | None = None  # T_current_last of the constant-velocity model
+        self.velocity: np.ndarray | None = None  # the constant-velocity model's motion over one frame step
         self.ref_kf: KeyFrame | None = None
         self.keyframe_db = None  # the loop closer's KeyFrameDatabase (relocalisation candidates), None without it
         self.last_kf_frame = -(10 ** 9)
@@ -86,12 +86,25 @@ class Tracker:
             ok = self.track_local_map(frame)
         return ok, how
 
+    def motion(self, index: int) -> np.ndarray | None:
+        """The constant-velocity model's prediction ``T_frame_last`` for frame ``index``: ``velocity`` over the frame
+        steps since the last tracked frame (more than one where an online run dropped frames; None: no model)."""
+        if self.velocity is None or self.last_tracked is None:
+            return None
+        steps = index - self.last_tracked.index
+        return self.velocity if steps == 1 else se3_power(self.velocity, steps)
+
     def finish(self, frame: Frame, ok: bool) -> None:
-        """After tracking (and mapping): the motion model and the last tracked frame, or the loss."""
+        """After tracking (and mapping): the motion model and the last tracked frame, or the loss. The model is the
+        motion since the last tracked frame per frame step: across frames never given to the tracker (an online run's
+        dropped frames) the motion is shared evenly among them; after a loss there is none."""
         if ok:
+            steps = frame.index - self.last_tracked.index if self.last_tracked is not None else 0
+            motion = frame.Tcw @ inv(self.last_tracked.Tcw) if steps > 0 else None
+            if steps != 1:
+                motion = se3_power(motion, 1.0 / steps) if motion is not None and self.state == OK else None
+            self.velocity = motion
             self.state = OK
-            last = self.last_tracked
-            self.velocity = frame.Tcw @ inv(last.Tcw) if last is not None and last.index == frame.index - 1 else None
             frame.ref_kf = self.ref_kf.id
             frame.Tcr = frame.Tcw @ inv(self.ref_kf.Tcw)
             frame.mp[frame.outlier] = -1
@@ -184,7 +197,7 @@ class Tracker:
         (twice the radius when few match), motion-only BA."""
         last = self.last_tracked
         last.Tcw = last.Tcr @ self.map.keyframes[last.ref_kf].Tcw
-        frame.Tcw = self.velocity @ last.Tcw
+        frame.Tcw = self.motion(frame.index) @ last.Tcw
         frame.mp[:] = -1
         th = self.cfg.tracking.search_radius_last_frame
         n = self.search_last_frame(frame, last, th)
