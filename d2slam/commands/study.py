@@ -54,7 +54,8 @@ def register(sub) -> None:
     p.add_argument("--no-online", action="store_true",
                    help="without the online runs (default: none, d2slam and orbslam3 also run online, `d2slam run "
                    "--online` at online.rate_hz, on the fr3 walking scenarios and fr1_rpy; after every other run, one "
-                   "at a time in this process, never on --scheduler's workers; docs/online.md)")
+                   "at a time in this process, never on --scheduler's workers; an online d2slam segments its frames "
+                   "with the real segmenter in its own thread, whatever --masks; docs/study.md, 'Online runs')")
     p.add_argument("--orbslam3-repeats", type=int, default=None, help="ORB-SLAM3 runs per sequence (not "
                    "deterministic: median and spread reported; default: config baseline.orbslam3_repeats, 3)")
     p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,

@@ -166,7 +166,7 @@ class _Phases:
         self.plans = phase_plans(options, int(jobs) if scheduler is None else workers)
         self.seconds = {"sequences_s": 0.0, "segmentation_s": 0.0, "runs_s": 0.0, "online_s": 0.0}  # each phase's own
         self.cpu = {"sequences": [], "segmentation": [], "runs": [], "online": []}  # each call's CPU seconds
-        self.online_load: list[float] | None = None  # the load average when the online phase started
+        self.online_runs, self.online_load = 0, None  # online runs run, the load average when they started
         self.cpu0 = process_cpu_s(children=False)  # the executor's workers are children too: counted per call
 
     def _phase(self, fn, items, desc: str, unit: str, on_result=None, cost=None, alone: bool = False) -> list:
@@ -217,7 +217,7 @@ class _Phases:
         each saved as it finishes; run id -> its result."""
         if not todo:
             return {}
-        self.online_load = load_average()
+        self.online_runs, self.online_load = len(todo), load_average()
 
         def checkpoint(i, r):
             rid = todo[i].run_id
@@ -238,7 +238,7 @@ class _Phases:
         online_cpu = cpu.pop("online_cpu_s")
         online = {"online_s": round(s["online_s"], 2), "online_cpu_s": online_cpu,
                   "online_load_average": self.online_load,
-                  "online_where": "this process, one run at a time, after the other runs"} if self.cpu["online"] else {}
+                  "online_where": "this process, one run at a time, after the other runs"} if self.online_runs else {}
         return {"sequences_s": round(s["sequences_s"], 2), "segmentation_s": round(s["segmentation_s"], 2),
                 "runs_s": round(rest, 2), **cpu, **online,
                 "study_process_cpu_s": round(process_cpu_s(children=False) - self.cpu0, 2)}
