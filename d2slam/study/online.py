@@ -26,10 +26,8 @@ from d2slam.run.online import online_report, run_online
 from d2slam.run.orbslam3_runs import run_orbslam3
 from d2slam.run.runner import run_config
 from d2slam.study.grid import ORBSLAM3, RunSpec
-# study.runner's helpers are used as they are: its source keys every run (d2slam.run.methods.RUN_CODE), so a change
-# there would re-key every offline run of a study
-from d2slam.study.runner import (RunOptions, _message, _sequence_path, _single_threaded, base_row, failed_row,
-                                 run_row)
+from d2slam.study.runner import (RunOptions, base_row, failed_row, message, run_row, sequence_path,
+                                 single_threaded)
 
 # The online figures of a row: the share of frames processed, the frames dropped, the lag from a frame's arrival
 # to its pose (median, 95th percentile, ms), the segmenter's frames per second (the engine's only); the keys of
@@ -58,12 +56,12 @@ def execute_online_run(spec: RunSpec | dict, options: RunOptions) -> dict:
         spec = RunSpec(**spec)
     t0 = time.perf_counter()
     try:
-        with _single_threaded():
-            path = _sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, spec.twin, options)
+        with single_threaded():
+            path = sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, spec.twin, options)
             result = (_orbslam3_online(spec, path, options) if spec.method == ORBSLAM3 else
                       _engine_online(spec, path, options))
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a crash of the study
-        return {"row": {**failed_row(spec, _message(exc), time.perf_counter() - t0, options), **_marks()},
+        return {"row": {**failed_row(spec, message(exc), time.perf_counter() - t0, options), **_marks()},
                 "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}, "loops": None,
                 "schedule": None}
     result["row"]["wall_s"] = time.perf_counter() - t0
