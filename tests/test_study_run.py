@@ -319,7 +319,7 @@ def test_the_study_orders_its_runs_by_estimated_cost():
     from d2slam.study.runner import run_options
 
     specs = expand_grid(["walking_xyz"], ["none", "d2slam", "semantic", "d2slam-flow", "orbslam3"], [101], 300,
-                        twin_methods=("none",))
+                        twin_methods=("none",), online_methods=())  # online runs: a phase of their own
     specs.append(RunSpec("walking_rpy", "none", 101, 900))
     options = run_options()
     order = [specs[i].run_id for i in dispatch_order([run_cost(s, options) for s in specs])]

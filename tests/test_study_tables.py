@@ -18,12 +18,15 @@ from d2slam.study.grid import RunSpec, expand_grid
 # ---------------------------------------------------------------------------------------------- grid
 def test_grid_order_and_twins():
     specs = expand_grid(["sitting_static", "walking_xyz"], ["none", "d2slam", "semantic"], [103, 101], 60)
-    # paper order of scenarios, dynamic before twin, seeds ascending, methods as given; twins: none + d2slam only
+    # paper order of scenarios, dynamic before twin, then online, seeds ascending, methods as given; twins: none +
+    # d2slam only; online: none + d2slam, on the walking scenario only
     assert [s.run_id for s in specs[:4]] == ["walking_xyz_s101_n60_none", "walking_xyz_s101_n60_d2slam",
                                              "walking_xyz_s101_n60_semantic", "walking_xyz_s103_n60_none"]
-    dyn = [s for s in specs if not s.twin]
+    dyn = [s for s in specs if not s.twin and not s.online]
     twin = [s for s in specs if s.twin]
     assert len(dyn) == 2 * 3 * 2 and len(twin) == 2 * 2 * 2
+    assert [s.run_id for s in specs[10:14]] == ["walking_xyz_s101_n60_none_online", "walking_xyz_s101_n60_d2slam_online",
+                                                "walking_xyz_s103_n60_none_online", "walking_xyz_s103_n60_d2slam_online"]
     assert {s.method for s in twin} == {"none", "d2slam"}
     assert specs[6].scenario == "walking_xyz" and specs[6].twin and specs[6].seed == 101
     assert specs[-1] == RunSpec("sitting_static", "d2slam", 103, 60, True)
@@ -33,11 +36,11 @@ def test_grid_order_and_twins():
 
 def test_grid_dedup_defaults_and_errors():
     specs = expand_grid(["walking_rpy", "walking_rpy"], ["none", "none"], [5, 5], 40, twin_methods=())
-    assert specs == [RunSpec("walking_rpy", "none", 5, 40)]
+    assert specs == [RunSpec("walking_rpy", "none", 5, 40), RunSpec("walking_rpy", "none", 5, 40, online=True)]
     default = expand_grid(frames=300)
     n_methods = len(G.default_methods())
     assert "orbslam3" in G.default_methods() and G.default_methods()[0] == "none"
-    fr3 = [s for s in default if s.scenario in G.FR3_SCENARIOS]
+    fr3 = [s for s in default if s.scenario in G.FR3_SCENARIOS and not s.online]
     assert len(fr3) == 5 * 3 * n_methods + 5 * 3 * 3  # twins: none, d2slam, oracle (the occluded twin)
     ours = [s for s in default if s.scenario in G.INTERACTION_SCENARIOS]
     assert len(ours) == 2 * 3 * len(G.INTERACTION_METHODS) + 2 * 3 * 3

@@ -142,7 +142,7 @@ def test_tum_durations():
     assert frames_arg("tum") == "tum" and frames_arg("120") == 120 and resolve_frames("sitting_static", "tum") == 709
     with pytest.raises(D2SlamError, match="unknown scenario"):
         tum_frames("walking_sideways")
-    specs = expand_grid(["walking_static", "walking_carry"], ["none"], [0], "tum", ())
+    specs = expand_grid(["walking_static", "walking_carry"], ["none"], [0], "tum", (), online_methods=())
     assert [s.frames for s in specs] == [745, 900]
     with pytest.raises(D2SlamError, match="not a TUM sequence"):
         expand_grid(["walking_carry"], ["none"], [0], "tum", (), source="tum")

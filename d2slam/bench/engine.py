@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from d2slam.bench import online
-from d2slam.bench.online import engine_run, loadavg
+from d2slam.bench.online import engine_run
 from d2slam.config import DEFAULT
 from d2slam.data import open_sequence
 from d2slam.errors import D2SlamError
@@ -31,6 +31,7 @@ from d2slam.slam import optimizer as opt_mod
 from d2slam.slam.config import EngineConfig
 from d2slam.slam.fixture import FR3
 from d2slam.study.grid import DEFAULT_FRAMES
+from d2slam.study.online import load_average
 from d2slam.study.sequences import ensure_sequence
 from d2slam.synth.scene import default_frames
 
@@ -65,7 +66,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--repeats", type=int, default=3, help="--against: ORB-SLAM3 runs (median [min, max])")
     parser.add_argument("--online", action="store_true", help="online at --rate: `d2slam bench online` (its options: "
                         "SEQ, --seeds, --frames)")
-    parser.add_argument("--rate", type=float, default=30.0, help="--online: frames arrive at this rate (Hz)")
+    parser.add_argument("--rate", type=float, default=None, help="--online: frames arrive at this rate (Hz; default "
+                        "online.rate_hz)")
     parser.add_argument("--no-real", action="store_true", help="--online: without the real fr1/rpy")
 
 
@@ -233,7 +235,7 @@ def _loop_summary(rows: list[dict], methods: list[str]) -> None:
         false = sum(len(r.get("loops_false", [])) for r in on_rows if r["method"] == method)
         print(f"{method}: ATE with / without loop closing, median over seeds {np.median(ratio):.2f} "
               f"(per seed {', '.join(f'{x:.2f}' for x in ratio)}); false loops {false}")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}")
+    print(f"load average: {', '.join(f'{x:.1f}' for x in load_average() or [])}")
 
 
 # ---------------------------------------------------------------------------------------------- optimisers
@@ -421,5 +423,5 @@ def against_orbslam3(args) -> int:
               f"{str(r.get('map_points', '-')):>7} {ate_s} {ms_s} {ratio}  {stages}")
     if none_ms and twin_ms:
         print(f"none on the sequence / none on its static twin: {none_ms / twin_ms:.2f}x")
-    print(f"load average: {', '.join(f'{x:.1f}' for x in loadavg())}; runs and trajectories in {out}")
+    print(f"load average: {', '.join(f'{x:.1f}' for x in load_average() or [])}; runs and trajectories in {out}")
     return 0

@@ -7,7 +7,6 @@ user runs it. Online figures depend on the machine and its load (printed with th
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -22,19 +21,21 @@ from d2slam.outputs import write_bytes
 from d2slam.ranges import overridden
 from d2slam.run.online import replay, simulated_schedule
 from d2slam.run.record import EXIT_FRAGMENT
-from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS
+from d2slam.study.grid import DEFAULT_FRAMES, DEFAULT_SEEDS, ONLINE_SCENARIOS, REAL_SCENARIOS
+from d2slam.study.online import load_average
 from d2slam.study.sequences import ensure_sequence
 
 DESCRIPTION = ("online at the sensor's rate: d2slam --online beside offline d2slam, online none and the real "
                "ORB-SLAM3 online and offline; frames processed, lag, ATE (also: bench engine --online)")
-WALKING = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy")
+WALKING = tuple(s for s in ONLINE_SCENARIOS if s not in REAL_SCENARIOS)  # the study's online scenarios
 TARGET_PROCESSED, TARGET_LAG_MS, TARGET_ATE_RATIO, TARGET_BETTER = 0.95, 33.0, 1.15, 0.90
 
 
 def add_arguments(parser) -> None:
     parser.add_argument("sequences", nargs="*", metavar="SEQ", help="TUM or synthetic sequence folders (default: the "
                         "four fr3 walking scenarios of --seeds and --frames, and the whole real fr1/rpy when fetched)")
-    parser.add_argument("--rate", type=float, default=30.0, help="frames arrive at this rate (Hz; default 30)")
+    parser.add_argument("--rate", type=float, default=None, help="frames arrive at this rate (Hz; default "
+                        "online.rate_hz, as in the study's online runs: 0, the frames' own timestamps)")
     parser.add_argument("--seeds", type=int, nargs="+", default=None,
                         help=f"sequence seeds of the default scenarios (default {DEFAULT_SEEDS[0]}, a study seed; "
                         "with --latency 3, a development seed)")
@@ -74,16 +75,12 @@ def engine_run(seq, method: str, out, extra: list[str] = ()) -> dict:
     return {**run, "status": "fragment" if run.get("fragment") else "ok"}  # a fragment ran: its timings count
 
 
-def loadavg() -> tuple:
-    return os.getloadavg()
-
-
 def _run(seq: Path, method: str, out: Path, extra: list[str]) -> dict:
     return engine_run(seq, method, out, extra)
 
 
-def _row(seq: Path, rate: float, out: Path) -> dict:
-    online = ["--online", "--rate", f"{rate:g}"]
+def _row(seq: Path, rate: float | None, out: Path) -> dict:
+    online = ["--online"] + (["--rate", f"{rate:g}"] if rate else [])
     runs = {"d2slam offline": _run(seq, "d2slam", out / "offline", []),
             "d2slam online": _run(seq, "d2slam", out / "online", online),
             "none online": _run(seq, "none", out / "online", online),
@@ -150,7 +147,8 @@ def run(args) -> int:
     seqs = _sequences(args)
     out = Path(tempfile.mkdtemp(prefix="d2slam_bench_online_"))
     rows = []
-    print(f"d2slam bench online: {len(seqs)} sequence(s) at {args.rate:g} Hz; targets for d2slam online: processed "
+    at = f"{args.rate:g} Hz" if args.rate else "online.rate_hz" if DEFAULT.online.rate_hz else "their timestamps"
+    print(f"d2slam bench online: {len(seqs)} sequence(s) at {at}; targets for d2slam online: processed "
           f">= {100 * TARGET_PROCESSED:g} %, median lag <= {TARGET_LAG_MS:g} ms, ATE <= {TARGET_ATE_RATIO:g}x offline "
           f"d2slam, >= {100 * TARGET_BETTER:g} % better than the real ORB-SLAM3 (fr3 walking)")
     for i, seq in enumerate(seqs):
@@ -167,7 +165,8 @@ def run(args) -> int:
             d = _ate(r["d2slam online"])
             if isinstance(d, float):
                 print(f"d2slam online against the real ORB-SLAM3 offline: {100 * (1 - d / orb_off):.1f} % better")
-    print(f"\nload average: {', '.join(f'{x:.1f}' for x in loadavg())}; runs in {out}")
+    load = load_average()
+    print(f"\nload average: {', '.join(f'{x:.1f}' for x in load) if load else 'n/a'}; runs in {out}")
     if args.json:
         write_bytes(Path(args.json), json.dumps(rows, indent=2) + "\n")
     return 0

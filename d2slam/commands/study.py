@@ -51,6 +51,11 @@ def register(sub) -> None:
                    help="run the grid on a dask.distributed cluster instead: every worker with this checkout and "
                    "environment (checked before the first phase) and the same cache folder ($D2SLAM_CACHE on a "
                    "shared filesystem); docs/study.md, 'The study on a Dask cluster'")
+    p.add_argument("--no-online", action="store_true",
+                   help="without the online runs (default: none, d2slam and orbslam3 also run online, `d2slam run "
+                   "--online` at online.rate_hz, on the fr3 walking scenarios and fr1_rpy; after every other run, one "
+                   "at a time in this process, never on --scheduler's workers; an online d2slam segments its frames "
+                   "with the real segmenter in its own thread, whatever --masks; docs/study.md, 'Online runs')")
     p.add_argument("--orbslam3-repeats", type=int, default=None, help="ORB-SLAM3 runs per sequence (not "
                    "deterministic: median and spread reported; default: config baseline.orbslam3_repeats, 3)")
     p.add_argument("--masks", choices=["gt", "sim", "onnx", "truth"], default=None,
@@ -111,7 +116,8 @@ def run(args) -> int:
     if args.jobs < 1:
         raise D2SlamError(f"--jobs must be >= 1, got {args.jobs}")
     specs = G.expand_grid(scenarios, args.methods, args.seeds, args.frames, args.twin_methods,
-                          source="tum" if tum_root else "synth")
+                          source="tum" if tum_root else "synth",
+                          online_methods=() if args.no_online else G.ONLINE_METHODS)
     if args.dry_run:
         return _dry_run(specs)
 

@@ -6,10 +6,14 @@
 3. segment the sequences whose runs read the real segmenter's masks into the mask cache, on the executor;
 4. run every cell (:func:`d2slam.study.runner.execute_run`) on the executor (serial, joblib processes or Dask),
    the longest first (:func:`run_cost`; sequences by their frames), so that both cores stay busy to the end;
-5. write ``runs.csv`` (grid order), ``summary.csv``, ``tables.md``, ``plots/*.png``, ``trajectories/<run>.txt``,
-   ``runs/<run>.json`` (per-module keypoint metrics and stage timings) and ``manifest.json``.
+5. then the online runs (``RunSpec.online``, :func:`d2slam.study.online.execute_online_run`), one at a time in this
+   process, whatever the executor: their figures depend on the machine's load, so they run alone, after the others,
+   and never on a Dask cluster's workers (the load average at the phase's start goes into the manifest);
+6. write ``runs.csv`` (grid order), ``summary.csv``, ``tables.md``, ``plots/*.png``, ``trajectories/<run>.txt``,
+   ``runs/<run>.json`` (per-module keypoint metrics and stage timings), an online run's schedule
+(``trajectories/<run>.schedule.npz``) and ``manifest.json``.
 
-Each phase (sequences, segmentation, runs) says on stderr what it will do before it starts (how many items, how
+Each phase (sequences, segmentation, runs, online) says on stderr what it will do before it starts (how many items, how
 many are cached, an estimate: :func:`phase_plans`) and is followed there (:mod:`d2slam.progress`: a line every few
 seconds when stderr is not a terminal), unless ``progress`` is False.
 
@@ -37,6 +41,7 @@ from d2slam.errors import D2SlamError
 from d2slam.outputs import file_lock, remove_stale_temps as remove, staged_file, write_bytes
 from d2slam.paths import cache_dir
 from d2slam.progress import PROGRESS, announce
+from d2slam.run.online import Schedule
 from d2slam.run.warmup import warm_up
 from d2slam.study import grid as G, plots as P, sequences, tables as T
 from d2slam.study.executors import executor_name, map_ordered, on_dask_workers, process_cpu_s
@@ -44,6 +49,7 @@ from d2slam.study.grid import RunSpec, expand_grid
 from d2slam.study.keys import (code_info, fingerprint_differences, key_parts, run_ident, why_changed,
                                worker_fingerprint)
 from d2slam.study.manifest import build_manifest, git_info
+from d2slam.study.online import execute_online_run, load_average, schedule_path
 from d2slam.study.runner import (RunOptions, execute_run, failed_row, features_dir, onnx_sequence_keys,
                                  prepare_sequence, run_options, segment_sequence)
 from d2slam.study.sequences import composite_dir, is_complete, real_sequence_dir, sequence_dir
@@ -87,19 +93,21 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
                scheduler=None, config=None, specs: list[RunSpec] | None = None, twin_methods=None,
                cache_root=None, tum_root=None, masks: str | None = None, orbslam3_repeats: int | None = None,
                orbslam3_timeout: float | None = None, plots: bool = True, progress: bool | None = None,
-               resume: bool = False) -> StudyResult:
+               resume: bool = False, online_methods=None) -> StudyResult:
     """Run the study grid and write its results into ``out`` (created). See the module docstring.
 
     ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.keys.run_key`: the run, config,
     masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
-    and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs."""
+    and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs. ``online_methods``:
+    the methods also run online (default ``ONLINE_METHODS``; ``()``: none), when ``specs`` is not given."""
     checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
     if specs is None:
         specs = expand_grid(scenarios or G.default_scenarios(), methods, seeds or G.DEFAULT_SEEDS,
                             G.DEFAULT_FRAMES if frames is None else frames,
                             G.TWIN_METHODS if twin_methods is None else twin_methods,
-                            source="tum" if tum_root else "synth")
+                            source="tum" if tum_root else "synth",
+                            online_methods=G.ONLINE_METHODS if online_methods is None else online_methods)
     if not specs:
         raise D2SlamError("the study grid is empty")
     out = Path(out).expanduser()
@@ -119,8 +127,10 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
     todo = [s for s in specs if s.sequence_key not in prep_error and s.run_id not in reused]
     if resume and progress is not False:
         announce(resume_plan(len(specs), len(reused), [reasons[s.run_id] for s in todo]))
-    study.segmentation(todo)
-    by_id = {**study.runs(todo, keys_by_id, idents, reused), **reused}
+    offline, online = [s for s in todo if not s.online], [s for s in todo if s.online]
+    study.segmentation(offline)  # an online run segments its frames itself, in its own thread
+    by_id = {**study.runs(offline, keys_by_id, idents, reused), **study.online(online, keys_by_id, idents),
+             **reused}
     results = [by_id.get(s.run_id) or {"row": failed_row(s, f"sequence: {prep_error[s.sequence_key]}"),
                                        "trajectory": None, "aligned": None, "keypoints": None, "stage_ms": {}}
                for s in specs]
@@ -154,16 +164,19 @@ class _Phases:
         remove_stale_temps(options, out)
         self.t0 = time.perf_counter()
         self.plans = phase_plans(options, int(jobs) if scheduler is None else workers)
-        self.seconds = {"sequences_s": 0.0, "segmentation_s": 0.0, "runs_s": 0.0}  # each phase's own
-        self.cpu = {"sequences": [], "segmentation": [], "runs": []}  # each call's CPU seconds, where it ran
+        self.seconds = {"sequences_s": 0.0, "segmentation_s": 0.0, "runs_s": 0.0, "online_s": 0.0}  # each phase's own
+        self.cpu = {"sequences": [], "segmentation": [], "runs": [], "online": []}  # each call's CPU seconds
+        self.online_runs, self.online_load = 0, None  # online runs run, the load average when they started
         self.cpu0 = process_cpu_s(children=False)  # the executor's workers are children too: counted per call
 
-    def _phase(self, fn, items, desc: str, unit: str, on_result=None, cost=None) -> list:
+    def _phase(self, fn, items, desc: str, unit: str, on_result=None, cost=None, alone: bool = False) -> list:
+        """``fn`` over ``items`` on the study's executor, or (``alone``) one at a time in this process."""
         if self.progress is not False and items:
             announce(*self.plans[desc](items))
         t = time.perf_counter()
+        jobs, scheduler = (1, None) if alone else (self.jobs, self.scheduler)
         try:
-            return map_ordered(fn, items, (self.options,), self.jobs, self.scheduler, desc=desc,
+            return map_ordered(fn, items, (self.options,), jobs, scheduler, desc=desc,
                                progress=self.progress, on_result=on_result, cost=cost, unit=unit,
                                cpu=self.cpu[desc])
         except BaseException:
@@ -198,16 +211,37 @@ class _Phases:
                            cost=lambda s: run_cost(s, self.options))
         return {s.run_id: r for s, r in zip(todo, done)}
 
+    def online(self, todo, keys_by_id: dict, idents: dict) -> dict:
+        """Run the online runs of ``todo`` after every other run, one at a time in this process, in grid order
+        (never beside the executor's workers nor on a Dask cluster's: their figures depend on the machine's load),
+        each saved as it finishes; run id -> its result."""
+        if not todo:
+            return {}
+        self.online_runs, self.online_load = len(todo), load_average()
+
+        def checkpoint(i, r):
+            rid = todo[i].run_id
+            save_run(self.out, todo[i], {**r, "key": keys_by_id[rid], "key_parts": key_parts(idents[rid])})
+
+        done = self._phase(execute_online_run, todo, "online", "run", on_result=checkpoint, alone=True)
+        return {s.run_id: r for s, r in zip(todo, done)}
+
     def timing(self) -> dict:
-        """Wall seconds of the sequences, of the segmentation, and of everything else up to now (the runs, with the
-        vocabulary and the kernels prepared for them); beside each, the CPU seconds of its calls wherever they ran
-        (``*_cpu_s``: the workers' and ORB-SLAM3's processes), and this process's own (``study_process_cpu_s``:
-        scheduling, the vocabulary, the kernels, the tables; the serial executor's calls too)."""
+        """Wall seconds of the sequences, of the segmentation, of the online runs (when there were some: with the
+        load average at their start) and of everything else up to now (the runs, with the vocabulary and the kernels
+        prepared for them); beside each, the CPU seconds of its calls wherever they ran (``*_cpu_s``: the workers'
+        and ORB-SLAM3's processes), and this process's own (``study_process_cpu_s``: scheduling, the vocabulary, the
+        kernels, the tables; the serial executor's calls and the online runs too)."""
         s = self.seconds
-        rest = time.perf_counter() - self.t0 - s["sequences_s"] - s["segmentation_s"]
+        rest = time.perf_counter() - self.t0 - s["sequences_s"] - s["segmentation_s"] - s["online_s"]
         cpu = {f"{k}_cpu_s": round(sum(v), 2) for k, v in self.cpu.items()}
+        online_cpu = cpu.pop("online_cpu_s")
+        online = {"online_s": round(s["online_s"], 2), "online_cpu_s": online_cpu,
+                  "online_load_average": self.online_load,
+                  "online_where": "this process, one run at a time, after the other runs"} if self.online_runs else {}
         return {"sequences_s": round(s["sequences_s"], 2), "segmentation_s": round(s["segmentation_s"], 2),
-                "runs_s": round(rest, 2), **cpu, "study_process_cpu_s": round(process_cpu_s(children=False) - self.cpu0, 2)}
+                "runs_s": round(rest, 2), **cpu, **online,
+                "study_process_cpu_s": round(process_cpu_s(children=False) - self.cpu0, 2)}
 
 
 def check_dask_workers(scheduler, expected: dict) -> int:
@@ -275,6 +309,8 @@ def _grid(specs, options: RunOptions, masks: str | None, reused: dict, reasons: 
             "twin_methods": list(dict.fromkeys(s.method for s in specs if s.twin)),
             "source": specs[0].source, "runs": len(specs), "orbslam3_repeats": options.orbslam3_repeats,
             "masks": masks, "reused_runs": sorted(reused),
+            **({"online_runs": sum(s.online for s in specs), "online_rate_hz": options.config.online.rate_hz}
+               if any(s.online for s in specs) else {}),
             **({"rerun_reasons": dict(Counter(r for r in reasons if r))} if reused or any(reasons or []) else {})}
 
 
@@ -326,7 +362,23 @@ def phase_plans(options: RunOptions, workers: int | None) -> dict:
         known = all(int(s.frames) > 0 for s in specs)
         return f"runs: {len(specs)}{on}", spread([run_cost(s, options) / 1e3 for s in specs]) if known else None
 
-    return {"sequences": sequences, "segmentation": segmentation, "runs": runs}
+    def online(specs):
+        load = load_average()
+        return (f"online: {len(specs)} run{'s' if len(specs) > 1 else ''} one at a time in this process, after the "
+                "others (their figures depend on the machine's load: never beside the workers, never on a Dask "
+                "cluster's)" + (f"; load average now {', '.join(f'{x:.2f}' for x in load)}" if load else ""),
+                sum(online_seconds(s, options) for s in specs))
+
+    return {"sequences": sequences, "segmentation": segmentation, "runs": runs, "online": online}
+
+
+def online_seconds(spec: RunSpec, options: RunOptions) -> float:
+    """Estimated wall seconds of an online run: its frames arriving at ``OnlineConfig.rate_hz`` (0: at the
+    synthetic camera's ``SynthConfig.fps``, as the frames' timestamps), the real ORB-SLAM3's once per repeat. A
+    recording's frames (0: all) are counted as a composite's."""
+    rate = float(options.config.online.rate_hz) or float(options.config.synth.fps)
+    frames = int(spec.frames) or COMPOSITE_FRAMES
+    return frames / rate * (int(options.orbslam3_repeats or 1) if spec.method in G.REPEATED else 1)
 
 
 # The frames of a composite over the whole recording, for the phase's estimate (fr1/rpy: 694 associated frames).
@@ -391,7 +443,23 @@ def load_run(out: Path, spec: RunSpec, key: str) -> dict | None:
             res["trajectory"] = (z["timestamps"], z["poses"])
         if "gt_xyz" in z:
             res["aligned"] = (z["gt_xyz"], z["est_xyz"])
+    if record.get("schedule_sha256") and not _schedule_intact(out, spec, record["schedule_sha256"]):
+        return None
     return res
+
+
+def _schedule_intact(out: Path, spec: RunSpec, sha: str) -> bool:
+    """Whether an online run's schedule is there as its record holds it and reads as one; said in one line when
+    not (the run is done again)."""
+    path = schedule_path(out, spec)
+    try:
+        if not path.is_file() or sha256_file(path) != sha:
+            raise Damaged("missing, or its sha256 is not the one its record holds")
+        Schedule.load(path)
+    except (Damaged, D2SlamError, OSError) as exc:
+        report_damaged(path, "online run's schedule", exc, "running it again")
+        return False
+    return True
 
 
 def _prepare_vocabulary(progress) -> None:
@@ -447,12 +515,19 @@ def save_run(out: Path, s: RunSpec, r: dict) -> None:
             np.savez_compressed(tmp, **arrays)
     else:
         npz.unlink(missing_ok=True)
+    schedule = schedule_path(out, s)
+    if r.get("schedule") is not None:  # an online run's: replayed by d2slam run --deterministic
+        r["schedule"].save(schedule)
+    elif s.online:
+        schedule.unlink(missing_ok=True)
     # the record last, whole or not at all: --resume reuses a run only when its record is there; sealed with the
-    # sha256 of its content and of the arrays, so that a damaged one is not reused
+    # sha256 of its content, of the arrays and of an online run's schedule, so that a damaged one is not reused
     record = {"run": s.to_dict(), "key": r.get("key"), "key_parts": r.get("key_parts"), "row": r["row"],
               "keypoints": r.get("keypoints"),
               "stage_ms": r.get("stage_ms"), "loops": r.get("loops"),
-              "arrays_sha256": sha256_file(npz) if arrays else None}
+              "arrays_sha256": sha256_file(npz) if arrays else None,
+              **({"schedule_sha256": sha256_file(schedule) if r.get("schedule") is not None else None}
+                 if s.online else {})}
     record = sealed(json.loads(json.dumps(record, default=_json_default)))  # sealed as it will be read back
     write_bytes(out / "runs" / f"{s.run_id}.json", json.dumps(record, indent=1) + "\n")
 
@@ -485,6 +560,13 @@ def make_plots(out: Path, specs, results, df, summary, method_order) -> dict:
     pdir = out / "plots"
     pdir.mkdir(exist_ok=True)
     files = {}
+    # the offline runs: an online run's figures are the online table's
+    keep = [i for i, s in enumerate(specs) if not s.online]
+    specs, results = [specs[i] for i in keep], [results[i] for i in keep]
+    df = T.offline_runs(df)
+    summary = summary[summary["online"] == 0] if "online" in summary else summary
+    if not specs:
+        return files
     seed = min(s.seed for s in specs)
     aligned = {(s.scenario, s.twin, s.method + ("" if s.loop_closing else " (no loop closing)")): r["aligned"]
                for s, r in zip(specs, results) if s.seed == seed and r.get("aligned") is not None}
@@ -505,7 +587,7 @@ def rebuild_tables(out) -> Path:
 
 
 def _rebuild_tables(out: Path) -> Path:
-    df = T.read_runs_csv(out / "runs.csv")
+    df = T.read_runs_csv(out / "runs.csv", online=True)
     manifest = json.loads((out / "manifest.json").read_text()) if (out / "manifest.json").is_file() else None
     methods = (manifest or {}).get("grid", {}).get("methods") or list(dict.fromkeys(df["method"]))
     T.write_summary_csv(T.summarise(df), out / "summary.csv")

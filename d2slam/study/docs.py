@@ -28,7 +28,7 @@ def _study(results: Path):
     results = Path(results)
     if not (results / "runs.csv").is_file():
         raise D2SlamError("not a study folder: no runs.csv (make one with `d2slam study`)", path=results)
-    df = T.read_runs_csv(results / "runs.csv")
+    df = T.read_runs_csv(results / "runs.csv", online=True)
     mpath = results / "manifest.json"
     manifest = json.loads(mpath.read_text()) if mpath.is_file() else None
     methods = (manifest or {}).get("grid", {}).get("methods") or list(dict.fromkeys(df["method"]))
@@ -45,10 +45,11 @@ def results_markdown(results: str | Path, link: str = "../results") -> str:
 
 
 def headline_markdown(results: str | Path) -> str:
-    """The README's table: ATE RMSE (m) of the main methods, median [min, max] over seeds. On the scenarios with a
-    return the engine runs with loop closing on and off: the table shows its default, on (the runs with it off are
-    the loop table's, in docs/results.md)."""
+    """The README's table: ATE RMSE (m) of the main methods, median [min, max] over seeds, offline (the online runs
+    are the online table's, in docs/results.md). On the scenarios with a return the engine runs with loop closing on
+    and off: the table shows its default, on (the runs with it off are the loop table's)."""
     df, _, methods = _study(Path(results))
+    df = T.offline_runs(df)
     df = df[df["loop_closing"].astype(bool) | ~df["scenario"].isin(LOOP_SCENARIOS)]
     shown = [m for m in HEADLINE_METHODS if m in methods]
     return T.absolute_markdown(df, "ate_rmse_m", methods=shown)

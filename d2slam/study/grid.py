@@ -16,9 +16,15 @@ The real-background set (``COMPOSITE_SCENARIOS``, ``source="composite"``): per s
 whole real fr1/rpy (every method, as on the fr3 scenarios), and its twins on the real recording itself (``none``,
 ``d2slam``; ``oracle`` with the composite's truth: the occluded twin), always over all frames, whatever ``frames``.
 
+Online runs (``online``: ``d2slam run --online``, :mod:`d2slam.run.online`): ``none``, ``d2slam`` and the real
+ORB-SLAM3 (``ONLINE_METHODS``, those of ``methods``) replayed at the sensor's rate (``OnlineConfig.rate_hz``) with
+the segmenter in its own thread and late frames dropped, on the four fr3 walking scenarios (``ONLINE_SCENARIOS``, each
+seed, the frames of their offline runs) and on the real recordings (once, as their offline runs); each beside its
+offline run in the online table (docs/online.md). The study runs them last, one at a time (``d2slam.study.online``).
+
 Order (rows of ``runs.csv``): scenarios in the paper's order (w/xyz, w/half, w/static, w/rpy, s/static), then the
-dynamic sequence before its twin, then seeds ascending, then methods in the order given. The order never depends
-on which executor ran the grid or when a run finished.
+dynamic sequence before its twin, then the online runs, then seeds ascending, then methods in the order given. The
+order never depends on which executor ran the grid or when a run finished.
 """
 
 from __future__ import annotations
@@ -72,6 +78,11 @@ INTERACTION_METHODS = (BASELINE, ORBSLAM3, ORBSLAM3_MASKED, "semantic", "geometr
                        ORACLE)
 # The default methods of the scenario with a return, each run with the engine's loop closing on and off.
 LOOP_METHODS = (BASELINE, FULL, ORACLE)
+# Online runs: the engine without a filter, the paper's method with the segmenter in its own thread, and the real
+# ORB-SLAM3 under the same camera; on the fr3 walking scenarios (people in view) and on the real recordings (nobody
+# in view: what running online costs where a filter has nothing to do).
+ONLINE_METHODS = (BASELINE, FULL, ORBSLAM3)
+ONLINE_SCENARIOS = ("walking_xyz", "walking_halfsphere", "walking_static", "walking_rpy") + REAL_SCENARIOS
 
 
 @dataclass(frozen=True, order=False)
@@ -85,6 +96,7 @@ class RunSpec:
     # (COMPOSITE_SCENARIOS: generated into the real recording, cached; its twin is the real recording)
     source: str = "synth"
     loop_closing: bool = True  # the engine's loop closing (EngineConfig.loop_closing; ORB-SLAM3 always has its own)
+    online: bool = False  # replayed at the sensor's rate, late frames dropped (d2slam.run.online; not deterministic)
 
     @property
     def label(self) -> str:
@@ -97,7 +109,8 @@ class RunSpec:
         twin = "_twin" if self.twin else ""
         src = "tum_" if self.source == "tum" else ""  # a real recording's scenario name says it is one
         loop = "" if self.loop_closing else "_noloop"
-        return f"{src}{self.scenario}{twin}_s{self.seed}_n{self.frames}_{self.method}{loop}"
+        online = "_online" if self.online else ""
+        return f"{src}{self.scenario}{twin}_s{self.seed}_n{self.frames}_{self.method}{loop}{online}"
 
     @property
     def sequence_key(self) -> tuple:
@@ -105,7 +118,13 @@ class RunSpec:
         return (self.source, self.scenario, self.seed, self.frames, self.twin)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The run's fields; ``online`` only for an online run: an offline run's dict, and so its run key
+        (``d2slam.study.keys``), names the offline fields alone, and online runs added to a grid re-key none of its
+        offline runs."""
+        out = asdict(self)
+        if not self.online:
+            del out["online"]
+        return out
 
 
 def _scenario_rank(name: str) -> int:
@@ -113,41 +132,29 @@ def _scenario_rank(name: str) -> int:
 
 
 def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: int = DEFAULT_FRAMES,
-                twin_methods=TWIN_METHODS, source: str = "synth") -> list[RunSpec]:
+                twin_methods=TWIN_METHODS, source: str = "synth", online_methods=ONLINE_METHODS) -> list[RunSpec]:
     """Every run of the study, in the documented order. ``methods`` default: every registered method plus
     ``orbslam3`` (on the interaction scenarios those of ``INTERACTION_METHODS``, on the scenario with a return those
     of ``LOOP_METHODS``, on a real recording those that need no synthetic truth). ``twin_methods``: the methods also
     run on each static twin (only those of ``methods``; none on real data, which has no twin). On the scenario with a
     return every engine method of ``methods`` runs with loop closing on, then off; a real recording of
-    ``REAL_SCENARIOS`` runs each method once (the first seed, all frames). Duplicates in the arguments are dropped
-    (first occurrence kept)."""
+    ``REAL_SCENARIOS`` runs each method once (the first seed, all frames). ``online_methods``: the methods also run
+    online on ``ONLINE_SCENARIOS`` (only those of ``methods``; ``()``: no online run), after the scenario's offline
+    runs. Duplicates in the arguments are dropped (first occurrence kept)."""
     default = methods is None
     if methods is None:
         methods = default_methods(source)
     scenarios, methods, seeds = _unique(scenarios), _unique(methods), _unique(int(s) for s in seeds)
-    if not scenarios or not methods or not seeds:
-        raise D2SlamError("the study grid is empty: give at least one scenario, method and seed")
-    if frames != "tum" and int(frames) < (0 if source == "tum" else 2):
-        raise D2SlamError(f"--frames must be >= 2 (0 = all frames of a TUM folder), got {frames}")
-    if source not in ("synth", "tum"):
-        raise D2SlamError(f"unknown sequence source {source!r} (synth or tum)")
-    if source == "tum":
-        truth = _truth_methods()
-        truth_only = [m for m in methods if m in truth]
-        if truth_only:
-            raise D2SlamError(f"{', '.join(truth_only)} need(s) the synthetic truth masks: not on a real TUM copy")
-    unknown = [s for s in scenarios if s not in SCENARIOS]
-    if unknown:
-        raise D2SlamError(f"unknown scenario(s) {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}")
+    online = [m for m in methods if m in set(online_methods or ())]
+    _check_grid(scenarios, methods, seeds, frames, source, online)
     real_methods = [m for m in methods if m not in _truth_methods()]
-    ours = [s for s in scenarios if s not in FR3_SCENARIOS]
-    if source == "tum" and ours:
-        raise D2SlamError(f"{', '.join(ours)} is ours, not a TUM sequence: give fr3 scenarios with a TUM copy")
     twins = [] if source == "tum" else [m for m in methods if m in set(twin_methods or ())]
     specs = []
     for scenario in sorted(scenarios, key=_scenario_rank):
         if scenario in REAL_SCENARIOS:
             specs += [RunSpec(scenario, m, min(seeds), 0, False, "real") for m in real_methods]
+            specs += [RunSpec(scenario, m, min(seeds), 0, False, "real", online=True) for m in online
+                      if m in real_methods]
             continue
         if scenario in COMPOSITE_SCENARIOS:  # all frames of the recording; the twin: the recording itself
             for twin, ms in ((False, methods), (True, twins)):
@@ -167,7 +174,46 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
                 if scenario in LOOP_SCENARIOS and not twin:
                     specs += [RunSpec(scenario, m, seed, n, twin, source, loop_closing=False) for m in ms
                               if keep(m) and m not in REPEATED]
+        if scenario in ONLINE_SCENARIOS:
+            specs += [RunSpec(scenario, m, seed, n, False, source, online=True) for seed in sorted(seeds)
+                      for m in online]
     return specs
+
+
+def _check_grid(scenarios: list, methods: list, seeds: list, frames, source: str, online: list) -> None:
+    """A grid that cannot run is refused in one line (:func:`expand_grid`'s arguments, duplicates dropped)."""
+    if not scenarios or not methods or not seeds:
+        raise D2SlamError("the study grid is empty: give at least one scenario, method and seed")
+    if frames != "tum" and int(frames) < (0 if source == "tum" else 2):
+        raise D2SlamError(f"--frames must be >= 2 (0 = all frames of a TUM folder), got {frames}")
+    if source not in ("synth", "tum"):
+        raise D2SlamError(f"unknown sequence source {source!r} (synth or tum)")
+    if source == "tum":
+        truth = _truth_methods()
+        truth_only = [m for m in methods if m in truth]
+        if truth_only:
+            raise D2SlamError(f"{', '.join(truth_only)} need(s) the synthetic truth masks: not on a real TUM copy")
+    unknown = [s for s in scenarios if s not in SCENARIOS]
+    if unknown:
+        raise D2SlamError(f"unknown scenario(s) {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}")
+    ours = [s for s in scenarios if s not in FR3_SCENARIOS]
+    if source == "tum" and ours:
+        raise D2SlamError(f"{', '.join(ours)} is ours, not a TUM sequence: give fr3 scenarios with a TUM copy")
+    cannot = [m for m in online if not can_run_online(m)]
+    if cannot:
+        raise D2SlamError(f"{', '.join(cannot)} cannot run online (online runs: none, the dynamics methods with the "
+                          f"real segmenter, and {ORBSLAM3})")
+
+
+def can_run_online(method: str) -> bool:
+    """Whether ``d2slam run --method METHOD --online`` runs: the real ORB-SLAM3, or a keypoint filter of the engine
+    that reads the real segmenter's masks or none (``d2slam.run.online.OnlineSLAM``)."""
+    if method == ORBSLAM3:
+        return True
+    if method not in methods():
+        return False
+    m = get_method(method)
+    return m.runner is None and m.masks is None
 
 
 def default_scenarios() -> list[str]:

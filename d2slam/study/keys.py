@@ -12,8 +12,9 @@ from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.cachefiles import sha256_file
 from d2slam.config import DEFAULT
 from d2slam.digests import digest, source_digest
+from d2slam.ranges import flat_fields
 from d2slam.run.methods import get_method, masks_read, methods, run_reads
-from d2slam.study.grid import REPEATED, RunSpec
+from d2slam.study.grid import ORBSLAM3, REPEATED, RunSpec
 from d2slam.study.runner import RunOptions
 from d2slam.synth.version import generator_version
 
@@ -61,8 +62,13 @@ def run_ident(spec: RunSpec, options: RunOptions) -> dict:
     if spec.method not in methods():
         return {"spec": spec.to_dict()}  # an unknown method's run fails with its own message
     method = get_method(spec.method)
-    masks = masks_read(method, options.masks, synthetic=spec.source in ("synth", "composite"))
+    # an online run's filter reads the real segmenter's masks, computed in its own thread, whatever the study's --masks
+    masks = masks_read(method, "onnx" if spec.online else options.masks,
+                       synthetic=spec.source in ("synth", "composite"))
     reads, code = run_reads(method, options.config, masks)
+    if spec.online:
+        reads = {**reads, "online": online_reads(spec, options.config)}
+        code = code + (ONLINE_STUDY_CODE if spec.method == ORBSLAM3 else ONLINE_CODE)
     ident = {"spec": spec.to_dict(), "config": reads, "code": source_digest(code), "masks": masks,
              "tum_root": options.tum_root, "packages": _packages()}
     if spec.source in ("synth", "composite"):
@@ -74,6 +80,19 @@ def run_ident(spec: RunSpec, options: RunOptions) -> dict:
         vocab = options.config.engine.vocabulary
         ident["vocabulary"] = _file_sha(vocab) if vocab else _vocabulary_sha()
     return ident
+
+
+# What an online run reads beyond its offline run's code: the study's online phase and, for the engine, the online
+# run path; the real ORB-SLAM3's online camera (its worker, d2slam.data.live) is in its offline code already.
+ONLINE_STUDY_CODE = ("study/online.py",)
+ONLINE_CODE = ("run/online.py",) + ONLINE_STUDY_CODE
+
+
+def online_reads(spec: RunSpec, config) -> dict:
+    """The ``online`` config fields an online run reads: all of them for the engine, the rate for ORB-SLAM3 (its
+    threads and masks are its own)."""
+    fields = flat_fields(config.online)
+    return {"rate_hz": fields["rate_hz"]} if spec.method == ORBSLAM3 else fields
 
 
 def run_key(spec: RunSpec, options: RunOptions) -> str:

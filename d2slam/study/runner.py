@@ -65,11 +65,11 @@ def prepare_sequence(key: tuple, options: RunOptions) -> dict:
     """Generate (or find) the sequence of ``RunSpec.sequence_key``; returns ``{"key", "path", "error"}``."""
     source, scenario, seed, frames, twin = key
     try:
-        with _single_threaded():
-            path = _sequence_path(source, scenario, seed, frames, twin, options)
+        with single_threaded():
+            path = sequence_path(source, scenario, seed, frames, twin, options)
         return {"key": key, "path": str(path), "error": None}
     except Exception as exc:  # noqa: BLE001 - recorded, the runs on it fail with this message
-        return {"key": key, "path": None, "error": _message(exc)}
+        return {"key": key, "path": None, "error": message(exc)}
 
 
 def onnx_sequence_keys(specs, options: RunOptions) -> list[tuple]:
@@ -91,15 +91,15 @@ def segment_sequence(key: tuple, options: RunOptions) -> dict:
     which meet it again and record it."""
     source, scenario, seed, frames, twin = key
     try:
-        with _single_threaded():
-            seq = open_sequence(_sequence_path(source, scenario, seed, frames, twin, options))
+        with single_threaded():
+            seq = open_sequence(sequence_path(source, scenario, seed, frames, twin, options))
             config = options.config
             n = len(seq) if frames <= 0 else min(len(seq), frames)
             for i in range(n):
                 masks_for(seq, i, "onnx", config)
         return {"key": key, "error": None}
     except Exception as exc:  # noqa: BLE001 - recorded; the runs on it fail with their own message
-        return {"key": key, "error": _message(exc)}
+        return {"key": key, "error": message(exc)}
 
 
 def _has_truth(spec: RunSpec) -> bool:
@@ -108,7 +108,7 @@ def _has_truth(spec: RunSpec) -> bool:
     return spec.source in ("synth", "composite")
 
 
-def _sequence_path(source, scenario, seed, frames, twin, options) -> Path:
+def sequence_path(source, scenario, seed, frames, twin, options) -> Path:
     if source == "composite":
         recording = real_sequence_dir(COMPOSITE_RECORDING)
         if twin:  # the twin of a composite is its real recording
@@ -133,14 +133,14 @@ def execute_run(spec: RunSpec | dict, options: RunOptions) -> dict:
     t0 = time.perf_counter()
     features_cached = None
     try:
-        with _single_threaded():
-            path = _sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, spec.twin, options)
+        with single_threaded():
+            path = sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, spec.twin, options)
             if spec.method in REPEATED:
                 record = _run_orbslam3(spec, path, options)
             else:
                 record, features_cached = _run_engine(spec, path, options)
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, not a crash of the study
-        return {"row": failed_row(spec, _message(exc), time.perf_counter() - t0, options), "trajectory": None,
+        return {"row": failed_row(spec, message(exc), time.perf_counter() - t0, options), "trajectory": None,
                 "aligned": None, "keypoints": None, "stage_ms": {}, "loops": None}
     traj, ev = record.trajectory, record.evaluation
     return {"row": run_row(spec, record, time.perf_counter() - t0, features_cached),
@@ -234,7 +234,7 @@ def _run_engine(spec: RunSpec, path: Path, options: RunOptions) -> tuple[RunReco
         # the occluded twin: the oracle on a static twin reads its dynamic sibling's truth, so the silhouettes of
         # the people and moving objects are cut out of a scene where nothing moves (a composite's twin: the real
         # recording, the composite's silhouettes cut out of its real frames)
-        mask_seq = open_sequence(_sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, False, options))
+        mask_seq = open_sequence(sequence_path(spec.source, spec.scenario, spec.seed, spec.frames, False, options))
     stored = {}
 
     def stored_features(kfilter):
@@ -305,7 +305,7 @@ def _run_orbslam3(spec: RunSpec, path: Path, options: RunOptions) -> RunRecord:
                             timeout=options.orbslam3_timeout, masks=masks)
 
 
-def _message(exc: BaseException) -> str:
+def message(exc: BaseException) -> str:
     """One line: the D2SlamError text (it names the file), else the exception type, text and where it arose."""
     if isinstance(exc, D2SlamError):
         return str(exc)
@@ -314,7 +314,7 @@ def _message(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}{where}".replace("\n", " ")
 
 
-class _single_threaded:
+class single_threaded:
     """OpenCV on one thread for the duration of a run (BLAS is single-threaded by ``d2slam/__init__`` and the
     executors' worker environments): the numbers do not depend on the executor, and two jobs do not
     oversubscribe the cores."""

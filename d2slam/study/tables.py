@@ -35,7 +35,7 @@ from d2slam.study.paper import published_real
 from pathlib import Path
 
 # runs.csv: identity, outcome, deterministic results, then the timing columns (never compared between runs).
-KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source", "loop_closing"]
+KEY_COLUMNS = ["scenario", "sequence", "twin", "method", "seed", "frames", "source", "loop_closing", "online"]
 OUTCOME_COLUMNS = ["status", "error", "deterministic", "repeats", "config_hash"]
 METRIC_COLUMNS = ["ate_rmse_m", "rpe_trans_m", "rpe_rot_deg"]
 RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp_recall", "kp_f1",
@@ -47,17 +47,21 @@ RESULT_COLUMNS = METRIC_COLUMNS + ["ate_min_m", "ate_max_m", "kp_precision", "kp
 # part only). loops: detected by the engine's loop closing, true / false against the ground truth; loop_closest_ratio:
 # the score of the wrong place-recognition candidate that went furthest over its keyframe's minimum score
 # (d2slam.eval.loops).
+# An online run (online = 1: d2slam.study.online): the share of its frames processed, the frames dropped, the lag
+# from a frame's arrival to its pose (median, 95th percentile, ms) and the segmenter's frames per second; its
+# metrics are over the processed frames. They depend on the machine's load, as the timings do; empty offline.
+ONLINE_COLUMNS = ["processed_share", "frames_dropped", "lag_ms_median", "lag_ms_p95", "segmenter_fps"]
 OPTIONAL_COLUMNS = ["kp_object_recall", "kp_object_keypoints", "loop_closing", "loops", "loops_true", "loops_false",
-                    "loop_closest_ratio", "tracked_share", "fragment"]
+                    "loop_closest_ratio", "tracked_share", "fragment", "online"] + ONLINE_COLUMNS
 # features_cached = 1: the run read the sequence's features extracted by an earlier run (its ms_extract and fps count
 # the extraction time stored with them, d2slam.slam.features).
 TIMING_COLUMNS = ["fps", "ms_per_frame", "ms_load", "ms_segment", "ms_extract", "ms_filter", "ms_track",
                   "ms_local_ba", "wall_s", "features_cached"]
-RUN_COLUMNS = KEY_COLUMNS + OUTCOME_COLUMNS + RESULT_COLUMNS + TIMING_COLUMNS
+RUN_COLUMNS = KEY_COLUMNS + OUTCOME_COLUMNS + RESULT_COLUMNS + ONLINE_COLUMNS + TIMING_COLUMNS
 SUMMARY_STATS = ("median", "min", "max")
 SUMMARY_METRICS = METRIC_COLUMNS + ["kp_precision", "kp_recall", "kp_f1", "frames_tracked", "frames_lost"]
 SUMMARY_TIMINGS = ["fps", "ms_per_frame"]
-GROUP = ["source", "scenario", "sequence", "twin", "method", "frames", "loop_closing"]
+GROUP = ["source", "scenario", "sequence", "twin", "method", "frames", "loop_closing", "online"]
 UNITS = {"ate_rmse_m": "m", "rpe_trans_m": "m", "rpe_rot_deg": "deg"}
 TITLES = {"ate_rmse_m": "ATE", "rpe_trans_m": "translational RPE", "rpe_rot_deg": "rotational RPE"}
 DECIMALS = {"ate_rmse_m": 4, "rpe_trans_m": 4, "rpe_rot_deg": 3}
@@ -70,9 +74,10 @@ def runs_frame(rows: list[dict]) -> pd.DataFrame:
         if c not in df:
             df[c] = np.nan
     df = df[RUN_COLUMNS].copy()
-    for c in RESULT_COLUMNS + TIMING_COLUMNS:
+    for c in RESULT_COLUMNS + ONLINE_COLUMNS + TIMING_COLUMNS:
         df[c] = pd.to_numeric(df[c], errors="coerce").astype(np.float64)
-    for c in ("twin", "seed", "frames", "deterministic", "repeats", "loop_closing"):  # no loop_closing: before it
+    # an absent loop_closing or online (a study made before the column): 0
+    for c in ("twin", "seed", "frames", "deterministic", "repeats", "loop_closing", "online"):
         df[c] = pd.to_numeric(df[c], errors="coerce").fillna(0).astype(np.int64)
     for c in ("error", "config_hash"):
         df[c] = ["" if (isinstance(v, float) and math.isnan(v)) or v is None else str(v) for v in df[c]]
@@ -80,14 +85,15 @@ def runs_frame(rows: list[dict]) -> pd.DataFrame:
 
 
 def sort_runs(df: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFrame:
-    """Grid order (see :mod:`d2slam.study.grid`): scenario (paper order), dynamic before twin, seed, method."""
+    """Grid order (see :mod:`d2slam.study.grid`): scenario (paper order), dynamic before twin, then the online runs,
+    seed, method."""
     methods = list(methods) if methods is not None else list(dict.fromkeys(df["method"]))
     key = pd.DataFrame({
         "s": df["scenario"].map(lambda s: SCENARIOS.index(s) if s in SCENARIOS else len(SCENARIOS)),
-        "t": df["twin"], "seed": df["seed"], "lc": -df["loop_closing"],
+        "t": df["twin"], "on": df["online"], "seed": df["seed"], "lc": -df["loop_closing"],
         "m": df["method"].map(lambda m: methods.index(m) if m in methods else len(methods)),
         "src": df["source"]})
-    order = key.sort_values(["src", "s", "t", "seed", "lc", "m"], kind="mergesort").index
+    order = key.sort_values(["src", "s", "on", "t", "seed", "lc", "m"], kind="mergesort").index
     return df.loc[order].reset_index(drop=True)
 
 
@@ -96,7 +102,9 @@ def write_runs_csv(df: pd.DataFrame, path) -> None:
         df[RUN_COLUMNS].to_csv(tmp, index=False)  # repr: exact round trip
 
 
-def read_runs_csv(path) -> pd.DataFrame:
+def read_runs_csv(path, online: bool = False) -> pd.DataFrame:
+    """A study's ``runs.csv``: its offline runs, which every table but the online one is made of, or (``online``)
+    every run, the online ones too (``online`` = 1)."""
     text = {c: str for c in ("scenario", "sequence", "method", "source", "status", "error", "config_hash")}
     df = pd.read_csv(path, keep_default_na=True, dtype=text)
     for c in OPTIONAL_COLUMNS:  # metrics a study made before they existed did not record: missing values
@@ -105,7 +113,13 @@ def read_runs_csv(path) -> pd.DataFrame:
     missing = [c for c in RUN_COLUMNS if c not in df.columns]
     if missing:
         raise D2SlamError(f"not a study runs.csv: missing columns {', '.join(missing)}", path=path)
-    return runs_frame(df.to_dict("records"))
+    df = runs_frame(df.to_dict("records"))
+    return df if online else offline_runs(df)
+
+
+def offline_runs(df: pd.DataFrame) -> pd.DataFrame:
+    """The offline runs of ``df`` (the paper's protocol: every frame segmented first, nothing dropped)."""
+    return df[df["online"] == 0].reset_index(drop=True)
 
 
 def summarise(df: pd.DataFrame) -> pd.DataFrame:
@@ -513,7 +527,8 @@ def failures_markdown(df: pd.DataFrame) -> str:
     bad = df[~np.isfinite(df["ate_rmse_m"].astype(np.float64)) | ~df["status"].isin(["ok"])]
     if bad.empty:
         return "Every run has metrics (status ok)."
-    rows = [[r["sequence"] + (" (twin)" if r["twin"] else ""), f"`{r['method']}`", str(r["seed"]), r["status"],
+    rows = [[r["sequence"] + (" (twin)" if r["twin"] else "") + (" (online)" if r.get("online", 0) else ""),
+             f"`{r['method']}`", str(r["seed"]), r["status"],
              str(r["error"]).replace("|", "/")[:200]] for _, r in bad.iterrows()]
     return _md(["sequence", "method", "seed", "status", "error"], rows)
 
@@ -532,7 +547,12 @@ def _frames_label(frames: int) -> str:
 
 def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest: dict | None = None) -> str:
     """The whole ``tables.md``: Tables 1-3 over ``none`` and (when run) over ORB-SLAM3, absolute values, static-twin
-    ratios, keypoint classification, runs without metrics. Deterministic for a given runs table (no timings)."""
+    ratios, keypoint classification, the online runs beside their offline figures (when run), runs without metrics.
+    Deterministic for a given runs table; the online table shows the online runs' figures, which depend on the
+    machine's load (every other table: no timings)."""
+    online, df = df[df["online"] == 1], df[df["online"] == 0]
+    online_part = (["", "## Online beside offline", "", online_note(manifest), "", online_markdown(online, df, methods)]
+                   if not online.empty else [])
     methods = [m for m in (methods or _methods(df)) if m in set(df["method"])]
     seeds = sorted(set(int(s) for s in df["seed"]))
     frames = sorted(set(int(f) for f in df["frames"]))
@@ -540,8 +560,9 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
     comp = df[df["scenario"].isin(COMPOSITE_SCENARIOS)]
     df = df[~df["scenario"].isin(REAL_SCENARIOS + COMPOSITE_SCENARIOS)]
     if df.empty:  # real recordings (and the composites into them) only
-        return "\n".join(["# D2SLAM study: results"] + _recordings_markdown(real, comp, methods)
-                         + ["", "## Runs without metrics", "", failures_markdown(pd.concat([real, comp])), ""])
+        return "\n".join(["# D2SLAM study: results"] + _recordings_markdown(real, comp, methods) + online_part
+                         + ["", "## Runs without metrics", "", failures_markdown(pd.concat([real, comp, online])),
+                            ""])
     out = _header_markdown(df, methods, seeds, frames, manifest)
     loops = df[df["scenario"].isin(LOOP_SCENARIOS)]
     df = df[~(df["scenario"].isin(LOOP_SCENARIOS) & (df["loop_closing"] == 0))]  # the others: loop closing on
@@ -558,8 +579,58 @@ def tables_markdown(df: pd.DataFrame, methods: list[str] | None = None, manifest
     out += ["", "## Dynamic-keypoint classification: F1 (precision / recall), medians over seeds", "",
             keypoint_markdown(df_all, methods)]
     out += _recordings_markdown(real, comp, methods)
-    out += ["", "## Runs without metrics", "", failures_markdown(pd.concat([df_all, real, comp])), ""]
+    out += online_part
+    out += ["", "## Runs without metrics", "", failures_markdown(pd.concat([df_all, real, comp, online])), ""]
     return "\n".join(out)
+
+
+def online_note(manifest: dict | None) -> str:
+    """What the online table is made of: the protocol, the rate and the machine's load when the online runs
+    started (from the manifest, when there is one)."""
+    grid, timing = (manifest or {}).get("grid", {}), (manifest or {}).get("timing", {})
+    rate = grid.get("online_rate_hz")
+    at = ("" if rate is None else f" at {rate:g} Hz" if rate > 0 else " at their own timestamps")
+    load = timing.get("online_load_average")
+    return ("Online runs (`d2slam run --online`, docs/online.md): the frames arrive" + at + ", the segmenter runs in "
+            "its own thread and the tracker drops the frames that arrive while it is busy; the real ORB-SLAM3 under "
+            "the same camera. Each run's offline figures beside it (the paper's protocol: every frame segmented "
+            "first, nothing dropped). ATE (m): median over seeds, online over the processed frames; online / offline: "
+            "the ratio of the two medians; processed (%) and lag (ms, a frame's arrival to its pose: median and 95th "
+            "percentile) medians over seeds. Online figures depend on the machine and its load: the study ran its "
+            "online runs one at a time after the others"
+            + (f" (load average {', '.join(f'{x:.2f}' for x in load)} when they started)" if load else "")
+            + "; `d2slam run --deterministic` replays an engine run's schedule (`trajectories/<run>.schedule.npz`).")
+
+
+def online_table(online: pd.DataFrame, offline: pd.DataFrame, methods: list[str] | None = None) -> pd.DataFrame:
+    """Per scenario and method run online: the offline and online ATE (medians over seeds; offline: the dynamic
+    sequence, loop closing on), their ratio, and the medians of the share of frames processed and of the lag."""
+    offline = offline[(offline["twin"] == 0) & (offline["loop_closing"] == 1)]
+    ms = [m for m in (methods or _methods(online)) if m in set(online["method"])]
+    rows = []
+    for s in _scenarios(online):
+        for m in ms:
+            on = online[(online["scenario"] == s) & (online["method"] == m)]
+            if on.empty:
+                continue
+            off = offline[(offline["scenario"] == s) & (offline["method"] == m)]
+            a_on, a_off = _nanmedian(on["ate_rmse_m"]), _nanmedian(off["ate_rmse_m"])
+            rows.append({"scenario": s, "sequence": LABELS.get(s, s), "method": m, "runs": len(on),
+                         "offline_ate_m": a_off, "online_ate_m": a_on, "ratio": _ratio(a_on, a_off),
+                         "processed_pct": 100.0 * _nanmedian(on["processed_share"]),
+                         "lag_ms_median": _nanmedian(on["lag_ms_median"]), "lag_ms_p95": _nanmedian(on["lag_ms_p95"])})
+    return pd.DataFrame(rows, columns=["scenario", "sequence", "method", "runs", "offline_ate_m", "online_ate_m",
+                                       "ratio", "processed_pct", "lag_ms_median", "lag_ms_p95"])
+
+
+def online_markdown(online: pd.DataFrame, offline: pd.DataFrame, methods: list[str] | None = None) -> str:
+    """The online table (:func:`online_table`) in Markdown; a cell with no figure is n/a."""
+    t = online_table(online, offline, methods)
+    rows = [[r["sequence"], f"`{r['method']}`", str(r["runs"]), _num(r["offline_ate_m"], 4),
+             _num(r["online_ate_m"], 4), _num(r["ratio"], 2, "x"), _num(r["processed_pct"], 1),
+             f"{_num(r['lag_ms_median'], 1)} / {_num(r['lag_ms_p95'], 1)}"] for _, r in t.iterrows()]
+    return _md(["sequence", "method", "online runs", "offline ATE (m)", "online ATE (m)", "online / offline",
+                "processed (%)", "lag p50 / p95 (ms)"], rows)
 
 
 def _recordings_markdown(real: pd.DataFrame, comp: pd.DataFrame, methods: list[str] | None) -> list[str]:
@@ -863,7 +934,8 @@ def read_run_records(out) -> list[dict]:
     df = read_runs_csv(out / "runs.csv")
     records = []
     for r in df.itertuples(index=False):
-        spec = RunSpec(r.scenario, r.method, int(r.seed), int(r.frames), bool(r.twin), r.source, bool(r.loop_closing))
+        spec = RunSpec(r.scenario, r.method, int(r.seed), int(r.frames), bool(r.twin), r.source, bool(r.loop_closing),
+                       bool(r.online))
         path = out / "runs" / f"{spec.run_id}.json"
         if not path.is_file():
             continue
