@@ -97,6 +97,50 @@ def test_keypoint_depth_ignores_invalid_pixels():
     assert z[0] == pytest.approx(2.1) and z[1] == 0
 
 
+
+def _patch_reference(depth, kps, radius):
+    """(median, range) of each keypoint's patch with numpy: the (N, P) patches gathered at once, invalid pixels sorted
+    to the end as +inf."""
+    r = int(radius)
+    kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
+    h, w = depth.shape
+    finite = np.all(np.isfinite(kps), axis=1)
+    c = np.where(finite[:, None], np.rint(kps), -10 * (r + 1)).astype(np.int64)
+    du, dv = np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1))
+    u, v = c[:, 0:1] + du.ravel()[None, :], c[:, 1:2] + dv.ravel()[None, :]
+    vals = depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)].astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        ok = (u >= 0) & (u < w) & (v >= 0) & (v < h) & np.isfinite(vals) & (vals > 0)
+    srt = np.sort(np.where(ok, vals, np.inf), axis=1)
+    cnt, rows = ok.sum(axis=1), np.arange(len(kps))
+    med = 0.5 * (srt[rows, np.maximum((cnt - 1) // 2, 0)] + srt[rows, np.minimum(cnt // 2, srt.shape[1] - 1)])
+    spread = np.where(ok, vals, -np.inf).max(axis=1) - np.where(ok, vals, np.inf).min(axis=1)
+    return np.where(cnt > 0, med, 0.0).astype(np.float32), np.where(cnt >= 2, spread, np.nan)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_keypoint_depth_kernel_equals_numpy(seed):
+    """The compiled patch statistics give the numpy median and range bit for bit: invalid and non-finite depths, ties,
+    keypoints off the image or non-finite, rounding halfway, float32 and float64 depth images, radii 0-2."""
+    from d2slam.slam.depth import keypoint_depth, keypoint_depth_range
+
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(1, 40, 2)
+    depth = rng.uniform(0.3, 5.0, (h, w)).astype(np.float32 if seed % 2 else np.float64)
+    depth[rng.random(depth.shape) < rng.uniform(0, 0.9)] = 0.0
+    for bad in (np.nan, np.inf, -1.0):
+        depth[rng.random(depth.shape) < 0.05] = bad
+    if seed % 3 == 0:
+        depth = np.round(depth, 1)
+    kps = np.column_stack([rng.uniform(-5, w + 5, 200), rng.uniform(-5, h + 5, 200)])
+    kps[rng.random(200) < 0.05, 0] = np.nan
+    kps[:20] = np.floor(kps[:20]) + 0.5
+    for r in (0, 1, 2):
+        med, spread = _patch_reference(depth, kps, r)
+        assert keypoint_depth(depth, kps, r).tobytes() == med.tobytes()
+        np.testing.assert_array_equal(keypoint_depth_range(depth, kps, r), spread)
+
+
 def test_undistort_applied_with_distortion():
     from dataclasses import replace
 
