@@ -141,6 +141,19 @@ def test_keypoint_depth_kernel_equals_numpy(seed):
         np.testing.assert_array_equal(keypoint_depth_range(depth, kps, r), spread)
 
 
+def test_keypoint_fields_are_the_keypoints_attributes():
+    from d2slam.slam.frame import keypoint_fields
+
+    img = (np.random.default_rng(0).random((120, 160)) * 255).astype(np.uint8)
+    kps = cv2.ORB_create(300).detect(img, None)
+    pts, response, octave, angle = keypoint_fields(kps, "response", "octave", "angle")
+    assert pts.dtype == response.dtype == np.float64 and len(kps) > 50
+    np.testing.assert_array_equal(pts, [k.pt for k in kps])
+    np.testing.assert_array_equal(response, [k.response for k in kps])
+    np.testing.assert_array_equal(octave, [k.octave for k in kps])
+    np.testing.assert_array_equal(angle, [k.angle for k in kps])
+    assert keypoint_fields([], "octave")[0].shape == (0, 2)
+
 def test_undistort_applied_with_distortion():
     from dataclasses import replace
 
