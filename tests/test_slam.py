@@ -98,6 +98,40 @@ def test_keypoint_depth_ignores_invalid_pixels():
 
 
 
+
+def _bucket_reference(pts, level, response, orb, width, height, n_features=None):
+    """``bucket_select`` with numpy: two lexsorts (cell, -response) then (level, rank, -response), quotas per level."""
+    quotas = level_quotas(orb, n_features)
+    cell = orb.cell_size * orb.scale_factor ** level.astype(np.float64)
+    ncols = np.ceil(width / cell).astype(np.int64)
+    cx = np.minimum((pts[:, 0] / cell).astype(np.int64), ncols - 1)
+    cell_id = (level.astype(np.int64) << 32) | ((pts[:, 1] / cell).astype(np.int64) * ncols + cx)
+    order = np.lexsort((-response, cell_id))
+    start = np.r_[0, np.flatnonzero(np.diff(cell_id[order])) + 1]
+    rank = np.arange(len(order)) - np.repeat(start, np.diff(np.r_[start, len(order)]))
+    lv = level[order]
+    key = np.lexsort((-response[order], rank, lv))
+    pos = np.arange(len(key)) - np.searchsorted(lv[key], np.arange(orb.n_levels))[lv[key]]
+    return np.sort(order[key[pos < quotas[lv[key]]]])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bucket_select_kernel_equals_numpy(seed):
+    """The compiled round robin keeps the corners the numpy lexsorts keep: equal responses, corners sharing cells,
+    quotas above and below the corners available."""
+    rng = np.random.default_rng(seed)
+    for trial in range(200):
+        n, budget = int(rng.integers(1, 500)), int(rng.integers(1, 400))
+        pts = rng.uniform(0, [640, 480], (n, 2))
+        if trial % 2:
+            pts = np.round(pts / 40) * 40
+        level = rng.integers(0, DEFAULT.orb.n_levels, n)
+        response = rng.integers(0, 5, n).astype(np.float64) if trial % 3 else rng.random(n)
+        np.testing.assert_array_equal(bucket_select(pts, level, response, DEFAULT.orb, 640, 480, budget),
+                                      _bucket_reference(pts, level, response, DEFAULT.orb, 640, 480, budget))
+    with pytest.raises(ValueError, match="levels"):
+        bucket_select(np.zeros((2, 2)), np.array([0, DEFAULT.orb.n_levels]), np.ones(2), DEFAULT.orb, 640, 480)
+
 def _patch_reference(depth, kps, radius):
     """(median, range) of each keypoint's patch with numpy: the (N, P) patches gathered at once, invalid pixels sorted
     to the end as +inf."""
