@@ -1,11 +1,11 @@
 """Frames: bucketed ORB features (ORB-SLAM settings), per-keypoint depth and the RGB-D "virtual stereo" coordinate.
 
 ORB-SLAM distributes features over the image with a per-level quadtree and re-runs FAST at 7 in cells where the
-20 threshold finds nothing. Our equivalent (vectorised): OpenCV's ORB detects ``oversample`` times more corners
+20 threshold finds nothing. Our equivalent: OpenCV's ORB detects ``oversample`` times more corners
 than needed at FAST 20 (plus FAST 7 when the image yields fewer than ``n_features`` corners at 20), the corners
 are binned in a grid per pyramid level (cells ``cell_size * scale^level`` pixels), and the features are taken
 round-robin over cells by decreasing Harris response (each cell's best, then each cell's second best, ...) until
-the level's ORB-SLAM quota ``n_l ∝ scale^-l`` is filled. Only the kept corners get a descriptor.
+the level's ORB-SLAM quota ``n_l ∝ scale^-l`` is filled (a compiled kernel). Only the kept corners get a descriptor.
 """
 
 from __future__ import annotations
