@@ -390,3 +390,23 @@ def test_property_pose_test_never_raises_and_stays_in_range(seed, n, outliers, b
         assert (res.p_g[res.pose_dynamic] >= CFG.pose_test.p_pose_exceed).all()
         r = res.reproj_err[np.isfinite(res.reproj_err)]
         assert (r >= 0).all()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pose_test_on_an_executor_gives_the_same_result(seed):
+    """The PnP-RANSAC run on an executor while F is fitted gives what it gives after F on the calling thread, with an
+    F and without one (too few matches)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(seed)
+    p, prev, matches, z, z_prev, label = _two_view_rgbd(rng)
+    a, b = np.full(len(p), 0.7), np.full(len(prev), 0.5)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        for m in (matches, matches[:6]):
+            ref = geometric_module(p, prev, m, b, a, CFG, seed=seed, pose=PoseInputs(z, z_prev, K_TEST))
+            got = geometric_module(p, prev, m, b, a, CFG, seed=seed, pose=PoseInputs(z, z_prev, K_TEST),
+                                   executor=pool)
+            assert (ref.F is None) == (got.F is None) == (len(m) == 6)
+            for name in ("err", "p_g", "observed", "dynamic", "reproj_err", "depth_err", "pose_dynamic"):
+                np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=name)
+            assert got.widening == ref.widening

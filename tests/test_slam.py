@@ -97,6 +97,97 @@ def test_keypoint_depth_ignores_invalid_pixels():
     assert z[0] == pytest.approx(2.1) and z[1] == 0
 
 
+
+
+def _bucket_reference(pts, level, response, orb, width, height, n_features=None):
+    """``bucket_select`` with numpy: two lexsorts (cell, -response) then (level, rank, -response), quotas per level."""
+    quotas = level_quotas(orb, n_features)
+    cell = orb.cell_size * orb.scale_factor ** level.astype(np.float64)
+    ncols = np.ceil(width / cell).astype(np.int64)
+    cx = np.minimum((pts[:, 0] / cell).astype(np.int64), ncols - 1)
+    cell_id = (level.astype(np.int64) << 32) | ((pts[:, 1] / cell).astype(np.int64) * ncols + cx)
+    order = np.lexsort((-response, cell_id))
+    start = np.r_[0, np.flatnonzero(np.diff(cell_id[order])) + 1]
+    rank = np.arange(len(order)) - np.repeat(start, np.diff(np.r_[start, len(order)]))
+    lv = level[order]
+    key = np.lexsort((-response[order], rank, lv))
+    pos = np.arange(len(key)) - np.searchsorted(lv[key], np.arange(orb.n_levels))[lv[key]]
+    return np.sort(order[key[pos < quotas[lv[key]]]])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bucket_select_kernel_equals_numpy(seed):
+    """The compiled round robin keeps the corners the numpy lexsorts keep: equal responses, corners sharing cells,
+    quotas above and below the corners available."""
+    rng = np.random.default_rng(seed)
+    for trial in range(200):
+        n, budget = int(rng.integers(1, 500)), int(rng.integers(1, 400))
+        pts = rng.uniform(0, [640, 480], (n, 2))
+        if trial % 2:
+            pts = np.round(pts / 40) * 40
+        level = rng.integers(0, DEFAULT.orb.n_levels, n)
+        response = rng.integers(0, 5, n).astype(np.float64) if trial % 3 else rng.random(n)
+        np.testing.assert_array_equal(bucket_select(pts, level, response, DEFAULT.orb, 640, 480, budget),
+                                      _bucket_reference(pts, level, response, DEFAULT.orb, 640, 480, budget))
+    with pytest.raises(ValueError, match="levels"):
+        bucket_select(np.zeros((2, 2)), np.array([0, DEFAULT.orb.n_levels]), np.ones(2), DEFAULT.orb, 640, 480)
+
+def _patch_reference(depth, kps, radius):
+    """(median, range) of each keypoint's patch with numpy: the (N, P) patches gathered at once, invalid pixels sorted
+    to the end as +inf."""
+    r = int(radius)
+    kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
+    h, w = depth.shape
+    finite = np.all(np.isfinite(kps), axis=1)
+    c = np.where(finite[:, None], np.rint(kps), -10 * (r + 1)).astype(np.int64)
+    du, dv = np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1))
+    u, v = c[:, 0:1] + du.ravel()[None, :], c[:, 1:2] + dv.ravel()[None, :]
+    vals = depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)].astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        ok = (u >= 0) & (u < w) & (v >= 0) & (v < h) & np.isfinite(vals) & (vals > 0)
+    srt = np.sort(np.where(ok, vals, np.inf), axis=1)
+    cnt, rows = ok.sum(axis=1), np.arange(len(kps))
+    med = 0.5 * (srt[rows, np.maximum((cnt - 1) // 2, 0)] + srt[rows, np.minimum(cnt // 2, srt.shape[1] - 1)])
+    spread = np.where(ok, vals, -np.inf).max(axis=1) - np.where(ok, vals, np.inf).min(axis=1)
+    return np.where(cnt > 0, med, 0.0).astype(np.float32), np.where(cnt >= 2, spread, np.nan)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_keypoint_depth_kernel_equals_numpy(seed):
+    """The compiled patch statistics give the numpy median and range bit for bit: invalid and non-finite depths, ties,
+    keypoints off the image or non-finite, rounding halfway, float32 and float64 depth images, radii 0-2."""
+    from d2slam.slam.depth import keypoint_depth, keypoint_depth_range
+
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(1, 40, 2)
+    depth = rng.uniform(0.3, 5.0, (h, w)).astype(np.float32 if seed % 2 else np.float64)
+    depth[rng.random(depth.shape) < rng.uniform(0, 0.9)] = 0.0
+    for bad in (np.nan, np.inf, -1.0):
+        depth[rng.random(depth.shape) < 0.05] = bad
+    if seed % 3 == 0:
+        depth = np.round(depth, 1)
+    kps = np.column_stack([rng.uniform(-5, w + 5, 200), rng.uniform(-5, h + 5, 200)])
+    kps[rng.random(200) < 0.05, 0] = np.nan
+    kps[:20] = np.floor(kps[:20]) + 0.5
+    for r in (0, 1, 2):
+        med, spread = _patch_reference(depth, kps, r)
+        assert keypoint_depth(depth, kps, r).tobytes() == med.tobytes()
+        np.testing.assert_array_equal(keypoint_depth_range(depth, kps, r), spread)
+
+
+def test_keypoint_fields_are_the_keypoints_attributes():
+    from d2slam.slam.frame import keypoint_fields
+
+    img = (np.random.default_rng(0).random((120, 160)) * 255).astype(np.uint8)
+    kps = cv2.ORB_create(300).detect(img, None)
+    pts, response, octave, angle = keypoint_fields(kps, "response", "octave", "angle")
+    assert pts.dtype == response.dtype == np.float64 and len(kps) > 50
+    np.testing.assert_array_equal(pts, [k.pt for k in kps])
+    np.testing.assert_array_equal(response, [k.response for k in kps])
+    np.testing.assert_array_equal(octave, [k.octave for k in kps])
+    np.testing.assert_array_equal(angle, [k.angle for k in kps])
+    assert keypoint_fields([], "octave")[0].shape == (0, 2)
+
 def test_undistort_applied_with_distortion():
     from dataclasses import replace
 

@@ -7,6 +7,7 @@ camera frame is ``T @ X_c`` in the world). Depth is float32 metres with 0 = inva
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Iterator, Protocol, runtime_checkable
 
@@ -55,8 +56,9 @@ class RGBDFrame:
     rgb_path: Path | None = None
     depth_path: Path | None = None
 
-    @property
+    @cached_property
     def gray(self) -> np.ndarray:
+        """The grey image, converted on first use and kept: a run reads it twice (extraction, then the filter)."""
         return cv2.cvtColor(self.rgb, cv2.COLOR_RGB2GRAY)
 
 

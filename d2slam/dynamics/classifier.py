@@ -43,6 +43,7 @@ per-module precision/recall can be measured (``FrameDiagnostics.predictions``).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -200,6 +201,7 @@ class D2SlamFilter:
             check_flow_area(self.cfg.flow.flow_area)
             check_edge_band(self.cfg.flow.flow_edge_band, self.cfg.flow.flow_edge_p)
         self.last: FrameDiagnostics | None = None
+        self._pnp: ThreadPoolExecutor | None = None  # the pose test's PnP while F is fitted (``_geometric``)
 
     def reset(self) -> None:
         self.last = None
@@ -279,8 +281,10 @@ class D2SlamFilter:
                 r = inp.depth_patch_radius
                 pose.depth_edge = dz.depth_edge(inp.depth, inp.pixels()[0], z, cfg, r, noise)
                 pose.prev_depth_edge = dz.depth_edge(inp.prev_depth, prev.px, prev.depth, cfg, r, noise)
+            if self._pnp is None:  # one thread per filter, stopped when the filter is garbage-collected
+                self._pnp = ThreadPoolExecutor(max_workers=1, thread_name_prefix="d2slam-pnp")
         return geometric_module(kps, prev.kps, prev.matches, prev.belief, alpha * scale, cfg, seed=inp.seed,
-                                scale=scale, fit=prev.fit, pose=pose)
+                                scale=scale, fit=prev.fit, pose=pose, executor=self._pnp)
 
     def _fusion(self, f: FrameState) -> tuple[np.ndarray, np.ndarray | None]:
         """Eq 7: (P, the edge band's flags (ours, with the flow) or None); sets the frame's matched keypoints and

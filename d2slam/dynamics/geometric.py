@@ -49,6 +49,7 @@ alone.
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -288,7 +289,7 @@ class PoseInputs:
 def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray, prev_belief: np.ndarray,
                      a: np.ndarray, cfg: DynamicsConfig = _DEFAULT, seed: int = 0,
                      scale: np.ndarray | float = 1.0, fit: np.ndarray | None = None,
-                     pose: PoseInputs | None = None) -> GeometricResult:
+                     pose: PoseInputs | None = None, executor: Executor | None = None) -> GeometricResult:
     """eq 4-6 for the current keypoints ``kps`` (N, 2) given ``matches`` (K, 2) to ``prev_kps`` (M, 2).
 
     ``a`` (N,) is the threshold of each current keypoint (alpha(z_p), or ``fixed_alpha`` for the `geometric`
@@ -297,7 +298,12 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     (module docstring, :func:`pose_test`) runs on the matches that have eq 5's error, with the pose from the matches
     RANSAC used for F (those with a valid previous depth). ``scale`` (N,) or scalar is each keypoint's detection scale
     1.2^octave (``depth.octave_factor``), for eq 6's sigma and the reprojection threshold. ``fit`` (K,) bool: the
-    matches F may be fitted on (default all; ``flow.flow_matches``). ``seed``: the RANSACs' (the run's seed)."""
+    matches F may be fitted on (default all; ``flow.flow_matches``). ``seed``: the RANSACs' (the run's seed).
+
+    ``executor``: where the pose test's PnP-RANSAC runs while RANSAC fits F on the calling thread (None: after it, on
+    the calling thread). The PnP needs the matches F is fitted on, not F, and OpenCV releases the GIL in both, so with
+    a second core the two overlap; the results are the same (each RANSAC seeds its own thread's generator, and
+    neither draws from it)."""
     kps = np.asarray(kps, dtype=np.float64).reshape(-1, 2)
     prev_kps = np.asarray(prev_kps, dtype=np.float64).reshape(-1, 2)
     n = len(kps)
@@ -313,7 +319,10 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     p, q = kps[m[:, 0]], prev_kps[m[:, 1]]
     sel, res.used_static = _fit_set(m, prev_belief, fit, len(prev_kps), cfg)
     res.n_used = int(sel.sum())
+    fitting = executor.submit(pose_fit, m, p, q, sel, depths[1], pose, cfg, seed) \
+        if depths is not None and executor is not None else None
     res.F, _ = fundamental_matrix(q[sel], p[sel], cfg, seed)
+    fitted = fitting.result() if fitting is not None else None
     if res.F is None:
         return res
     e_m = epipolar_error(res.F, p, q)
@@ -327,7 +336,8 @@ def geometric_module(kps: np.ndarray, prev_kps: np.ndarray, matches: np.ndarray,
     res.observed = np.isfinite(err)
     res.widening = (k_e, 1.0, 1.0)
     if depths is not None:
-        pose_test(res, m, p, q, sel, scale, *depths, pose, cfg, seed)
+        X, rt = fitted if fitted is not None else pose_fit(m, p, q, sel, depths[1], pose, cfg, seed)
+        pose_test(res, m, p, sel, scale, depths[0], X, rt, pose, cfg)
     return res
 
 
@@ -356,20 +366,27 @@ def _fit_set(m: np.ndarray, prev_belief, fit: np.ndarray, n_prev: int, cfg: Dyna
     return (static if used_static else fit), used_static
 
 
-def pose_test(res: GeometricResult, m: np.ndarray, p: np.ndarray, q: np.ndarray, sel: np.ndarray, scale: np.ndarray,
-              z_cur: np.ndarray, z_prev: np.ndarray, pose: PoseInputs, cfg: DynamicsConfig = _DEFAULT,
-              seed: int = 0) -> None:
-    """The pose test (ours, module docstring) on the matches ``m`` (K, 2) with pixels ``p`` / ``q``, filling ``res``:
-    the relative pose by PnP from the fit set ``sel`` with a previous depth, the residuals of every match, the flags
+def pose_fit(m: np.ndarray, p: np.ndarray, q: np.ndarray, sel: np.ndarray, z_prev: np.ndarray, pose: PoseInputs,
+             cfg: DynamicsConfig = _DEFAULT, seed: int = 0) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+    """The pose test's (ours, module docstring) points and pose for the matches ``m`` (K, 2) with pixels ``p`` / ``q``:
+    (X (K, 3), the previous keypoints back-projected with their depth ``z_prev`` (NaN rows without one); the relative
+    pose by PnP (``relative_pose``) from the fit set ``sel`` with a previous depth, or None)."""
+    zq = z_prev[m[:, 1]]
+    has_z = valid_depth(zq)
+    X = back_project(q, np.where(has_z, zq, np.nan), pose.K)
+    return X, relative_pose(X[sel & has_z], p[sel & has_z], pose.K, cfg, seed)
+
+
+def pose_test(res: GeometricResult, m: np.ndarray, p: np.ndarray, sel: np.ndarray, scale: np.ndarray,
+              z_cur: np.ndarray, X: np.ndarray, rt: tuple[np.ndarray, np.ndarray] | None, pose: PoseInputs,
+              cfg: DynamicsConfig = _DEFAULT) -> None:
+    """The pose test (ours, module docstring) on the matches ``m`` (K, 2) with current pixels ``p``, filling ``res``:
+    with the points ``X`` and the relative pose ``rt`` of ``pose_fit``, the residuals of every match, the flags
     (reprojection above ``pose_reproj_px`` x scale, depth residual above ``pose_depth_sigmas``, both widened to the
     frame's noise; the depth residual not tested where ``pose``'s depth-edge flags say a depth was read across an
     edge) on the observed keypoints, P_g raised to ``p_pose_exceed`` where flagged."""
     n = len(res.err)
-    zq = z_prev[m[:, 1]]
-    has_z = valid_depth(zq)
     K, pc, edges = pose.K, cfg.pose_test, pose.edges()
-    X = back_project(q, np.where(has_z, zq, np.nan), K)
-    rt = relative_pose(X[sel & has_z], p[sel & has_z], K, cfg, seed)
     k_r = k_z = 1.0
     if rt is not None:
         r_m, z_m = pose_residuals(X, p, z_cur[m[:, 0]], rt[0], rt[1], K, pose.noise)

@@ -129,6 +129,8 @@ class _FrameSource:
 
     def _read(self, j: int):
         frame = self.reader(j)
+        if self.cached is None:
+            _ = frame.gray  # converted once, here in the reader thread (cvtColor releases the GIL)
         if self.mask_provider is None:
             return frame, None, 0.0
         t = time.perf_counter()
