@@ -20,7 +20,7 @@ from numba import njit
 from d2slam.data.base import Camera
 from d2slam.slam.config import EngineConfig, OrbConfig
 from d2slam.slam.depth import keypoint_depth
-from d2slam.slam.matching import Gridded
+from d2slam.slam.matching import Gridded, bucket_order
 
 
 @dataclass
@@ -101,16 +101,7 @@ def _round_robin(cell, n_cells, level, response, quotas):
     sort by cell with an insertion sort by decreasing response in each (cells hold a few corners), then per level
     the rounds (rank in the cell) in turn, whole while they fit in the quota, the last one by decreasing response."""
     n = len(cell)
-    start = np.zeros(n_cells + 1, np.int64)
-    for c in cell:
-        start[c + 1] += 1
-    for c in range(n_cells):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)  # corners by (cell, decreasing response, index)
-    for i in range(n):
-        order[fill[cell[i]]] = i
-        fill[cell[i]] += 1
+    order, start = bucket_order(cell, n_cells)  # corners by cell, then (below) by decreasing response, then index
     rank = np.empty(n, np.int64)  # of order[j] in its cell
     rounds = 0
     for c in range(n_cells):

@@ -83,11 +83,11 @@ class KeypointGrid:
         self.cols = int(cx.max()) - self.col0 + 1 if n else 1
         self.rows = int(cy.max()) - self.row0 + 1 if n else 1
         cid = (cy - self.row0) * self.cols + (cx - self.col0)
-        self.order, self.start = _bucket(cid, self.rows * self.cols)  # = np.argsort(cid, kind="stable") and its cells
+        self.order, self.start = bucket_order(cid, self.rows * self.cols)  # = np.argsort(cid, kind="stable") and its cells
 
 
 @njit(cache=True, nogil=True)
-def _bucket(cid, cells):
+def bucket_order(cid, cells):
     """Counting sort of the cell ids ``cid``: (order, start), ``order`` the stable ascending order of ``cid`` and
     cell c's entries ``order[start[c]:start[c + 1]]``."""
     start = np.zeros(cells + 1, np.int64)
