@@ -49,7 +49,9 @@ def test_the_default_grid_runs_online_where_it_belongs_and_nowhere_else():
     options = run_options()
     assert all(set(run_ident(s, options)["spec"]) == OFFLINE_FIELDS for s in offline)
     # only the methods asked for; those that cannot run online are refused in one line
-    assert {s.method for s in expand_grid(["walking_rpy"], ["none", "semantic"], [1], 40) if s.online} == {"none"}
+    assert {s.method for s in expand_grid(["walking_rpy"], ["none", "semantic"], [1], 40,
+                                          online_methods=G.ONLINE_METHODS) if s.online} == {"none"}
+    assert not any(s.online for s in expand_grid(["walking_rpy"], ["none", "semantic"], [1], 40))  # methods chosen
     with pytest.raises(D2SlamError, match="oracle cannot run online"):
         expand_grid(["walking_rpy"], ["none", "oracle"], [1], 40, online_methods=("oracle",))
 
@@ -88,7 +90,7 @@ def test_online_runs_come_after_every_other_run_one_at_a_time_here(monkeypatch, 
     monkeypatch.setattr(core, "_prepare_kernels", lambda: None)
     monkeypatch.setattr(core, "_prepare_vocabulary", lambda progress: None)
     grid = dict(scenarios=["walking_xyz", "sitting_static"], methods=["none", "d2slam"], seeds=[101, 102],
-                frames=FRAMES, twin_methods=(), plots=False, progress=False)
+                frames=FRAMES, twin_methods=(), plots=False, progress=False, online_methods=G.ONLINE_METHODS)
     for where, kw in (("joblib", {"jobs": 2}), ("dask", {"scheduler": "tcp://127.0.0.1:1"})):
         calls.clear()
         res = run_study(tmp_path / where, **grid, **kw)
@@ -101,7 +103,7 @@ def test_online_runs_come_after_every_other_run_one_at_a_time_here(monkeypatch, 
         assert "online_s" in res.manifest["timing"] and res.manifest["grid"]["online_runs"] == 4
     # --no-online's grid: no online phase at all
     calls.clear()
-    run_study(tmp_path / "none", online_methods=(), **grid)
+    run_study(tmp_path / "none", **{**grid, "online_methods": ()})
     assert [c[0] for c in calls if c[3]] == ["sequences", "segmentation", "runs"]
 
 
@@ -116,6 +118,7 @@ class _BoxSegmenter:
 
 
 GRID = dict(scenarios=["walking_xyz"], methods=["none", "d2slam"], seeds=[101], frames=FRAMES, twin_methods=(),
+            online_methods=G.ONLINE_METHODS,
             plots=False, progress=False)
 
 

@@ -117,7 +117,7 @@ def run(args) -> int:
         raise D2SlamError(f"--jobs must be >= 1, got {args.jobs}")
     specs = G.expand_grid(scenarios, args.methods, args.seeds, args.frames, args.twin_methods,
                           source="tum" if tum_root else "synth",
-                          online_methods=() if args.no_online else G.ONLINE_METHODS)
+                          online_methods=() if args.no_online else None)
     if args.dry_run:
         return _dry_run(specs)
 

@@ -99,7 +99,7 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
     ``resume``: reuse every run of ``out/runs/`` whose key (:func:`d2slam.study.keys.run_key`: the run, config,
     masks, generator version, the source of the code computing it, package versions; ORB-SLAM3: also its repeats
     and vocabulary) equals this study's, unless it failed; the manifest lists the reused runs. ``online_methods``:
-    the methods also run online (default ``ONLINE_METHODS``; ``()``: none), when ``specs`` is not given."""
+    the methods also run online (default: as ``expand_grid``; ``()``: none), when ``specs`` is not given."""
     checkout, code = git_info(), code_info()  # the code that runs: taken now, not when the study ends
     config = config or DEFAULT
     if specs is None:
@@ -107,7 +107,7 @@ def _run_study(out, scenarios=None, methods=None, seeds=None, frames: int | None
                             G.DEFAULT_FRAMES if frames is None else frames,
                             G.TWIN_METHODS if twin_methods is None else twin_methods,
                             source="tum" if tum_root else "synth",
-                            online_methods=G.ONLINE_METHODS if online_methods is None else online_methods)
+                            online_methods=online_methods)
     if not specs:
         raise D2SlamError("the study grid is empty")
     out = Path(out).expanduser()

@@ -132,7 +132,7 @@ def _scenario_rank(name: str) -> int:
 
 
 def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: int = DEFAULT_FRAMES,
-                twin_methods=TWIN_METHODS, source: str = "synth", online_methods=ONLINE_METHODS) -> list[RunSpec]:
+                twin_methods=TWIN_METHODS, source: str = "synth", online_methods=None) -> list[RunSpec]:
     """Every run of the study, in the documented order. ``methods`` default: every registered method plus
     ``orbslam3`` (on the interaction scenarios those of ``INTERACTION_METHODS``, on the scenario with a return those
     of ``LOOP_METHODS``, on a real recording those that need no synthetic truth). ``twin_methods``: the methods also
@@ -140,8 +140,12 @@ def expand_grid(scenarios=SCENARIOS, methods=None, seeds=DEFAULT_SEEDS, frames: 
     return every engine method of ``methods`` runs with loop closing on, then off; a real recording of
     ``REAL_SCENARIOS`` runs each method once (the first seed, all frames). ``online_methods``: the methods also run
     online on ``ONLINE_SCENARIOS`` (only those of ``methods``; ``()``: no online run), after the scenario's offline
-    runs. Duplicates in the arguments are dropped (first occurrence kept)."""
+    runs; default: ``ONLINE_METHODS`` in the default grid (``methods`` not given) on generated sequences, none where
+    the methods are chosen or on a TUM copy (online runs take the machine to themselves: a user asks for them).
+    Duplicates in the arguments are dropped (first occurrence kept)."""
     default = methods is None
+    if online_methods is None:
+        online_methods = ONLINE_METHODS if default and source != "tum" else ()
     if methods is None:
         methods = default_methods(source)
     scenarios, methods, seeds = _unique(scenarios), _unique(methods), _unique(int(s) for s in seeds)
