@@ -17,7 +17,8 @@ from d2slam.study.grid import RunSpec, expand_grid
 
 # ---------------------------------------------------------------------------------------------- grid
 def test_grid_order_and_twins():
-    specs = expand_grid(["sitting_static", "walking_xyz"], ["none", "d2slam", "semantic"], [103, 101], 60)
+    specs = expand_grid(["sitting_static", "walking_xyz"], ["none", "d2slam", "semantic"], [103, 101], 60,
+                        online_methods=G.ONLINE_METHODS)
     # paper order of scenarios, dynamic before twin, then online, seeds ascending, methods as given; twins: none +
     # d2slam only; online: none + d2slam, on the walking scenario only
     assert [s.run_id for s in specs[:4]] == ["walking_xyz_s101_n60_none", "walking_xyz_s101_n60_d2slam",
@@ -36,7 +37,7 @@ def test_grid_order_and_twins():
 
 def test_grid_dedup_defaults_and_errors():
     specs = expand_grid(["walking_rpy", "walking_rpy"], ["none", "none"], [5, 5], 40, twin_methods=())
-    assert specs == [RunSpec("walking_rpy", "none", 5, 40), RunSpec("walking_rpy", "none", 5, 40, online=True)]
+    assert specs == [RunSpec("walking_rpy", "none", 5, 40)]  # methods chosen: no online run unless asked for
     default = expand_grid(frames=300)
     n_methods = len(G.default_methods())
     assert "orbslam3" in G.default_methods() and G.default_methods()[0] == "none"
