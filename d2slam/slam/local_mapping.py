@@ -23,13 +23,12 @@ from d2slam.slam.projection import Projector, inv
 
 @dataclass
 class Adjustment:
-    """A bundle adjustment posed on copies of the map's values (``LocalMapper.problem``): observation ``rows`` of
-    keyframes ``obs_kf`` (``obs_cam``: their places in ``cams``), the points ``pts`` (``pinv``: each row's place in
+    """A bundle adjustment posed on copies of the map's values (``LocalMapper.problem``): observation ``rows`` (their
+    keyframes' places in ``cams``: ``obs_cam``), the points ``pts`` (``pinv``: each row's place in
     them), the measurements, the starting ``poses`` and positions ``X``. :meth:`solve` reads nothing else, so it may
     run beside tracking; ``LocalMapper.apply`` writes its solution back."""
 
     rows: np.ndarray
-    obs_kf: np.ndarray
     cams: np.ndarray
     fixed: np.ndarray
     pts: np.ndarray
@@ -394,7 +393,7 @@ class LocalMapper:
             k = M.keyframes[c]
             uv[s], ur[s], inv_s2[s] = k.kps[kp[s]], k.ur[kp[s]], k.inv_sigma2[kp[s]]
         poses = np.stack([M.keyframes[c].Tcw for c in cams])
-        return Adjustment(rows, obs_kf, cams, fixed, pts, pinv, cam_of[obs_kf], uv, ur, inv_s2, poses, P.pos[pts],
+        return Adjustment(rows, cams, fixed, pts, pinv, cam_of[obs_kf], uv, ur, inv_s2, poses, P.pos[pts],
                           iterations, erase_outliers, self.proj.K, self.proj.bf, self.cfg)
 
     def apply(self, ba: "Adjustment", solution: tuple) -> None:
