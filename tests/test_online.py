@@ -251,3 +251,30 @@ def test_orbslam3_online_summary_counts_dropped_frames(tmp_path):
     s = _online_summary(p, 6, 30.0)
     assert (s["processed"], s["dropped"], s["complete"]) == (3, 3, True)
     assert s["lag_ms_median"] == pytest.approx(1000 * (0.095 - 0.066667), abs=0.01)
+
+
+def _bench_run(ate, share=1.0, lag=20.0, status="ok"):
+    return {"status": status, "metrics": {"ate_rmse_m": ate},
+            "online": {"processed_share": share, "lag_ms_median": lag, "processed": 1, "frames": 1}}
+
+
+def test_bench_online_judges_the_targets_on_the_medians_of_its_repeats():
+    """bench online --repeats: the ATE ratio is the median over the repeats (each online run depends on timing), the
+    share processed the smallest, and the ORB-SLAM3 gain counts on walking sequences only."""
+    from d2slam.bench import online as bench
+
+    def row(name, ates, shares, orb):
+        reps = {"d2slam online": [_bench_run(a, s) for a, s in zip(ates, shares)],
+                "none online": [_bench_run(0.05)] * len(ates), "orbslam3 online": [_bench_run(o) for o in orb]}
+        return {"sequence": f"/x/{name}", "runs": {"d2slam offline": _bench_run(0.010)}, "repeats": reps}
+
+    walk = row("walking_xyz_s101_n300-abc", [0.0100, 0.0130, 0.0110], [1.0, 0.97, 0.99], [0.2, 0.3, 0.4])
+    j = bench.judged(walk)
+    assert j["ate_ratio_median"] == pytest.approx(1.10) and j["ate_ratio_range"] == pytest.approx([1.0, 1.3])
+    assert j["processed_min"] == 0.97 and j["better_than_orbslam3"] == pytest.approx(1 - 0.011 / 0.3)
+    real = row("rgbd_dataset_freiburg1_rpy", [0.0114, 0.0120, 0.0110], [0.99] * 3, [0.0100] * 3)
+    lines = bench._targets([walk, real])
+    assert "ATE <= 1.15x offline met" in lines[-1] and "(not walking)" in lines[2]  # ORB-SLAM3 better there: not judged
+    slow = row("walking_rpy_s101_n300-abc", [0.0120, 0.0118, 0.0100], [1.0, 0.94, 1.0], [0.2] * 3)
+    last = bench._targets([walk, real, slow])[-1]
+    assert "processed >= 95 % NOT met" in last and "ATE <= 1.15x offline NOT met" in last

@@ -105,7 +105,8 @@ def run(args) -> int:
     if args.online:
         return online.run(argparse.Namespace(sequences=[args.sequence] if args.sequence else [],
                                              seeds=args.seeds or [args.seed], frames=args.frames or DEFAULT_FRAMES,
-                                             rate=args.rate, no_real=args.no_real, json=args.json, latency=None))
+                                             rate=args.rate, no_real=args.no_real, json=args.json, latency=None,
+                                             repeats=1))
     if args.compare_optimisers:
         return compare_optimisers(args)
     if args.loops:
