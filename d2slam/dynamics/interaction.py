@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.stats import binom  # at import: a first call inside a run would count its ~1 s in that frame's time
 
 from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps, delta, gamma, valid_depth
@@ -209,8 +210,6 @@ def moving_masks(fm: FrameMasks, observed: np.ndarray, dynamic: np.ndarray,
     P(X >= d | m, 1 - noise_confidence) below ``oim_moving_alpha`` says more failed than the thresholds' false alarms
     explain. A mask with fewer than ``oim_moving_min`` matched keypoints counts as moving (it cannot be told still);
     an empty mask as still. Without the test every mask moves (the paper's OIM)."""
-    from scipy.stats import binom
-
     n = len(fm.edges)
     ours = cfg.ours
     if not ours.oim_moving_test:
