@@ -325,3 +325,28 @@ def test_two_runs_on_one_sequence_segment_it_once(fault_world, tmp_path):
     assert f"{w.FRAMES} frames, 0 already cached, {w.FRAMES} segmented" in out
     assert "another process is segmenting" in second.stderr and "waiting for it" in second.stderr
     assert f"{w.FRAMES} frames, {w.FRAMES} already cached, 0 segmented" in second.stdout
+
+
+def test_preload_loads_cached_kernels_and_compiles_none(tmp_path):
+    """kernel_cache.preload: a kernel cached on disk is loaded before its first call (a run's clock then counts no
+    loading); one never compiled stays uncompiled; a second preload loads nothing."""
+    import d2slam.slam  # noqa: F401 - installs the guard
+    from d2slam.kernel_cache import preload
+
+    (tmp_path / "preloaded.py").write_text(KERNEL + "\n\n@njit(cache=True)\ndef never_called(x):\n    return x\n")
+    sys.path.insert(0, str(tmp_path))
+    try:
+        def fresh_module():
+            sys.modules.pop("preloaded", None)
+            importlib.invalidate_caches()
+            return importlib.import_module("preloaded")
+
+        assert fresh_module().twice_plus_one(20) == 41  # compiled and cached for int64
+        m = fresh_module()  # a new process's view: nothing loaded yet
+        assert not m.twice_plus_one.overloads and not m.never_called.overloads
+        assert preload(m) == 1
+        assert len(m.twice_plus_one.overloads) == 1 and not m.never_called.overloads
+        assert preload(m) == 0 and m.twice_plus_one(1) == 3
+    finally:
+        sys.path.remove(str(tmp_path))
+        sys.modules.pop("preloaded", None)

@@ -32,6 +32,7 @@ from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.config import DEFAULT, Config
 from d2slam.data.base import Trajectory
 from d2slam.errors import D2SlamError
+from d2slam.kernel_cache import preload
 from d2slam.run.record import EngineRun
 from d2slam.slam.engine import STAGES as ENGINE_STAGES, Engine
 from d2slam.slam.features import CachedFeatures, FeatureRecorder
@@ -51,6 +52,15 @@ def ensure_vocabulary(config: Config = DEFAULT) -> None:
         resolve_vocabulary(path, build=True, progress=False)
 
 
+def load_kernels() -> int:
+    """The engine's and the filter's compiled kernels loaded from numba's disk cache before a run's clock starts
+    (:func:`d2slam.kernel_cache.preload`); returns how many were loaded now."""
+    from d2slam.dynamics import kernels
+    from d2slam.slam import depth, frame, keyframe_database, lm, matching, orb_vocabulary
+
+    return preload(kernels, depth, frame, keyframe_database, lm, matching, orb_vocabulary)
+
+
 def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
                  mask_provider: Callable[[int], "np.ndarray | None"] | None = None,
                  recorder: Recorder | None = None, progress: bool | None = None, desc: str | None = None,
@@ -66,6 +76,7 @@ def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
         ensure_vocabulary(config)
         engine = Engine(sequence.camera, config, keypoint_filter)
     cached, recorder_f = _check_features(features, engine, sequence, n)
+    load_kernels()
     tally = _Tally(n, mask_provider is not None)
     source = _FrameSource(sequence, n, cached, keypoint_filter is not None, mask_provider, prefetch)
     bar = tqdm(range(n), desc=desc or f"run {getattr(sequence, 'name', '')}", unit="frame",
