@@ -54,8 +54,8 @@ from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.flow import check_flow_area, flow_correspondences, flow_keypoints, flow_matches
 from d2slam.dynamics.fusion import bayes_update, check_edge_band, edge_band, fuse, prior_belief
 from d2slam.dynamics.geometric import GeometricResult, PoseInputs, check_matches, geometric_module
-from d2slam.dynamics.interaction import (MatchedPoints, mask_depths, moving_masks, neighbour_p_g, oim_candidates,
-                                         oim_frame)
+from d2slam.dynamics.interaction import (MatchedPoints, binomial, mask_depths, moving_masks, neighbour_p_g,
+                                         oim_candidates, oim_frame)
 from d2slam.dynamics.semantic import FrameMasks, SemanticResult, semantic_module
 from d2slam.dynamics.switches import Switches
 from d2slam.errors import D2SlamError
@@ -202,6 +202,8 @@ class D2SlamFilter:
             check_edge_band(self.cfg.flow.flow_edge_band, self.cfg.flow.flow_edge_p)
         self.last: FrameDiagnostics | None = None
         self._pnp: ThreadPoolExecutor | None = None  # the pose test's PnP while F is fitted (``_geometric``)
+        if switches.oim and self.cfg.ours.oim_moving_test:
+            binomial()  # imported now, before a run's first frame
 
     def reset(self) -> None:
         self.last = None

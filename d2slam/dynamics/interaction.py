@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import binom  # at import: a first call inside a run would count its ~1 s in that frame's time
 
 from d2slam.dynamics.config import DynamicsConfig
 from d2slam.dynamics.depth import DepthMaps, delta, gamma, valid_depth
@@ -203,6 +202,15 @@ def object_interaction(kps: np.ndarray, z: np.ndarray, candidate: np.ndarray, dy
     return flip, centroid
 
 
+def binomial():
+    """scipy.stats' binomial distribution of eq 9's moving test, imported at the first call: importing scipy.stats
+    takes about half a second, which the command line should not pay at start, nor a run in its first frame (the
+    filter asks for it when it is built: ``D2SlamFilter``)."""
+    from scipy.stats import binom
+
+    return binom
+
+
 def moving_masks(fm: FrameMasks, observed: np.ndarray, dynamic: np.ndarray,
                  cfg: DynamicsConfig = _DEFAULT) -> np.ndarray:
     """eq 9 (ours, ``OursConfig.oim_moving_test``): (n,) bool, whether each person moves this frame: of the m
@@ -221,7 +229,7 @@ def moving_masks(fm: FrameMasks, observed: np.ndarray, dynamic: np.ndarray,
         if inside is None:
             continue
         m, d = int((inside & observed).sum()), int((inside & dynamic).sum())
-        out[k] = m < ours.oim_moving_min or binom.sf(d - 1, m, 1.0 - ours.noise_confidence) < ours.oim_moving_alpha
+        out[k] = m < ours.oim_moving_min or binomial().sf(d - 1, m, 1.0 - ours.noise_confidence) < ours.oim_moving_alpha
     return out
 
 
