@@ -145,14 +145,13 @@ def preload(*modules) -> int:
     before its clock starts, so that its first frame does not count the loading (a few hundred milliseconds in all).
     It compiles nothing: a kernel without such a cached overload compiles at its first call, as before. Returns how
     many overloads were loaded."""
-    from numba.core.dispatcher import Dispatcher
-    from numba.core.registry import cpu_target
+    from numba.core import dispatcher, registry
 
-    codegen = cpu_target.target_context.codegen()
+    codegen = registry.cpu_target.target_context.codegen()
     loaded = 0
     for module in modules:
         for kernel in vars(module).values():
-            cache = getattr(kernel, "_cache", None) if isinstance(kernel, Dispatcher) else None
+            cache = getattr(kernel, "_cache", None) if isinstance(kernel, dispatcher.Dispatcher) else None
             if cache is None or not hasattr(cache, "_cache_file"):  # not cached on disk (numba's NullCache)
                 continue
             for key in cache._cache_file._load_index():  # (signature, machine, code digests) -> data file

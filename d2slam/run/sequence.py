@@ -31,9 +31,11 @@ from tqdm import tqdm
 from d2slam.baselines.vocab import resolve_vocabulary
 from d2slam.config import DEFAULT, Config
 from d2slam.data.base import Trajectory
+from d2slam.dynamics import kernels as filter_kernels
 from d2slam.errors import D2SlamError
 from d2slam.kernel_cache import preload
 from d2slam.run.record import EngineRun
+from d2slam.slam import depth as depth_kernels, frame as frame_kernels, keyframe_database, lm, matching, orb_vocabulary
 from d2slam.slam.engine import STAGES as ENGINE_STAGES, Engine
 from d2slam.slam.features import CachedFeatures, FeatureRecorder
 from d2slam.slam.orb_vocabulary import vocabulary_ready
@@ -55,10 +57,7 @@ def ensure_vocabulary(config: Config = DEFAULT) -> None:
 def load_kernels() -> int:
     """The engine's and the filter's compiled kernels loaded from numba's disk cache before a run's clock starts
     (:func:`d2slam.kernel_cache.preload`); returns how many were loaded now."""
-    from d2slam.dynamics import kernels
-    from d2slam.slam import depth, frame, keyframe_database, lm, matching, orb_vocabulary
-
-    return preload(kernels, depth, frame, keyframe_database, lm, matching, orb_vocabulary)
+    return preload(filter_kernels, depth_kernels, frame_kernels, keyframe_database, lm, matching, orb_vocabulary)
 
 
 def run_sequence(sequence, config: Config = DEFAULT, keypoint_filter=None,
