@@ -155,7 +155,8 @@ def _targets(rows: list[dict]) -> list[str]:
                    f"{f'{q:.2f} [{rr[0]:.2f}, {rr[1]:.2f}]' if q is not None else '-':>26} "
                    f"{(f'{100 * b:.1f} %' if b is not None else '-') if walking else '(not walking)':>28}")
     say = {True: "met", False: "NOT met", None: "not judged (no walking sequence)"}
-    out.append(f"targets (medians over the repeats): processed >= {100 * TARGET_PROCESSED:g} % {say[met['processed']]}; "
+    out.append(f"targets (medians over the repeats): processed >= {100 * TARGET_PROCESSED:g} % "
+               f"{say[met['processed']]}; "
                f"median lag <= {TARGET_LAG_MS:g} ms {say[met['lag']]}; ATE <= {TARGET_ATE_RATIO:g}x offline "
                f"{say[met['ate']]}; >= {100 * TARGET_BETTER:g} % better than the real ORB-SLAM3 online on the walking "
                f"sequences {say[met['better']]}")
