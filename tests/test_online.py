@@ -4,6 +4,7 @@ Nothing here is timed: how fast an online run keeps up is measured by `d2slam be
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import subprocess
@@ -278,3 +279,5 @@ def test_bench_online_judges_the_targets_on_the_medians_of_its_repeats():
     slow = row("walking_rpy_s101_n300-abc", [0.0120, 0.0118, 0.0100], [1.0, 0.94, 1.0], [0.2] * 3)
     last = bench._targets([walk, real, slow])[-1]
     assert "processed >= 95 % NOT met" in last and "ATE <= 1.15x offline NOT met" in last
+    with pytest.raises(D2SlamError, match="--repeats must be at least 1"):  # before any run starts
+        bench.run(argparse.Namespace(latency=None, repeats=0))
