@@ -217,7 +217,7 @@ def run(args) -> int:
     if args.latency:
         return latency(args)
     if args.repeats < 1:
-        raise D2SlamError(f"--repeats must be at least 1, not {args.repeats}")
+        raise D2SlamError(f"--repeats must be at least 1 (got {args.repeats})")
     seqs = _sequences(args)
     out = Path(tempfile.mkdtemp(prefix="d2slam_bench_online_"))
     rows = []
