@@ -305,6 +305,27 @@ def test_edge_band_flags_unobserved_keypoints_just_outside_the_mask():
     assert p.last.edge is None and "edge" not in p.last.predictions()
 
 
+def test_silhouette_band_flags_keypoints_whose_corner_reaches_a_mask():
+    """Ours (OursConfig.silhouette_px): a keypoint outside the mask within silhouette_px x 1.2^octave of it gets
+    P = max(P, silhouette_p) before eq 8, matched or not; every other keypoint keeps eq 7's P; off by default."""
+    inp, matched, outside = box_scene()
+    octave = np.where((outside >= 3) & (outside < 6), 4, 0)  # 3 x 1.2^4 = 6.2 px at level 4
+    inp = FilterInput(**{**inp.__dict__, "octave": octave})
+    off = get_filter("d2slam")
+    off(inp)
+    assert off.last.silhouette is None and "silhouette" not in off.last.predictions()
+    f = get_filter("d2slam", overridden(DynamicsConfig(), {"ours": {"silhouette_px": 3.0}}))
+    f(inp)
+    want = (outside > 0) & (outside < 3.0 * 1.2 ** octave)
+    assert want.sum() >= 10 and (want & matched).any() and (want & (octave == 4)).any()
+    np.testing.assert_array_equal(f.last.silhouette, want)
+    np.testing.assert_array_equal(f.last.predictions()["silhouette"], want)
+    assert (f.last.fused[want] >= 0.9).all() and (off.last.fused[want] < 0.5).any()
+    np.testing.assert_array_equal(f.last.fused[~want], off.last.fused[~want])
+    with pytest.raises(D2SlamError, match=r"dynamics.ours.silhouette_p = 2"):
+        overridden(DynamicsConfig(), {"ours": {"silhouette_p": 2.0}})
+
+
 def test_edge_band_bad_settings_are_clear_errors():
     """Refused when the config is built (its range), used by a filter or not."""
     for kwargs, what in (({"flow_edge_p": 1.5}, r"dynamics.flow.flow_edge_p = 1.5 .*\[0, 1\]"),

@@ -47,6 +47,8 @@ def _changed(overrides: dict) -> set:
     ({"dynamics": {"flow": {"flow_window": 15}}}, {"d2slam-flow"}),
     ({"dynamics": {"flow": {"enabled": True}}}, FILTERS),  # read by every classifier
     ({"dynamics": {"beta_max": 0.3}}, FILTERS),  # eq 2: every classifier
+    ({"dynamics": {"ours": {"silhouette_px": 3.0}}}, FILTERS),
+    ({"dynamics": {"ours": {"silhouette_p": 0.8}}}, set()),  # the band's likelihood, without the band
     ({"orb": {"n_features": 900}}, ENGINE),  # the engine's, not ORB-SLAM3's
     ({"baseline": {"orbslam3_repeats": 5}}, {"orbslam3", "orbslam3-masked"}),
     ({"masking": {"fill": "black"}}, {"orbslam3-masked"}),

@@ -86,6 +86,7 @@ class FrameDiagnostics:
     pose_dynamic: np.ndarray | None = None  # the pose test's flag
     widening: tuple[float, float, float] | None = None  # noise widening of eq 5, reprojection, depth (ours)
     edge: np.ndarray | None = None  # ours, with the flow: unobserved just outside a mask, P raised (fusion.edge_band)
+    silhouette: np.ndarray | None = None  # ours: corner on a person's outline, P raised (OursConfig.silhouette_px)
     fused: np.ndarray | None = None  # eq 7 P
     prior: np.ndarray | None = None  # eq 8 bel(q)
     belief_bayes: np.ndarray | None = None  # eq 8 bel before the OIM
@@ -100,8 +101,8 @@ class FrameDiagnostics:
     def predictions(self, threshold: float = 0.5) -> dict[str, np.ndarray]:
         """Boolean "dynamic" prediction of each module that ran: semantic (P_S > 0.5, i.e. inside a mask),
         geometric (err > alpha or the pose test), pose (the pose test alone), edge (flagged by
-        ``fusion.edge_band``, with the flow), fusion (eq 7 P > 0.5), bayes (eq 8
-        belief > 0.5 before the OIM), oim (flipped by the OIM), final (the hook's belief > 0.5)."""
+        ``fusion.edge_band``, with the flow), silhouette (``OursConfig.silhouette_px``), fusion (eq 7 P > 0.5), bayes
+        (eq 8 belief > 0.5 before the OIM), oim (flipped by the OIM), final (the hook's belief > 0.5)."""
         out: dict[str, np.ndarray] = {}
         if self.p_s is not None:
             out["semantic"] = self.p_s > threshold
@@ -111,6 +112,8 @@ class FrameDiagnostics:
             out["pose"] = self.pose_dynamic.copy()
         if self.edge is not None:
             out["edge"] = self.edge.copy()
+        if self.silhouette is not None:
+            out["silhouette"] = self.silhouette.copy()
         if self.fused is not None:
             out["fusion"] = self.fused > threshold
         if self.belief_bayes is not None:
@@ -186,6 +189,7 @@ class FrameState:
     geo: GeometricResult | None = None
     matched: MatchedPoints | None = None
     p_nb: np.ndarray | None = None
+    silhouette: np.ndarray | float = 0.0  # the silhouette band's width at each keypoint (px; ours)
 
 
 class D2SlamFilter:
@@ -219,9 +223,10 @@ class D2SlamFilter:
             scale = dz.octave_factor(inp.octave, n, inp.scale_factor, cfg.ours.alpha_at_scale)  # eq 5 at each scale
         with timer("mask_edges_depth"):
             f = self._masks(inp, px, masks, maps)
-        with timer("semantic"):  # eq 1-2; with the flow, exact at least as far as the edge band
-            f.sem = semantic_module(f.masks, px, maps.beta, max(f.margin, cfg.flow.flow_edge_band if self.use_flow
-                                                                else 0.0), cfg)
+        f.silhouette = cfg.ours.silhouette_px * dz.octave_factor(inp.octave, n, inp.scale_factor)
+        with timer("semantic"):  # eq 1-2; exact at least as far as the edge bands (the flow's, the silhouette's)
+            band = max(cfg.flow.flow_edge_band if self.use_flow else 0.0, float(np.max(f.silhouette, initial=0.0)))
+            f.sem = semantic_module(f.masks, px, maps.beta, max(f.margin, band), cfg)
         prev = Previous.of(inp)
         if self.use_flow and inp.gray is not None and inp.prev_gray is not None and n:
             with timer("flow"):
@@ -229,7 +234,7 @@ class D2SlamFilter:
         with timer("geometric"):  # eq 4-6 and the pose test
             f.geo = self._geometric(inp, kps, z, maps.alpha, scale, prev)
         with timer("fusion"):  # eq 7
-            p, edge = self._fusion(f)
+            p, edge, silhouette = self._fusion(f)
         with timer("bayes"):  # eq 8
             prior = prior_belief(n, inp.matches, inp.prev_belief, inp.mappoint_belief, cfg) if on.bayes else None
             bel = bayes_update(prior, p, cfg) if on.bayes else p.copy()
@@ -237,7 +242,7 @@ class D2SlamFilter:
             zone, oim = self._oim(f, bel)
             belief = np.where(oim, np.maximum(bel, cfg.ours.oim_belief), bel) if on.oim else bel
         self.last = FrameDiagnostics(inp.frame_index, self.mode, z, belief, **_semantic_fields(f.sem),
-                                     **_geometric_fields(f.geo), edge=edge, fused=p, prior=prior, belief_bayes=bel,
+                                     **_geometric_fields(f.geo), edge=edge, silhouette=silhouette, fused=p, prior=prior, belief_bayes=bel,
                                      zone=zone, oim=oim, mask_depth=f.z_n, timings_ms=_ms(timer))
         return belief
 
@@ -288,10 +293,10 @@ class D2SlamFilter:
         return geometric_module(kps, prev.kps, prev.matches, prev.belief, alpha * scale, cfg, seed=inp.seed,
                                 scale=scale, fit=prev.fit, pose=pose, executor=self._pnp)
 
-    def _fusion(self, f: FrameState) -> tuple[np.ndarray, np.ndarray | None]:
-        """Eq 7: (P, the edge band's flags (ours, with the flow) or None); sets the frame's matched keypoints and
-        their P_g for unmatched neighbours (ours), shared with the OIM (eq 9's dynamic neighbours are matched
-        keypoints)."""
+    def _fusion(self, f: FrameState) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Eq 7: (P, the edge band's flags (ours, with the flow) or None, the silhouette band's (ours,
+        ``OursConfig.silhouette_px``) or None); sets the frame's matched keypoints and their P_g for unmatched
+        neighbours (ours), shared with the OIM (eq 9's dynamic neighbours are matched keypoints)."""
         cfg, ud, sem, geo = self.cfg, self.switches.depth, f.sem, f.geo
         f.matched = MatchedPoints(f.px, geo.observed, f.masks.kp.finite, f.maps.valid if ud else None)
         if ud and cfg.ours.neighbour_p_g:  # an unmatched keypoint's matched neighbours (not inside masks: P_S > 0.5)
@@ -300,7 +305,10 @@ class D2SlamFilter:
         edge = None
         if self.use_flow:  # unobserved keypoints just outside a mask (fusion.edge_band)
             p, edge = edge_band(p, sem.d_max, geo.observed, cfg.flow.flow_edge_band, cfg.flow.flow_edge_p)
-        return p, edge
+        silhouette = None
+        if cfg.ours.silhouette_px > 0:  # keypoints whose corner is a person's outline, matched or not
+            p, silhouette = edge_band(p, sem.d_max, None, f.silhouette, cfg.ours.silhouette_p)
+        return p, edge, silhouette
 
     def _oim(self, f: FrameState, bel: np.ndarray):
         """Eq 9-10: (in an interaction zone, turned dynamic), both None without the OIM. Eq 10's centroid test

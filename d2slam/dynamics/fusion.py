@@ -21,6 +21,10 @@ has enough of them.
 Ours (``FlowConfig.flow_edge_band``, with the flow only; measured: docs/deviations.md): a keypoint nothing
 observed, just outside a mask (eq 1's signed distance in (-band, 0)), takes max(P, ``flow_edge_p``) (``edge_band``);
 eq 7 leaves it at P_S < 0.5, static.
+
+Ours (``OursConfig.silhouette_px``, off by default; measured: docs/deviations.md): a keypoint outside every mask
+whose corner test at its detection scale reaches one (d in (-silhouette_px x s^octave, 0)) takes
+max(P, ``silhouette_p``), matched or not (``edge_band``): its corner is the person's outline.
 """
 
 from __future__ import annotations
@@ -66,17 +70,19 @@ def check_edge_band(band: float, p_edge: float) -> None:
         raise D2SlamError(f"flow_edge_p must be a probability in [0, 1], got {p_edge!r}")
 
 
-def edge_band(p: np.ndarray, d_max: np.ndarray, observed: np.ndarray, band: float, p_edge: float) -> tuple[
+def edge_band(p: np.ndarray, d_max: np.ndarray, observed: np.ndarray | None, band, p_edge: float) -> tuple[
         np.ndarray, np.ndarray]:
-    """eq 7, ours (``FlowConfig.flow_edge_band``): ``(P', edge)``, where ``edge`` marks the keypoints that are not
-    ``observed`` and lie outside every mask within ``band`` px of one (``d_max``, eq 1's largest signed distance, in
-    (-band, 0)), and ``P' = max(P, p_edge)`` there, P elsewhere. ``band <= 0`` flags nothing (the interval is empty).
-    ``d_max`` is -inf for a keypoint without masks or with non-finite coordinates, NaN compares False: neither is
-    flagged."""
+    """eq 7, ours (``FlowConfig.flow_edge_band``, ``OursConfig.silhouette_px``): ``(P', edge)``, where ``edge`` marks
+    the keypoints that are not ``observed`` (None: every keypoint) and lie outside every mask within ``band`` px of one
+    (``d_max``, eq 1's largest signed distance, in (-band, 0); ``band`` one width or one per keypoint), and
+    ``P' = max(P, p_edge)`` there, P elsewhere. ``band <= 0`` flags nothing (the interval is empty). ``d_max`` is
+    -inf for a keypoint without masks or with non-finite coordinates, NaN compares False: neither is flagged."""
     p = np.asarray(p, dtype=np.float64)
     d_max = np.asarray(d_max, dtype=np.float64)
     with np.errstate(invalid="ignore"):
-        edge = ~np.asarray(observed, dtype=bool) & (d_max < 0) & (d_max > -float(band))
+        edge = (d_max < 0) & (d_max > -np.asarray(band, dtype=np.float64))
+    if observed is not None:
+        edge &= ~np.asarray(observed, dtype=bool)
     return np.where(edge, np.maximum(p, p_edge), p), edge
 
 
