@@ -43,8 +43,8 @@ class OursConfig(Checked):
     # has a radius of 3 px at its level) sits on a person's outline: its corner is made by the outline and moves with
     # it, and its descriptor and depth patch see the person, while its centre, the pixel eq 1 reads, is background.
     # It gets P = max(P, silhouette_p) whether it was matched or not (fusion.edge_band): a slowly moving outline
-    # passes eq 5 as static. With the keypoint truth as the filter (oracle) such keypoints cost 1.23x the occluded
-    # twin's ATE (median over development runs), 1.05x without them. Measured: docs/deviations.md.
+    # passes eq 5 as static. Off: it helped on the development seeds its width was chosen on and not on others (the
+    # oracle loses to them, d2slam's wider masks and uncertainty zone already take most). Measured: docs/deviations.md.
     silhouette_px: float = within(0.0, 0.0, 100.0)
     silhouette_p: float = within(0.9, 0.0, 1.0)
     # eq 9 (ours): z_n = median of the valid depths of mask n sampled on a grid of this stride (1 = every pixel),
