@@ -189,7 +189,7 @@ class FrameState:
     geo: GeometricResult | None = None
     matched: MatchedPoints | None = None
     p_nb: np.ndarray | None = None
-    silhouette: np.ndarray | float = 0.0  # the silhouette band's width at each keypoint (px; ours)
+    silhouette: np.ndarray | float = 0.0  # the silhouette band's width at each keypoint (px; ours; 0: off)
 
 
 class D2SlamFilter:
@@ -223,7 +223,8 @@ class D2SlamFilter:
             scale = dz.octave_factor(inp.octave, n, inp.scale_factor, cfg.ours.alpha_at_scale)  # eq 5 at each scale
         with timer("mask_edges_depth"):
             f = self._masks(inp, px, masks, maps)
-        f.silhouette = cfg.ours.silhouette_px * dz.octave_factor(inp.octave, n, inp.scale_factor)
+        if cfg.ours.silhouette_px > 0:  # the silhouette band's width at each keypoint's scale (ours)
+            f.silhouette = cfg.ours.silhouette_px * dz.octave_factor(inp.octave, n, inp.scale_factor)
         with timer("semantic"):  # eq 1-2; exact at least as far as the edge bands (the flow's, the silhouette's)
             band = max(cfg.flow.flow_edge_band if self.use_flow else 0.0, float(np.max(f.silhouette, initial=0.0)))
             f.sem = semantic_module(f.masks, px, maps.beta, max(f.margin, band), cfg)
@@ -242,8 +243,8 @@ class D2SlamFilter:
             zone, oim = self._oim(f, bel)
             belief = np.where(oim, np.maximum(bel, cfg.ours.oim_belief), bel) if on.oim else bel
         self.last = FrameDiagnostics(inp.frame_index, self.mode, z, belief, **_semantic_fields(f.sem),
-                                     **_geometric_fields(f.geo), edge=edge, silhouette=silhouette, fused=p, prior=prior, belief_bayes=bel,
-                                     zone=zone, oim=oim, mask_depth=f.z_n, timings_ms=_ms(timer))
+                                     **_geometric_fields(f.geo), edge=edge, silhouette=silhouette, fused=p, prior=prior,
+                                     belief_bayes=bel, zone=zone, oim=oim, mask_depth=f.z_n, timings_ms=_ms(timer))
         return belief
 
     def _masks(self, inp: FilterInput, px: np.ndarray, masks, maps) -> FrameState:

@@ -38,13 +38,14 @@ class OursConfig(Checked):
     # eq 8 (ours): the likelihood P is clipped to [c, 1 - c] so that one observation of exactly 0 or 1 does not erase
     # the prior (bel would be exactly P whatever bel(q) was).
     likelihood_clip: float = within(1e-3, 0.0, 0.5, hi_open=True)
-    # eq 7 (ours, 0 = off): a keypoint outside every mask whose corner test, at the keypoint's detection scale, reaches a
-    # mask (eq 1's signed distance d in (-silhouette_px x s^octave, 0), s the engine's pyramid scale; FAST's circle
-    # has a radius of 3 px at its level) sits on a person's outline: its corner is made by the outline and moves with
-    # it, and its descriptor and depth patch see the person, while its centre, the pixel eq 1 reads, is background.
-    # It gets P = max(P, silhouette_p) whether it was matched or not (fusion.edge_band): a slowly moving outline
-    # passes eq 5 as static. Off: it helped on the development seeds its width was chosen on and not on others (the
-    # oracle loses to them, d2slam's wider masks and uncertainty zone already take most). Measured: docs/deviations.md.
+    # eq 7 (ours, 0 = off): a keypoint outside every mask whose corner test, at the keypoint's detection scale,
+    # reaches a mask (eq 1's signed distance d in (-silhouette_px x s^octave, 0), s the engine's pyramid scale; FAST's
+    # circle has a radius of 3 px at its level) sits on a person's outline: its corner is made by the outline and
+    # moves with it, and its descriptor and depth patch see the person, while its centre, the pixel eq 1 reads, is
+    # background. It gets P = max(P, silhouette_p) whether it was matched or not (fusion.edge_band): a slowly moving
+    # outline passes eq 5 as static. Off: it helped on the development seeds its width was chosen on and not on others
+    # (the oracle loses to them, d2slam's wider masks and uncertainty zone already take most). Measured:
+    # docs/deviations.md.
     silhouette_px: float = within(0.0, 0.0, 100.0)
     silhouette_p: float = within(0.9, 0.0, 1.0)
     # eq 9 (ours): z_n = median of the valid depths of mask n sampled on a grid of this stride (1 = every pixel),

@@ -70,8 +70,8 @@ def check_edge_band(band: float, p_edge: float) -> None:
         raise D2SlamError(f"flow_edge_p must be a probability in [0, 1], got {p_edge!r}")
 
 
-def edge_band(p: np.ndarray, d_max: np.ndarray, observed: np.ndarray | None, band, p_edge: float) -> tuple[
-        np.ndarray, np.ndarray]:
+def edge_band(p: np.ndarray, d_max: np.ndarray, observed: np.ndarray | None, band: float | np.ndarray,
+              p_edge: float) -> tuple[np.ndarray, np.ndarray]:
     """eq 7, ours (``FlowConfig.flow_edge_band``, ``OursConfig.silhouette_px``): ``(P', edge)``, where ``edge`` marks
     the keypoints that are not ``observed`` (None: every keypoint) and lie outside every mask within ``band`` px of one
     (``d_max``, eq 1's largest signed distance, in (-band, 0); ``band`` one width or one per keypoint), and
