@@ -159,10 +159,23 @@ def test_a_file_mirror_works_too(tmp_path, monkeypatch, head_files, shared_head)
     assert same_tree(A.fetch_real_head(echo=quiet), shared_head)
 
 
+@pytest.fixture(scope="module")
+def found_assets(shared_head):
+    """Where the models, the five TUM frames and the head are on this machine (the shared folder or the cache), read
+    before the tests hide them."""
+    return {**{rel: A.asset_path(rel) for rel in A.ALL_ASSETS}, A.real_head_rel(): shared_head}
+
+
 @pytest.fixture
-def whole(tmp_path, monkeypatch, mirror):
-    """``--full-real`` on a machine with the shared folder (the head and the models found there): the mirror's
-    head stands for the whole sequence."""
+def whole(tmp_path, monkeypatch, mirror, found_assets):
+    """``--full-real`` on a machine with the shared folder (the head and the models found there, linked into one
+    whatever held them: ../shared or, in a clone without it, the cache) and an empty cache: the mirror's head stands
+    for the whole sequence."""
+    shared = tmp_path / "shared"
+    for rel, path in found_assets.items():
+        (shared / rel).parent.mkdir(parents=True, exist_ok=True)
+        (shared / rel).symlink_to(path)
+    monkeypatch.setenv("D2SLAM_SHARED", str(shared))
     monkeypatch.setenv("D2SLAM_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv(A.MIRROR_ENV, mirror.url)
     monkeypatch.setattr(A, "real_pins", lambda: head_as_whole(PINS))
