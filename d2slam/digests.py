@@ -8,17 +8,24 @@ from __future__ import annotations
 import ast
 import hashlib
 import json
+import threading
 from functools import lru_cache
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent
+
+# CPython 3.11's AST constructor keeps its recursion count per interpreter, not per thread: two threads parsing at
+# once, with a thread switch inside the construction (a study's runs keyed in one dask worker's two threads), fail
+# with "SystemError: AST constructor recursion depth mismatch". Parsing is serialised.
+_PARSE = threading.Lock()
 
 
 def code_text(source: str) -> str:
     """What a Python file *does*, without its comments and docstrings: ``ast.dump`` of the parsed module with every
     module, class and function docstring removed (``ast.dump`` leaves out line numbers, so layout does not count
     either). Used for the run keys: a documentation fix keeps the committed study resumable."""
-    tree = ast.parse(source)
+    with _PARSE:
+        tree = ast.parse(source)
     for node in ast.walk(tree):
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
             first = node.body[0]

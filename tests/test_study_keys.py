@@ -6,6 +6,9 @@ method is said not to read leaves its trajectory byte-identical when it changes.
 from __future__ import annotations
 
 import dataclasses
+import gc
+import sys
+import threading
 
 import numpy as np
 import pytest
@@ -146,3 +149,36 @@ def test_resume_reruns_only_what_changed_and_says_why(tmp_path, monkeypatch, cap
     assert again.manifest["grid"]["rerun_reasons"] == {"code": 3}
     cols = ["method", "ate_rmse_m", "frames_tracked", "kp_f1"]
     assert again.runs[cols].equals(res.runs[cols])  # the same code of the methods: the same numbers
+
+
+def test_code_text_parses_safely_from_threads():
+    """Run keys are computed in a dask worker's threads at once. Parsing from several threads, with a thread switch
+    forced inside the AST's construction (a garbage collector callback that runs Python code, a tiny switch interval),
+    gives every thread the same text; unserialised, CPython 3.11 fails with "AST constructor recursion depth
+    mismatch"."""
+    sources = [p.read_text(encoding="utf-8") for p in sorted((digests.PACKAGE / "slam").glob("*.py"))]
+    want = [digests.code_text(s) for s in sources]
+    got, errors = [], []
+
+    def parse():
+        try:
+            got.append([digests.code_text(s) for s in sources])
+        except Exception as e:  # noqa: BLE001 - the test reports what a thread raised
+            errors.append(repr(e))
+
+    def callback(*_):
+        sum(range(50))
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    gc.callbacks.append(callback)
+    try:
+        threads = [threading.Thread(target=parse) for _ in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    finally:
+        gc.callbacks.remove(callback)
+        sys.setswitchinterval(interval)
+    assert errors == [] and got == [want] * 4
